@@ -1,0 +1,90 @@
+"""Atomic writers and plain readers for YAML and Parquet.
+
+A stage never leaves a half-written file: every writer goes to a temporary file in the
+target folder and renames it into place, so a failure leaves the old state untouched.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from cvsflow.errors import InputError
+
+
+@contextlib.contextmanager
+def atomic_output(path, suffix=None):
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(
+        prefix=f".{path.name}.", suffix=suffix or path.suffix or ".tmp", dir=path.parent
+    )
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def _to_builtin(obj):
+    """Numpy scalars and arrays to plain Python, so YAML stays readable and portable."""
+    if isinstance(obj, dict):
+        return {str(k): _to_builtin(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_to_builtin(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _to_builtin(obj.tolist())
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating):
+        return float(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def write_yaml(data, path):
+    """Write a mapping as YAML, atomically. Numpy values become plain lists and floats."""
+    with atomic_output(path) as tmp, open(tmp, "w") as fh:
+        yaml.safe_dump(_to_builtin(data), fh, sort_keys=False, default_flow_style=None)
+
+
+def read_yaml(path):
+    """Read a YAML mapping; a missing or malformed file is an InputError naming it."""
+    path = Path(path)
+    try:
+        with open(path) as fh:
+            data = yaml.safe_load(fh)
+    except FileNotFoundError as exc:
+        raise InputError(f"{path}: file not found") from exc
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML ({exc})") from exc
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: expected a YAML mapping, got {type(data).__name__}")
+    return data
+
+
+def write_parquet(df: pd.DataFrame, path):
+    """Write a DataFrame as Parquet (no index), atomically."""
+    with atomic_output(path) as tmp:
+        df.to_parquet(tmp, index=False)
+
+
+def read_parquet(path, columns=None) -> pd.DataFrame:
+    """Read a Parquet table; a missing file is an InputError naming it."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: file not found")
+    return pd.read_parquet(path, columns=columns)
