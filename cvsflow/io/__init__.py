@@ -4,8 +4,9 @@ from cvsflow.io.files import (
     atomic_output,
     read_parquet,
     read_yaml,
+    save_figure,
     write_parquet,
     write_yaml,
 )
 
-__all__ = ["atomic_output", "read_parquet", "read_yaml", "write_parquet", "write_yaml"]
+__all__ = ["atomic_output", "read_parquet", "read_yaml", "save_figure", "write_parquet", "write_yaml"]

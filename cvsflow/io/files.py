@@ -88,3 +88,12 @@ def read_parquet(path, columns=None) -> pd.DataFrame:
     if not path.exists():
         raise InputError(f"{path}: file not found")
     return pd.read_parquet(path, columns=columns)
+
+
+def save_figure(fig, path, dpi: int = 120) -> None:
+    """Save a matplotlib Figure atomically and release its memory."""
+    import matplotlib.pyplot as plt
+
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, bbox_inches="tight", format=Path(path).suffix.lstrip(".") or "png")
+    plt.close(fig)

@@ -1,0 +1,31 @@
+# Two commands set everything up on a fresh machine:
+#   make demo   installs cvsflow in .venv and runs the pipeline on the rendered demo session
+#   make test   installs cvsflow with its test tools in .venv and runs the test suite
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+CORES ?= 2
+
+.PHONY: install demo report test test-all clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+install: $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+
+demo: install
+	$(BIN)/snakemake --cores $(CORES)
+
+report: demo
+	$(BIN)/snakemake --cores $(CORES) --report report.html
+
+test: install
+	$(BIN)/python -m pytest -n $(CORES) -m "not slow"
+
+test-all: install
+	$(BIN)/python -m pytest -n $(CORES)
+
+clean:
+	rm -rf results logs benchmarks .snakemake report.html

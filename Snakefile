@@ -1,0 +1,26 @@
+# cvsflow: the accuracy of a webcam + chessboard pose system, measured against Vicon.
+from snakemake.utils import min_version, validate
+
+min_version("9.0")
+
+
+configfile: "config/config.yaml"
+
+
+validate(config, "workflow/schemas/config.schema.yaml")
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/synth.smk"
+include: "workflow/rules/camera.smk"
+include: "workflow/rules/vicon.smk"
+include: "workflow/rules/align.smk"
+
+
+report: "workflow/report/workflow.rst"
+
+
+rule all:
+    input:
+        all_targets(),
+    default_target: True

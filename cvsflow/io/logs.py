@@ -1,0 +1,46 @@
+"""Logging set-up for workflow scripts: one log file per job, plus stderr."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import sys
+import time
+from pathlib import Path
+
+from cvsflow.errors import CvsflowError
+
+
+@contextlib.contextmanager
+def stage_logging(log_path, stage: str):
+    """Send cvsflow's log records to ``log_path`` and stderr for one stage; log a failure's reason.
+
+    A ``CvsflowError`` is logged as one line (its message already says where and what) and
+    re-raised so that Snakemake marks the job failed and removes its outputs.
+    """
+    log_path = Path(log_path)
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    fmt = logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s")
+    handlers = [logging.FileHandler(log_path, mode="w"), logging.StreamHandler(sys.stderr)]
+    root = logging.getLogger()
+    for h in handlers:
+        h.setFormatter(fmt)
+        root.addHandler(h)
+    root.setLevel(logging.INFO)
+    log = logging.getLogger(f"cvsflow.stage.{stage}")
+    t0 = time.perf_counter()
+    log.info("stage %s started", stage)
+    try:
+        yield log
+    except CvsflowError as exc:
+        log.error("stage %s failed: %s", stage, exc)
+        raise
+    except Exception:
+        log.exception("stage %s failed with an unexpected error", stage)
+        raise
+    else:
+        log.info("stage %s done in %.2f s", stage, time.perf_counter() - t0)
+    finally:
+        for h in handlers:
+            root.removeHandler(h)
+            h.close()

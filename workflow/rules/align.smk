@@ -1,0 +1,46 @@
+rule sync:
+    input:
+        poses="results/{session}/poses_raw.parquet",
+        bodies="results/{session}/bodies.parquet",
+    output:
+        sync="results/{session}/sync.yaml",
+        fig=report(
+            "results/{session}/figures/sync.png",
+            caption="../report/sync.rst",
+            category="Synchronisation",
+            labels={"session": "{session}", "figure": "sync"},
+        ),
+    params:
+        sync=config["sync"],
+    log:
+        "logs/{session}/sync.log",
+    benchmark:
+        "benchmarks/{session}/sync.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    script:
+        "../scripts/sync.py"
+
+
+rule pairs:
+    input:
+        poses="results/{session}/poses_raw.parquet",
+        bodies="results/{session}/bodies.parquet",
+        bodies_30hz="results/{session}/bodies_30hz.parquet",
+        sync="results/{session}/sync.yaml",
+    output:
+        "results/{session}/pairs.parquet",
+    params:
+        resample=config["vicon"]["resample"],
+    log:
+        "logs/{session}/pairs.log",
+    benchmark:
+        "benchmarks/{session}/pairs.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    script:
+        "../scripts/pairs.py"

@@ -1,0 +1,78 @@
+rule calibrate:
+    input:
+        calib_dir,
+    output:
+        camera="results/{session}/camera.yaml",
+        corners="results/{session}/calib_corners.parquet",
+        fig_errors=report(
+            "results/{session}/figures/calibration_errors.png",
+            caption="../report/calibration_errors.rst",
+            category="Camera",
+            labels={"session": "{session}", "figure": "calibration errors"},
+        ),
+        fig_coverage=report(
+            "results/{session}/figures/calibration_coverage.png",
+            caption="../report/calibration_coverage.rst",
+            category="Camera",
+            labels={"session": "{session}", "figure": "calibration coverage"},
+        ),
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        calibrate=config["calibrate"],
+    log:
+        "logs/{session}/calibrate.log",
+    benchmark:
+        "benchmarks/{session}/calibrate.tsv"
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    script:
+        "../scripts/calibrate.py"
+
+
+rule corners:
+    input:
+        video_path,
+    output:
+        "results/{session}/corners.parquet",
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        corners=config["corners"],
+    log:
+        "logs/{session}/corners.log",
+    benchmark:
+        "benchmarks/{session}/corners.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=60,
+    script:
+        "../scripts/corners.py"
+
+
+rule poses:
+    input:
+        corners="results/{session}/corners.parquet",
+        camera="results/{session}/camera.yaml",
+    output:
+        poses="results/{session}/poses_raw.parquet",
+        fig=report(
+            "results/{session}/figures/poses_raw.png",
+            caption="../report/poses_raw.rst",
+            category="Camera",
+            labels={"session": "{session}", "figure": "raw poses"},
+        ),
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        pnp=config["pnp"],
+    log:
+        "logs/{session}/poses.log",
+    benchmark:
+        "benchmarks/{session}/poses.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=30,
+    script:
+        "../scripts/poses.py"

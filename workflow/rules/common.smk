@@ -1,0 +1,77 @@
+# Paths, targets and input functions only: nothing numeric lives here.
+import os
+
+
+wildcard_constraints:
+    session="[A-Za-z0-9_-]+",
+
+
+SESSIONS = config["sessions"]
+
+
+def session_cfg(session):
+    return SESSIONS[session]
+
+
+def is_synth(session):
+    return "synth" in SESSIONS[session]
+
+
+def _session_path(session, key, synth_name):
+    """The user's path, or where the synth rule renders it for a rendered session."""
+    s = SESSIONS[session]
+    if "synth" in s:
+        return f"data/{session}/{synth_name}"
+    if key not in s:
+        raise ValueError(
+            f"config: sessions.{session}.{key} is missing (a path is needed unless the "
+            f"session has a synth block)"
+        )
+    return s[key]
+
+
+def calib_dir(wildcards):
+    return _session_path(wildcards.session, "calib_dir", "calib")
+
+
+def video_path(wildcards):
+    return _session_path(wildcards.session, "video", "video.mp4")
+
+
+def vicon_path(wildcards):
+    return _session_path(wildcards.session, "vicon", "vicon.csv")
+
+
+def has(session, key):
+    return "synth" in SESSIONS[session] or key in SESSIONS[session]
+
+
+def session_targets(session):
+    out = []
+    if has(session, "calib_dir"):
+        out += [
+            f"results/{session}/camera.yaml",
+            f"results/{session}/figures/calibration_errors.png",
+            f"results/{session}/figures/calibration_coverage.png",
+        ]
+    if has(session, "video") and has(session, "calib_dir"):
+        out += [
+            f"results/{session}/poses_raw.parquet",
+            f"results/{session}/figures/poses_raw.png",
+        ]
+    if has(session, "vicon") and "markers" in SESSIONS[session]:
+        out += [
+            f"results/{session}/bodies_30hz.parquet",
+            f"results/{session}/figures/vicon_markers.png",
+        ]
+    if has(session, "vicon") and has(session, "video") and has(session, "calib_dir"):
+        out += [
+            f"results/{session}/sync.yaml",
+            f"results/{session}/pairs.parquet",
+            f"results/{session}/figures/sync.png",
+        ]
+    return out
+
+
+def all_targets():
+    return [t for s in SESSIONS for t in session_targets(s)]
