@@ -1,0 +1,384 @@
+"""Camera intrinsics from chessboard stills, and the chessboard geometry shared with ``pose``.
+
+Board convention (docs/contracts.md)
+------------------------------------
+The board has ``squares_x`` by ``squares_y`` squares of side ``square_m``. Its inner corners
+form a grid of ``nx = squares_x - 1`` by ``ny = squares_y - 1`` points; inner corner ``k`` lies
+at board point ``((k % nx) * square_m, (k // nx) * square_m, 0)`` in frame B (origin at corner
+0, z into the board). Square ``(i, j)`` (column ``i`` along board x, row ``j`` along board y,
+square ``(0, 0)`` diagonally outside corner 0) is black when ``i + j`` is even. OpenCV's
+pattern size is ``(nx, ny)``: rows of ``nx`` corners.
+
+Seed: "the OpenCV functions findChessboardCorners() and cornerSubPix() are used to detect and
+extract two-dimensional coordinate data of the corners ... fed to the calibrateCamera()
+function to produce the camera matrix".
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+
+import cv2
+import numpy as np
+import pandas as pd
+
+from cvsflow.errors import CalibrationError, ConfigError, InputError
+
+log = logging.getLogger(__name__)
+
+# The termination criteria of OpenCV's calibration tutorial (and of the published reference
+# calibration in shared/data/real/SOURCES.md): 30 iterations or a 0.001 px step.
+SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
+
+# Stills are few and carefully taken, so the detector may take its time: adaptive threshold
+# and normalisation help in uneven light; FAST_CHECK is left out because it only saves time on
+# images without a board, which a calibration set should not have.
+CALIB_FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+
+CALIB_CORNER_COLUMNS = ["image", "corner", "u_px", "v_px", "X_m", "Y_m"]
+
+
+def board_pattern(board: dict) -> tuple[int, int]:
+    """OpenCV pattern size ``(nx, ny)`` (inner corners per row, rows) of a board dict.
+
+    Raises
+    ------
+    ConfigError
+        If ``squares_x``/``squares_y`` are not integers >= 3 or ``square_m`` is not positive.
+    """
+    try:
+        squares_x = int(board["squares_x"])
+        squares_y = int(board["squares_y"])
+        square_m = float(board["square_m"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(
+            f"board {board!r}: expected keys squares_x, squares_y (integers) and square_m "
+            f"(metres) ({exc})"
+        ) from exc
+    if squares_x < 3 or squares_y < 3 or squares_x != board["squares_x"] or squares_y != board[
+        "squares_y"
+    ]:
+        raise ConfigError(
+            f"board: squares_x={board['squares_x']!r}, squares_y={board['squares_y']!r}; "
+            "expected integers >= 3 (at least 2x2 inner corners)"
+        )
+    if not square_m > 0.0:
+        raise ConfigError(f"board: square_m={board['square_m']!r}; expected a positive length in m")
+    return squares_x - 1, squares_y - 1
+
+
+def board_object_points(board: dict) -> np.ndarray:
+    """Inner-corner positions of the board in its own frame B.
+
+    Parameters
+    ----------
+    board : dict
+        ``squares_x``, ``squares_y`` (int, squares along board x and y), ``square_m`` (m).
+
+    Returns
+    -------
+    p_B : ndarray, shape (nx * ny, 3), float64
+        Corner ``k`` at ``((k % nx) * s, (k // nx) * s, 0)``, metres, frame B.
+    """
+    nx, ny = board_pattern(board)
+    s = float(board["square_m"])
+    k = np.arange(nx * ny)
+    return np.stack([(k % nx) * s, (k // nx) * s, np.zeros(nx * ny)], axis=1).astype(np.float64)
+
+
+def ends_distinguishable(board: dict) -> bool:
+    """True when the two ends of the corner grid differ in colour (squares_x + squares_y odd).
+
+    A 180-degree turn of the board maps square (i, j) to (sx-1-i, sy-1-j), which changes the
+    parity of i + j by sx + sy; only when that is odd does every square change colour.
+    """
+    return (int(board["squares_x"]) + int(board["squares_y"])) % 2 == 1
+
+
+def _cell_contrast(gray: np.ndarray, grid_px: np.ndarray) -> float:
+    """Mean grey level of the inner squares expected white minus those expected black.
+
+    ``grid_px`` has shape (ny, nx, 2). Inner square between corners (i, j) and (i+1, j+1) is
+    board square (i+1, j+1), black when i + j is even. Each square is sampled at 9 points of its
+    bilinear interior (25 % to 75 % across), which the detected corners map exactly up to the
+    lens's curvature over one square.
+    """
+    h, w = gray.shape[:2]
+    p00 = grid_px[:-1, :-1]
+    p10 = grid_px[:-1, 1:]
+    p01 = grid_px[1:, :-1]
+    p11 = grid_px[1:, 1:]
+    a = np.array([0.25, 0.5, 0.75])
+    aa, bb = np.meshgrid(a, a, indexing="ij")
+    aa = aa.ravel()[:, None, None, None]
+    bb = bb.ravel()[:, None, None, None]
+    pts = (1 - aa) * (1 - bb) * p00 + aa * (1 - bb) * p10 + (1 - aa) * bb * p01 + aa * bb * p11
+    u = np.clip(np.rint(pts[..., 0]).astype(int), 0, w - 1)
+    v = np.clip(np.rint(pts[..., 1]).astype(int), 0, h - 1)
+    level = gray[v, u].astype(np.float64).mean(axis=0)  # (ny-1, nx-1)
+    jj, ii = np.indices(level.shape)
+    black = (ii + jj) % 2 == 0
+    return float(level[~black].mean() - level[black].mean())
+
+
+def _handedness(grid_px: np.ndarray) -> float:
+    """Sign of the image cross product of the grid's x and y directions (positive: front view).
+
+    With B's z axis into the board, a board seen from its printed side has board x and y
+    mapped to image directions whose cross product (u right, v down) is positive.
+    """
+    d_x = grid_px[:, -1].mean(axis=0) - grid_px[:, 0].mean(axis=0)
+    d_y = grid_px[-1, :].mean(axis=0) - grid_px[0, :].mean(axis=0)
+    return float(d_x[0] * d_y[1] - d_x[1] * d_y[0])
+
+
+def order_corners(
+    corners_px: np.ndarray,
+    gray: np.ndarray,
+    board: dict,
+    previous_px: np.ndarray | None = None,
+    min_contrast: float = 8.0,
+) -> tuple[np.ndarray, str]:
+    """Put detected corners in board order: corner k at board point (k % nx, k // nx).
+
+    ``findChessboardCorners`` returns rows of ``nx`` corners, but may start the grid at either
+    end (a 180-degree ambiguity), and its row order may run either way. Two checks fix both:
+
+    1. Handedness: the printed side faces the camera, so board x cross board y is positive in
+       the image; if not, the row order is reversed.
+    2. Colour: square (0, 0), diagonally outside corner 0, is black. When the two ends of the
+       grid differ in colour (``squares_x + squares_y`` odd, e.g. the demo 6x5 board), a 180-degree
+       turn swaps the colour of *every* square, so the inner squares, which are always in view
+       when the corners are, decide it: expected-black squares must be darker than
+       expected-white ones. This is the same rule as sampling the squares just outside corner 0
+       (black) and outside the last corner (white), but never needs pixels beyond the grid.
+
+    For boards whose two ends look alike (``squares_x + squares_y`` even), or when the colour
+    contrast is below ``min_contrast`` grey levels, the order closest to ``previous_px`` (the
+    ordered corners of the previous found frame) is kept: temporal continuity. Without a
+    previous frame the handedness-corrected OpenCV order is kept and the method says so.
+    Square patterns (nx == ny) also have a 90-degree ambiguity, which is not resolved here.
+
+    Parameters
+    ----------
+    corners_px : ndarray, shape (nx * ny, 2) or (nx * ny, 1, 2)
+        Detected corners as OpenCV returns them, pixels.
+    gray : ndarray, shape (H, W), uint8
+        The image they were found in.
+    board : dict
+        Board geometry (``squares_x``, ``squares_y``, ``square_m``).
+    previous_px : ndarray, shape (nx * ny, 2), optional
+        Ordered corners of the previous frame, pixels.
+    min_contrast : float
+        Smallest white-minus-black grey-level difference trusted for the colour check.
+
+    Returns
+    -------
+    ordered_px : ndarray, shape (nx * ny, 2), float64
+        Corners in board order, pixels.
+    method : str
+        ``"colour"``, ``"continuity"`` or ``"unresolved"``: how the 180-degree ambiguity was
+        decided.
+    """
+    nx, ny = board_pattern(board)
+    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    if _handedness(grid) < 0:
+        grid = grid[::-1]
+    if ends_distinguishable(board):
+        contrast = _cell_contrast(gray, grid)
+        if abs(contrast) >= min_contrast:
+            if contrast < 0:
+                grid = grid[::-1, ::-1]
+            return grid.reshape(-1, 2).copy(), "colour"
+    if previous_px is not None:
+        flat = grid.reshape(-1, 2)
+        prev = np.asarray(previous_px, dtype=np.float64).reshape(-1, 2)
+        d_same = np.sum((flat - prev) ** 2)
+        d_flip = np.sum((flat[::-1] - prev) ** 2)
+        return (flat[::-1] if d_flip < d_same else flat).copy(), "continuity"
+    return grid.reshape(-1, 2).copy(), "unresolved"
+
+
+def find_board(
+    gray: np.ndarray,
+    board: dict,
+    subpix_window_px: int,
+    flags: int = CALIB_FIND_FLAGS,
+) -> np.ndarray | None:
+    """Detect the chessboard and refine its corners (OpenCV order), or None when not found.
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), uint8
+    board : dict
+    subpix_window_px : int
+        Half side of cornerSubPix's search window (OpenCV ``winSize``); the window is
+        ``2 * w + 1`` pixels wide.
+    flags : int
+        ``findChessboardCorners`` flags.
+
+    Returns
+    -------
+    corners_px : ndarray, shape (nx * ny, 2), float32, or None
+    """
+    pattern = board_pattern(board)
+    found, corners = cv2.findChessboardCorners(gray, pattern, None, flags)
+    if not found:
+        return None
+    w = int(subpix_window_px)
+    corners = cv2.cornerSubPix(gray, corners, (w, w), (-1, -1), SUBPIX_CRITERIA)
+    return corners.reshape(-1, 2)
+
+
+def _check_gray(name: str, img) -> np.ndarray:
+    """An image as a 2-D uint8 array, or an InputError naming it."""
+    img = np.asarray(img)
+    if img.ndim == 3 and img.shape[2] == 3:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    if img.ndim != 2 or img.dtype != np.uint8 or img.size == 0:
+        raise InputError(
+            f"{name}: expected an 8-bit grayscale image, got dtype {img.dtype}, shape {img.shape}"
+        )
+    return img
+
+
+def calibrate_camera(
+    images: Sequence[tuple[str, np.ndarray]],
+    board: dict,
+    subpix_window_px: int = 11,
+    min_images: int = 5,
+) -> tuple[dict, pd.DataFrame]:
+    """Intrinsics and distortion of a camera from chessboard stills.
+
+    Parameters
+    ----------
+    images : sequence of (str, ndarray)
+        ``(name, gray)`` pairs: the still's file name (used in messages and tables) and its
+        8-bit grayscale image, shape (H, W). All stills must have the same size.
+    board : dict
+        ``squares_x``, ``squares_y``, ``square_m`` (m).
+    subpix_window_px : int
+        cornerSubPix half window (OpenCV ``winSize``), pixels.
+    min_images : int
+        Fewest stills with a detected board needed to calibrate.
+
+    Returns
+    -------
+    camera : dict
+        camera.yaml content: ``K`` (3x3 list, px), ``dist`` ([k1, k2, p1, p2, k3]),
+        ``width``, ``height`` (px), ``rms_px`` (overall reprojection RMS), ``images`` (list of
+        ``{name, used, reason, rms_px}``; ``rms_px`` is None for unused stills), ``n_used``,
+        ``board``.
+    calib_corners : DataFrame
+        ``image, corner, u_px, v_px, X_m, Y_m``: refined corners in board order (see
+        ``order_corners``) with their board-frame positions (m, Z = 0).
+
+    Raises
+    ------
+    InputError
+        A still that is not an 8-bit grayscale image, or whose size differs from the first.
+    CalibrationError
+        Fewer than ``min_images`` stills with a board, or calibrateCamera failing.
+
+    Notes
+    -----
+    OpenCV ``findChessboardCorners``, ``cornerSubPix`` (criteria EPS + MAX_ITER, 30, 0.001)
+    and ``calibrateCamera`` with default flags (k1, k2, p1, p2, k3), as the seed describes.
+    The overall RMS is ``sqrt(sum of squared point errors / number of points)``, as OpenCV
+    reports it; per-image RMS values use the same definition over that still's corners.
+    """
+    if len(images) == 0:
+        raise CalibrationError("calibration: no stills given; expected at least one image")
+    p_B = board_object_points(board).astype(np.float32)
+    size_wh = None
+    first_name = None
+    records = []
+    obj_points, img_points, used_names = [], [], []
+    for name, img in images:
+        gray = _check_gray(name, img)
+        h, w = gray.shape
+        if size_wh is None:
+            size_wh, first_name = (w, h), name
+        elif (w, h) != size_wh:
+            raise InputError(
+                f"{name}: image is {w}x{h} px; expected {size_wh[0]}x{size_wh[1]} px like "
+                f"{first_name} (all calibration stills must have the same size)"
+            )
+        corners = find_board(gray, board, subpix_window_px)
+        if corners is None:
+            log.warning("%s: no %dx%d chessboard found; skipped", name, *board_pattern(board))
+            records.append(
+                {"name": name, "used": False, "reason": "no chessboard found", "rms_px": None}
+            )
+            continue
+        ordered, _ = order_corners(corners, gray, board)
+        obj_points.append(p_B)
+        img_points.append(ordered.astype(np.float32).reshape(-1, 1, 2))
+        used_names.append(name)
+        records.append({"name": name, "used": True, "reason": "ok", "rms_px": None})
+
+    if len(used_names) < min_images:
+        skipped = [r["name"] for r in records if not r["used"]]
+        raise CalibrationError(
+            f"calibration: {len(used_names)} of {len(images)} stills have a usable "
+            f"{board_pattern(board)[0]}x{board_pattern(board)[1]} chessboard; at least "
+            f"{min_images} needed (used: {used_names}; no board found in: {skipped})"
+        )
+
+    try:
+        rms_px, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+            obj_points, img_points, size_wh, None, None
+        )
+    except cv2.error as exc:
+        raise CalibrationError(
+            f"calibration: calibrateCamera failed on {len(used_names)} stills ({exc})"
+        ) from exc
+
+    rms_by_name = {}
+    rows = []
+    for name, p_img, rvec, tvec in zip(used_names, img_points, rvecs, tvecs, strict=True):
+        proj, _ = cv2.projectPoints(p_B, rvec, tvec, K, dist)
+        err = proj.reshape(-1, 2) - p_img.reshape(-1, 2)
+        rms_by_name[name] = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
+        uv = p_img.reshape(-1, 2).astype(np.float64)
+        rows.append(
+            pd.DataFrame(
+                {
+                    "image": name,
+                    "corner": np.arange(len(p_B), dtype=np.int64),
+                    "u_px": uv[:, 0],
+                    "v_px": uv[:, 1],
+                    "X_m": p_B[:, 0].astype(np.float64),
+                    "Y_m": p_B[:, 1].astype(np.float64),
+                }
+            )
+        )
+    for rec in records:
+        if rec["used"]:
+            rec["rms_px"] = rms_by_name[rec["name"]]
+
+    camera = {
+        "K": np.asarray(K, dtype=float).tolist(),
+        "dist": np.asarray(dist, dtype=float).ravel()[:5].tolist(),
+        "width": int(size_wh[0]),
+        "height": int(size_wh[1]),
+        "rms_px": float(rms_px),
+        "images": records,
+        "n_used": len(used_names),
+        "board": {
+            "squares_x": int(board["squares_x"]),
+            "squares_y": int(board["squares_y"]),
+            "square_m": float(board["square_m"]),
+        },
+    }
+    log.info(
+        "calibrated on %d of %d stills: rms %.3f px, fx %.2f, fy %.2f px",
+        len(used_names),
+        len(images),
+        rms_px,
+        K[0, 0],
+        K[1, 1],
+    )
+    calib_corners = pd.concat(rows, ignore_index=True)[CALIB_CORNER_COLUMNS]
+    return camera, calib_corners
