@@ -9,9 +9,13 @@ where the marker was not seen. ``df.attrs["rate_hz"]`` carries the rate and
 
 from __future__ import annotations
 
+import io
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 
+from cvsflow.errors import InputError
 from cvsflow.io.files import atomic_output
 
 AXES = ("x", "y", "z")
@@ -55,3 +59,326 @@ def write_nexus_csv(df: pd.DataFrame, path, rate_hz: float, decimals: int = 4) -
         lines.append(",".join(cells))
     with atomic_output(path) as tmp, open(tmp, "w", newline="") as fh:
         fh.write("\r\n".join(lines) + "\r\n")
+
+
+# --------------------------------------------------------------------------- readers
+
+_UNIT_TO_M = {"mm": 1e-3, "cm": 1e-2, "m": 1.0}
+
+
+def _split(line: str) -> list[str]:
+    return [c.strip() for c in line.split(",")]
+
+
+def _strip_trailing(cells: list[str]) -> list[str]:
+    end = len(cells)
+    while end and cells[end - 1] == "":
+        end -= 1
+    return cells[:end]
+
+
+def _marker_table(frame0, xyz_m, names, rate_hz) -> pd.DataFrame:
+    """Assemble the wide marker table from 0-based frames and (n_frames, n_markers, 3) metres."""
+    frame0 = np.asarray(frame0, dtype=np.int64)
+    data = {"frame": frame0, "t_s": frame0 / float(rate_hz)}
+    for k, name in enumerate(names):
+        for a, axis in enumerate(AXES):
+            data[f"{name}_{axis}_m"] = xyz_m[:, k, a]
+    df = pd.DataFrame(data)
+    df.attrs["rate_hz"] = float(rate_hz)
+    df.attrs["markers"] = list(names)
+    return df
+
+
+def read_nexus_csv(path) -> pd.DataFrame:
+    """Read a Vicon Nexus / Tracker 'Trajectories' CSV export into a marker table.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file: a ``Trajectories`` line, the rate (Hz) line, the ``Subject:Marker`` row,
+        the ``Frame,Sub Frame,X,Y,Z,...`` row, the units row (mm, cm or m), then one row per
+        frame with empty cells where a marker was not seen. CRLF or LF line ends; rows may be
+        padded with empty cells. Other blocks (``Devices``, ``Model Outputs``) are skipped.
+
+    Returns
+    -------
+    markers : DataFrame
+        Wide marker table (module docstring): ``frame`` 0-based (Nexus ``Frame`` - 1),
+        ``t_s`` = frame / rate in s, ``{name}_{x,y,z}_m`` in metres in W, NaN in gaps.
+
+    Raises
+    ------
+    InputError
+        No Trajectories block, no rate line, a malformed header, an unknown unit, a row with
+        fewer cells than the header (a file cut short), a non-numeric cell, frames not
+        consecutive. The message names the file and the 1-based line number.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig", errors="strict")
+    except FileNotFoundError as exc:
+        raise InputError(f"{path}: file not found") from exc
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text CSV file ({exc})") from exc
+    lines = text.splitlines()
+    start = next(
+        (i for i, ln in enumerate(lines) if _split(ln)[0].lower() == "trajectories"), None
+    )
+    if start is None:
+        raise InputError(
+            f"{path}: no 'Trajectories' line found (expected a Vicon Nexus trajectories CSV)"
+        )
+    # 1-based line numbers of the header rows
+    ln_rate, ln_names, ln_axes, ln_units = start + 2, start + 3, start + 4, start + 5
+    if len(lines) < start + 5:
+        raise InputError(
+            f"{path}, line {len(lines)}: file ends inside the Trajectories header "
+            "(expected rate, Subject:Marker, Frame/Sub Frame and units rows)"
+        )
+    rate_cells = _split(lines[start + 1])
+    try:
+        rate_hz = float(rate_cells[0])
+    except ValueError:
+        rate_hz = float("nan")
+    if not np.isfinite(rate_hz) or rate_hz <= 0:
+        raise InputError(
+            f"{path}, line {ln_rate}: no rate line after 'Trajectories' "
+            f"(expected the frame rate in Hz, got {lines[start + 1][:40]!r})"
+        )
+    name_cells = _split(lines[start + 2])
+    axis_cells = _strip_trailing(_split(lines[start + 3]))
+    unit_cells = _split(lines[start + 4])
+    if len(axis_cells) < 2 or axis_cells[0] != "Frame" or axis_cells[1] != "Sub Frame":
+        raise InputError(
+            f"{path}, line {ln_axes}: expected 'Frame,Sub Frame,X,Y,Z,...', "
+            f"got {lines[start + 3][:40]!r}"
+        )
+    n_markers = (len(axis_cells) - 2) // 3
+    if n_markers == 0 or len(axis_cells) != 2 + 3 * n_markers:
+        raise InputError(
+            f"{path}, line {ln_axes}: expected X,Y,Z triples after 'Frame,Sub Frame', "
+            f"got {len(axis_cells) - 2} coordinate columns"
+        )
+    names = []
+    for k in range(n_markers):
+        c = 2 + 3 * k
+        if axis_cells[c : c + 3] != ["X", "Y", "Z"]:
+            raise InputError(
+                f"{path}, line {ln_axes}, column {c + 1}: expected 'X,Y,Z', "
+                f"got {','.join(axis_cells[c : c + 3])!r}"
+            )
+        name = name_cells[c] if c < len(name_cells) else ""
+        if not name:
+            raise InputError(
+                f"{path}, line {ln_names}, column {c + 1}: empty marker name "
+                "(expected Subject:Marker above each X,Y,Z triple)"
+            )
+        names.append(name)
+    if len(set(names)) != len(names):
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise InputError(f"{path}, line {ln_names}: duplicate marker names {dup}")
+    scale = np.empty(3 * n_markers)
+    for j in range(3 * n_markers):
+        unit = unit_cells[2 + j] if 2 + j < len(unit_cells) else ""
+        if unit not in _UNIT_TO_M:
+            raise InputError(
+                f"{path}, line {ln_units}, column {3 + j} ({names[j // 3]}): unknown unit "
+                f"{unit!r} (expected one of {sorted(_UNIT_TO_M)})"
+            )
+        scale[j] = _UNIT_TO_M[unit]
+
+    first = start + 5  # 0-based index of the first data line
+    end = first
+    while end < len(lines) and lines[end].strip(", \t"):
+        end += 1
+    data_lines = lines[first:end]
+    if not data_lines:
+        raise InputError(f"{path}, line {first + 1}: no data rows after the units row")
+    n_cols = 2 + 3 * n_markers
+    n_cells = np.fromiter((ln.count(",") + 1 for ln in data_lines), int, len(data_lines))
+    short = np.flatnonzero(n_cells < n_cols)
+    if short.size:
+        i = int(short[0])
+        where = "the last row: file cut short" if i == len(data_lines) - 1 else "a truncated row"
+        raise InputError(
+            f"{path}, line {first + i + 1}: {n_cells[i]} cells, expected {n_cols} "
+            f"(Frame, Sub Frame and X,Y,Z for {n_markers} markers); {where}"
+        )
+    block = "\n".join(data_lines)
+    try:
+        values = pd.read_csv(
+            io.StringIO(block),
+            header=None,
+            usecols=range(n_cols),
+            dtype=np.float64,
+            engine="c",
+            skip_blank_lines=False,
+        ).to_numpy()
+    except (ValueError, TypeError):
+        raise _locate_bad_cell(path, block, n_cols, first, names) from None
+    frames = values[:, 0]
+    if np.isnan(frames).any() or np.any(frames != np.round(frames)):
+        i = int(np.flatnonzero(np.isnan(frames) | (frames != np.round(frames)))[0])
+        raise InputError(
+            f"{path}, line {first + i + 1}, column Frame: expected an integer frame number, "
+            f"got {data_lines[i].split(',')[0]!r}"
+        )
+    steps = np.diff(frames)
+    if np.any(steps != 1):
+        i = int(np.flatnonzero(steps != 1)[0]) + 1
+        raise InputError(
+            f"{path}, line {first + i + 1}: frame {int(frames[i])} follows frame "
+            f"{int(frames[i - 1])} (expected consecutive frames)"
+        )
+    xyz_m = (values[:, 2:] * scale).reshape(len(values), n_markers, 3)
+    return _marker_table(frames.astype(np.int64) - 1, xyz_m, names, rate_hz)
+
+
+def _locate_bad_cell(path, block, n_cols, first, names) -> InputError:
+    """Slow path, only on failure: find the first non-numeric cell and describe it."""
+    cells = pd.read_csv(
+        io.StringIO(block), header=None, usecols=range(n_cols), dtype=str, keep_default_na=False
+    ).to_numpy()
+    for i, row in enumerate(cells):
+        for j, cell in enumerate(row):
+            cell = cell.strip()
+            if j >= 2 and cell == "":
+                continue
+            try:
+                float(cell)
+            except ValueError:
+                col = "Frame" if j == 0 else "Sub Frame" if j == 1 else (
+                    f"{names[(j - 2) // 3]}_{'XYZ'[(j - 2) % 3]}"
+                )
+                return InputError(
+                    f"{path}, line {first + i + 1}, column {col}: non-numeric cell {cell!r} "
+                    "(expected a number, or an empty cell for a gap)"
+                )
+    return InputError(f"{path}, lines {first + 1}-{first + len(cells)}: unreadable data block")
+
+
+def read_c3d(path) -> pd.DataFrame:
+    """Read the POINT data of a C3D file (through ezc3d) into a marker table.
+
+    Parameters
+    ----------
+    path : str or Path
+        A C3D file. POINT:UNITS (mm, cm or m) scales to metres; POINT:LABELS (and LABELS2,
+        ... for long lists) name the markers; samples with a negative residual are gaps.
+
+    Returns
+    -------
+    markers : DataFrame
+        Wide marker table (module docstring); ``frame`` 0-based from the header's first frame
+        (ezc3d counts from 0, so Nexus frame 1 is frame 0, as in the CSV).
+
+    Raises
+    ------
+    InputError
+        File missing or unreadable by ezc3d, no POINT rate, unknown units, no markers.
+    """
+    import ezc3d
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: file not found")
+    try:
+        c3d = ezc3d.c3d(str(path))
+    except Exception as exc:  # ezc3d raises plain RuntimeError/IOError on a bad file
+        raise InputError(f"{path}: not a readable C3D file ({exc})") from exc
+    point = c3d["parameters"].get("POINT", {})
+    rate = point.get("RATE", {}).get("value", [])
+    rate_hz = float(rate[0]) if len(rate) else float(c3d["header"]["points"]["frame_rate"])
+    if not np.isfinite(rate_hz) or rate_hz <= 0:
+        raise InputError(f"{path}: POINT:RATE missing or not positive (got {rate_hz})")
+    units = point.get("UNITS", {}).get("value", ["mm"])
+    unit = (units[0] if len(units) else "mm").strip()
+    if unit not in _UNIT_TO_M:
+        raise InputError(
+            f"{path}: POINT:UNITS is {unit!r} (expected one of {sorted(_UNIT_TO_M)})"
+        )
+    labels = list(point.get("LABELS", {}).get("value", []))
+    k = 2
+    while f"LABELS{k}" in point:
+        labels += list(point[f"LABELS{k}"]["value"])
+        k += 1
+    pts = np.asarray(c3d["data"]["points"], dtype=float)  # (4, n_markers, n_frames)
+    n_markers = pts.shape[1]
+    if n_markers == 0:
+        raise InputError(f"{path}: no POINT markers in the file")
+    names = [str(s).strip() for s in labels[:n_markers]]
+    if len(names) < n_markers:
+        raise InputError(
+            f"{path}: POINT:LABELS has {len(names)} names for {n_markers} markers"
+        )
+    xyz = np.transpose(pts[:3], (2, 1, 0)) * _UNIT_TO_M[unit]  # (n_frames, n_markers, 3)
+    residuals = c3d["data"].get("meta_points", {}).get("residuals")
+    if residuals is not None and np.size(residuals):
+        bad = np.asarray(residuals)[0].T < 0  # Vicon marks an unseen sample by residual -1
+        xyz[bad] = np.nan
+    first = int(c3d["header"]["points"]["first_frame"])
+    frame0 = first + np.arange(xyz.shape[0])
+    return _marker_table(frame0, xyz, names, rate_hz)
+
+
+def read_vicon(path, names=None) -> pd.DataFrame:
+    """Read a Vicon export (``.csv`` Nexus trajectories or ``.c3d``), optionally selecting markers.
+
+    Parameters
+    ----------
+    path : str or Path
+        The export; the suffix chooses the reader.
+    names : sequence of str, optional
+        Marker names to keep (``Subject:Marker`` as in the export), in this order. Each must
+        be present and seen in at least one frame.
+
+    Returns
+    -------
+    markers : DataFrame
+        Wide marker table, metres in W (module docstring).
+
+    Raises
+    ------
+    InputError
+        Unknown suffix; the reader's errors; a configured marker missing from the file (the
+        message lists the file's markers) or never seen during the whole take.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".csv":
+        df = read_nexus_csv(path)
+    elif suffix == ".c3d":
+        df = read_c3d(path)
+    else:
+        raise InputError(f"{path}: unknown Vicon export type {suffix!r} (expected .csv or .c3d)")
+    if names is not None:
+        df = select_markers(df, names, source=path)
+    return df
+
+
+def select_markers(df: pd.DataFrame, names, source="marker table") -> pd.DataFrame:
+    """Keep only the named markers; each must exist and be seen at least once.
+
+    Raises
+    ------
+    InputError
+        A name absent from the table (lists what it has) or a marker empty for the whole take.
+    """
+    have = marker_names(df)
+    missing = [n for n in names if n not in have]
+    if missing:
+        raise InputError(
+            f"{source}: marker(s) {missing} not in the file (it has {len(have)} markers: "
+            f"{', '.join(have)})"
+        )
+    for n in names:
+        if not np.isfinite(df[marker_columns(n)].to_numpy()).any():
+            raise InputError(
+                f"{source}: marker {n!r} is absent for the whole take "
+                f"({len(df)} frames, every cell empty); expected it seen in at least one frame"
+            )
+    out = df[["frame", "t_s"] + [c for n in names for c in marker_columns(n)]].copy()
+    out.attrs = dict(df.attrs)
+    out.attrs["markers"] = list(names)
+    return out
