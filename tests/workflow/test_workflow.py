@@ -1,0 +1,193 @@
+"""End-to-end runs of the Snakemake workflow in a scratch directory.
+
+Each test writes its own `config/config.yaml` into a temporary working directory and runs the
+repository's Snakefile there (`snakemake -s <repo>/Snakefile --directory <tmp>`), as the
+snakemake-workflows `.test/` convention does.
+"""
+
+from __future__ import annotations
+
+import copy
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def write_config(workdir: Path, config: dict) -> None:
+    (workdir / "config").mkdir(parents=True, exist_ok=True)
+    (workdir / "config" / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False))
+
+
+def snakemake(workdir: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory",
+           str(workdir), "--cores", "2", *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=1200)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"snakemake {' '.join(args)} failed:\n{proc.stdout}\n{proc.stderr}")
+    return proc
+
+
+def dry_run_jobs(workdir: Path, *args: str) -> set[str]:
+    """Rule names a dry run would execute (from Snakemake's own job table)."""
+    proc = snakemake(workdir, "-n", *args)
+    out = proc.stdout + proc.stderr
+    jobs = set()
+    if "Job stats:" not in out:
+        return jobs
+    for line in out.split("Job stats:", 1)[1].splitlines():
+        parts = line.split()
+        if parts and parts[0] == "total":
+            break
+        if len(parts) == 2 and parts[1].isdigit() and parts[0] != "job":
+            jobs.add(parts[0])
+    return jobs
+
+
+def demo_config(duration_s: float = 6.0) -> dict:
+    config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
+    demo = config["sessions"]["demo"]
+    demo["synth"]["duration_s"] = duration_s
+    demo["synth"]["n_stills"] = 12
+    for key in ("calib_dir", "video", "vicon"):
+        demo.pop(key, None)
+    return config
+
+
+def test_wrong_config_type_names_the_key(tmp_path):
+    """A config value of the wrong type stops the run with a message naming the key, and no output."""
+    config = demo_config()
+    config["sessions"]["demo"]["board"]["squares_x"] = "six"
+    write_config(tmp_path, config)
+    proc = snakemake(tmp_path, "-n", check=False)
+    assert proc.returncode != 0
+    assert "squares_x" in proc.stderr + proc.stdout
+    assert not (tmp_path / "results").exists()
+
+
+def test_unknown_config_key_is_refused(tmp_path):
+    """A misspelt key (additionalProperties: false) fails at parse time and names the key."""
+    config = demo_config()
+    config["pnp"]["ransac_reproj"] = 2.0
+    write_config(tmp_path, config)
+    proc = snakemake(tmp_path, "-n", check=False)
+    assert proc.returncode != 0
+    assert "ransac_reproj" in proc.stderr + proc.stdout
+
+
+def test_opencv_samples_calibrate_through_the_rule(tmp_path, real_data):
+    """The OpenCV sample stills, through the calibrate rule, give the published intrinsics."""
+    config = {
+        "sessions": {
+            "opencv": {
+                "calib_dir": str(real_data / "opencv-chessboard"),
+                "board": {"squares_x": 10, "squares_y": 7, "square_m": 1.0},
+            }
+        }
+    }
+    write_config(tmp_path, config)
+    snakemake(tmp_path)
+    camera = yaml.safe_load((tmp_path / "results/opencv/camera.yaml").read_text())
+    K = np.array(camera["K"])
+    # Published reference: SOURCES.md section 1 (iantoniolo ... lab2.md).
+    assert abs(K[0, 0] - 536.07345296) < 0.05
+    assert abs(K[1, 1] - 536.01636332) < 0.05
+    assert abs(K[0, 2] - 342.37047282) < 0.05
+    assert abs(K[1, 2] - 235.53687702) < 0.05
+    assert abs(camera["rms_px"] - 0.4087) < 0.005
+    assert camera["n_used"] == 13
+
+
+def test_calibration_folder_without_board_fails_cleanly(tmp_path):
+    """A calibration folder with no usable image is a clear error and leaves no camera.yaml."""
+    import cv2
+
+    stills = tmp_path / "stills"
+    stills.mkdir()
+    rng = np.random.default_rng(3)
+    for i in range(6):
+        cv2.imwrite(str(stills / f"blank{i}.png"), rng.integers(0, 255, (480, 640), dtype=np.uint8))
+    write_config(tmp_path, {"sessions": {"s": {"calib_dir": str(stills),
+                 "board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09}}}})
+    proc = snakemake(tmp_path, check=False)
+    assert proc.returncode != 0
+    log = (tmp_path / "logs/s/calibrate.log").read_text()
+    assert "usable" in log.lower() and "blank0.png" in log
+    assert not (tmp_path / "results/s/camera.yaml").exists()
+
+
+def test_unreadable_video_fails_cleanly(tmp_path, real_data):
+    """A video that cannot be opened is a clear error naming it, and leaves no corners table."""
+    bad_video = tmp_path / "broken.mp4"
+    bad_video.write_bytes(b"this is not a video" * 100)
+    write_config(tmp_path, {"sessions": {"s": {
+        "calib_dir": str(real_data / "opencv-chessboard"),
+        "video": str(bad_video),
+        "board": {"squares_x": 10, "squares_y": 7, "square_m": 1.0}}}})
+    proc = snakemake(tmp_path, "results/s/corners.parquet", check=False)
+    assert proc.returncode != 0
+    log = (tmp_path / "logs/s/corners.log").read_text()
+    assert "broken.mp4" in log
+    assert not (tmp_path / "results/s/corners.parquet").exists()
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory):
+    """The whole DAG once on a short rendered demo session."""
+    workdir = tmp_path_factory.mktemp("demo")
+    write_config(workdir, demo_config())
+    snakemake(workdir)
+    return workdir
+
+
+def test_demo_writes_every_table_with_its_schema(demo_run):
+    """Every stage's table exists with the columns of docs/contracts.md."""
+    res = demo_run / "results" / "demo"
+    expect = {
+        "calib_corners.parquet": {"image", "corner", "u_px", "v_px"},
+        "corners.parquet": {"frame", "t_s", "found", "corner", "u_px", "v_px"},
+        "poses_raw.parquet": {"frame", "t_s", "valid", "rvec_0", "x_m", "z_m", "roll_rad",
+                              "yaw_rad", "reproj_rms_px", "n_inliers"},
+        "markers.parquet": {"frame", "t_s"},
+        "bodies.parquet": {"frame", "t_s", "body", "valid", "x_m", "qw", "fit_rms_m"},
+        "bodies_30hz.parquet": {"t_s", "body", "valid", "x_m", "qw"},
+        "pairs.parquet": {"frame", "t_s", "cvs_x_m", "cvs_yaw_rad", "vic_x_m", "vic_yaw_rad",
+                          "cmbm_x_m", "cmbm_qw"},
+    }
+    for name, cols in expect.items():
+        df = pd.read_parquet(res / name)
+        assert cols <= set(df.columns), f"{name} lacks {cols - set(df.columns)}"
+        assert len(df) > 0, name
+    for fig in ("calibration_errors", "calibration_coverage", "poses_raw", "vicon_markers", "sync"):
+        assert (res / "figures" / f"{fig}.png").stat().st_size > 5000
+
+
+def test_demo_sync_matches_truth(demo_run):
+    """The estimated time offset is within 3 ms of the rendered truth."""
+    truth = yaml.safe_load((demo_run / "data/demo/truth.yaml").read_text())
+    sync = yaml.safe_load((demo_run / "results/demo/sync.yaml").read_text())
+    assert abs(sync["dt_offset_s"] - truth["dt_offset_s"]) < 0.003
+
+
+def test_demo_rerun_has_nothing_to_do(demo_run):
+    """A second run of the finished demo schedules no job."""
+    assert dry_run_jobs(demo_run) == set()
+
+
+def test_changed_pnp_threshold_reruns_only_its_dependants(demo_run):
+    """Changing the RANSAC threshold reruns poses and what depends on it, nothing upstream."""
+    config = yaml.safe_load((demo_run / "config/config.yaml").read_text())
+    changed = copy.deepcopy(config)
+    changed["pnp"]["ransac_reproj_px"] = 2.5
+    write_config(demo_run, changed)
+    try:
+        jobs = dry_run_jobs(demo_run)
+    finally:
+        write_config(demo_run, config)
+    assert jobs == {"poses", "sync", "pairs", "all"}

@@ -1,0 +1,22 @@
+"""Calibrate the camera from the stills (rule calibrate)."""
+
+from cvsflow.calibration import calibrate_camera
+from cvsflow.io import save_figure, write_parquet, write_yaml
+from cvsflow.io.logs import stage_logging
+from cvsflow.io.media import list_stills, read_gray
+from cvsflow.plots import camera as plots
+
+with stage_logging(snakemake.log[0], "calibrate") as log:
+    paths = list_stills(snakemake.input[0])
+    images = [(p.name, read_gray(p)) for p in paths]
+    camera, calib_corners = calibrate_camera(
+        images,
+        snakemake.params.board,
+        subpix_window_px=snakemake.params.calibrate["subpix_window_px"],
+        min_images=snakemake.params.calibrate["min_images"],
+    )
+    log.info("calibrated on %d of %d stills, RMS %.3f px", camera["n_used"], len(paths), camera["rms_px"])
+    write_yaml(camera, snakemake.output.camera)
+    write_parquet(calib_corners, snakemake.output.corners)
+    save_figure(plots.plot_calibration_errors(camera), snakemake.output.fig_errors)
+    save_figure(plots.plot_calibration_coverage(calib_corners, camera), snakemake.output.fig_coverage)

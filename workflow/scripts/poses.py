@@ -1,0 +1,21 @@
+"""Board pose per video frame by RANSAC PnP + LM (rule poses)."""
+
+import numpy as np
+
+from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet
+from cvsflow.io.logs import stage_logging
+from cvsflow.plots import camera as plots
+from cvsflow.pose import estimate_poses
+
+with stage_logging(snakemake.log[0], "poses") as log:
+    camera = read_yaml(snakemake.input.camera)
+    poses = estimate_poses(
+        read_parquet(snakemake.input.corners),
+        np.array(camera["K"]),
+        np.array(camera["dist"]),
+        snakemake.params.board,
+        **snakemake.params.pnp,
+    )
+    log.info("valid poses: %d of %d frames", int(poses["valid"].sum()), len(poses))
+    write_parquet(poses, snakemake.output.poses)
+    save_figure(plots.plot_pose_timeseries(poses), snakemake.output.fig)

@@ -1,0 +1,12 @@
+"""Read the Vicon export into a marker table in metres (rule vicon_import)."""
+
+from cvsflow.io import write_parquet
+from cvsflow.io.logs import stage_logging
+from cvsflow.io.vicon import read_vicon, select_markers
+
+with stage_logging(snakemake.log[0], "vicon_import") as log:
+    markers = snakemake.params.markers
+    table = read_vicon(snakemake.input[0])
+    table = select_markers(table, markers["camera"]["names"] + markers["board"]["names"], snakemake.input[0])
+    log.info("%d samples at %g Hz", len(table), table.attrs["rate_hz"])
+    write_parquet(table, snakemake.output[0])

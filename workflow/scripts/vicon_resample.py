@@ -1,0 +1,12 @@
+"""Vicon body poses at the video rate by the chapter's block mean (rule vicon_resample)."""
+
+from cvsflow.io import read_parquet, write_parquet
+from cvsflow.io.logs import stage_logging
+from cvsflow.io.media import video_info
+from cvsflow.mocap import block_average_bodies
+
+with stage_logging(snakemake.log[0], "vicon_resample") as log:
+    fps = video_info(snakemake.input.video)["fps"]
+    bodies_30hz = block_average_bodies(read_parquet(snakemake.input.bodies), fps)
+    log.info("%d samples at %.3f Hz", len(bodies_30hz), fps)
+    write_parquet(bodies_30hz, snakemake.output[0])
