@@ -191,3 +191,19 @@ def test_changed_pnp_threshold_reruns_only_its_dependants(demo_run):
     finally:
         write_config(demo_run, config)
     assert jobs == {"poses", "sync", "pairs", "all"}
+
+
+def test_lint_reports_nothing_but_missing_conda_envs(tmp_path):
+    """`snakemake --lint` finds no problem other than the tolerated 'no conda environment'."""
+    write_config(tmp_path, demo_config())
+    proc = snakemake(tmp_path, "--lint", check=False)
+    lints = [ln.strip() for ln in (proc.stdout + proc.stderr).splitlines() if ln.strip().startswith("* ")]
+    assert lints, "expected lint output (the conda hint) to parse"
+    assert all("conda environment" in ln for ln in lints), lints
+
+
+def test_snakefiles_are_formatted():
+    """snakefmt --check passes on the Snakefile and the rule files."""
+    proc = subprocess.run([sys.executable, "-m", "snakefmt", "--check", "Snakefile", "workflow/"],
+                          cwd=REPO, capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr

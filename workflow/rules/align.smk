@@ -10,8 +10,6 @@ rule sync:
             category="Synchronisation",
             labels={"session": "{session}", "figure": "sync"},
         ),
-    params:
-        sync=config["sync"],
     log:
         "logs/{session}/sync.log",
     benchmark:
@@ -20,6 +18,8 @@ rule sync:
     resources:
         mem_mb=1000,
         runtime=10,
+    params:
+        sync=config["sync"],
     script:
         "../scripts/sync.py"
 
@@ -32,8 +32,6 @@ rule pairs:
         sync="results/{session}/sync.yaml",
     output:
         "results/{session}/pairs.parquet",
-    params:
-        resample=config["vicon"]["resample"],
     log:
         "logs/{session}/pairs.log",
     benchmark:
@@ -42,5 +40,7 @@ rule pairs:
     resources:
         mem_mb=1000,
         runtime=10,
+    params:
+        resample=config["vicon"]["resample"],
     script:
         "../scripts/pairs.py"

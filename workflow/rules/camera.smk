@@ -16,9 +16,6 @@ rule calibrate:
             category="Camera",
             labels={"session": "{session}", "figure": "calibration coverage"},
         ),
-    params:
-        board=lambda wc: session_cfg(wc.session)["board"],
-        calibrate=config["calibrate"],
     log:
         "logs/{session}/calibrate.log",
     benchmark:
@@ -27,6 +24,9 @@ rule calibrate:
     resources:
         mem_mb=1000,
         runtime=10,
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        calibrate=config["calibrate"],
     script:
         "../scripts/calibrate.py"
 
@@ -36,9 +36,6 @@ rule corners:
         video_path,
     output:
         "results/{session}/corners.parquet",
-    params:
-        board=lambda wc: session_cfg(wc.session)["board"],
-        corners=config["corners"],
     log:
         "logs/{session}/corners.log",
     benchmark:
@@ -47,6 +44,9 @@ rule corners:
     resources:
         mem_mb=2000,
         runtime=60,
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        corners=config["corners"],
     script:
         "../scripts/corners.py"
 
@@ -63,9 +63,6 @@ rule poses:
             category="Camera",
             labels={"session": "{session}", "figure": "raw poses"},
         ),
-    params:
-        board=lambda wc: session_cfg(wc.session)["board"],
-        pnp=config["pnp"],
     log:
         "logs/{session}/poses.log",
     benchmark:
@@ -74,5 +71,8 @@ rule poses:
     resources:
         mem_mb=2000,
         runtime=30,
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        pnp=config["pnp"],
     script:
         "../scripts/poses.py"

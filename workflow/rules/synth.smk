@@ -6,8 +6,6 @@ rule synth:
         truth="data/{session}/truth.yaml",
         truth_frames="data/{session}/truth_frames.parquet",
         truth_corners="data/{session}/truth_corners.parquet",
-    params:
-        session=lambda wc: session_cfg(wc.session),
     log:
         "logs/{session}/synth.log",
     benchmark:
@@ -16,5 +14,7 @@ rule synth:
     resources:
         mem_mb=2000,
         runtime=30,
+    params:
+        session=lambda wc: session_cfg(wc.session),
     script:
         "../scripts/synth.py"

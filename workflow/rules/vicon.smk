@@ -3,8 +3,6 @@ rule vicon_import:
         vicon_path,
     output:
         "results/{session}/markers.parquet",
-    params:
-        markers=lambda wc: session_cfg(wc.session)["markers"],
     log:
         "logs/{session}/vicon_import.log",
     benchmark:
@@ -13,6 +11,8 @@ rule vicon_import:
     resources:
         mem_mb=2000,
         runtime=10,
+    params:
+        markers=lambda wc: session_cfg(wc.session)["markers"],
     script:
         "../scripts/vicon_import.py"
 
@@ -29,9 +29,6 @@ rule vicon_repair:
             category="Vicon",
             labels={"session": "{session}", "figure": "marker gaps"},
         ),
-    params:
-        markers=lambda wc: session_cfg(wc.session)["markers"],
-        vicon=config["vicon"],
     log:
         "logs/{session}/vicon_repair.log",
     benchmark:
@@ -40,6 +37,9 @@ rule vicon_repair:
     resources:
         mem_mb=2000,
         runtime=10,
+    params:
+        markers=lambda wc: session_cfg(wc.session)["markers"],
+        vicon=config["vicon"],
     script:
         "../scripts/vicon_repair.py"
 
@@ -55,8 +55,6 @@ rule vicon_bodies:
             category="Vicon",
             labels={"session": "{session}", "figure": "rigid-body fit"},
         ),
-    params:
-        markers=lambda wc: session_cfg(wc.session)["markers"],
     log:
         "logs/{session}/vicon_bodies.log",
     benchmark:
@@ -65,6 +63,8 @@ rule vicon_bodies:
     resources:
         mem_mb=2000,
         runtime=10,
+    params:
+        markers=lambda wc: session_cfg(wc.session)["markers"],
     script:
         "../scripts/vicon_bodies.py"
 
