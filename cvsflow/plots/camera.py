@@ -1,0 +1,111 @@
+"""Figures of the camera half: calibration errors and coverage, PnP pose time series."""
+
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+
+def plot_calibration_errors(camera: dict) -> Figure:
+    """Bar chart of the per-still reprojection RMS (px) of a calibration.
+
+    Parameters
+    ----------
+    camera : dict
+        camera.yaml content (``images``: list of ``{name, used, reason, rms_px}``, ``rms_px``).
+
+    Returns
+    -------
+    Figure
+        Used stills as bars, unused ones as grey marks at zero labelled with their reason; the
+        overall RMS as a dashed line.
+    """
+    images = camera["images"]
+    names = [im["name"] for im in images]
+    rms = [im["rms_px"] if im["used"] and im["rms_px"] is not None else 0.0 for im in images]
+    colours = ["tab:blue" if im["used"] else "lightgrey" for im in images]
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.45 * len(names) + 2.0), 4.0), layout="constrained")
+    x = np.arange(len(names))
+    ax.bar(x, rms, color=colours)
+    for xi, im in zip(x, images, strict=True):
+        if not im["used"]:
+            ax.text(xi, 0.0, f" {im['reason']}", rotation=90, va="bottom", ha="center", fontsize=7)
+    ax.axhline(
+        camera["rms_px"], color="tab:red", ls="--", label=f"overall RMS {camera['rms_px']:.3f} px"
+    )
+    ax.set_xticks(x, names, rotation=60, ha="right", fontsize=8)
+    ax.set_xlabel("calibration still")
+    ax.set_ylabel("reprojection RMS (px)")
+    ax.set_title(f"Calibration reprojection error ({camera['n_used']} of {len(names)} stills used)")
+    ax.legend()
+    return fig
+
+
+def plot_calibration_coverage(calib_corners: pd.DataFrame, camera: dict) -> Figure:
+    """Where the calibration corners fell in the image, coloured by still.
+
+    Parameters
+    ----------
+    calib_corners : DataFrame
+        ``image, corner, u_px, v_px`` (calib_corners.parquet).
+    camera : dict
+        camera.yaml content (``width``, ``height`` in px).
+
+    Returns
+    -------
+    Figure
+        Scatter over the image frame (pixels, v down), one colour per still.
+    """
+    w, h = camera["width"], camera["height"]
+    fig, ax = plt.subplots(figsize=(7.0, 7.0 * h / w + 0.8), layout="constrained")
+    cmap = plt.get_cmap("tab20")
+    for i, (name, block) in enumerate(calib_corners.groupby("image", sort=True)):
+        ax.scatter(block["u_px"], block["v_px"], s=8, color=cmap(i % 20), label=name)
+    ax.add_patch(plt.Rectangle((0, 0), w, h, fill=False, color="black", lw=1.0))
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+    ax.set_title("Calibration corner coverage of the image")
+    ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    return fig
+
+
+def plot_pose_timeseries(poses: pd.DataFrame) -> Figure:
+    """The six pose dimensions of T_C_B over time (mm and degrees), from poses_raw.
+
+    Parameters
+    ----------
+    poses : DataFrame
+        ``t_s, valid, x_m, y_m, z_m, roll_rad, pitch_rad, yaw_rad`` (poses_raw.parquet).
+
+    Returns
+    -------
+    Figure
+        Six stacked panels sharing the time axis; frames without a valid pose are gaps.
+    """
+    valid = poses["valid"].astype(bool).to_numpy()
+    t_s = poses["t_s"].to_numpy(dtype=float)
+    panels = [
+        ("x_m", "x (mm)", 1e3),
+        ("y_m", "y (mm)", 1e3),
+        ("z_m", "z (mm)", 1e3),
+        ("roll_rad", "roll (deg)", np.degrees(1.0)),
+        ("pitch_rad", "pitch (deg)", np.degrees(1.0)),
+        ("yaw_rad", "yaw (deg)", np.degrees(1.0)),
+    ]
+    fig, axes = plt.subplots(6, 1, sharex=True, figsize=(9.0, 10.0), layout="constrained")
+    for ax, (col, label, scale) in zip(axes, panels, strict=True):
+        y = np.where(valid, poses[col].to_numpy(dtype=float) * scale, np.nan)
+        ax.plot(t_s, y, lw=0.8, color="tab:blue")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[-1].set_xlabel("video time (s)")
+    axes[0].set_title(
+        f"CVS pose of the board in the camera, T_C_B ({int(valid.sum())} of {len(valid)} "
+        "frames valid)"
+    )
+    return fig
