@@ -1,0 +1,661 @@
+"""Motion-capture processing: marker gap repair, low-pass filter, rigid bodies, 30 Hz tables.
+
+The chapter's "Data Processing" (seed section 1.3) made rigorous. Inputs are the wide marker
+tables of :mod:`cvsflow.io.vicon` (``frame``, ``t_s``, ``{marker}_{x,y,z}_m`` in the Vicon
+world W, NaN where unseen, ``attrs["rate_hz"]``); outputs follow ``docs/contracts.md``
+(``markers_filled``, ``bodies``, ``bodies_30hz``).
+
+A *body spec* describes one rigid body: ``{"names": [marker names], "layout_m": (M, 3) or
+None}``; ``layout_m`` is where each marker sits in the body's own frame (``Cm`` for the camera
+body, ``Bm`` for the board body). A body spec without a layout gets one learned from a still
+period (:func:`learn_layout`).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pandas as pd
+from scipy.signal import butter, filtfilt
+from scipy.spatial.transform import Rotation
+
+from cvsflow.errors import InputError, MocapError
+from cvsflow.transforms import euler_from_R, make_T, quat_from_R
+
+log = logging.getLogger(__name__)
+
+AXES = ("x", "y", "z")
+BODY_COLUMNS = [
+    "frame",
+    "t_s",
+    "body",
+    "valid",
+    "x_m",
+    "y_m",
+    "z_m",
+    "qx",
+    "qy",
+    "qz",
+    "qw",
+    "roll_rad",
+    "pitch_rad",
+    "yaw_rad",
+    "fit_rms_m",
+    "n_markers",
+    "n_filled",
+]
+
+
+def _cols(name):
+    return [f"{name}_{a}_m" for a in AXES]
+
+
+def _rate_hz(markers, where="marker table"):
+    rate = markers.attrs.get("rate_hz")
+    if rate is None:
+        t = markers["t_s"].to_numpy(float)
+        if len(t) < 2:
+            raise InputError(f"{where}: no rate_hz attribute and fewer than 2 samples")
+        rate = 1.0 / float(np.median(np.diff(t)))
+    return float(rate)
+
+
+def _xyz(markers, names, where="marker table"):
+    """Stack marker coordinates into shape (N, M, 3), metres."""
+    missing = [n for n in names if _cols(n)[0] not in markers.columns]
+    if missing:
+        raise InputError(f"{where}: marker(s) {missing} not in the marker table")
+    return np.stack([markers[_cols(n)].to_numpy(float) for n in names], axis=1)
+
+
+def _runs(mask):
+    """Start (inclusive) and end (exclusive) indices of the True runs of a 1-D bool mask."""
+    m = np.concatenate([[False], np.asarray(mask, bool), [False]])
+    d = np.diff(m.astype(np.int8))
+    return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+
+
+# --------------------------------------------------------------------------- rigid fit
+
+
+def fit_rigid(P_body, Q_world, weights=None):
+    """Least-squares rigid transforms mapping body-frame points onto observed points, per frame.
+
+    Parameters
+    ----------
+    P_body : ndarray, shape (M, 3) or (N, M, 3)
+        Marker layout in the body frame, metres.
+    Q_world : ndarray, shape (N, M, 3)
+        Observed marker positions in W, metres; NaN rows are ignored.
+    weights : ndarray, shape (N, M), optional
+        Non-negative weights; default 1 where ``Q_world`` is finite, else 0.
+
+    Returns
+    -------
+    T_W_body : ndarray, shape (N, 4, 4)
+        Fitted transforms (NaN where fewer than three non-collinear markers are usable).
+    rms_m : ndarray, shape (N,)
+        RMS distance between observed and fitted markers over the used markers, metres.
+    n_used : ndarray of int, shape (N,)
+        Markers used per frame.
+
+    Notes
+    -----
+    Kabsch/Umeyama without scale (Umeyama 1991, eqs. 38-41), vectorised with numpy's batched
+    SVD. The sign correction ``diag(1, 1, det(V U^T))`` guards against reflections.
+    """
+    Q = np.asarray(Q_world, dtype=float)
+    N, M = Q.shape[:2]
+    P = np.broadcast_to(np.asarray(P_body, dtype=float), (N, M, 3))
+    finite = np.isfinite(Q).all(axis=2)
+    w = finite.astype(float) if weights is None else np.where(finite, weights, 0.0)
+    Qz = np.where(finite[..., None], Q, 0.0)
+    n_used = (w > 0).sum(axis=1)
+    wsum = np.maximum(w.sum(axis=1), 1e-300)[:, None]
+    cP = (w[..., None] * P).sum(axis=1) / wsum
+    cQ = (w[..., None] * Qz).sum(axis=1) / wsum
+    Pc = P - cP[:, None]
+    Qc = Qz - cQ[:, None]
+    H = np.einsum("nm,nmi,nmj->nij", w, Pc, Qc)  # Umeyama eq. 38 (cross-covariance)
+    U, S, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)))
+    d[d == 0] = 1.0
+    D = np.zeros((N, 3, 3))
+    D[:, 0, 0] = 1.0
+    D[:, 1, 1] = 1.0
+    D[:, 2, 2] = d
+    R = np.swapaxes(Vt, 1, 2) @ D @ np.swapaxes(U, 1, 2)  # Umeyama eq. 40
+    t = cQ - np.einsum("nij,nj->ni", R, cP)  # Umeyama eq. 41
+    resid = Qz - (np.einsum("nij,nmj->nmi", R, P) + t[:, None])
+    rms = np.sqrt((w * (resid**2).sum(axis=2)).sum(axis=1) / wsum[:, 0])
+    # three markers on a line fix no rotation about that line
+    scale = np.maximum(S[:, 0], 1e-300)
+    ok = (n_used >= 3) & (S[:, 1] > 1e-8 * scale) & np.isfinite(R).all(axis=(1, 2))
+    T = make_T(R, t)
+    T[~ok] = np.nan
+    rms[~ok] = np.nan
+    return T, rms, n_used
+
+
+# --------------------------------------------------------------------------- layouts
+
+
+def learn_layout(markers, names, still_s=1.0, still_tol_m=0.001):
+    """Learn a body's marker layout from the first still period of the take.
+
+    Parameters
+    ----------
+    markers : DataFrame
+        Wide marker table (metres, W).
+    names : sequence of str
+        The body's markers; at least three.
+    still_s : float
+        Length of the still window, seconds.
+    still_tol_m : float
+        A window is still when every coordinate of every marker has a standard deviation
+        below this, metres.
+
+    Returns
+    -------
+    layout_m : ndarray, shape (M, 3)
+        Mean marker positions over the first still window, in a body frame with its origin at
+        the first marker, x towards the second, z normal to the plane of the first three
+        (right-handed, z along x cross (p3 - p1)), metres.
+
+    Raises
+    ------
+    MocapError
+        Fewer than three markers, or no still window with every marker visible.
+    """
+    names = list(names)
+    if len(names) < 3:
+        raise MocapError(f"learn_layout: need at least 3 markers, got {names}")
+    rate = _rate_hz(markers)
+    n_win = max(2, int(round(still_s * rate)))
+    xyz = _xyz(markers, names).reshape(len(markers), -1)
+    frame = pd.DataFrame(xyz)
+    std = frame.rolling(n_win, min_periods=n_win).std().to_numpy()
+    seen = frame.notna().all(axis=1).rolling(n_win, min_periods=n_win).sum().to_numpy()
+    still = (np.nan_to_num(std, nan=np.inf) < still_tol_m).all(axis=1) & (seen == n_win)
+    if not still.any():
+        raise MocapError(
+            f"learn_layout: no still window of {still_s} s (every coordinate of {names} with "
+            f"std < {still_tol_m * 1000:g} mm and all markers seen) in {len(markers)} frames; "
+            "give layout_m in the config"
+        )
+    end = int(np.flatnonzero(still)[0]) + 1
+    mean = xyz[end - n_win : end].mean(axis=0).reshape(len(names), 3)
+    p1, p2, p3 = mean[0], mean[1], mean[2]
+    x = (p2 - p1) / np.linalg.norm(p2 - p1)
+    z = np.cross(x, p3 - p1)
+    if np.linalg.norm(z) < 1e-6:
+        raise MocapError(f"learn_layout: the first three markers of {names} are collinear")
+    z /= np.linalg.norm(z)
+    y = np.cross(z, x)
+    R_W_body = np.stack([x, y, z], axis=1)
+    return (mean - p1) @ R_W_body
+
+
+def resolve_layouts(markers, body_specs, still_s=1.0, still_tol_m=0.001):
+    """Body specs with every ``layout_m`` as an (M, 3) array, learning the missing ones.
+
+    Raises
+    ------
+    ConfigError-like MocapError
+        A layout whose shape does not match its names, or no still window to learn one.
+    """
+    out = {}
+    for body, spec in body_specs.items():
+        names = list(spec["names"])
+        layout = spec.get("layout_m")
+        if layout is None:
+            layout = learn_layout(markers, names, still_s=still_s, still_tol_m=still_tol_m)
+            log.info("learned the %s layout from a still window: %s", body, layout.tolist())
+        layout = np.asarray(layout, dtype=float)
+        if layout.shape != (len(names), 3):
+            raise MocapError(
+                f"body {body!r}: layout_m has shape {layout.shape}, expected "
+                f"({len(names)}, 3) for markers {names}"
+            )
+        out[body] = {"names": names, "layout_m": layout}
+    return out
+
+
+# --------------------------------------------------------------------------- gap repair
+
+
+def fill_marker_gaps(markers, body_specs, max_gap_s, method="cubic"):
+    """Fill marker gaps from the body's other markers, then by interpolation in time.
+
+    Parameters
+    ----------
+    markers : DataFrame
+        Wide marker table (metres, W), ``attrs["rate_hz"]`` set.
+    body_specs : dict
+        ``{body: {"names": [...], "layout_m": (M, 3) or None}}``; a missing layout is learned
+        (:func:`learn_layout`).
+    max_gap_s : float
+        Longest gap interpolated in time, seconds; a gap of n missing samples lasts n / rate.
+    method : {"cubic", "linear"}
+        Temporal interpolation: a cubic spline through every measured-or-rigid-filled sample of
+        the marker, or straight lines between the gap's two neighbours.
+
+    Returns
+    -------
+    filled : DataFrame
+        The table with gaps filled where possible (still NaN elsewhere) plus a bool column
+        ``{marker}_filled`` per marker, True on every sample that is not measured.
+    summary : dict
+        ``{"per_marker": {name: {"measured", "rigid", "interp", "missing"}}, "total": {...},
+        "max_gap_s", "method"}``: sample counts (plain ints, YAML ready).
+
+    Notes
+    -----
+    Precedence: the rigid-body fill comes first. Where a marker is missing but at least three
+    other markers of its body are *measured*, the layout is fitted to them (:func:`fit_rigid`)
+    and the missing marker placed from the fitted pose; for a moving body this uses the
+    current frame's data and is better than an interpolation across the gap. The remaining gaps
+    of at most ``max_gap_s`` with data on both sides are then interpolated in time; longer
+    gaps stay NaN and leave the body invalid where fewer than three markers remain.
+    Only measured markers are used for the rigid fill, so filled values never feed each other.
+    """
+    if method not in ("cubic", "linear"):
+        raise MocapError(f"fill_marker_gaps: method {method!r}, expected 'cubic' or 'linear'")
+    rate = _rate_hz(markers)
+    specs = resolve_layouts(markers, body_specs)
+    out = markers.copy()
+    out.attrs = dict(markers.attrs)
+    all_names = [n for s in specs.values() for n in s["names"]]
+    counts = {}
+    filled_flags = {}
+    for spec in specs.values():
+        names, layout = spec["names"], spec["layout_m"]
+        Q = _xyz(markers, names)
+        measured = np.isfinite(Q).all(axis=2)
+        Qf = np.where(measured[..., None], Q, np.nan)
+        rigid = np.zeros_like(measured)
+        for k in range(len(names)):
+            others = [j for j in range(len(names)) if j != k]
+            need = ~measured[:, k] & (measured[:, others].sum(axis=1) >= 3)
+            if not need.any():
+                continue
+            T, _, _ = fit_rigid(layout[others], Q[need][:, others])
+            p = np.einsum("nij,j->ni", T[:, :3, :3], layout[k]) + T[:, :3, 3]
+            good = np.isfinite(p).all(axis=1)
+            idx = np.flatnonzero(need)[good]
+            Qf[idx, k] = p[good]
+            rigid[idx, k] = True
+        for k, name in enumerate(names):
+            interp = _interpolate_gaps(Qf[:, k], out["t_s"].to_numpy(float), rate, max_gap_s, method)
+            missing = ~np.isfinite(Qf[:, k]).all(axis=1)
+            out[_cols(name)] = Qf[:, k]
+            filled_flags[f"{name}_filled"] = ~measured[:, k] & ~missing
+            counts[name] = {
+                "measured": int(measured[:, k].sum()),
+                "rigid": int(rigid[:, k].sum()),
+                "interp": int(interp),
+                "missing": int(missing.sum()),
+            }
+    out = pd.concat([out, pd.DataFrame(filled_flags, index=out.index)], axis=1)
+    out.attrs = dict(markers.attrs)
+    total = {key: sum(c[key] for c in counts.values()) for key in ("measured", "rigid", "interp", "missing")}
+    summary = {
+        "per_marker": {n: counts[n] for n in all_names},
+        "total": total,
+        "max_gap_s": float(max_gap_s),
+        "method": method,
+    }
+    if total["rigid"] or total["interp"] or total["missing"]:
+        log.warning(
+            "marker gaps: %d samples filled from rigid bodies, %d interpolated, %d left missing",
+            total["rigid"],
+            total["interp"],
+            total["missing"],
+        )
+    return out, summary
+
+
+def _interpolate_gaps(xyz, t_s, rate, max_gap_s, method):
+    """Fill, in place, NaN runs of at most max_gap_s bounded by data on both sides; return count.
+
+    ``cubic`` fits a least-squares cubic to the measured samples on both sides of each gap
+    (as many on each side as the gap is long, at least 8): an interpolating spline through
+    every noisy sample would bend hard at the gap edges, a local fit does not.
+    """
+    gap = ~np.isfinite(xyz).all(axis=1)
+    starts, ends = _runs(gap)
+    max_n = int(np.floor(max_gap_s * rate + 1e-9))
+    inner = (starts > 0) & (ends < len(gap)) & (ends - starts <= max_n)
+    n_filled = 0
+    ok_starts, ok_ends = _runs(~gap)
+    for s, e in zip(starts[inner], ends[inner], strict=True):
+        n_ctx = max(8, e - s)
+        # the measured stretches just before and after this gap
+        lo = max(s - n_ctx, _stretch_start(ok_starts, s))
+        hi = min(e + n_ctx, _stretch_end(ok_ends, ok_starts, e))
+        ctx = np.r_[lo:s, e:hi]
+        tc = t_s[ctx]
+        tg = t_s[s:e]
+        if method == "cubic" and (s - lo) >= 2 and (hi - e) >= 2 and len(ctx) >= 6:
+            t0, scale = t_s[s - 1], max(t_s[e] - t_s[s - 1], 1e-12)
+            V = np.vander((tc - t0) / scale, 4)
+            coef, *_ = np.linalg.lstsq(V, xyz[ctx], rcond=None)
+            xyz[s:e] = np.vander((tg - t0) / scale, 4) @ coef
+        else:
+            w = (tg - t_s[s - 1]) / (t_s[e] - t_s[s - 1])
+            xyz[s:e] = (1 - w)[:, None] * xyz[s - 1] + w[:, None] * xyz[e]
+        n_filled += e - s
+    return n_filled
+
+
+def _stretch_start(ok_starts, s):
+    """Start index of the valid stretch that ends right before index s."""
+    return int(ok_starts[np.searchsorted(ok_starts, s, side="right") - 1])
+
+
+def _stretch_end(ok_ends, ok_starts, e):
+    """End index (exclusive) of the valid stretch that starts at index e."""
+    return int(ok_ends[np.searchsorted(ok_starts, e)])
+
+
+def lowpass_markers(markers, cutoff_hz, order=2):
+    """Zero-lag Butterworth low-pass of every marker coordinate, over valid stretches only.
+
+    Parameters
+    ----------
+    markers : DataFrame
+        Wide marker table (metres), ``attrs["rate_hz"]`` set; ``_filled`` columns pass through.
+    cutoff_hz : float
+        Cut-off frequency of the Butterworth design, Hz; below the Nyquist rate.
+    order : int
+        Order of the design (the chapter: 2). Forward-backward filtering (filtfilt) doubles the
+        effective order and squares the magnitude response, with zero phase lag.
+
+    Returns
+    -------
+    filtered : DataFrame
+        Same columns; stretches shorter than filtfilt's padding (3 * (order + 1) samples)
+        and NaN samples are left unchanged.
+
+    Raises
+    ------
+    MocapError
+        A cut-off at or above the Nyquist rate.
+    """
+    rate = _rate_hz(markers)
+    if not 0 < cutoff_hz < rate / 2:
+        raise MocapError(f"lowpass_markers: cutoff {cutoff_hz} Hz, expected 0 < f < {rate / 2} Hz")
+    b, a = butter(order, cutoff_hz / (rate / 2))
+    padlen = 3 * max(len(a), len(b))
+    out = markers.copy()
+    out.attrs = dict(markers.attrs)
+    for col in [c for c in markers.columns if c.endswith(("_x_m", "_y_m", "_z_m"))]:
+        v = markers[col].to_numpy(float).copy()
+        starts, ends = _runs(np.isfinite(v))
+        for s, e in zip(starts, ends, strict=True):
+            if e - s > padlen:
+                v[s:e] = filtfilt(b, a, v[s:e])
+        out[col] = v
+    return out
+
+
+# --------------------------------------------------------------------------- bodies
+
+
+def fit_bodies(markers, body_specs):
+    """Pose of each rigid body in W per native sample, by a least-squares fit to its layout.
+
+    Parameters
+    ----------
+    markers : DataFrame
+        Wide marker table (metres, W), possibly with ``{marker}_filled`` columns.
+    body_specs : dict
+        ``{body: {"names": [...], "layout_m": (M, 3) or None}}`` (module docstring).
+
+    Returns
+    -------
+    bodies : DataFrame
+        Long table, ``bodies.parquet`` schema (docs/contracts.md): ``frame, t_s, body, valid,
+        x_m, y_m, z_m, qx, qy, qz, qw`` (T_W_Cm for ``camera``, T_W_Bm for ``board``; metres,
+        scalar-last quaternion), ``roll_rad, pitch_rad, yaw_rad``, ``fit_rms_m`` (RMS marker
+        residual), ``n_markers`` (used), ``n_filled`` (used but not measured). A sample is
+        valid with at least three non-collinear markers.
+
+    Notes
+    -----
+    Replaces the chapter's trigonometry on marker pairs with a Kabsch/Umeyama fit of all
+    visible markers (:func:`fit_rigid`).
+    """
+    specs = resolve_layouts(markers, body_specs)
+    parts = []
+    for body, spec in specs.items():
+        names = spec["names"]
+        Q = _xyz(markers, names)
+        T, rms, n_used = fit_rigid(spec["layout_m"], Q)
+        used = np.isfinite(Q).all(axis=2)
+        flags = [f"{n}_filled" for n in names]
+        if all(f in markers.columns for f in flags):
+            n_filled = (markers[flags].to_numpy(bool) & used).sum(axis=1)
+        else:
+            n_filled = np.zeros(len(markers), dtype=int)
+        parts.append(
+            _body_frame(markers["frame"].to_numpy(), markers["t_s"].to_numpy(float), body, T, rms, n_used, n_filled)
+        )
+    out = pd.concat(parts, ignore_index=True)
+    out.attrs["rate_hz"] = _rate_hz(markers)
+    return out
+
+
+def _body_frame(frame, t_s, body, T, rms, n_markers, n_filled):
+    """Assemble a bodies table (schema BODY_COLUMNS) for one body from (N, 4, 4) transforms."""
+    valid = np.isfinite(T).all(axis=(1, 2))
+    R = np.where(valid[:, None, None], T[:, :3, :3], np.eye(3))
+    q = quat_from_R(R)
+    rpy = euler_from_R(R)
+    q[~valid] = np.nan
+    rpy[~valid] = np.nan
+    pos = np.where(valid[:, None], T[:, :3, 3], np.nan)
+    return pd.DataFrame(
+        {
+            "frame": np.asarray(frame, dtype=np.int64),
+            "t_s": np.asarray(t_s, dtype=float),
+            "body": body,
+            "valid": valid,
+            "x_m": pos[:, 0],
+            "y_m": pos[:, 1],
+            "z_m": pos[:, 2],
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
+            "roll_rad": rpy[:, 0],
+            "pitch_rad": rpy[:, 1],
+            "yaw_rad": rpy[:, 2],
+            "fit_rms_m": np.where(valid, rms, np.nan),
+            "n_markers": np.asarray(n_markers, dtype=np.int64),
+            "n_filled": np.asarray(n_filled, dtype=np.int64),
+        },
+        columns=BODY_COLUMNS,
+    )
+
+
+def body_poses(bodies, body):
+    """Times, transforms and validity of one body from a bodies table.
+
+    Returns
+    -------
+    t_s : ndarray, shape (N,)
+    T_W_body : ndarray, shape (N, 4, 4)
+        NaN where invalid; metres.
+    valid : ndarray of bool, shape (N,)
+
+    Raises
+    ------
+    MocapError
+        The body is not in the table.
+    """
+    sub = bodies[bodies["body"] == body].sort_values("frame", kind="stable")
+    if sub.empty:
+        raise MocapError(f"bodies table has no body {body!r} (has {sorted(set(bodies['body']))})")
+    valid = sub["valid"].to_numpy(bool)
+    q = sub[["qx", "qy", "qz", "qw"]].to_numpy(float, copy=True)
+    q[~valid] = [0.0, 0.0, 0.0, 1.0]
+    T = make_T(Rotation.from_quat(q).as_matrix(), sub[["x_m", "y_m", "z_m"]].to_numpy(float))
+    T[~valid] = np.nan
+    return sub["t_s"].to_numpy(float), T, valid
+
+
+def _body_aux(bodies, body):
+    sub = bodies[bodies["body"] == body].sort_values("frame", kind="stable")
+    return (
+        sub["fit_rms_m"].to_numpy(float),
+        sub["n_markers"].to_numpy(np.int64),
+        sub["n_filled"].to_numpy(np.int64),
+    )
+
+
+def block_average_bodies(bodies, factor):
+    """Downsample bodies by the chapter's block mean of ``factor`` consecutive samples.
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        Native-rate bodies table.
+    factor : int
+        Samples per block (the chapter: 10, 300 Hz to 30 Hz; ``round(rate / fps)``).
+
+    Returns
+    -------
+    bodies_lo : DataFrame
+        Same columns; one row per complete block (a trailing partial block is dropped);
+        ``frame`` the block index, ``t_s`` the mean of the block's sample times. Positions are
+        averaged; rotations by the quaternion mean (largest eigenvector of sum q q^T, Markley
+        et al. 2007), never Euler angles. ``fit_rms_m`` is the RMS of the block's,
+        ``n_markers`` the minimum, ``n_filled`` the sum.
+
+    Notes
+    -----
+    Rule for invalid samples: a block is valid only when all its samples are valid. Averaging
+    only the valid part would shift the block's effective time away from its stated time.
+    """
+    factor = int(factor)
+    if factor < 1:
+        raise MocapError(f"block_average_bodies: factor {factor}, expected >= 1")
+    parts = []
+    for body in pd.unique(bodies["body"]):
+        t, T, valid = body_poses(bodies, body)
+        rms, n_m, n_f = _body_aux(bodies, body)
+        nb = len(t) // factor
+        if nb == 0:
+            raise MocapError(f"block_average_bodies: {len(t)} samples of {body!r}, fewer than one block of {factor}")
+        sl = slice(0, nb * factor)
+        shape = (nb, factor)
+        vb = valid[sl].reshape(shape).all(axis=1)
+        tb = t[sl].reshape(shape).mean(axis=1)
+        pos = T[sl, :3, 3].reshape(nb, factor, 3).mean(axis=1)
+        Rn = np.where(valid[sl, None, None], T[sl, :3, :3], np.eye(3))
+        q = Rotation.from_matrix(Rn).as_quat().reshape(nb, factor, 4)
+        # one hemisphere per block, so q and -q do not cancel
+        sign = np.sign(np.einsum("bfi,bi->bf", q, q[:, 0]))
+        sign[sign == 0] = 1.0
+        q = q * sign[..., None]
+        M = np.einsum("bfi,bfj->bij", q, q)
+        _, vecs = np.linalg.eigh(M)
+        q_mean = vecs[:, :, -1]
+        Tb = make_T(Rotation.from_quat(q_mean).as_matrix(), pos)
+        Tb[~vb] = np.nan
+        rms_b = np.sqrt(np.mean(rms[sl].reshape(shape) ** 2, axis=1))
+        parts.append(
+            _body_frame(
+                np.arange(nb),
+                tb,
+                body,
+                Tb,
+                rms_b,
+                n_m[sl].reshape(shape).min(axis=1),
+                n_f[sl].reshape(shape).sum(axis=1),
+            )
+        )
+    return pd.concat(parts, ignore_index=True)
+
+
+def interpolate_bodies(bodies, t_query_s):
+    """Bodies at given times: linear in position, SLERP in rotation.
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        Native-rate bodies table.
+    t_query_s : array_like, shape (K,)
+        Times on the Vicon clock, seconds.
+
+    Returns
+    -------
+    bodies_at : DataFrame
+        Same columns, one row per query time and body; ``frame`` the query index. A query is
+        valid only when both native samples around it are valid and it lies inside the take.
+        ``fit_rms_m`` and ``n_filled``/``n_markers`` come from the nearer of the two samples.
+    """
+    tq = np.asarray(t_query_s, dtype=float)
+    parts = []
+    for body in pd.unique(bodies["body"]):
+        t, T, valid = body_poses(bodies, body)
+        rms, n_m, n_f = _body_aux(bodies, body)
+        T_at, ok, near = _interp_T(t, T, valid, tq)
+        parts.append(_body_frame(np.arange(len(tq)), tq, body, T_at, rms[near], n_m[near], n_f[near]))
+    return pd.concat(parts, ignore_index=True)
+
+
+def _interp_T(t, T, valid, tq):
+    """SLERP/linear interpolation of (N, 4, 4) transforms at tq; NaN outside or near invalid."""
+    n = len(t)
+    if n < 2:
+        raise MocapError(f"interpolation needs at least 2 samples, got {n}")
+    i0 = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, n - 2)
+    i1 = i0 + 1
+    frac = (tq - t[i0]) / (t[i1] - t[i0])
+    inside = (tq >= t[0]) & (tq <= t[-1])
+    ok = inside & valid[i0] & valid[i1]
+    frac = np.clip(np.where(ok, frac, 0.0), 0.0, 1.0)
+    R0 = Rotation.from_matrix(np.where(ok[:, None, None], T[i0, :3, :3], np.eye(3)))
+    R1 = Rotation.from_matrix(np.where(ok[:, None, None], T[i1, :3, :3], np.eye(3)))
+    R = R0 * Rotation.from_rotvec(frac[:, None] * (R0.inv() * R1).as_rotvec())  # SLERP
+    p = (1.0 - frac)[:, None] * T[i0, :3, 3] + frac[:, None] * T[i1, :3, 3]
+    out = make_T(R.as_matrix(), p)
+    out[~ok] = np.nan
+    near = np.where(frac < 0.5, i0, i1)
+    return out, ok, near
+
+
+def downsample_bodies(bodies, rate_hz, fps, mode="block"):
+    """The 30 Hz bodies table: block mean (chapter) or interpolation on a regular 1/fps grid.
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        Native-rate bodies table.
+    rate_hz : float
+        Native Vicon rate, Hz.
+    fps : float
+        Video frame rate, Hz.
+    mode : {"block", "interp"}
+        ``block``: :func:`block_average_bodies` with factor ``round(rate_hz / fps)``;
+        ``interp``: :func:`interpolate_bodies` at ``t0 + k / fps`` over the take.
+
+    Returns
+    -------
+    bodies_30hz : DataFrame
+        ``bodies_30hz.parquet`` schema, Vicon clock.
+    """
+    if mode == "block":
+        factor = int(round(rate_hz / fps))
+        if abs(factor - rate_hz / fps) > 1e-6 * factor:
+            log.warning("Vicon rate %g Hz is not a multiple of %g fps; blocks of %d", rate_hz, fps, factor)
+        return block_average_bodies(bodies, factor)
+    if mode == "interp":
+        t = bodies["t_s"].to_numpy(float)
+        t0, t1 = float(t.min()), float(t.max())
+        tq = t0 + np.arange(int(np.floor((t1 - t0) * fps + 1e-9)) + 1) / fps
+        return interpolate_bodies(bodies, tq)
+    raise MocapError(f"downsample_bodies: mode {mode!r}, expected 'block' or 'interp'")
