@@ -303,8 +303,11 @@ def estimate_poses(
 
     Notes
     -----
-    ``cv2.solvePnPRansac`` (minimal sets solved by EPnP inside OpenCV, the final fit on the
-    inliers with ``SOLVEPNP_IPPE``), then ``cv2.solvePnPRefineLM`` on the inliers.
+    ``cv2.solvePnPRansac`` (minimal sets solved by EPnP inside OpenCV, the fit on their
+    consensus with ``SOLVEPNP_IPPE``), then ``cv2.solvePnPRefineLM`` on the inliers, with the
+    inliers re-taken from the refined pose (reprojection error below ``ransac_reproj_px``)
+    until they no longer change. Should RANSAC find no consensus, IPPE on all corners starts
+    the same loop. The inliers are those of the returned pose.
     """
     p_B = board_object_points(board)
     n_corners = len(p_B)
@@ -370,10 +373,29 @@ def _solve_frame(p_B, uv, K, dist, reproj_px, iterations, confidence, seed) -> d
     except cv2.error as exc:
         log.debug("solvePnPRansac failed: %s", exc)
         return {"valid": False}
-    if not ok or inliers is None or len(inliers) < MIN_INLIERS:
-        return {"valid": False, "n_inliers": 0 if inliers is None else len(inliers)}
-    idx = inliers.ravel()
-    rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, dist, rvec, tvec)
+    if not ok or inliers is None or len(inliers) < 4:
+        # A RANSAC without consensus on few noisy points: the closed form on all points,
+        # then the consensus below, decides instead.
+        ok, rvec, tvec = cv2.solvePnP(obj, img, K, dist, flags=PNP_FLAG)
+        if not ok:
+            return {"valid": False}
+        inliers = np.arange(len(obj))
+    idx = np.asarray(inliers).ravel()
+    # OpenCV's RANSAC scores EPnP fits of 5-point samples, which on a small planar grid with
+    # sub-pixel noise leave good corners outside the threshold. The consensus set is therefore
+    # re-taken from the refined pose until it no longer changes (as in LO-RANSAC).
+    for _ in range(5):
+        rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, dist, rvec, tvec)
+        proj, _ = cv2.projectPoints(obj, rvec, tvec, K, dist)
+        err_px = np.linalg.norm(proj.reshape(-1, 2) - uv, axis=1)
+        new_idx = np.flatnonzero(err_px < reproj_px)
+        if len(new_idx) < MIN_INLIERS or np.array_equal(new_idx, idx):
+            break
+        idx = new_idx
+    else:
+        rvec, tvec = cv2.solvePnPRefineLM(obj[idx], img[idx], K, dist, rvec, tvec)
+    if len(idx) < MIN_INLIERS:
+        return {"valid": False, "n_inliers": len(idx)}
     rvec, tvec = rvec.ravel(), tvec.ravel()
     if not (np.isfinite(rvec).all() and np.isfinite(tvec).all()) or tvec[2] <= 0:
         return {"valid": False, "n_inliers": len(idx)}

@@ -1,0 +1,332 @@
+"""Tests of cvsflow.pose: corner order, corner extraction, PnP against exact synthetic truth."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from cvsflow import transforms as tf
+from cvsflow.calibration import board_object_points, order_corners
+from cvsflow.errors import InputError
+from cvsflow.pose import (
+    CORNER_COLUMNS,
+    POSE_COLUMNS,
+    detect_corners,
+    estimate_poses,
+    extract_corners,
+)
+
+BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}  # the demo board, 5x4 inner corners
+W, H = 640, 480
+# Principal point at the pixel centre of the image, so that turning the image by 180 degrees
+# is exactly a turn of the camera by 180 degrees about its optical axis.
+K_CENTRED = np.array([[700.0, 0.0, (W - 1) / 2], [0.0, 700.0, (H - 1) / 2], [0.0, 0.0, 1.0]])
+K_DEMO = np.array([[702.0, 0.0, 331.5], [0.0, 698.0, 247.0], [0.0, 0.0, 1.0]])
+DIST_DEMO = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02])
+
+
+def _T_C_B(rpy, t_C_B):
+    """Board pose in the camera from roll/pitch/yaw relative to a fronto-parallel board."""
+    return tf.make_T(tf.R_from_euler(rpy), t_C_B)
+
+
+def _board_centre_pose(rpy, centre_C, board=BOARD):
+    """T_C_B such that the board centre lands at ``centre_C`` (m, camera frame)."""
+    nx, ny = board["squares_x"] - 1, board["squares_y"] - 1
+    c_B = np.array([(nx - 1) * board["square_m"] / 2, (ny - 1) * board["square_m"] / 2, 0.0])
+    R = tf.R_from_euler(rpy)
+    return tf.make_T(R, np.asarray(centre_C) - R @ c_B)
+
+
+def _render_board(T_C_B, K, board=BOARD, pps=24, margin=1, noise_sigma=2.0, seed=0):
+    """Grey image of the chessboard seen by a distortion-free camera, and the true corners.
+
+    Square (i, j) is black when i + j is even (square (0, 0) diagonally outside corner 0);
+    a white margin of ``margin`` squares surrounds the squares, the background is mid grey.
+    """
+    sx, sy, s = board["squares_x"], board["squares_y"], board["square_m"]
+    tex_w, tex_h = (sx + 2 * margin) * pps, (sy + 2 * margin) * pps
+    cols, rows = np.arange(tex_w) // pps - margin, np.arange(tex_h) // pps - margin
+    ii, jj = np.meshgrid(cols, rows)
+    inside = (ii >= 0) & (ii < sx) & (jj >= 0) & (jj < sy)
+    texture = np.where(inside & ((ii + jj) % 2 == 0), 20, 235).astype(np.uint8)
+    # Texture pixel centre (c, r) -> board point X = ((c + 0.5) / pps - 1 - margin) * s.
+    A_B_tex = np.array(
+        [
+            [s / pps, 0.0, (0.5 / pps - 1 - margin) * s],
+            [0.0, s / pps, (0.5 / pps - 1 - margin) * s],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+    H_img_B = K @ np.column_stack([T_C_B[:3, 0], T_C_B[:3, 1], T_C_B[:3, 3]])
+    H_img_tex = H_img_B @ A_B_tex
+    img = cv2.warpPerspective(
+        texture, H_img_tex, (W, H), flags=cv2.INTER_AREA, borderValue=128
+    ).astype(np.float64)
+    img = cv2.GaussianBlur(img, (0, 0), 0.7)
+    img += np.random.default_rng(seed).normal(0.0, noise_sigma, img.shape)
+    gray = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    p_B = board_object_points(board)
+    uv, _ = cv2.projectPoints(p_B, tf.rvec_from_R(T_C_B[:3, :3]), T_C_B[:3, 3], K, None)
+    return gray, uv.reshape(-1, 2)
+
+
+def _corners_table(frames_uv, t0=0.0):
+    """corners.parquet-style table from a list of (N, 2) arrays (None: board not found)."""
+    blocks = []
+    for f, uv in enumerate(frames_uv):
+        if uv is None:
+            blocks.append(
+                pd.DataFrame(
+                    {"frame": [f], "t_s": [t0 + f / 30], "found": [False], "corner": [-1],
+                     "u_px": [np.nan], "v_px": [np.nan]}
+                )
+            )
+        else:
+            n = len(uv)
+            blocks.append(
+                pd.DataFrame(
+                    {"frame": f, "t_s": t0 + f / 30, "found": True, "corner": np.arange(n),
+                     "u_px": uv[:, 0], "v_px": uv[:, 1]}
+                )
+            )
+    return pd.concat(blocks, ignore_index=True)
+
+
+def _project(T_C_B, K, dist, board=BOARD):
+    """Distorted pixel positions (N, 2) of the board's inner corners."""
+    uv, _ = cv2.projectPoints(
+        board_object_points(board), tf.rvec_from_R(T_C_B[:3, :3]), T_C_B[:3, 3], K, dist
+    )
+    return uv.reshape(-1, 2)
+
+
+def _random_poses(n, seed):
+    """Board poses spread over the view: 0.8 to 2.5 m away, tilted up to 40 degrees."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        z = rng.uniform(0.8, 2.5)
+        centre = np.array([rng.uniform(-0.25, 0.25) * z, rng.uniform(-0.18, 0.18) * z, z])
+        rpy = np.radians([rng.uniform(-40, 40), rng.uniform(-40, 40), rng.uniform(-180, 180)])
+        out.append(_board_centre_pose(rpy, centre))
+    return out
+
+
+def _T_est(row):
+    """T_C_B of a poses_raw row. Copies: pandas may hand out read-only arrays (see
+    test_transforms.py::test_R_from_rvec_accepts_read_only_arrays)."""
+    rvec = np.array(row[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float))
+    tvec = np.array(row[["x_m", "y_m", "z_m"]].to_numpy(float))
+    return tf.T_from_rvec_tvec(rvec, tvec)
+
+
+def _angle_between(T_a, T_b):
+    """Rotation angle (rad) of the relative rotation between two transforms."""
+    return float(tf.rotation_angle(T_a[:3, :3].T @ T_b[:3, :3]))
+
+
+# --------------------------------------------------------------------------------------------
+# PnP against exact projections
+
+
+def test_estimate_poses_recovers_known_poses_with_distortion_and_noise():
+    """With 0.2 px noise on exact distorted projections of 100 random poses (0.8 to 2.5 m),
+    PnP keeps all 20 corners and recovers position within 0.5 % of the distance, orientation
+    with median error < 0.3 degrees and 95th percentile < 0.8 degrees (a 36 x 27 cm grid at
+    2.5 m spans only ~100 px, so its tilt is the least certain part)."""
+    rng = np.random.default_rng(1)
+    poses_true = _random_poses(100, seed=2)
+    uvs = [_project(T, K_DEMO, DIST_DEMO) + rng.normal(0, 0.2, (20, 2)) for T in poses_true]
+    poses = estimate_poses(_corners_table(uvs), K_DEMO, DIST_DEMO, BOARD)
+    assert list(poses.columns) == POSE_COLUMNS
+    assert poses["valid"].all()
+    assert (poses["n_inliers"] == 20).all()
+    # RMS of a 2-D error with 0.2 px per coordinate, less the 6 fitted degrees of freedom
+    assert poses["reproj_rms_px"].between(0.1, 0.4).all()
+    angle_deg = []
+    for T_true, (_, row) in zip(poses_true, poses.iterrows(), strict=True):
+        T_est = _T_est(row)
+        dist_m = np.linalg.norm(T_true[:3, 3])
+        assert np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]) < 0.005 * dist_m
+        angle_deg.append(np.degrees(_angle_between(T_true, T_est)))
+        # Euler columns describe the same rotation as the rvec columns
+        rpy = np.array(row[["roll_rad", "pitch_rad", "yaw_rad"]].to_numpy(float))
+        np.testing.assert_allclose(tf.R_from_euler(rpy), T_est[:3, :3], atol=1e-9)
+    assert np.median(angle_deg) < 0.3
+    assert np.percentile(angle_deg, 95) < 0.8
+
+
+def test_estimate_poses_exact_projections_give_exact_pose():
+    """Noise-free projections give the pose to 1e-6 m and 1e-6 rad and ~0 reprojection RMS."""
+    poses_true = _random_poses(5, seed=3)
+    uvs = [_project(T, K_DEMO, DIST_DEMO) for T in poses_true]
+    poses = estimate_poses(_corners_table(uvs), K_DEMO, DIST_DEMO, BOARD)
+    for T_true, (_, row) in zip(poses_true, poses.iterrows(), strict=True):
+        np.testing.assert_allclose(row[["x_m", "y_m", "z_m"]].to_numpy(float), T_true[:3, 3],
+                                   atol=1e-6)
+        T_est = _T_est(row)
+        assert _angle_between(T_true, T_est) < 1e-6
+        assert row["reproj_rms_px"] < 1e-4
+
+
+def test_estimate_poses_rejects_an_outlier_corner():
+    """One corner moved by 30 px is left out by RANSAC (19 inliers), the pose stays accurate."""
+    T_true = _board_centre_pose(np.radians([20, -15, 10]), [0.1, -0.05, 1.4])
+    uv = _project(T_true, K_DEMO, DIST_DEMO)
+    uv[7] += [30.0, -20.0]
+    poses = estimate_poses(_corners_table([uv]), K_DEMO, DIST_DEMO, BOARD)
+    row = poses.iloc[0]
+    assert row["valid"] and row["n_inliers"] == 19
+    np.testing.assert_allclose(row[["x_m", "y_m", "z_m"]].to_numpy(float), T_true[:3, 3],
+                               atol=1e-5)
+
+
+def test_estimate_poses_keeps_not_found_frames_invalid():
+    """Frames without a board stay in the table, one row each, valid=False with NaN pose."""
+    T_true = _board_centre_pose(np.radians([5, 5, 5]), [0.0, 0.0, 1.2])
+    uv = _project(T_true, K_DEMO, DIST_DEMO)
+    poses = estimate_poses(_corners_table([None, uv, None]), K_DEMO, DIST_DEMO, BOARD)
+    assert poses["frame"].tolist() == [0, 1, 2]
+    assert poses["valid"].tolist() == [False, True, False]
+    assert poses.loc[[0, 2], ["x_m", "roll_rad", "rvec_0"]].isna().all().all()
+    assert poses.loc[[0, 2], "n_inliers"].tolist() == [0, 0]
+
+
+def test_estimate_poses_is_reproducible_for_a_seed():
+    """Two runs with the same seed on noisy corners with outliers give identical tables."""
+    rng = np.random.default_rng(4)
+    uvs = []
+    for T in _random_poses(10, seed=5):
+        uv = _project(T, K_DEMO, DIST_DEMO) + rng.normal(0, 0.3, (20, 2))
+        uv[rng.integers(0, 20, 2)] += rng.normal(0, 15, (2, 2))
+        uvs.append(uv)
+    table = _corners_table(uvs)
+    a = estimate_poses(table, K_DEMO, DIST_DEMO, BOARD, seed=11)
+    b = estimate_poses(table, K_DEMO, DIST_DEMO, BOARD, seed=11)
+    pd.testing.assert_frame_equal(a, b)
+
+
+def test_estimate_poses_bad_tables_raise_input_error_naming_the_frame():
+    """Missing columns, or a found frame lacking a corner, are InputErrors naming the problem."""
+    uv = _project(_board_centre_pose([0, 0, 0], [0, 0, 1.0]), K_DEMO, DIST_DEMO)
+    table = _corners_table([uv, uv])
+    with pytest.raises(InputError, match="missing columns.*u_px"):
+        estimate_poses(table.drop(columns="u_px"), K_DEMO, DIST_DEMO, BOARD)
+    broken = table.drop(index=table.index[(table["frame"] == 1) & (table["corner"] == 5)])
+    with pytest.raises(InputError, match="frame 1"):
+        estimate_poses(broken, K_DEMO, DIST_DEMO, BOARD)
+    nan_table = table.copy()
+    nan_table.loc[3, "u_px"] = np.nan
+    with pytest.raises(InputError, match="frame 0.*non-finite"):
+        estimate_poses(nan_table, K_DEMO, DIST_DEMO, BOARD)
+
+
+# --------------------------------------------------------------------------------------------
+# Corner order: the same physical corner always carries the same index
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_detect_corners_on_rendered_image_matches_true_corners(seed):
+    """On a rendered board at a random pose, detected corner k is within 0.3 px of true
+    corner k (no index flip), and PnP on them is within 1 % of distance and 0.5 degrees."""
+    T_true = _random_poses(1, seed=100 + seed)[0]
+    gray, uv_true = _render_board(T_true, K_CENTRED, seed=seed)
+    corners, method = detect_corners(gray, BOARD)
+    assert corners is not None
+    assert method == "colour"
+    err = np.linalg.norm(corners - uv_true, axis=1)
+    assert err.max() < 0.3
+    poses = estimate_poses(_corners_table([corners]), K_CENTRED, np.zeros(5), BOARD)
+    T_est = _T_est(poses.iloc[0])
+    assert np.linalg.norm(T_est[:3, 3] - T_true[:3, 3]) < 0.01 * np.linalg.norm(T_true[:3, 3])
+    assert np.degrees(_angle_between(T_true, T_est)) < 0.5
+
+
+@pytest.mark.parametrize("yaw_deg", [0.0, 90.0, 180.0, -150.0])
+def test_image_turned_180_degrees_gives_the_same_physical_pose(yaw_deg):
+    """Turning the image by 180 degrees (OpenCV then tends to return the grid from the other
+    end) yields the pose Rz(pi) T_C_B: the same physical board pose, never a flipped board."""
+    T_true = _board_centre_pose(np.radians([15.0, -10.0, yaw_deg]), [0.05, 0.03, 1.3])
+    gray, uv_true = _render_board(T_true, K_CENTRED, seed=7)
+    gray_turned = cv2.rotate(gray, cv2.ROTATE_180)
+    T_turn = tf.make_T(tf.R_from_euler([0.0, 0.0, np.pi]), np.zeros(3))
+    for img, T_expected, uv_expected in [
+        (gray, T_true, uv_true),
+        (gray_turned, T_turn @ T_true, np.array([W - 1, H - 1]) - uv_true),
+    ]:
+        corners, _ = detect_corners(img, BOARD)
+        assert np.abs(corners - uv_expected).max() < 0.3
+        poses = estimate_poses(_corners_table([corners]), K_CENTRED, np.zeros(5), BOARD)
+        T_est = _T_est(poses.iloc[0])
+        assert np.linalg.norm(T_est[:3, 3] - T_expected[:3, 3]) < 0.005
+        assert np.degrees(_angle_between(T_expected, T_est)) < 0.3
+
+
+def test_order_corners_undoes_every_reordering_of_the_grid():
+    """Whatever order the detector returns (as is, reversed, rows or columns mirrored), the
+    ordered corners are the same, corner k at board point (k % nx, k // nx)."""
+    T_true = _board_centre_pose(np.radians([-20.0, 25.0, 35.0]), [-0.1, 0.05, 1.1])
+    gray, uv_true = _render_board(T_true, K_CENTRED, seed=8)
+    grid = uv_true.reshape(4, 5, 2)
+    variants = {
+        "as is": grid,
+        "reversed": grid[::-1, ::-1],
+        "rows mirrored": grid[::-1],
+        "columns mirrored": grid[:, ::-1],
+    }
+    for name, g in variants.items():
+        ordered, method = order_corners(g.reshape(-1, 2), gray, BOARD)
+        assert method == "colour", name
+        np.testing.assert_allclose(ordered, uv_true, atol=1e-12, err_msg=name)
+
+
+def test_order_corners_falls_back_to_continuity_when_ends_look_alike():
+    """For a 7x5-square board (both grid ends alike), the order closest to the previous frame
+    is kept; with no previous frame the method says the order is unresolved."""
+    board = {"squares_x": 7, "squares_y": 5, "square_m": 0.05}
+    T_true = _board_centre_pose(np.radians([10.0, 5.0, 20.0]), [0.0, 0.0, 0.9], board)
+    gray, uv_true = _render_board(T_true, K_CENTRED, board=board, seed=9)
+    previous = uv_true + 1.5  # the board moved a little since the previous frame
+    ordered, method = order_corners(uv_true[::-1], gray, board, previous_px=previous)
+    assert method == "continuity"
+    np.testing.assert_allclose(ordered, uv_true, atol=1e-12)
+    _, method = order_corners(uv_true[::-1], gray, board)
+    assert method == "unresolved"
+
+
+# --------------------------------------------------------------------------------------------
+# extract_corners: the corners.parquet table
+
+
+def test_extract_corners_table_schema_and_not_found_rows():
+    """A sequence with a blank frame gives one found=False row (corner -1, NaN pixels) for it
+    and 20 ordered rows for each board frame, with the contract's columns and dtypes."""
+    frames = []
+    truths = []
+    for f, T in enumerate(_random_poses(3, seed=20)):
+        gray, uv = _render_board(T, K_CENTRED, seed=f)
+        frames.append((f, f / 30.0, gray))
+        truths.append(uv)
+    frames.insert(1, (99, 99 / 30.0, np.full((H, W), 128, np.uint8)))
+    corners = extract_corners(iter(frames), BOARD, n_frames=4)
+    assert list(corners.columns) == CORNER_COLUMNS
+    assert corners["frame"].dtype == np.int64 and corners["corner"].dtype == np.int64
+    assert corners["found"].dtype == bool
+    blank = corners[corners["frame"] == 99]
+    assert len(blank) == 1 and not blank["found"].iloc[0] and blank["corner"].iloc[0] == -1
+    assert blank[["u_px", "v_px"]].isna().all().all()
+    for f, uv in enumerate(truths):
+        block = corners[corners["frame"] == f]
+        assert block["corner"].tolist() == list(range(20)) and block["found"].all()
+        np.testing.assert_allclose(block[["u_px", "v_px"]].to_numpy(), uv, atol=0.3)
+    assert corners.attrs["n_found"] == 3 and corners.attrs["n_frames"] == 4
+
+
+def test_extract_corners_rejects_a_colour_frame():
+    """A frame that is not 8-bit grayscale is an InputError naming the frame."""
+    bad = np.zeros((H, W, 3), np.uint8)
+    with pytest.raises(InputError, match="frame 5"):
+        extract_corners([(5, 0.1, bad)], BOARD)
