@@ -1,0 +1,205 @@
+"""Tests of cvsflow.optimise.seed: the chapter's focal-length and offset optimiser."""
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from cvsflow.errors import OptimiseError
+from cvsflow.optimise.seed import (
+    POSE_DIMS,
+    board_object_points,
+    compute_eps,
+    compute_p_bar,
+    normalised_error_norm,
+    objective_value,
+    optimise_seed,
+    solve_pnp_batch,
+)
+from cvsflow.transforms import T_from_pose6, rvec_tvec_from_T
+
+BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
+DIST = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02])
+OFFSET = np.array([0.05, -0.03, 0.10, 0.02, -0.01, 3.0])  # P_bar truth (m, rad); yaw near pi
+
+
+def _session(n_frames, fx=700.0, fy=700.0, noise_px=0.2, seed=0):
+    """Synthetic pairs and corners: smooth board trajectory at 1-4 m, known K, P* = truth - OFFSET."""
+    rng = np.random.default_rng(seed)
+    X_B = board_object_points(BOARD)
+    K = np.array([[fx, 0.0, 320.0], [0.0, fy, 240.0], [0.0, 0.0, 1.0]])
+    t_s = np.arange(n_frames) / 30.0
+    phase = rng.uniform(0, 2 * np.pi, 6)
+    freq = rng.uniform(0.05, 0.25, 6)
+    s = np.sin(2 * np.pi * freq * t_s[:, None] + phase)
+    z = 2.5 + 1.4 * s[:, 2]
+    pose = np.stack(
+        [0.2 * z * s[:, 0] - 0.18, 0.15 * z * s[:, 1] - 0.135, z,
+         0.5 * s[:, 3], 0.5 * s[:, 4], 0.3 * s[:, 5]], axis=1)
+    rvec, tvec = rvec_tvec_from_T(T_from_pose6(pose))
+    uv = np.stack([cv2.projectPoints(X_B, rvec[i], tvec[i], K, DIST)[0][:, 0]
+                   for i in range(n_frames)])
+    uv = uv + rng.normal(0.0, noise_px, uv.shape)
+    frames = np.arange(n_frames) + 100
+    n_c = X_B.shape[0]
+    corners = pd.DataFrame({
+        "frame": np.repeat(frames, n_c), "t_s": np.repeat(t_s, n_c), "found": True,
+        "corner": np.tile(np.arange(n_c), n_frames),
+        "u_px": uv[..., 0].ravel(), "v_px": uv[..., 1].ravel()})
+    pairs = pd.DataFrame({"frame": frames, "t_s": t_s})
+    P_star = pose - OFFSET
+    P_star[:, 3:] = np.angle(np.exp(1j * P_star[:, 3:]))
+    for i, d in enumerate(POSE_DIMS):
+        pairs[f"cvs_{d}"] = pose[:, i]
+        pairs[f"vic_{d}"] = P_star[:, i]
+    for i in range(3):
+        pairs[f"cvs_rvec_{i}"] = rvec[:, i]
+    return pairs, corners, K, pose, uv, rvec, tvec
+
+
+def test_board_object_points_layout():
+    """Corner k lies at ((k % nx) s, (k // nx) s, 0) with nx = squares_x - 1."""
+    X = board_object_points(BOARD)
+    assert X.shape == (20, 3)
+    np.testing.assert_allclose(X[6], [0.09, 0.09, 0.0])
+    np.testing.assert_allclose(X[19], [0.36, 0.27, 0.0])
+
+
+def test_solve_pnp_batch_matches_opencv():
+    """Batched LM PnP equals cv2.solvePnP(ITERATIVE) at a different f to 1e-5 m / 1e-5 rad."""
+    pairs, corners, K, pose, uv, rvec, tvec = _session(60, seed=3)
+    X_B = board_object_points(BOARD)
+    K2 = K.copy()
+    K2[0, 0], K2[1, 1] = 690.0, 712.0
+    r_b, t_b, _ = solve_pnp_batch(uv, X_B, 690.0, 712.0, 320.0, 240.0, DIST, rvec, tvec,
+                                  max_iter=50, tol=1e-12)
+    for i in range(len(uv)):
+        _, r_cv, t_cv = cv2.solvePnP(X_B, uv[i], K2, DIST, rvec=rvec[i].copy(),
+                                     tvec=tvec[i].copy(), useExtrinsicGuess=True,
+                                     flags=cv2.SOLVEPNP_ITERATIVE)
+        np.testing.assert_allclose(t_b[i], t_cv.ravel(), atol=1e-5)
+        np.testing.assert_allclose(r_b[i], r_cv.ravel(), atol=1e-5)
+
+
+def test_p_bar_and_eps_by_hand():
+    """Eq. 1.10 is the mean difference (circular for angles); eq. 1.11 gives zero-mean eps."""
+    rng = np.random.default_rng(1)
+    F = rng.normal(size=(50, 6))
+    P_star = F - np.array([0.1, 0.2, 0.3, 0.0, 0.1, np.pi - 0.01]) + rng.normal(0, 0.01, (50, 6))
+    P_bar = compute_p_bar(F, P_star)
+    d = F - P_star
+    np.testing.assert_allclose(P_bar[:3], d[:, :3].mean(axis=0), atol=1e-12)
+    ang = np.angle(np.exp(1j * d[:, 3:]).mean(axis=0))
+    np.testing.assert_allclose(P_bar[3:], ang, atol=1e-12)
+    assert abs(P_bar[5]) > 3.0  # the offset near pi is not averaged to ~0
+    eps = compute_eps(F, P_star, P_bar)
+    np.testing.assert_allclose(eps[:, :3].mean(axis=0), 0.0, atol=1e-12)
+    assert np.all(np.abs(eps[:, 3:]) < 0.1)  # wrapped, not ~2 pi
+
+
+def test_objectives_by_hand():
+    """Objective values equal their numpy definitions; an unknown name is an OptimiseError."""
+    e = np.random.default_rng(2).normal(size=(30, 3))
+    assert objective_value(e, "summed") == pytest.approx(np.linalg.norm(e.sum(axis=0)))
+    assert objective_value(e, "sum_abs") == pytest.approx(np.linalg.norm(np.abs(e).sum(axis=0)))
+    assert objective_value(e, "sum_squares") == pytest.approx(np.sum(e**2))
+    assert normalised_error_norm(e) == pytest.approx(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+    with pytest.raises(OptimiseError, match="objective"):
+        objective_value(e, "frobenius")
+
+
+def test_sum_squares_moves_focal_lengths_to_truth():
+    """From f = (665, 730) px with truth (700, 700), sum_squares ends within 8 px of truth and
+    recovers P_bar's translation to 2 cm; the normalised error norm drops at least fivefold."""
+    pairs, corners, K, *_ = _session(240, seed=4)
+    res = optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=12, f_init_px=(665, 730),
+                        objective="sum_squares", grid_half_width_px=32, grid_points=3,
+                        grid_levels=5)
+    fx, fy = res.result["fx_px"], res.result["fy_px"]
+    assert abs(fx - 700) < 8 and abs(fy - 700) < 8
+    np.testing.assert_allclose(res.result["P_bar"][:3], OFFSET[:3], atol=0.02)
+    assert res.result["norm_normalised_final_m"] < res.result["norm_normalised_init_m"] / 5
+    it = res.iterations
+    assert len(it) == 13 and it["iteration"].tolist() == list(range(13))
+    # block-coordinate descent: the objective never increases from one iteration to the next
+    assert np.all(np.diff(it["objective"]) <= 1e-9)
+
+
+def test_sum_abs_moves_towards_truth():
+    """The sum_abs variant also moves (fx, fy) towards the truth (distance at least halved)."""
+    pairs, corners, K, *_ = _session(150, seed=5)
+    res = optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=5, f_init_px=(670, 725),
+                        objective="sum_abs", grid_points=3, grid_levels=5)
+    d0 = np.hypot(670 - 700, 725 - 700)
+    d1 = np.hypot(res.result["fx_px"] - 700, res.result["fy_px"] - 700)
+    assert d1 < d0 / 2
+
+
+def test_literal_summed_objective_never_moves():
+    """Eq. 1.12 literally: sum_i eps_i = 0 at the current f, so fx, fy stay at their start."""
+    pairs, corners, K, *_ = _session(80, seed=6)
+    res = optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=3, f_init_px=(660, 740),
+                        objective="summed", grid_points=3, grid_levels=3)
+    assert res.result["fx_px"] == 660 and res.result["fy_px"] == 740
+    np.testing.assert_allclose(res.iterations["objective"], 0.0, atol=1e-9)
+    np.testing.assert_allclose(res.iterations["objective_grid_min"].iloc[:-1], 0.0, atol=1e-9)
+
+
+def test_tables_and_result_schema():
+    """iterations, errors and result carry the documented columns; eps columns match by hand."""
+    pairs, corners, K, *_ = _session(40, seed=7)
+    res = optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=1, grid_points=3,
+                        grid_levels=2)
+    it, err = res.iterations, res.errors
+    for d in POSE_DIMS:
+        for pre in ("P_bar_", "eps_mean_", "eps_std_", "eps_rms_"):
+            assert pre + d in it.columns
+        for pre in ("vic_", "cvs_", "cvs_orig_", "eps_", "eps_orig_"):
+            assert pre + d in err.columns
+    for col in ("iteration", "fx_px", "fy_px", "objective", "norm_normalised"):
+        assert col in it.columns
+    F = err[[f"cvs_{d}" for d in POSE_DIMS]].to_numpy()
+    P = err[[f"vic_{d}" for d in POSE_DIMS]].to_numpy()
+    P_bar = np.array(res.result["P_bar"])
+    np.testing.assert_allclose(err[[f"eps_{d}" for d in POSE_DIMS]].to_numpy(),
+                               compute_eps(F, P, P_bar), atol=1e-12)
+    eps = err[[f"eps_{d}" for d in POSE_DIMS]].to_numpy()
+    np.testing.assert_allclose(it[[f"eps_rms_{d}" for d in POSE_DIMS]].iloc[-1],
+                               np.sqrt(np.mean(eps**2, axis=0)), rtol=1e-12)
+    assert res.result["n_pairs"] == 40 and res.result["iterations"] == 1
+    assert set(res.result) >= {"fx_px", "fy_px", "P_bar", "objective", "timings_s",
+                               "norm_normalised_init_m", "norm_normalised_final_m"}
+
+
+def test_threads_give_identical_result():
+    """n_workers=2 gives bit-identical focal lengths and objective to n_workers=1."""
+    pairs, corners, K, *_ = _session(60, seed=8)
+    kw = dict(k_iterations=2, f_init_px=(680, 720), grid_points=3, grid_levels=3)
+    a = optimise_seed(pairs, corners, K, DIST, BOARD, n_workers=1, **kw)
+    b = optimise_seed(pairs, corners, K, DIST, BOARD, n_workers=2, **kw)
+    assert (a.result["fx_px"], a.result["fy_px"]) == (b.result["fx_px"], b.result["fy_px"])
+    assert a.result["objective"] == b.result["objective"]
+
+
+def test_too_few_pairs_raises():
+    """Fewer than 10 pairs is an OptimiseError naming pairs.parquet."""
+    pairs, corners, K, *_ = _session(12, seed=9)
+    with pytest.raises(OptimiseError, match="pairs.parquet: 5 pairs"):
+        optimise_seed(pairs.iloc[:5], corners, K, DIST, BOARD, k_iterations=1)
+
+
+def test_missing_corners_names_frame():
+    """A pair frame without a full corner set raises OptimiseError naming that frame."""
+    pairs, corners, K, *_ = _session(12, seed=10)
+    corners = corners[~((corners["frame"] == 105) & (corners["corner"] == 3))]
+    with pytest.raises(OptimiseError, match="frame 105"):
+        optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=1)
+
+
+def test_missing_columns_and_bad_grid_raise():
+    """Missing vic_* columns and an even grid_points are OptimiseErrors saying what is wrong."""
+    pairs, corners, K, *_ = _session(12, seed=11)
+    with pytest.raises(OptimiseError, match="vic_yaw_rad"):
+        optimise_seed(pairs.drop(columns="vic_yaw_rad"), corners, K, DIST, BOARD)
+    with pytest.raises(OptimiseError, match="grid_points"):
+        optimise_seed(pairs, corners, K, DIST, BOARD, grid_points=4)
