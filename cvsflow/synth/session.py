@@ -1,0 +1,425 @@
+"""The demo session as data: configuration, true poses, images and the Vicon recording.
+
+Pure functions of the session config (no file I/O); ``cvsflow.synth.render_session`` writes
+their results with ``cvsflow.io.synth_out``.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from cvsflow.errors import ConfigError
+from cvsflow.synth.camera import (
+    Board,
+    BoardTexture,
+    camera_from_config,
+    expose,
+    make_background,
+    make_board_texture,
+    project_points,
+    rectangle_outline_B,
+    render_board,
+    undistortion_grid,
+    vignetting,
+)
+from cvsflow.synth.markers import add_dropouts, marker_table, true_mounting
+from cvsflow.synth.motion import (
+    HandMotion,
+    board_poses,
+    make_hand_motion,
+    random_sine_sum,
+    still_poses,
+)
+from cvsflow.transforms import (
+    T_from_pose6,
+    euler_from_R,
+    invert_T,
+    quat_from_R,
+    transform_points,
+)
+
+log = logging.getLogger(__name__)
+
+IMAGE_SIZE = (640, 480)  # width, height, px
+FPS = 30.0
+VICON_RATE_HZ = 300.0
+VICON_TAIL_S = 1.5  # the Vicon keeps recording this long after the video ends
+IN_VIEW_MARGIN_PX = 3.0
+FOCUS_DEPTH_M = 2.2  # defocus blur grows away from this depth
+# Order of the independent random streams; appending keeps earlier streams unchanged.
+_STREAMS = ("mounting", "stills", "motion", "lighting", "images", "vicon", "background")
+
+
+@dataclass(frozen=True)
+class SynthSpec:
+    """Everything the renderer needs, read and checked from ``config["sessions"][name]``."""
+
+    seed: int
+    duration_s: float
+    n_stills: int
+    K: np.ndarray
+    dist: np.ndarray
+    board: Board
+    T_Cm_C_design: np.ndarray
+    T_Bm_B_design: np.ndarray
+    camera_names: tuple
+    camera_layout_m: np.ndarray
+    board_names: tuple
+    board_layout_m: np.ndarray
+    marker_placement_sigma_m: float
+    marker_noise_sigma_m: float
+    dropout_rate_hz: float
+    dropout_max_s: float
+    vicon_lead_s: float
+    image_noise_sigma: float
+    video_quality: int
+
+
+def _require(mapping, key, where):
+    """``mapping[key]`` or a ConfigError naming the missing key."""
+    if not isinstance(mapping, dict) or key not in mapping:
+        raise ConfigError(f"session config, {where}: missing key '{key}'")
+    return mapping[key]
+
+
+def parse_session_config(session_cfg) -> SynthSpec:
+    """Read and check a session's ``synth``, ``board`` and ``markers`` blocks.
+
+    Raises
+    ------
+    ConfigError
+        A key is missing or a value is out of its range; the message names the key.
+    """
+    synth = _require(session_cfg, "synth", "session")
+    board_cfg = _require(session_cfg, "board", "session")
+    markers_cfg = _require(session_cfg, "markers", "session")
+    cam = _require(synth, "camera", "synth")
+    K, dist = camera_from_config(
+        {k: _require(cam, k, "synth.camera") for k in ("fx_px", "fy_px", "cx_px", "cy_px", "dist")}
+    )
+    if dist.shape != (5,):
+        raise ConfigError(
+            f"session config, synth.camera.dist: expected 5 values [k1, k2, p1, p2, k3], "
+            f"got {dist.size}"
+        )
+    layouts = {}
+    for body in ("camera", "board"):
+        block = _require(markers_cfg, body, "markers")
+        names = tuple(_require(block, "names", f"markers.{body}"))
+        layout = np.asarray(_require(block, "layout_m", f"markers.{body}"), dtype=float)
+        if layout.shape != (len(names), 3) or len(names) < 3:
+            raise ConfigError(
+                f"session config, markers.{body}.layout_m: expected one [x, y, z] per name "
+                f"({len(names)} names, at least 3), got shape {layout.shape}"
+            )
+        layouts[body] = (names, layout)
+    board = Board(
+        int(_require(board_cfg, "squares_x", "board")),
+        int(_require(board_cfg, "squares_y", "board")),
+        float(_require(board_cfg, "square_m", "board")),
+    )
+    duration_s = float(synth.get("duration_s", 20.0))
+    if not duration_s > 0.0:
+        raise ConfigError(f"session config, synth.duration_s: expected > 0 s, got {duration_s}")
+    return SynthSpec(
+        seed=int(_require(synth, "seed", "synth")),
+        duration_s=duration_s,
+        n_stills=int(synth.get("n_stills", 15)),
+        K=K,
+        dist=dist,
+        board=board,
+        T_Cm_C_design=T_from_pose6(_require(synth, "T_Cm_C_pose6", "synth")),
+        T_Bm_B_design=T_from_pose6(_require(synth, "T_Bm_B_pose6", "synth")),
+        camera_names=layouts["camera"][0],
+        camera_layout_m=layouts["camera"][1],
+        board_names=layouts["board"][0],
+        board_layout_m=layouts["board"][1],
+        marker_placement_sigma_m=float(synth.get("marker_placement_sigma_m", 0.003)),
+        marker_noise_sigma_m=float(synth.get("marker_noise_sigma_m", 0.0003)),
+        dropout_rate_hz=float(synth.get("dropout_rate_hz", 0.5)),
+        dropout_max_s=float(synth.get("dropout_max_s", 0.08)),
+        vicon_lead_s=float(synth.get("vicon_lead_s", 2.37)),
+        image_noise_sigma=float(synth.get("image_noise_sigma", 2.0)),
+        video_quality=int(synth.get("video_quality", 75)),
+    )
+
+
+def random_streams(seed):
+    """Independent generators, one per purpose, all derived from ``seed``."""
+    children = np.random.SeedSequence(seed).spawn(len(_STREAMS))
+    return {name: np.random.default_rng(s) for name, s in zip(_STREAMS, children, strict=True)}
+
+
+@dataclass(frozen=True)
+class Rig:
+    """The true, fixed geometry of the session (all metres)."""
+
+    T_W_Cm: np.ndarray
+    T_Cm_C: np.ndarray
+    T_Bm_B: np.ndarray
+    markers_Cm_m: np.ndarray  # (4, 3) real marker positions in the true Cm
+    markers_Bm_m: np.ndarray  # (4, 3) real marker positions in the true Bm
+    dt_offset_s: float  # t_vicon_s = t_video_s + dt_offset_s
+
+
+def make_rig(spec: SynthSpec, rng) -> Rig:
+    """Place the markers (with placement error), define the true bodies, set up the camera.
+
+    The camera sits on a chair, optical axis horizontal, marker body roughly aligned with
+    the Vicon axes by hand (a few degrees off). The true time offset is ``vicon_lead_s``
+    plus a random fraction of a Vicon sample, so it is never a whole number of samples.
+    """
+    sigma = spec.marker_placement_sigma_m
+    T_Cm_C, markers_Cm = true_mounting(
+        spec.T_Cm_C_design, spec.camera_layout_m, rng.normal(0, sigma, spec.camera_layout_m.shape)
+    )
+    T_Bm_B, markers_Bm = true_mounting(
+        spec.T_Bm_B_design, spec.board_layout_m, rng.normal(0, sigma, spec.board_layout_m.shape)
+    )
+    # Cm is placed so that the optical frame C has its z axis level: the chair stands on
+    # the floor and the camera looks horizontally, whatever the designed mounting.
+    R_level = _level_camera(T_Cm_C, yaw_rad=np.deg2rad(rng.uniform(-8.0, 8.0)))
+    t_W_C = np.array([rng.uniform(-2.2, -1.8), rng.uniform(-0.2, 0.2), rng.uniform(0.75, 0.85)])
+    T_W_C = np.eye(4)
+    T_W_C[:3, :3] = R_level
+    T_W_C[:3, 3] = t_W_C
+    T_W_Cm = T_W_C @ invert_T(T_Cm_C)
+    sub_sample_s = rng.uniform(0.2, 0.8) / VICON_RATE_HZ
+    return Rig(T_W_Cm, T_Cm_C, T_Bm_B, markers_Cm, markers_Bm, spec.vicon_lead_s + sub_sample_s)
+
+
+def _level_camera(T_Cm_C, yaw_rad):
+    """R_W_C of a camera looking horizontally along W's (rotated) x axis, image rows level.
+
+    The small tilt of the marker body this implies is the hand-placement error of the rig.
+    """
+    # C: x right, y down, z forward; in W (z up): forward = (cos, sin, 0), down = -z_W.
+    forward = np.array([np.cos(yaw_rad), np.sin(yaw_rad), 0.0])
+    down = np.array([0.0, 0.0, -1.0])
+    right = np.cross(down, forward)
+    return np.column_stack([right, down, forward])
+
+
+@dataclass(frozen=True)
+class VideoTruth:
+    """True per-frame quantities of the video (see docs/contracts.md, truth_frames)."""
+
+    t_s: np.ndarray  # (N,) container time = mid-exposure time, s
+    T_C_B: np.ndarray  # (N, 4, 4)
+    exposure_s: np.ndarray  # (N,)
+    corners_px: np.ndarray  # (N, nx*ny, 2) distorted pixels, NaN where not projectable
+    in_view: np.ndarray  # (N,) bool
+    blur_px: np.ndarray  # (N,) largest corner travel during the exposure, px
+
+
+def exposure_times(rng, t_s):
+    """Auto-exposure times (s) at video times ``t_s``: drifting slowly within 8..20 ms."""
+    drift = random_sine_sum(rng, 1, 3, 0.01, 0.08, std=[1.0])(t_s)[:, 0]
+    return np.clip(0.014 + 0.006 * drift, 0.008, 0.020)
+
+
+def video_truth(spec: SynthSpec, motion: HandMotion, exposure_s) -> VideoTruth:
+    """True board poses, corners, visibility and motion blur of every video frame."""
+    n = int(round(spec.duration_s * FPS))
+    t_s = np.arange(n) / FPS
+    T_C_B = board_poses(motion, t_s)
+    corners_B = spec.board.corners_B()
+    corners_px = project_points(T_C_B, corners_B, spec.K, spec.dist)
+    width, height = IMAGE_SIZE
+    m = IN_VIEW_MARGIN_PX
+    with np.errstate(invalid="ignore"):
+        inside = (
+            (corners_px[..., 0] >= m)
+            & (corners_px[..., 0] <= width - 1 - m)
+            & (corners_px[..., 1] >= m)
+            & (corners_px[..., 1] <= height - 1 - m)
+        )
+    in_view = np.all(inside, axis=1)
+    start = project_points(board_poses(motion, t_s - exposure_s / 2), corners_B, spec.K, spec.dist)
+    stop = project_points(board_poses(motion, t_s + exposure_s / 2), corners_B, spec.K, spec.dist)
+    travel = np.linalg.norm(stop - start, axis=-1)
+    with np.errstate(invalid="ignore"):
+        blur_px = np.where(
+            np.any(np.isfinite(travel), axis=1), np.nanmax(np.nan_to_num(travel, nan=-1), 1), 0.0
+        )
+    return VideoTruth(t_s, T_C_B, exposure_s, corners_px, in_view, np.clip(blur_px, 0, None))
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Slow drifts of the scene lighting (global gain, offset, a soft gradient)."""
+
+    drift: object  # SineSum with 4 channels
+
+    def at(self, t_s):
+        """(gain, offset, gradient_x, gradient_y) at one time: grey levels and fractions."""
+        d = self.drift(np.array([t_s]))[0]
+        return 215.0 * (1.0 + 0.12 * d[0]), 12.0 + 5.0 * d[1], 0.15 * d[2], 0.15 * d[3]
+
+
+class Renderer:
+    """Pre-computed camera, texture and background; renders stills and video frames.
+
+    Parameters
+    ----------
+    spec : SynthSpec
+    rng_background : numpy.random.Generator
+        For the static cluttered background of the video and the pale one of the stills.
+    """
+
+    def __init__(self, spec: SynthSpec, rng_background):
+        self.spec = spec
+        self.xy_n = undistortion_grid(spec.K, spec.dist, IMAGE_SIZE)
+        self.texture: BoardTexture = make_board_texture(spec.board)
+        self.background = make_background(rng_background, IMAGE_SIZE)
+        self.background_still = make_background(rng_background, IMAGE_SIZE, n_rects=8, light=True)
+        self.shading = vignetting(IMAGE_SIZE, spec.K)
+        width, height = IMAGE_SIZE
+        u, v = np.meshgrid(
+            np.linspace(-0.5, 0.5, width, dtype=np.float32),
+            np.linspace(-0.5, 0.5, height, dtype=np.float32),
+        )
+        self.ramp_u, self.ramp_v = u, v
+
+    def board_layer(self, T_C_B_sub):
+        """Mean of the board layer over sub-frame poses (N, 4, 4): motion blur."""
+        layers = [
+            render_board(T, self.texture, self.xy_n, self.spec.K, self.spec.dist)
+            for T in T_C_B_sub
+        ]
+        return np.mean(layers, axis=0) if len(layers) > 1 else layers[0]
+
+    def compose(self, layer, background, gain, offset, grad_u, grad_v, depth_m, rng):
+        """Composite the board over the background, light it and expose it (uint8)."""
+        reflectance = layer[..., 0] + (1.0 - layer[..., 1]) * background
+        shading = self.shading * (1.0 + grad_u * self.ramp_u + grad_v * self.ramp_v)
+        defocus_px = 0.5 + 1.5 * abs(1.0 / max(depth_m, 0.3) - 1.0 / FOCUS_DEPTH_M)
+        return expose(
+            reflectance * shading, gain, offset, defocus_px, self.spec.image_noise_sigma, rng
+        )
+
+    def still(self, T_C_B, rng):
+        """A calibration still (uint8, 480 x 640): pale background, steady light, slight blur."""
+        layer = self.board_layer(T_C_B[None])
+        return self.compose(
+            layer, self.background_still, 220.0, 10.0, 0.05, -0.05, T_C_B[2, 3], rng
+        )
+
+    def video_frame(self, motion, t_s, exposure_s, blur_px, lighting: Lighting, rng):
+        """A video frame at container time ``t_s`` (mid-exposure), uint8 480 x 640.
+
+        The exposure is sampled with about one sub-frame per 1.5 px of corner travel.
+        """
+        n_sub = int(np.clip(np.ceil(blur_px / 1.5) + 1, 1, 10))
+        t_sub = t_s + exposure_s * ((np.arange(n_sub) + 0.5) / n_sub - 0.5)
+        T_sub = board_poses(motion, t_sub)
+        layer = self.board_layer(T_sub)
+        gain, offset, grad_u, grad_v = lighting.at(t_s)
+        depth_m = float(T_sub[n_sub // 2, 2, 3])
+        return self.compose(layer, self.background, gain, offset, grad_u, grad_v, depth_m, rng)
+
+
+def vicon_recording(spec: SynthSpec, rig: Rig, motion: HandMotion, rng):
+    """The Vicon export of the session: board and camera markers at 300 Hz in W.
+
+    Parameters
+    ----------
+    spec : SynthSpec
+    rig : Rig
+    motion : HandMotion
+    rng : numpy.random.Generator
+        For marker noise and dropouts.
+
+    Returns
+    -------
+    markers : pandas.DataFrame
+        Wide marker table (``cvsflow.io.vicon`` form), metres, NaN in dropouts.
+    T_W_Bm : ndarray, shape (N, 4, 4)
+        True board-marker body poses at the Vicon samples.
+    n_dropouts : int
+    """
+    n = int(np.ceil((spec.duration_s + VICON_TAIL_S + rig.dt_offset_s) * VICON_RATE_HZ))
+    t_vicon_s = np.arange(n) / VICON_RATE_HZ
+    T_C_B = board_poses(motion, t_vicon_s - rig.dt_offset_s)
+    T_W_Bm = rig.T_W_Cm @ rig.T_Cm_C @ T_C_B @ invert_T(rig.T_Bm_B)
+    board_W = transform_points(T_W_Bm[:, None], rig.markers_Bm_m[None])
+    camera_W = np.broadcast_to(transform_points(rig.T_W_Cm, rig.markers_Cm_m), (n, 4, 3))
+    xyz = np.concatenate([camera_W, board_W], axis=1)
+    xyz = xyz + rng.normal(0.0, spec.marker_noise_sigma_m, xyz.shape)
+    xyz, n_dropouts = add_dropouts(
+        xyz, rng, spec.dropout_rate_hz, spec.dropout_max_s, VICON_RATE_HZ
+    )
+    names = list(spec.camera_names) + list(spec.board_names)
+    return marker_table(xyz, names, VICON_RATE_HZ), T_W_Bm, n_dropouts
+
+
+def truth_tables(spec: SynthSpec, truth: VideoTruth):
+    """``truth_frames`` and ``truth_corners`` tables (docs/contracts.md)."""
+    n = len(truth.t_s)
+    rpy = euler_from_R(truth.T_C_B[:, :3, :3])
+    q = quat_from_R(truth.T_C_B[:, :3, :3])
+    frames = pd.DataFrame(
+        {
+            "frame": np.arange(n),
+            "t_s": truth.t_s,
+            "x_m": truth.T_C_B[:, 0, 3],
+            "y_m": truth.T_C_B[:, 1, 3],
+            "z_m": truth.T_C_B[:, 2, 3],
+            "roll_rad": rpy[:, 0],
+            "pitch_rad": rpy[:, 1],
+            "yaw_rad": rpy[:, 2],
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
+            "in_view": truth.in_view,
+            "blur_px": truth.blur_px,
+            "exposure_s": truth.exposure_s,
+        }
+    )
+    n_corners = truth.corners_px.shape[1]
+    corners = pd.DataFrame(
+        {
+            "frame": np.repeat(np.arange(n), n_corners),
+            "corner": np.tile(np.arange(n_corners), n),
+            "u_px": truth.corners_px[..., 0].ravel(),
+            "v_px": truth.corners_px[..., 1].ravel(),
+        }
+    )
+    return frames, corners
+
+
+def truth_document(spec: SynthSpec, rig: Rig, n_frames, stills):
+    """The ``truth.yaml`` mapping (docs/contracts.md), plus the designed mountings and stills."""
+    width, height = IMAGE_SIZE
+    return {
+        "camera": {"K": spec.K, "dist": spec.dist, "width": width, "height": height},
+        "T_Cm_C": rig.T_Cm_C,
+        "T_Bm_B": rig.T_Bm_B,
+        "T_W_Cm": rig.T_W_Cm,
+        "dt_offset_s": rig.dt_offset_s,
+        "fps": FPS,
+        "vicon_rate_hz": VICON_RATE_HZ,
+        "markers_Cm_m": dict(zip(spec.camera_names, rig.markers_Cm_m, strict=True)),
+        "markers_Bm_m": dict(zip(spec.board_names, rig.markers_Bm_m, strict=True)),
+        "board": {
+            "squares_x": spec.board.squares_x,
+            "squares_y": spec.board.squares_y,
+            "square_m": spec.board.square_m,
+        },
+        "n_frames": int(n_frames),
+        "seed": spec.seed,
+        "duration_s": spec.duration_s,
+        "T_Cm_C_design": spec.T_Cm_C_design,
+        "T_Bm_B_design": spec.T_Bm_B_design,
+        "stills": stills,
+    }
+
+
+def still_outline_B(board: Board):
+    """Points that must be in view in a calibration still: the printed squares' outline."""
+    return rectangle_outline_B(board.printed_B(), n_per_edge=6)

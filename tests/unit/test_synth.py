@@ -1,0 +1,330 @@
+"""Tests of the demo-session renderer (cvsflow.synth) against its own ground truth."""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from cvsflow.errors import ConfigError
+from cvsflow.io import synth_out
+from cvsflow.synth import render_session
+from cvsflow.synth.camera import Board, make_board_texture, project_points
+from cvsflow.synth.markers import fit_rigid, true_mounting
+from cvsflow.synth.motion import board_poses, make_hand_motion, still_poses
+from cvsflow.synth.session import (
+    IMAGE_SIZE,
+    Renderer,
+    make_rig,
+    parse_session_config,
+    random_streams,
+    still_outline_B,
+    vicon_recording,
+    video_truth,
+)
+from cvsflow.transforms import (
+    T_from_pose6,
+    euler_from_R,
+    invert_T,
+    rotation_angle,
+    rvec_tvec_from_T,
+)
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def demo_cfg(duration_s=3.0, n_stills=3, seed=7):
+    """The demo session's config from config/config.yaml, shortened for tests."""
+    with open(REPO / "config" / "config.yaml") as fh:
+        cfg = copy.deepcopy(yaml.safe_load(fh)["sessions"]["demo"])
+    cfg["synth"].update(duration_s=duration_s, n_stills=n_stills, seed=seed)
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def spec():
+    return parse_session_config(demo_cfg())
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """A 3 s session rendered twice with one seed and once with another."""
+    base = tmp_path_factory.mktemp("synth")
+    out = {}
+    for key, seed in (("a", 7), ("b", 7), ("c", 8)):
+        out[key] = base / key / "demo"
+        out[key + "_summary"] = render_session(demo_cfg(seed=seed), out[key])
+    return out
+
+
+def _file_digests(folder):
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(Path(folder).rglob("*"))
+        if p.is_file()
+    }
+
+
+def test_session_has_contract_files(rendered):
+    """render_session writes exactly the data/{session}/ files of docs/contracts.md."""
+    folder = rendered["a"]
+    names = sorted(p.name for p in folder.iterdir())
+    assert names == sorted(synth_out.SESSION_FILES)
+    stills = sorted((folder / "calib").glob("*.png"))
+    assert len(stills) == 3
+    assert cv2.imread(str(stills[0]), cv2.IMREAD_GRAYSCALE).shape == (480, 640)
+    cap = cv2.VideoCapture(str(folder / "video.mp4"))
+    assert cap.get(cv2.CAP_PROP_FPS) == pytest.approx(30.0)
+    n = 0
+    while cap.read()[0]:
+        n += 1
+    assert n == 90
+    truth = yaml.safe_load((folder / "truth.yaml").read_text())
+    for key in ("camera", "T_Cm_C", "T_Bm_B", "T_W_Cm", "dt_offset_s", "fps", "vicon_rate_hz",
+                "markers_Cm_m", "markers_Bm_m", "board", "n_frames"):
+        assert key in truth
+    assert truth["n_frames"] == 90
+    frames = pd.read_parquet(folder / "truth_frames.parquet")
+    assert list(frames.columns[:14]) == [
+        "frame", "t_s", "x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad",
+        "qx", "qy", "qz", "qw", "in_view", "blur_px",
+    ]
+    corners = pd.read_parquet(folder / "truth_corners.parquet")
+    assert list(corners.columns) == ["frame", "corner", "u_px", "v_px"]
+    assert len(corners) == 90 * 20
+    assert not any(p.name.startswith(".") for p in folder.parent.iterdir())
+
+
+def test_same_seed_same_files_other_seed_different(rendered):
+    """Rendering is deterministic from synth.seed; another seed changes every data file."""
+    a, b, c = (_file_digests(rendered[k]) for k in "abc")
+    assert a == b
+    for name in ("video.mp4", "vicon.csv", "truth.yaml", "calib/still_00.png"):
+        assert a[name] != c[name]
+
+
+def test_vicon_csv_is_nexus_format(rendered):
+    """vicon.csv has the Nexus Trajectories header, CRLF line ends and empty cells for gaps."""
+    raw = (rendered["a"] / "vicon.csv").read_bytes()
+    assert raw.count(b"\r\n") == raw.count(b"\n")
+    lines = raw.decode().split("\r\n")
+    assert lines[0].split(",")[0] == "Trajectories"
+    assert lines[1].split(",")[0] == "300"
+    names = [c for c in lines[2].split(",") if c]
+    assert names == ["camera:C1", "camera:C2", "camera:C3", "camera:C4",
+                     "board:B1", "board:B2", "board:B3", "board:B4"]
+    assert lines[2].split(",")[2::3] == names
+    assert lines[3].split(",") == ["Frame", "Sub Frame"] + ["X", "Y", "Z"] * 8
+    assert lines[4].split(",") == ["", ""] + ["mm"] * 24
+    first = lines[5].split(",")
+    assert first[:2] == ["1", "0"] and len(first) == 26
+    rows = [ln.split(",") for ln in lines[5:] if ln]
+    truth = yaml.safe_load((rendered["a"] / "truth.yaml").read_text())
+    n_expected = int(np.ceil((3.0 + 1.5 + truth["dt_offset_s"]) * 300))
+    assert len(rows) == n_expected
+    assert [int(r[0]) for r in rows[:3]] == [1, 2, 3]
+    # Nexus leaves occluded samples as empty cells, three at a time
+    empty = [i for r in rows for i, c in enumerate(r) if c == ""]
+    assert len(empty) > 0 and len(empty) % 3 == 0
+    # camera markers are still: C1 within a few mm of its true place (mm in the file)
+    c1 = np.array([[float(v) for v in r[2:5]] for r in rows if r[2] != ""])
+    assert np.std(c1, axis=0).max() < 1.0
+
+
+def test_rendered_corners_match_truth(spec):
+    """findChessboardCorners + cornerSubPix on rendered stills land within 0.3 px of truth."""
+    rng = np.random.default_rng(3)
+    renderer = Renderer(spec, np.random.default_rng(4))
+    corners_B = spec.board.corners_B()
+    poses = still_poses(rng, 6, spec.K, spec.dist, IMAGE_SIZE, still_outline_B(spec.board))
+    errors = []
+    for T_C_B in poses:
+        image = renderer.still(T_C_B, rng)
+        found, c = cv2.findChessboardCorners(image, (spec.board.nx, spec.board.ny))
+        assert found
+        c = cv2.cornerSubPix(
+            image, c, (5, 5), (-1, -1),
+            (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-4),
+        )[:, 0]
+        truth = project_points(T_C_B, corners_B, spec.K, spec.dist)
+        # OpenCV may number the grid from either end; the nearer order is the match
+        err = min(np.linalg.norm(c - truth, axis=1).max(),
+                  np.linalg.norm(c[::-1] - truth, axis=1).max())
+        errors.append(err)
+    assert max(errors) < 0.3, errors
+
+
+def test_project_points_matches_opencv(spec):
+    """project_points reproduces cv2.projectPoints (5-term distortion) to 1e-6 px."""
+    rng = np.random.default_rng(5)
+    corners_B = spec.board.corners_B()
+    for _ in range(5):
+        T_C_B = T_from_pose6(np.r_[rng.uniform(-0.3, 0.3, 2), rng.uniform(1, 3),
+                                   rng.uniform(-0.6, 0.6, 3)])
+        rvec, tvec = rvec_tvec_from_T(T_C_B)
+        ref, _ = cv2.projectPoints(corners_B, rvec, tvec, spec.K, spec.dist)
+        np.testing.assert_allclose(
+            project_points(T_C_B, corners_B, spec.K, spec.dist), ref[:, 0], atol=1e-6
+        )
+
+
+def test_black_square_outside_corner_zero():
+    """The square diagonally outside inner corner 0 is black, the opposite outer one white."""
+    board = Board(6, 5, 0.09)
+    tex = make_board_texture(board)
+    level = tex.levels[0]
+
+    def reflectance_at(x_m, y_m):
+        c = int((x_m - tex.x0_m) * tex.ppm[0])
+        r = int((y_m - tex.y0_m) * tex.ppm[0])
+        return level[r, c, 0] / level[r, c, 1]
+
+    s = 0.09
+    assert reflectance_at(-s / 2, -s / 2) < 0.1
+    assert reflectance_at(4 * s + s / 2, 3 * s + s / 2) > 0.8
+    assert reflectance_at(s / 2, -s / 2) > 0.8
+
+
+def test_true_mounting_is_least_squares_fit():
+    """A rigid fit of the layout to the real markers in the true body frame is the identity."""
+    rng = np.random.default_rng(11)
+    layout = np.array([[0, 0, 0], [0.76, 0, 0], [0, 0.52, 0], [0.58, 0.5, 0]], float)
+    T_design = T_from_pose6([0.2, 0.395, -0.004, np.pi, 0, 0])
+    err = rng.normal(0, 0.003, layout.shape)
+    T_Bm_B, markers = true_mounting(T_design, layout, err)
+    T_fit = fit_rigid(layout, markers)
+    np.testing.assert_allclose(T_fit, np.eye(4), atol=1e-12)
+    # the correction is small (placement errors of 3 mm) but not zero
+    assert 1e-5 < np.linalg.norm(T_Bm_B[:3, 3] - T_design[:3, 3]) < 0.01
+    np.testing.assert_allclose(np.linalg.norm(markers - layout, axis=1).mean(), 0.004, atol=0.003)
+
+
+def test_vicon_markers_reconstruct_board_pose(spec):
+    """Noise-free markers give T_W_Bm = T_W_Cm T_Cm_C T_C_B(t_vicon - dt) inv(T_Bm_B), sub-mm."""
+    from dataclasses import replace
+
+    clean = replace(spec, marker_noise_sigma_m=0.0, dropout_rate_hz=0.0)
+    rngs = random_streams(7)
+    rig = make_rig(clean, rngs["mounting"])
+    motion = make_hand_motion(rngs["motion"], clean.K, IMAGE_SIZE, clean.board.center_B())
+    df, _, n_drop = vicon_recording(clean, rig, motion, rngs["vicon"])
+    assert n_drop == 0
+    names = list(clean.board_names)
+    idx = np.arange(0, len(df), 97)
+    xyz = np.stack([df[[f"{n}_{a}_m" for a in "xyz"]].to_numpy()[idx] for n in names], axis=1)
+    t_video = df["t_s"].to_numpy()[idx] - rig.dt_offset_s
+    T_expected = rig.T_W_Cm @ rig.T_Cm_C @ board_poses(motion, t_video) @ invert_T(rig.T_Bm_B)
+    for k in range(len(idx)):
+        T_fit = fit_rigid(clean.board_layout_m, xyz[k])
+        assert np.linalg.norm(T_fit[:3, 3] - T_expected[k, :3, 3]) < 1e-4
+        assert rotation_angle(T_fit[:3, :3].T @ T_expected[k, :3, :3]) < 1e-4
+    cam = np.stack([df[[f"{n}_{a}_m" for a in "xyz"]].to_numpy()[0] for n in clean.camera_names])
+    np.testing.assert_allclose(fit_rigid(clean.camera_layout_m, cam), rig.T_W_Cm, atol=1e-4)
+    # the offset is not a whole number of Vicon samples
+    frac = (rig.dt_offset_s * 300) % 1.0
+    assert 0.1 < frac < 0.9
+
+
+def test_noisy_vicon_has_noise_and_dropouts(spec):
+    """Marker noise has the configured sigma and dropouts are short runs of empty samples."""
+    rngs = random_streams(7)
+    rig = make_rig(spec, rngs["mounting"])
+    motion = make_hand_motion(rngs["motion"], spec.K, IMAGE_SIZE, spec.board.center_B())
+    df, _, n_drop = vicon_recording(spec, rig, motion, rngs["vicon"])
+    c1 = df[["camera:C1_x_m", "camera:C1_y_m", "camera:C1_z_m"]].to_numpy()
+    sd = np.nanstd(c1, axis=0)
+    np.testing.assert_allclose(sd, spec.marker_noise_sigma_m, rtol=0.2)
+    gaps = df[[c for c in df.columns if c.endswith("_x_m")]].isna().to_numpy()
+    assert gaps.any() and n_drop > 0
+    # no run longer than dropout_max_s (+1 sample where two dropouts touch at most doubles it)
+    run, longest = np.zeros(gaps.shape[1], int), 0
+    for row in gaps:
+        run = np.where(row, run + 1, 0)
+        longest = max(longest, run.max())
+    assert longest <= 2 * round(spec.dropout_max_s * 300)
+
+
+def test_sync_gesture_at_start(spec):
+    """The board is still, then tilts forward >15 deg about its x axis within ~3 s, and back."""
+    rngs = random_streams(7)
+    motion = make_hand_motion(rngs["motion"], spec.K, IMAGE_SIZE, spec.board.center_B())
+    rig = make_rig(spec, rngs["mounting"])
+    t_s = np.arange(0, 3.0, 1 / 30)
+    T_C_B = board_poses(motion, t_s)
+    roll = np.rad2deg(euler_from_R(T_C_B[:, :3, :3])[:, 0])
+    assert np.ptp(roll[t_s < 1.4]) < 1.0
+    assert np.ptp(roll) > 15.0
+    center_C = T_C_B[:, :3, :3] @ spec.board.center_B() + T_C_B[:, :3, 3]
+    assert np.ptp(center_C[t_s < 2.6], axis=0).max() < 0.03
+    # In W the gesture turns the board body about W's horizontal axis across the view
+    # (a pitch for a W-aligned body), whatever the marker body's own axes.
+    T_W_Bm = rig.T_W_Cm @ rig.T_Cm_C @ T_C_B @ invert_T(rig.T_Bm_B)
+    dR_W = T_W_Bm[:, :3, :3] @ T_W_Bm[0, :3, :3].T
+    k = int(np.argmax(rotation_angle(dR_W)))
+    rvec_W = rvec_tvec_from_T(np.r_[np.c_[dR_W[k], np.zeros(3)], [[0, 0, 0, 1]]])[0]
+    assert np.rad2deg(np.linalg.norm(rvec_W)) > 15.0
+    view_W = rig.T_W_Cm[:3, :3] @ rig.T_Cm_C[:3, 2]
+    across_W = np.cross([0, 0, 1.0], view_W)
+    cos_axis = abs(rvec_W @ across_W) / np.linalg.norm(rvec_W) / np.linalg.norm(across_W)
+    assert cos_axis > 0.95
+
+
+def test_board_in_view_most_but_not_all_frames():
+    """Over a 90 s session the board is wholly in view in most frames, not in all; depth 1-4 m."""
+    spec90 = parse_session_config(demo_cfg(duration_s=90.0))
+    rngs = random_streams(spec90.seed)
+    motion = make_hand_motion(rngs["motion"], spec90.K, IMAGE_SIZE, spec90.board.center_B())
+    truth = video_truth(spec90, motion, np.full(2700, 0.014))
+    assert 0.6 < truth.in_view.mean() < 0.97
+    z = truth.T_C_B[:, 2, 3]
+    assert z.min() > 0.85 and z.max() < 4.3 and np.ptp(z) > 2.0
+    rpy = np.rad2deg(euler_from_R(truth.T_C_B[:, :3, :3]))
+    assert np.all(np.abs(rpy).max(axis=0) > 30.0)
+    assert (truth.blur_px > 5.0).any()
+
+
+def test_still_poses_in_view_and_varied(spec):
+    """Calibration stills show the whole printed board at 0.8-2.5 m, some strongly tilted."""
+    rng = np.random.default_rng(2)
+    poses = still_poses(rng, 15, spec.K, spec.dist, IMAGE_SIZE, still_outline_B(spec.board))
+    assert len(poses) == 15
+    uv = project_points(poses, still_outline_B(spec.board), spec.K, spec.dist)
+    assert np.all((uv >= 0) & (uv <= [639, 479]))
+    tilt = np.rad2deg(np.arccos(poses[:, 2, 2]))
+    assert tilt.max() > 25.0 and tilt.max() <= 60.0
+
+
+def test_missing_config_key_is_named():
+    """A missing synth key raises ConfigError naming the key."""
+    cfg = demo_cfg()
+    del cfg["synth"]["T_Bm_B_pose6"]
+    with pytest.raises(ConfigError, match="T_Bm_B_pose6"):
+        parse_session_config(cfg)
+
+
+def test_failure_leaves_no_output(tmp_path, monkeypatch):
+    """A failure while rendering leaves neither the session folder nor temporary folders."""
+
+    def broken(self, grey):
+        raise RuntimeError("disk full")
+
+    monkeypatch.setattr(synth_out.VideoSink, "write", broken)
+    with pytest.raises(RuntimeError):
+        render_session(demo_cfg(duration_s=0.5, n_stills=1), tmp_path / "demo")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_foreign_files_are_not_replaced(tmp_path):
+    """An out_dir holding files the renderer did not write is refused and left untouched."""
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "my_recording.mp4").write_bytes(b"precious")
+    with pytest.raises(ConfigError, match="my_recording.mp4"):
+        render_session(demo_cfg(duration_s=0.5, n_stills=1), out)
+    assert (out / "my_recording.mp4").read_bytes() == b"precious"
