@@ -1,0 +1,610 @@
+"""Time alignment of the video and Vicon streams, and the per-frame pose pairs.
+
+Convention (docs/contracts.md): ``t_vicon_s = t_video_s + dt_offset_s``.
+
+Inputs are ``poses_raw`` (per video frame: ``frame, t_s, valid, rvec_0..2`` = rvec_C_B,
+``x_m, y_m, z_m`` = tvec_C_B, Euler of R_C_B) and the bodies tables of :mod:`cvsflow.mocap`
+(native rate for the synchronisation, 30 Hz or native for the pairs).
+
+The robust synchronisation compares the board's angular speed seen by both systems. The
+camera sees R_C_B; the Vicon gives R_Cm_Bm = R_W_Cm^T R_W_Bm. With R_C_B = R_C_Cm R_Cm_Bm R_Bm_B
+and R_C_Cm, R_Bm_B constant, the relative rotation between two instants differs only by a
+constant conjugation, so its angle, hence the angular speed, is the same in both streams
+whatever the unknown marker offsets are.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import minimize_scalar
+from scipy.signal import correlate, correlation_lags
+from scipy.spatial.transform import Rotation
+
+from cvsflow.errors import InputError, SyncError
+from cvsflow.mocap import _interp_T, body_poses
+from cvsflow.transforms import (
+    invert_T,
+    make_T,
+    pose6_from_T,
+    quat_from_R,
+    rotation_angle,
+    wrap_angle,
+)
+
+log = logging.getLogger(__name__)
+
+
+# --------------------------------------------------------------------------- streams
+
+
+def _cvs_rotations(poses_raw):
+    """Sorted video times (s), R_C_B (N, 3, 3) (identity where invalid) and validity."""
+    p = poses_raw.sort_values("frame", kind="stable")
+    valid = p["valid"].to_numpy(bool) & np.isfinite(p[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)).all(axis=1)
+    rvec = np.where(valid[:, None], p[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float), 0.0)
+    return p["t_s"].to_numpy(float), Rotation.from_rotvec(rvec).as_matrix(), valid
+
+
+def _vicon_relative(bodies, camera="camera", board="board"):
+    """Vicon times (s), T_Cm_Bm (N, 4, 4) (NaN where either body is invalid) and validity."""
+    t_c, T_W_Cm, v_c = body_poses(bodies, camera)
+    t_b, T_W_Bm, v_b = body_poses(bodies, board)
+    if len(t_c) != len(t_b) or not np.allclose(t_c, t_b):
+        raise InputError("bodies table: camera and board samples are not on the same times")
+    valid = v_c & v_b
+    T = invert_T(np.where(valid[:, None, None], T_W_Cm, np.eye(4))) @ np.where(
+        valid[:, None, None], T_W_Bm, np.eye(4)
+    )
+    T[~valid] = np.nan
+    return t_b, T, valid
+
+
+def angular_speed_cvs(poses_raw):
+    """Board angular speed seen by the camera, from consecutive video frames.
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        ``poses_raw.parquet`` table (``frame, t_s, valid, rvec_0..2``; rvec_C_B).
+
+    Returns
+    -------
+    t_mid_s : ndarray, shape (N - 1,)
+        Mid-times of consecutive frames, video clock, s.
+    omega_rad_s : ndarray, shape (N - 1,)
+        |omega| = angle(R_C_B(i)^T R_C_B(i+1)) / (t_{i+1} - t_i), rad/s; NaN where either
+        frame has no valid pose (masked, not interpolated).
+    """
+    t, R, valid = _cvs_rotations(poses_raw)
+    ang = rotation_angle(np.swapaxes(R[:-1], 1, 2) @ R[1:])
+    omega = ang / np.diff(t)
+    omega[~(valid[:-1] & valid[1:])] = np.nan
+    return 0.5 * (t[:-1] + t[1:]), omega
+
+
+def _omega_vicon_between(t_v, T_v, valid_v, t0, t1):
+    """Angular speed (rad/s) of the Vicon relative rotation between times t0 and t1 (SLERP)."""
+    T0, ok0, _ = _interp_T(t_v, T_v, valid_v, t0)
+    T1, ok1, _ = _interp_T(t_v, T_v, valid_v, t1)
+    ok = ok0 & ok1
+    R0 = np.where(ok[:, None, None], T0[:, :3, :3], np.eye(3))
+    R1 = np.where(ok[:, None, None], T1[:, :3, :3], np.eye(3))
+    omega = rotation_angle(np.swapaxes(R0, 1, 2) @ R1) / (t1 - t0)
+    omega[~ok] = np.nan
+    return omega
+
+
+def angular_speed_vicon(bodies, window_s, t_grid_s=None, camera="camera", board="board"):
+    """Board angular speed relative to the camera body from the Vicon, over a window.
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        Native-rate bodies table.
+    window_s : float
+        Time between the two rotations compared, s: the video frame interval, so that both
+        streams average the true angular speed over the same span.
+    t_grid_s : ndarray, optional
+        Centre times on the Vicon clock, s; default every native sample.
+
+    Returns
+    -------
+    t_s : ndarray, shape (K,)
+    omega_rad_s : ndarray, shape (K,)
+        NaN where the Vicon relative pose is invalid at either end of the window.
+    """
+    t_v, T_v, valid_v = _vicon_relative(bodies, camera, board)
+    t = t_v if t_grid_s is None else np.asarray(t_grid_s, dtype=float)
+    return t, _omega_vicon_between(t_v, T_v, valid_v, t - window_s / 2, t + window_s / 2)
+
+
+def angular_speed_streams(poses_raw, bodies, camera="camera", board="board"):
+    """Both angular-speed streams as plotted by :func:`cvsflow.plots.mocap.plot_sync`.
+
+    Returns
+    -------
+    streams : dict
+        ``t_cvs_s``, ``omega_cvs_rad_s`` (video clock) and ``t_vicon_s``,
+        ``omega_vicon_rad_s`` (Vicon clock, native samples, same window as the video).
+    """
+    t_c, w_c = angular_speed_cvs(poses_raw)
+    h = float(np.median(np.diff(np.sort(poses_raw["t_s"].to_numpy(float)))))
+    t_v, w_v = angular_speed_vicon(bodies, h, camera=camera, board=board)
+    return {"t_cvs_s": t_c, "omega_cvs_rad_s": w_c, "t_vicon_s": t_v, "omega_vicon_rad_s": w_v}
+
+
+# --------------------------------------------------------------------------- checks
+
+
+def _spans(poses_raw, bodies):
+    t_video = poses_raw["t_s"].to_numpy(float)
+    t_vicon = bodies["t_s"].to_numpy(float)
+    return (float(t_video.min()), float(t_video.max())), (float(t_vicon.min()), float(t_vicon.max()))
+
+
+def check_take_covers_video(video_span_s, take_span_s, dt_offset_s=None, tol_s=1e-9):
+    """Raise InputError when the Vicon take is shorter than the video (or misses part of it).
+
+    Parameters
+    ----------
+    video_span_s : (float, float)
+        First and last video frame times, video clock, s.
+    take_span_s : (float, float)
+        First and last Vicon sample times, Vicon clock, s.
+    dt_offset_s : float, optional
+        Known offset; with it, the video span mapped to the Vicon clock must lie in the take.
+    tol_s : float
+        Slack at each end, s.
+    """
+    v0, v1 = video_span_s
+    k0, k1 = take_span_s
+    if dt_offset_s is None:
+        if (k1 - k0) + tol_s < (v1 - v0):
+            raise InputError(
+                f"Vicon take is shorter than the video: take spans {k0:.3f}..{k1:.3f} s "
+                f"({k1 - k0:.3f} s), video spans {v0:.3f}..{v1:.3f} s ({v1 - v0:.3f} s)"
+            )
+        return
+    m0, m1 = v0 + dt_offset_s, v1 + dt_offset_s
+    if m0 < k0 - tol_s or m1 > k1 + tol_s:
+        raise InputError(
+            f"Vicon take does not cover the video: video frames span {v0:.3f}..{v1:.3f} s, i.e. "
+            f"{m0:.3f}..{m1:.3f} s on the Vicon clock (dt_offset_s = {dt_offset_s:.4f}), but the "
+            f"take spans {k0:.3f}..{k1:.3f} s"
+        )
+
+
+# --------------------------------------------------------------------------- sync
+
+
+def _masked_ncc(c, mc, v, mv, min_overlap):
+    """Pearson correlation of c[j] with v[j + L] over jointly valid samples, for every lag L."""
+    a = np.where(mc, c, 0.0)
+    b = np.where(mv, v, 0.0)
+    fc = mc.astype(float)
+    fv = mv.astype(float)
+
+    def xc(x, y):  # sum_j x[j] y[j + L]
+        return correlate(y, x, mode="full", method="fft")
+
+    lags = correlation_lags(len(v), len(c))
+    N = np.rint(xc(fc, fv))
+    Sa = xc(a, fv)
+    Sb = xc(fc, b)
+    Saa = xc(a * a, fv)
+    Sbb = xc(fc, b * b)
+    Sab = xc(a, b)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cov = Sab - Sa * Sb / N
+        var = (Saa - Sa**2 / N) * (Sbb - Sb**2 / N)
+        r = cov / np.sqrt(np.clip(var, 0.0, None))
+    r[(N < min_overlap) | ~np.isfinite(r)] = np.nan
+    return lags, r
+
+
+def _main_lobe(r, k):
+    """Indices [lo, hi] of the lobe around index k where r decreases monotonically away from k."""
+    lo = k
+    while lo > 0 and np.isfinite(r[lo - 1]) and r[lo - 1] <= r[lo]:
+        lo -= 1
+    hi = k
+    while hi < len(r) - 1 and np.isfinite(r[hi + 1]) and r[hi + 1] <= r[hi]:
+        hi += 1
+    return lo, hi
+
+
+def sync_angular_speed(
+    poses_raw,
+    bodies,
+    max_offset_s=30.0,
+    min_quality=0.5,
+    grid_step_s=None,
+    min_overlap_frac=0.5,
+    camera="camera",
+    board="board",
+):
+    """Time offset by cross-correlating the board's angular speed in both streams.
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        ``poses_raw.parquet`` (video clock).
+    bodies : DataFrame
+        Native-rate bodies table with ``camera`` and ``board`` (Vicon clock).
+    max_offset_s : float
+        Search range |dt_offset_s| <= max_offset_s, s.
+    min_quality : float
+        Below this quality (0..1) the offset is refused.
+    grid_step_s : float, optional
+        Common grid step, s; default a quarter of the video frame interval.
+    min_overlap_frac : float
+        A lag is considered only where at least this fraction of the valid video samples
+        overlap valid Vicon samples.
+
+    Returns
+    -------
+    sync : dict
+        ``dt_offset_s`` (t_vicon_s = t_video_s + dt_offset_s), ``method`` ("angular_speed"),
+        ``quality`` in [0, 1], ``details`` (peak correlation, second peak, coarse, parabolic and
+        refined offsets, residual RMS in rad/s, sample counts).
+
+    Raises
+    ------
+    SyncError
+        Too few valid samples, quality below ``min_quality``, or the correlation peak at the
+        search boundary.
+    InputError
+        The take is shorter than the video.
+
+    Notes
+    -----
+    Three steps: (1) masked normalised cross-correlation (FFT) of both angular speeds on a
+    common grid (frames without a board are masked, never interpolated over); (2) parabolic
+    interpolation of the peak; (3) a bounded 1-D minimisation, within one grid step, of the
+    mean squared difference between each video angular-speed sample and the Vicon one over
+    the same two instants (SLERP of the native Vicon rotations at t_video + dt).
+    Quality = max(r_peak, 0) * (r_peak - r_2) / (1 - r_2), with r_2 the highest correlation
+    outside the main lobe: 1 for a perfect, unique peak; 0 when another lag does as well.
+    """
+    video_span, take_span = _spans(poses_raw, bodies)
+    check_take_covers_video(video_span, take_span)
+    t_c, w_c = angular_speed_cvs(poses_raw)
+    t_frames = np.sort(poses_raw["t_s"].to_numpy(float))
+    h = float(np.median(np.diff(t_frames)))
+    step = h / 4.0 if grid_step_s is None else float(grid_step_s)
+    ok_c = np.isfinite(w_c)
+    if ok_c.sum() < 10:
+        raise SyncError(
+            f"angular-speed sync: only {int(ok_c.sum())} consecutive video frame pairs with a "
+            "board pose (expected at least 10)"
+        )
+    # video stream on its grid: linear between consecutive valid samples only
+    g_c = np.arange(t_c[0], t_c[-1] + 1e-12, step)
+    j = np.clip(np.searchsorted(t_c, g_c, side="right") - 1, 0, len(t_c) - 2)
+    f = np.clip((g_c - t_c[j]) / (t_c[j + 1] - t_c[j]), 0.0, 1.0)
+    s_c = (1 - f) * w_c[j] + f * w_c[j + 1]
+    m_c = np.isfinite(s_c)
+    # Vicon stream on the same step, same window h
+    t_v_all, T_v, valid_v = _vicon_relative(bodies, camera, board)
+    g_v = np.arange(t_v_all[0] + h / 2, t_v_all[-1] - h / 2 + 1e-12, step)
+    s_v = _omega_vicon_between(t_v_all, T_v, valid_v, g_v - h / 2, g_v + h / 2)
+    m_v = np.isfinite(s_v)
+    if m_v.sum() < 10:
+        raise SyncError("angular-speed sync: fewer than 10 valid Vicon samples of both bodies")
+    lags, r = _masked_ncc(s_c, m_c, s_v, m_v, min_overlap_frac * m_c.sum())
+    dt_lag = (g_v[0] - g_c[0]) + lags * step
+    allowed = np.abs(dt_lag) <= max_offset_s
+    r = np.where(allowed, r, np.nan)
+    if not np.isfinite(r).any():
+        raise SyncError(
+            f"angular-speed sync: no lag within +-{max_offset_s} s overlaps enough valid samples "
+            f"(video {video_span[0]:.2f}..{video_span[1]:.2f} s, take {take_span[0]:.2f}..{take_span[1]:.2f} s)"
+        )
+    k = int(np.nanargmax(r))
+    r_peak = float(r[k])
+    at_edge = (
+        k == 0
+        or k == len(r) - 1
+        or not np.isfinite(r[k - 1])
+        or not np.isfinite(r[k + 1])
+        or abs(abs(dt_lag[k]) - max_offset_s) < step
+    )
+    if at_edge:
+        raise SyncError(
+            f"angular-speed sync: correlation peak (r = {r_peak:.3f}) at the edge of the search "
+            f"range, dt = {dt_lag[k]:.3f} s (max_offset_s = {max_offset_s}); no offset can be trusted"
+        )
+    lo, hi = _main_lobe(r, k)
+    outside = r.copy()
+    outside[lo : hi + 1] = np.nan
+    r_2 = float(np.nanmax(outside)) if np.isfinite(outside).any() else 0.0
+    r_2 = max(r_2, 0.0)
+    quality = float(np.clip(max(r_peak, 0.0) * (r_peak - r_2) / max(1.0 - r_2, 1e-12), 0.0, 1.0))
+    # parabolic peak interpolation
+    y0, y1, y2 = r[k - 1], r[k], r[k + 1]
+    denom = y0 - 2 * y1 + y2
+    delta = 0.5 * (y0 - y2) / denom if denom < 0 else 0.0
+    dt_parab = float(dt_lag[k] + np.clip(delta, -1.0, 1.0) * step)
+    # local refinement against the Vicon rotations themselves
+    t_r, _, valid_r = _cvs_rotations(poses_raw)
+    pair_ok = valid_r[:-1] & valid_r[1:]
+    t0, t1 = t_r[:-1][pair_ok], t_r[1:][pair_ok]
+    w_obs = w_c[pair_ok]
+
+    def mismatch(dt):
+        w_v = _omega_vicon_between(t_v_all, T_v, valid_v, t0 + dt, t1 + dt)
+        ok = np.isfinite(w_v)
+        return float(np.mean((w_obs[ok] - w_v[ok]) ** 2)) if ok.sum() >= 10 else np.inf
+
+    res = minimize_scalar(
+        mismatch, bounds=(dt_parab - step, dt_parab + step), method="bounded", options={"xatol": 1e-6}
+    )
+    dt = float(res.x) if np.isfinite(res.fun) else dt_parab
+    details = {
+        "r_peak": r_peak,
+        "r_second": r_2,
+        "dt_coarse_s": float(dt_lag[k]),
+        "dt_parabolic_s": dt_parab,
+        "dt_refined_s": dt,
+        "residual_rms_rad_s": float(np.sqrt(res.fun)) if np.isfinite(res.fun) else None,
+        "grid_step_s": step,
+        "window_s": h,
+        "n_video_pairs": int(pair_ok.sum()),
+        "n_grid_video": int(m_c.sum()),
+        "n_grid_vicon": int(m_v.sum()),
+        "max_offset_s": float(max_offset_s),
+        "min_quality": float(min_quality),
+    }
+    if quality < min_quality:
+        raise SyncError(
+            f"angular-speed sync: quality {quality:.3f} below min_quality {min_quality} "
+            f"(peak r = {r_peak:.3f} at dt = {dt:.4f} s, second peak r = {r_2:.3f})"
+        )
+    log.info("sync: dt_offset_s = %.5f s, quality %.3f (r = %.3f)", dt, quality, r_peak)
+    return {"dt_offset_s": dt, "method": "angular_speed", "quality": quality, "details": details}
+
+
+def _tilt_onset(t, R, valid, still_s, low_rad, high_rad):
+    """Times at which the angle from the still start first crosses low (backtracked) and high."""
+    idx = np.flatnonzero(valid)
+    if idx.size < 3:
+        return None
+    t_ok = t[idx]
+    start = idx[t_ok <= t_ok[0] + still_s]
+    if start.size < 2:
+        return None
+    R_ref = Rotation.from_matrix(R[start]).mean().as_matrix()
+    ang = np.full(len(t), np.nan)
+    ang[idx] = rotation_angle(R_ref.T @ R[idx])
+    above = np.flatnonzero(np.nan_to_num(ang, nan=0.0) > high_rad)
+    if above.size == 0:
+        return None
+    k_high = int(above[0])
+    below = np.flatnonzero(np.nan_to_num(ang[:k_high], nan=np.inf) < low_rad)
+    if below.size == 0:
+        return None
+    k_low = int(below[-1])
+
+    def crossing(k, level):  # linear crossing between samples k and the next valid one
+        nxt = idx[idx > k]
+        if nxt.size == 0:
+            return t[k]
+        k2 = int(nxt[0])
+        a0, a1 = ang[k], ang[k2]
+        f = 0.0 if a1 == a0 else np.clip((level - a0) / (a1 - a0), 0.0, 1.0)
+        return t[k] + f * (t[k2] - t[k])
+
+    prev_high = idx[idx < k_high]
+    t_high = crossing(int(prev_high[-1]), high_rad) if prev_high.size else t[k_high]
+    return crossing(k_low, low_rad), t_high
+
+
+def sync_gesture(
+    poses_raw,
+    bodies,
+    max_offset_s=30.0,
+    min_quality=0.5,
+    still_s=0.5,
+    low_rad=np.radians(3.0),
+    high_rad=np.radians(10.0),
+    camera="camera",
+    board="board",
+):
+    """The chapter's synchronisation: onsets of the forward-tilt gesture in both streams.
+
+    Parameters
+    ----------
+    poses_raw, bodies : DataFrame
+        As :func:`sync_angular_speed`.
+    still_s : float
+        Length of the still start used as reference attitude in each stream, s.
+    low_rad, high_rad : float
+        The gesture is the first time the board turns more than ``high_rad`` from its
+        reference attitude; its onset is the last crossing of ``low_rad`` before that, rad.
+
+    Returns
+    -------
+    sync : dict
+        As :func:`sync_angular_speed`, ``method`` "gesture". ``dt_offset_s`` is the difference
+        of the onsets (Vicon minus video).
+
+    Raises
+    ------
+    SyncError
+        No gesture found in a stream, offset beyond ``max_offset_s``, or quality below
+        ``min_quality``.
+
+    Notes
+    -----
+    Seed section 1.3, "Test Procedure". The angle from the reference attitude is the same in
+    both streams (module docstring). Quality = exp(-|d| / h), with d the disagreement between
+    the offsets given by the low and the high crossings and h the video frame interval: a
+    clean gesture has the same shape in both streams, so both crossings agree.
+    """
+    video_span, take_span = _spans(poses_raw, bodies)
+    check_take_covers_video(video_span, take_span)
+    t_c, R_c, valid_c = _cvs_rotations(poses_raw)
+    t_v, T_v, valid_v = _vicon_relative(bodies, camera, board)
+    R_v = np.where(valid_v[:, None, None], T_v[:, :3, :3], np.eye(3))
+    on_c = _tilt_onset(t_c, R_c, valid_c, still_s, low_rad, high_rad)
+    on_v = _tilt_onset(t_v, R_v, valid_v, still_s, low_rad, high_rad)
+    for name, on in (("video", on_c), ("Vicon", on_v)):
+        if on is None:
+            raise SyncError(
+                f"gesture sync: no forward tilt found in the {name} stream (expected a still "
+                f"start of {still_s} s, then a rotation above {np.degrees(high_rad):.1f} deg)"
+            )
+    dt_low = on_v[0] - on_c[0]
+    dt_high = on_v[1] - on_c[1]
+    h = float(np.median(np.diff(t_c)))
+    quality = float(np.exp(-abs(dt_high - dt_low) / h))
+    details = {
+        "onset_video_s": float(on_c[0]),
+        "onset_vicon_s": float(on_v[0]),
+        "dt_low_s": float(dt_low),
+        "dt_high_s": float(dt_high),
+        "low_deg": float(np.degrees(low_rad)),
+        "high_deg": float(np.degrees(high_rad)),
+        "max_offset_s": float(max_offset_s),
+        "min_quality": float(min_quality),
+    }
+    if abs(dt_low) > max_offset_s:
+        raise SyncError(
+            f"gesture sync: offset {dt_low:.3f} s beyond max_offset_s {max_offset_s} "
+            f"(onsets: video {on_c[0]:.3f} s, Vicon {on_v[0]:.3f} s)"
+        )
+    if quality < min_quality:
+        raise SyncError(
+            f"gesture sync: quality {quality:.3f} below min_quality {min_quality} (onset offset "
+            f"{dt_low:.4f} s, peak-crossing offset {dt_high:.4f} s disagree)"
+        )
+    return {"dt_offset_s": float(dt_low), "method": "gesture", "quality": quality, "details": details}
+
+
+def synchronise(poses_raw, bodies, method="angular_speed", max_offset_s=30.0, min_quality=0.5, **kwargs):
+    """Time offset between video and Vicon by the configured method (``sync.method``).
+
+    Returns
+    -------
+    sync : dict
+        For sync.yaml: ``dt_offset_s``, ``method``, ``quality``, ``details``.
+
+    Raises
+    ------
+    SyncError, InputError
+        See :func:`sync_angular_speed` and :func:`sync_gesture`; an unknown method.
+    """
+    if method == "angular_speed":
+        return sync_angular_speed(poses_raw, bodies, max_offset_s, min_quality, **kwargs)
+    if method == "gesture":
+        return sync_gesture(poses_raw, bodies, max_offset_s, min_quality, **kwargs)
+    raise SyncError(f"sync method {method!r} unknown (expected 'angular_speed' or 'gesture')")
+
+
+# --------------------------------------------------------------------------- pairs
+
+
+def _pose_columns(prefix, T):
+    q = quat_from_R(T[:, :3, :3])
+    return {
+        f"{prefix}_x_m": T[:, 0, 3],
+        f"{prefix}_y_m": T[:, 1, 3],
+        f"{prefix}_z_m": T[:, 2, 3],
+        f"{prefix}_qx": q[:, 0],
+        f"{prefix}_qy": q[:, 1],
+        f"{prefix}_qz": q[:, 2],
+        f"{prefix}_qw": q[:, 3],
+    }
+
+
+def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", board="board"):
+    """Per video frame, the CVS pose and the Vicon poses side by side (``pairs.parquet``).
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        ``poses_raw.parquet`` (video clock).
+    bodies : DataFrame
+        ``mode="block"``: the block-averaged ``bodies_30hz`` table; ``mode="interp"``: the
+        native-rate ``bodies`` table, interpolated (SLERP) at each frame's exact Vicon time.
+    dt_offset_s : float
+        t_vicon_s = t_video_s + dt_offset_s, s.
+    mode : {"block", "interp"}
+        ``block``: the block nearest in time to the frame's Vicon time. Blocks are
+        ``factor / rate`` apart (33.3 ms at 300 Hz / 10), so the block time and the frame's
+        Vicon time differ by at most half of that, 16.7 ms, and on average a quarter.
+
+    Returns
+    -------
+    pairs : DataFrame
+        Schema of docs/contracts.md: ``frame, t_s, t_vicon_s``; ``cvs_*`` (T_C_B, metres,
+        radians, and ``cvs_rvec_0..2``); ``vic_*``: the chapter's P* = P_b* - P_c* (seed eq.
+        1.5), the 6-vector difference [x, y, z, roll, pitch, yaw] of T_W_Bm and T_W_Cm with
+        angles wrapped to (-pi, pi]; ``cmbm_*`` T_Cm_Bm = inv(T_W_Cm) T_W_Bm; ``wcm_*``
+        T_W_Cm; ``wbm_*`` T_W_Bm (position in metres, scalar-last quaternion). Only frames with
+        a valid CVS pose and both Vicon poses valid.
+
+    Raises
+    ------
+    InputError
+        The video frames' Vicon times fall outside the take (both spans named); unknown mode.
+    """
+    p = poses_raw.sort_values("frame", kind="stable").reset_index(drop=True)
+    t_video = p["t_s"].to_numpy(float)
+    t_vic = t_video + dt_offset_s
+    t_b, T_W_Cm_all, v_c = body_poses(bodies, camera)
+    _, T_W_Bm_all, v_b = body_poses(bodies, board)
+    if mode == "block":
+        half = 0.5 * float(np.median(np.diff(t_b))) if len(t_b) > 1 else 0.0
+        check_take_covers_video(
+            (t_video.min(), t_video.max()), (t_b[0] - half, t_b[-1] + half), dt_offset_s
+        )
+        k = np.clip(np.searchsorted(t_b, t_vic), 1, len(t_b) - 1)
+        k = np.where(np.abs(t_vic - t_b[k - 1]) <= np.abs(t_b[k] - t_vic), k - 1, k)
+        T_W_Cm, T_W_Bm = T_W_Cm_all[k], T_W_Bm_all[k]
+        ok_v = v_c[k] & v_b[k]
+    elif mode == "interp":
+        check_take_covers_video((t_video.min(), t_video.max()), (t_b[0], t_b[-1]), dt_offset_s)
+        T_W_Cm, ok_c, _ = _interp_T(t_b, T_W_Cm_all, v_c, t_vic)
+        T_W_Bm, ok_b, _ = _interp_T(t_b, T_W_Bm_all, v_b, t_vic)
+        ok_v = ok_c & ok_b
+    else:
+        raise InputError(f"build_pairs: mode {mode!r}, expected 'block' or 'interp'")
+    rvec_cols = ["rvec_0", "rvec_1", "rvec_2"]
+    tvec_cols = ["x_m", "y_m", "z_m"]
+    ok_cvs = p["valid"].to_numpy(bool) & np.isfinite(p[rvec_cols + tvec_cols].to_numpy(float)).all(axis=1)
+    keep = ok_cvs & ok_v
+    p = p[keep]
+    T_W_Cm, T_W_Bm = T_W_Cm[keep], T_W_Bm[keep]
+    rvec = p[rvec_cols].to_numpy(float, copy=True)
+    T_C_B = make_T(Rotation.from_rotvec(rvec).as_matrix(), p[tvec_cols].to_numpy(float))
+    cvs6 = pose6_from_T(T_C_B)
+    P_star = pose6_from_T(T_W_Bm) - pose6_from_T(T_W_Cm)  # seed eq. 1.5
+    P_star[:, 3:] = wrap_angle(P_star[:, 3:])
+    T_Cm_Bm = invert_T(T_W_Cm) @ T_W_Bm
+    names6 = ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"]
+    cols = {
+        "frame": p["frame"].to_numpy(np.int64),
+        "t_s": p["t_s"].to_numpy(float),
+        "t_vicon_s": t_vic[keep],
+    }
+    cols.update({f"cvs_{n}": cvs6[:, i] for i, n in enumerate(names6)})
+    cols.update({f"cvs_rvec_{i}": rvec[:, i] for i in range(3)})
+    cols.update({f"vic_{n}": P_star[:, i] for i, n in enumerate(names6)})
+    cols.update(_pose_columns("cmbm", T_Cm_Bm))
+    cols.update(_pose_columns("wcm", T_W_Cm))
+    cols.update(_pose_columns("wbm", T_W_Bm))
+    n_drop_cvs = int((~ok_cvs).sum())
+    n_drop_vic = int((ok_cvs & ~ok_v).sum())
+    if n_drop_cvs or n_drop_vic:
+        log.warning(
+            "pairs: %d of %d frames kept (%d without a CVS pose, %d without valid Vicon poses)",
+            int(keep.sum()),
+            len(keep),
+            n_drop_cvs,
+            n_drop_vic,
+        )
+    return pd.DataFrame(cols)
