@@ -1,0 +1,469 @@
+"""Readers of on-board pose logs (PX4 ULog, generic CSV, TUM) and the TUM writer.
+
+Every reader returns the *common trajectory form*: a DataFrame with one row per sample and
+columns
+
+=============  ==============================================================================
+``t_s``        sample time on the log's own clock, seconds (float64)
+``x_m y_m z_m`` position of the body in the log's world frame, metres (NaN where not valid)
+``qx qy qz qw`` orientation of the body in the log's world frame, scalar-last unit quaternion
+``pos_valid``  bool: the position of this row may be used
+``rot_valid``  bool: the orientation of this row may be used
+=============  ==============================================================================
+
+and ``df.attrs`` describing the source (``source``, ``path``, ``frames``, ``t_start_s``,
+``t_end_s``, ``span_s`` and reader-specific entries). The pose of a row is ``T_L_Q``: the
+quadcopter body frame Q into the estimator's local world frame L (flight frames are described
+in :mod:`cvsflow.flight`).
+
+Quaternion order crosses file formats here and only here: PX4 logs ``q[0..3]`` scalar-FIRST
+(w, x, y, z); TUM files and cvsflow are scalar-last (x, y, z, w).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cvsflow.errors import InputError
+from cvsflow.io.files import atomic_output
+from cvsflow.transforms import R_from_euler, quat_from_R
+
+log = logging.getLogger(__name__)
+
+POSE_COLS = ["x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"]
+TRAJ_COLS = ["t_s", *POSE_COLS, "pos_valid", "rot_valid"]
+
+_TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
+_POS_SCALE = {"m": 1.0, "mm": 1e-3, "cm": 1e-2}
+_QUAT_NORM_TOL = 1e-2
+
+
+def _normalise_quats(q_xyzw, path, what):
+    """Unit quaternions (qw >= 0) and a validity mask; NaN rows for zero or non-finite input."""
+    q = np.asarray(q_xyzw, dtype=float)
+    norm = np.linalg.norm(q, axis=1)
+    ok = np.isfinite(norm) & (norm > 1e-9)
+    bad_norm = ok & (np.abs(norm - 1.0) > _QUAT_NORM_TOL)
+    if bad_norm.any():
+        log.warning(
+            "%s: %s: %d quaternions have a norm differing from 1 by more than %g; renormalised",
+            path, what, int(bad_norm.sum()), _QUAT_NORM_TOL,
+        )
+    out = np.full_like(q, np.nan)
+    out[ok] = q[ok] / norm[ok, None]
+    out[ok] = np.where(out[ok, 3:4] < 0, -out[ok], out[ok])
+    return out, ok
+
+
+def _finish(df, attrs):
+    """Sort by time, set span attributes and return the common form."""
+    df = df.sort_values("t_s", kind="stable").reset_index(drop=True)
+    df["pos_valid"] = df["pos_valid"].astype(bool) & np.isfinite(df[["x_m", "y_m", "z_m"]]).all(1)
+    df["rot_valid"] = df["rot_valid"].astype(bool) & np.isfinite(df[["qx", "qy", "qz", "qw"]]).all(1)
+    t = df["t_s"].to_numpy()
+    attrs = dict(attrs)
+    attrs.update(
+        n_samples=int(len(df)),
+        t_start_s=float(t[0]) if len(t) else float("nan"),
+        t_end_s=float(t[-1]) if len(t) else float("nan"),
+        span_s=float(t[-1] - t[0]) if len(t) else 0.0,
+        n_pos_invalid=int((~df["pos_valid"]).sum()),
+        n_rot_invalid=int((~df["rot_valid"]).sum()),
+    )
+    df.attrs = attrs
+    return df
+
+
+# --------------------------------------------------------------------------------------------
+# TUM
+# --------------------------------------------------------------------------------------------
+
+
+def read_tum(path) -> pd.DataFrame:
+    """Read a TUM trajectory file (``timestamp tx ty tz qx qy qz qw``, ``#`` comments).
+
+    Parameters
+    ----------
+    path : str or Path
+        Text file, whitespace separated; metres, seconds, scalar-last quaternion.
+
+    Returns
+    -------
+    DataFrame
+        The common trajectory form (module docstring); ``attrs['source'] = 'tum'``.
+
+    Raises
+    ------
+    InputError
+        Missing file, a line without 8 numbers (the message names the line), no pose at all.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found (expected a TUM trajectory file)")
+    rows = []
+    with open(path) as fh:
+        for lineno, line in enumerate(fh, start=1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            parts = s.replace(",", " ").split()
+            if len(parts) != 8:
+                raise InputError(
+                    f"{path}, line {lineno}: {len(parts)} fields; expected 8 "
+                    "(timestamp tx ty tz qx qy qz qw)"
+                )
+            try:
+                rows.append([float(p) for p in parts])
+            except ValueError as exc:
+                raise InputError(
+                    f"{path}, line {lineno}: not a number ({exc}); expected "
+                    "timestamp tx ty tz qx qy qz qw"
+                ) from exc
+    if not rows:
+        raise InputError(f"{path}: no pose lines (expected 'timestamp tx ty tz qx qy qz qw')")
+    a = np.asarray(rows, dtype=float)
+    q, ok = _normalise_quats(a[:, 4:8], path, "quaternion")
+    df = pd.DataFrame(
+        {"t_s": a[:, 0], "x_m": a[:, 1], "y_m": a[:, 2], "z_m": a[:, 3],
+         "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
+         "pos_valid": True, "rot_valid": ok}
+    )
+    return _finish(df, {"source": "tum", "path": str(path), "frames": "as in the file"})
+
+
+def write_tum(df: pd.DataFrame, path, only_valid: bool = True) -> None:
+    """Write a trajectory in TUM format (``timestamp tx ty tz qx qy qz qw``), atomically.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Common trajectory form (``t_s``, ``x_m..z_m`` metres, ``qx..qw`` scalar-last).
+    path : str or Path
+        Output file; readable by evo (``evo_ape tum ref.txt est.txt``).
+    only_valid : bool
+        Drop rows whose position or orientation is not valid (TUM has no validity flag).
+    """
+    d = df
+    if only_valid and {"pos_valid", "rot_valid"} <= set(df.columns):
+        d = df[df["pos_valid"].astype(bool) & df["rot_valid"].astype(bool)]
+    a = d[["t_s", *POSE_COLS]].to_numpy(dtype=float)
+    with atomic_output(path) as tmp, open(tmp, "w") as fh:
+        fh.write("# timestamp tx ty tz qx qy qz qw (s, m, scalar-last quaternion)\n")
+        for r in a:
+            fh.write(
+                f"{r[0]:.9f} {r[1]:.9f} {r[2]:.9f} {r[3]:.9f} "
+                f"{r[4]:.9f} {r[5]:.9f} {r[6]:.9f} {r[7]:.9f}\n"
+            )
+
+
+# --------------------------------------------------------------------------------------------
+# Generic CSV
+# --------------------------------------------------------------------------------------------
+
+CSV_DEFAULTS = {
+    "time_col": "t",
+    "time_unit": "s",
+    "pos_cols": ["x", "y", "z"],
+    "pos_unit": "m",
+    "rot": "quat_xyzw",
+    "rot_cols": ["qx", "qy", "qz", "qw"],
+    "angle_unit": "rad",
+    "pos_valid_col": None,
+    "rot_valid_col": None,
+}
+
+
+def read_csv_log(path, spec: dict | None = None) -> pd.DataFrame:
+    """Read a generic CSV pose log whose columns and units are declared in ``spec``.
+
+    Parameters
+    ----------
+    path : str or Path
+        CSV file with a header row.
+    spec : dict
+        ``time_col``; ``time_unit`` (s, ms, us, ns); ``pos_cols`` (3 names); ``pos_unit``
+        (m, cm, mm); ``rot``: ``quat_xyzw``, ``quat_wxyz`` or ``euler_rpy`` (roll, pitch, yaw
+        with R = Rz(yaw) Ry(pitch) Rx(roll)); ``rot_cols`` (4 or 3 names); ``angle_unit``
+        (rad, deg; Euler only); optional ``pos_valid_col`` / ``rot_valid_col`` (truthy = valid).
+        Missing keys take ``CSV_DEFAULTS``.
+
+    Returns
+    -------
+    DataFrame
+        Common trajectory form in SI units; empty cells give invalid rows (not errors).
+
+    Raises
+    ------
+    InputError
+        Missing file, unknown spec value, a declared column absent from the header, or a cell
+        that is not a number (the message names the row and column).
+    """
+    path = Path(path)
+    spec = {**CSV_DEFAULTS, **(spec or {})}
+    unknown = set(spec) - set(CSV_DEFAULTS)
+    if unknown:
+        raise InputError(f"{path}: unknown CSV spec keys {sorted(unknown)}; expected {list(CSV_DEFAULTS)}")
+    for key, choices in (("time_unit", _TIME_SCALE), ("pos_unit", _POS_SCALE),
+                         ("rot", ("quat_xyzw", "quat_wxyz", "euler_rpy")),
+                         ("angle_unit", ("rad", "deg"))):
+        if spec[key] not in choices:
+            raise InputError(f"{path}: CSV spec {key}={spec[key]!r}; expected one of {list(choices)}")
+    n_rot = 3 if spec["rot"] == "euler_rpy" else 4
+    if len(spec["pos_cols"]) != 3 or len(spec["rot_cols"]) != n_rot:
+        raise InputError(
+            f"{path}: CSV spec needs 3 pos_cols and {n_rot} rot_cols for rot={spec['rot']}, got "
+            f"{len(spec['pos_cols'])} and {len(spec['rot_cols'])}"
+        )
+    if not path.is_file():
+        raise InputError(f"{path}: file not found (expected a CSV pose log)")
+    try:
+        raw = pd.read_csv(path, skipinitialspace=True)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: not a readable CSV ({exc})") from exc
+    raw.columns = [str(c).strip() for c in raw.columns]
+    wanted = [spec["time_col"], *spec["pos_cols"], *spec["rot_cols"]]
+    wanted += [c for c in (spec["pos_valid_col"], spec["rot_valid_col"]) if c]
+    missing = [c for c in wanted if c not in raw.columns]
+    if missing:
+        raise InputError(f"{path}: header lacks column(s) {missing}; found {list(raw.columns)}")
+    num = {}
+    for c in wanted:
+        v = pd.to_numeric(raw[c], errors="coerce")
+        bad = v.isna() & raw[c].notna()
+        if bad.any():
+            i = int(np.flatnonzero(bad.to_numpy())[0])
+            raise InputError(
+                f"{path}, row {i + 2}, column {c}: {raw[c].iloc[i]!r} is not a number"
+            )
+        num[c] = v.to_numpy(dtype=float)
+    t = num[spec["time_col"]]
+    if np.isnan(t).any():
+        i = int(np.flatnonzero(np.isnan(t))[0])
+        raise InputError(f"{path}, row {i + 2}, column {spec['time_col']}: empty time cell")
+    t_s = t * _TIME_SCALE[spec["time_unit"]]
+    p = np.column_stack([num[c] for c in spec["pos_cols"]]) * _POS_SCALE[spec["pos_unit"]]
+    r = np.column_stack([num[c] for c in spec["rot_cols"]])
+    if spec["rot"] == "euler_rpy":
+        if spec["angle_unit"] == "deg":
+            r = np.deg2rad(r)
+        ok = np.isfinite(r).all(1)
+        q = np.full((len(r), 4), np.nan)
+        if ok.any():
+            q[ok] = quat_from_R(R_from_euler(r[ok]))
+    else:
+        if spec["rot"] == "quat_wxyz":
+            r = r[:, [1, 2, 3, 0]]
+        q, ok = _normalise_quats(r, path, "quaternion")
+    pos_valid = np.isfinite(p).all(1)
+    if spec["pos_valid_col"]:
+        pos_valid &= np.nan_to_num(num[spec["pos_valid_col"]]) != 0
+    if spec["rot_valid_col"]:
+        ok &= np.nan_to_num(num[spec["rot_valid_col"]]) != 0
+    p = np.where(pos_valid[:, None], p, np.nan)
+    df = pd.DataFrame(
+        {"t_s": t_s, "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
+         "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
+         "pos_valid": pos_valid, "rot_valid": ok}
+    )
+    n_bad = int((~pos_valid).sum())
+    if n_bad:
+        log.warning("%s: %d of %d rows have no valid position", path, n_bad, len(df))
+    return _finish(df, {"source": "csv", "path": str(path), "frames": "as declared", "spec": spec})
+
+
+# --------------------------------------------------------------------------------------------
+# PX4 ULog
+# --------------------------------------------------------------------------------------------
+
+
+def _open_ulog(path):
+    """Parse a ULog file with pyulog; unreadable files become InputError."""
+    from pyulog import ULog
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found (expected a PX4 .ulg log)")
+    try:
+        return ULog(str(path))
+    except Exception as exc:  # pyulog raises plain exceptions on corrupt files
+        raise InputError(f"{path}: not a readable PX4 ULog file ({exc})") from exc
+
+
+def _topic(ulog, path, name, multi_id=0, required=True):
+    """The data of one (topic, multi_id) series, or None when absent and not required."""
+    for d in ulog.data_list:
+        if d.name == name and d.multi_id == multi_id:
+            return d.data
+    if required:
+        have = sorted({d.name for d in ulog.data_list})
+        raise InputError(f"{path}: topic {name}[{multi_id}] not in the log; topics present: {have}")
+    return None
+
+
+def _time_field(data):
+    """Sample time of a topic in microseconds: timestamp_sample when logged, else timestamp."""
+    key = "timestamp_sample" if "timestamp_sample" in data else "timestamp"
+    return np.asarray(data[key], dtype=np.int64), key
+
+
+def read_ulog_topic(path, topic: str, multi_id: int = 0) -> pd.DataFrame:
+    """All fields of one ULog topic series as a DataFrame, plus ``t_s`` (µs since boot / 1e6).
+
+    Raises
+    ------
+    InputError
+        Unreadable file or topic not logged (the message lists the topics present).
+    """
+    ulog = _open_ulog(path)
+    data = _topic(ulog, Path(path), topic, multi_id)
+    df = pd.DataFrame({k: np.asarray(v) for k, v in data.items()})
+    us, key = _time_field(data)
+    df.insert(0, "t_s", us * 1e-6)
+    df.attrs = {"path": str(path), "topic": topic, "multi_id": multi_id, "time_field": key}
+    return df
+
+
+def _interp_valid(t_out, t_in, v_in, valid_in, max_gap_s):
+    """Linear interpolation of v_in at t_out, NaN outside, across gaps or next to invalid samples."""
+    out = np.full(len(t_out), np.nan)
+    if len(t_in) < 2:
+        return out
+    i = np.searchsorted(t_in, t_out, side="right")
+    inside = (i > 0) & (i < len(t_in))
+    exact_last = t_out == t_in[-1]
+    i = np.clip(i, 1, len(t_in) - 1)
+    t0, t1 = t_in[i - 1], t_in[i]
+    ok = inside & valid_in[i - 1] & valid_in[i] & ((t1 - t0) <= max_gap_s)
+    ok |= exact_last & valid_in[-1]
+    w = np.where(t1 > t0, (t_out - t0) / np.where(t1 > t0, t1 - t0, 1.0), 0.0)
+    val = (1 - w) * v_in[i - 1] + w * v_in[i]
+    val = np.where(exact_last, v_in[-1], val)
+    out[ok] = val[ok]
+    return out
+
+
+def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> pd.DataFrame:
+    """Read the on-board pose estimate of a PX4 ULog into the common trajectory form.
+
+    Parameters
+    ----------
+    path : str or Path
+        PX4 ``.ulg`` file.
+    source : {"local_position", "odometry"}
+        ``local_position``: orientation from ``vehicle_attitude`` (rows at its sample times)
+        and position from ``vehicle_local_position`` linearly interpolated to them (only
+        between two samples both valid and at most ``max_gap_s`` apart). ``odometry``:
+        position and orientation from ``vehicle_odometry``.
+    max_gap_s : float
+        Longest gap between position samples bridged by interpolation, seconds.
+
+    Returns
+    -------
+    DataFrame
+        Common form, plus ``xy_valid`` and ``z_valid`` columns (``local_position``). Times are
+        seconds since boot (PX4 µs / 1e6). Frames: PX4's own, L = local NED (x north, y east,
+        z down), Q = body FRD (x forward, y right, z down); both right-handed, so
+        ``T_L_Q`` is an ordinary rigid transform. ``q[0..3]`` (w, x, y, z, rotating FRD
+        into NED) is reordered to scalar-last. Where the log marks the horizontal position
+        invalid (``xy_valid = 0``), x and y are NaN and ``pos_valid`` is False; the same for z
+        with ``z_valid``. ``attrs``: ``topics`` (per series: ``n``, ``t_first_us``,
+        ``t_last_us``), ``t_start_s``/``t_end_s``/``span_s`` of the returned data (the
+        effective span), ``header_duration_s`` (ULog header, which can be far longer),
+        ``xy_valid_fraction``, ``z_valid_fraction``, ``warnings`` (list of str).
+
+    Raises
+    ------
+    InputError
+        Unreadable file, missing topic or field (named), unknown ``source``.
+    """
+    path = Path(path)
+    if source not in ("local_position", "odometry"):
+        raise InputError(f"{path}: source={source!r}; expected 'local_position' or 'odometry'")
+    ulog = _open_ulog(path)
+    warnings_ = []
+    topics = {}
+
+    def summary(name, data):
+        us, key = _time_field(data)
+        topics[name] = {"n": int(len(us)), "t_first_us": int(us[0]) if len(us) else None,
+                        "t_last_us": int(us[-1]) if len(us) else None, "time_field": key}
+        return us
+
+    def field(data, name, f):
+        if f not in data:
+            raise InputError(f"{path}: topic {name}, field {f} missing; fields: {sorted(data)}")
+        return np.asarray(data[f], dtype=float)
+
+    if source == "local_position":
+        att = _topic(ulog, path, "vehicle_attitude")
+        lpos = _topic(ulog, path, "vehicle_local_position")
+        t_att = summary("vehicle_attitude", att) * 1e-6
+        t_pos = summary("vehicle_local_position", lpos) * 1e-6
+        q_wxyz = np.column_stack([field(att, "vehicle_attitude", f"q[{k}]") for k in range(4)])
+        q, rot_ok = _normalise_quats(q_wxyz[:, [1, 2, 3, 0]], path, "vehicle_attitude.q")
+        xy_valid = field(lpos, "vehicle_local_position", "xy_valid") != 0
+        z_valid = field(lpos, "vehicle_local_position", "z_valid") != 0
+        order = np.argsort(t_pos, kind="stable")
+        t_pos = t_pos[order]
+        xyz = [field(lpos, "vehicle_local_position", f)[order] for f in ("x", "y", "z")]
+        xy_valid, z_valid = xy_valid[order], z_valid[order]
+        x = _interp_valid(t_att, t_pos, xyz[0], xy_valid, max_gap_s)
+        y = _interp_valid(t_att, t_pos, xyz[1], xy_valid, max_gap_s)
+        z = _interp_valid(t_att, t_pos, xyz[2], z_valid, max_gap_s)
+        df = pd.DataFrame(
+            {"t_s": t_att, "x_m": x, "y_m": y, "z_m": z,
+             "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
+             "pos_valid": np.isfinite(x) & np.isfinite(y) & np.isfinite(z),
+             "rot_valid": rot_ok,
+             "xy_valid": np.isfinite(x) & np.isfinite(y), "z_valid": np.isfinite(z)}
+        )
+        xy_frac = float(xy_valid.mean()) if len(xy_valid) else 0.0
+        z_frac = float(z_valid.mean()) if len(z_valid) else 0.0
+        for name, frac, n_bad in (("xy_valid", xy_frac, int((~xy_valid).sum())),
+                                  ("z_valid", z_frac, int((~z_valid).sum()))):
+            if n_bad:
+                axes = "x and y" if name == "xy_valid" else "z"
+                msg = (f"{path}: vehicle_local_position {name} = 0 in {n_bad} of "
+                       f"{len(xy_valid)} samples; {axes} set to NaN there and pos_valid False")
+                log.warning(msg)
+                warnings_.append(msg)
+        extra = {"xy_valid_fraction": xy_frac, "z_valid_fraction": z_frac}
+    else:
+        odo = _topic(ulog, path, "vehicle_odometry")
+        t = summary("vehicle_odometry", odo) * 1e-6
+        pf = ("position[0]", "position[1]", "position[2]") if "position[0]" in odo else ("x", "y", "z")
+        p = np.column_stack([field(odo, "vehicle_odometry", f) for f in pf])
+        q_wxyz = np.column_stack([field(odo, "vehicle_odometry", f"q[{k}]") for k in range(4)])
+        q, rot_ok = _normalise_quats(q_wxyz[:, [1, 2, 3, 0]], path, "vehicle_odometry.q")
+        frame_key = "pose_frame" if "pose_frame" in odo else "local_frame"
+        if frame_key in odo:
+            frames_logged = sorted({int(v) for v in np.asarray(odo[frame_key])})
+            topics["vehicle_odometry"][frame_key] = frames_logged
+        pos_ok = np.isfinite(p).all(1)
+        df = pd.DataFrame(
+            {"t_s": t, "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
+             "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
+             "pos_valid": pos_ok, "rot_valid": rot_ok}
+        )
+        if (~pos_ok).any():
+            msg = f"{path}: vehicle_odometry position NaN in {int((~pos_ok).sum())} of {len(t)} samples"
+            log.warning(msg)
+            warnings_.append(msg)
+        extra = {}
+    header_s = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
+    out = _finish(df, {"source": f"px4_ulog:{source}", "path": str(path),
+                       "frames": "L = local NED, Q = body FRD", "topics": topics,
+                       "header_duration_s": float(header_s), "warnings": warnings_, **extra})
+    if header_s > out.attrs["span_s"] + 1.0:
+        msg = (f"{path}: ULog header spans {header_s:.3f} s but the pose data span "
+               f"{out.attrs['span_s']:.3f} s ({out.attrs['t_start_s']:.6f} to "
+               f"{out.attrs['t_end_s']:.6f} s since boot); using the data span")
+        log.warning(msg)
+        out.attrs["warnings"].append(msg)
+    if not out["pos_valid"].any():
+        out.attrs["warnings"].append(f"{path}: no valid position sample at all")
+    return out
