@@ -230,3 +230,24 @@ def test_streams_for_the_figure(session):
     s = angular_speed_streams(poses, bodies)
     assert len(s["t_cvs_s"]) == len(s["omega_cvs_rad_s"]) == len(poses) - 1
     assert len(s["t_vicon_s"]) == len(s["omega_vicon_rad_s"])
+
+
+def test_sync_figure(session):
+    """plot_sync draws both streams on the Vicon clock with deg/s and s axis labels, and the
+    aligned residual is small compared with the signal (median |diff| < 20 % of median speed)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cvsflow.plots.mocap import plot_sync
+
+    poses, bodies, _ = session
+    streams = angular_speed_streams(poses, bodies)
+    fig = plot_sync(streams, DT_OFFSET_S, quality=0.9, method="angular_speed")
+    ax0, ax1 = fig.axes
+    assert "deg/s" in ax0.get_ylabel() and ax1.get_xlabel() == "Vicon time t (s)"
+    resid = ax1.lines[0].get_ydata()
+    speed = ax0.lines[1].get_ydata()
+    assert np.nanmedian(np.abs(resid)) < 0.2 * np.nanmedian(np.abs(speed))
+    plt.close(fig)

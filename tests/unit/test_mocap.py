@@ -286,3 +286,42 @@ def test_downsample_bodies_modes():
     np.testing.assert_allclose(itp["t_s"], np.arange(60) / 30.0, atol=1e-12)
     with pytest.raises(MocapError, match="mode"):
         downsample_bodies(bodies, RATE_HZ, 30.0, "median")
+
+
+def test_figures_have_units_and_data():
+    """plot_marker_gaps and plot_body_fit return Figures with labelled axes in s and mm, one row
+    per marker, and the fill counts in the labels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cvsflow.plots.mocap import plot_body_fit, plot_marker_gaps
+
+    df, _, _ = synthetic_markers(duration_s=1.0, noise_m=0.0002, seed=9)
+    df.loc[50:59, [f"board:B2_{a}_m" for a in "xyz"]] = np.nan
+    filled, summary = fill_marker_gaps(df, _specs(), max_gap_s=0.1)
+    fig = plot_marker_gaps(filled, summary)
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "Vicon time t (s)"
+    labels = [t.get_text() for t in ax.get_yticklabels()]
+    assert len(labels) == 8 and "board:B2  (10/0/0)" in labels
+    plt.close(fig)
+    fig = plot_body_fit(fit_bodies(filled, _specs()))
+    assert "(mm)" in fig.axes[0].get_ylabel() and "(s)" in fig.axes[1].get_xlabel()
+    assert len(fig.axes[0].lines) >= 2
+    plt.close(fig)
+
+
+def test_maths_module_imports_no_plotting_or_io():
+    """cvsflow.mocap and cvsflow.align import neither matplotlib, snakemake nor cvsflow.io."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, cvsflow.mocap, cvsflow.align;"
+        "bad=[m for m in ('matplotlib','snakemake','cvsflow.io','ezc3d') if m in sys.modules];"
+        "print(bad); sys.exit(1 if bad else 0)"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert res.returncode == 0, res.stdout + res.stderr

@@ -1,0 +1,161 @@
+"""Figures of the Vicon half: marker gaps and fills, rigid-body fit residuals, synchronisation."""
+
+from __future__ import annotations
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+from matplotlib.colors import ListedColormap
+from matplotlib.figure import Figure
+from matplotlib.patches import Patch
+
+
+def _marker_names(df):
+    if "markers" in df.attrs:
+        return list(df.attrs["markers"])
+    return [c[: -len("_x_m")] for c in df.columns if c.endswith("_x_m")]
+
+
+def plot_marker_gaps(markers_filled: pd.DataFrame, summary: dict | None = None) -> Figure:
+    """Marker state over time: measured, filled (rigid body or interpolation) or missing.
+
+    Parameters
+    ----------
+    markers_filled : DataFrame
+        ``markers_filled`` table (``t_s``, ``{marker}_{x,y,z}_m``, ``{marker}_filled``).
+    summary : dict, optional
+        The summary of :func:`cvsflow.mocap.fill_marker_gaps`; its per-marker counts are shown
+        beside each marker's name (rigid / interpolated / missing samples).
+
+    Returns
+    -------
+    Figure
+        One row per marker against time in s: white measured, blue filled, red missing.
+    """
+    names = _marker_names(markers_filled)
+    t = markers_filled["t_s"].to_numpy(float)
+    state = np.zeros((len(names), len(t)), dtype=int)
+    for i, n in enumerate(names):
+        missing = ~np.isfinite(markers_filled[f"{n}_x_m"].to_numpy(float))
+        filled_col = f"{n}_filled"
+        filled = markers_filled[filled_col].to_numpy(bool) if filled_col in markers_filled else 0
+        state[i] = np.where(missing, 2, np.where(filled, 1, 0))
+    fig, ax = plt.subplots(figsize=(10.0, 1.0 + 0.35 * len(names)), layout="constrained")
+    cmap = ListedColormap(["white", "tab:blue", "tab:red"])
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    ax.imshow(
+        state,
+        aspect="auto",
+        interpolation="nearest",
+        cmap=cmap,
+        vmin=0,
+        vmax=2,
+        extent=(t[0] - dt / 2, t[-1] + dt / 2, len(names) - 0.5, -0.5),
+    )
+    labels = []
+    for n in names:
+        c = (summary or {}).get("per_marker", {}).get(n)
+        labels.append(f"{n}  ({c['rigid']}/{c['interp']}/{c['missing']})" if c else n)
+    ax.set_yticks(np.arange(len(names)), labels)
+    ax.set_xlabel("Vicon time t (s)")
+    title = "Marker samples: measured, filled, missing"
+    if summary:
+        tot = summary["total"]
+        title += (
+            f"  [rigid {tot['rigid']}, interpolated {tot['interp']}, missing {tot['missing']} "
+            f"samples; max gap {summary['max_gap_s'] * 1000:g} ms]"
+        )
+    ax.set_title(title, fontsize=9)
+    ax.legend(
+        handles=[
+            Patch(facecolor="white", edgecolor="k", label="measured"),
+            Patch(facecolor="tab:blue", label="filled"),
+            Patch(facecolor="tab:red", label="missing"),
+        ],
+        loc="upper right",
+        fontsize=8,
+        ncols=3,
+    )
+    return fig
+
+
+def plot_body_fit(bodies: pd.DataFrame) -> Figure:
+    """Rigid-body fit RMS residual (mm) and marker counts over time, per body.
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        ``bodies`` table (``t_s``, ``body``, ``valid``, ``fit_rms_m``, ``n_markers``,
+        ``n_filled``).
+
+    Returns
+    -------
+    Figure
+        Top: fit RMS in mm (log scale), invalid samples marked at the bottom. Bottom: markers
+        used and filled markers used.
+    """
+    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(10.0, 6.0), sharex=True, layout="constrained")
+    for body, sub in bodies.groupby("body", sort=False):
+        t = sub["t_s"].to_numpy(float)
+        rms_mm = sub["fit_rms_m"].to_numpy(float) * 1000.0
+        (line,) = ax0.plot(t, rms_mm, lw=0.8, label=f"{body} (median {np.nanmedian(rms_mm):.2f} mm)")
+        bad = ~sub["valid"].to_numpy(bool)
+        if bad.any():
+            ax0.plot(t[bad], np.full(bad.sum(), np.nanmin(rms_mm[~bad]) if (~bad).any() else 1e-3),
+                     "|", color=line.get_color(), ms=10, label=f"{body} invalid ({bad.sum()} samples)")
+        ax1.step(t, sub["n_markers"], where="mid", color=line.get_color(), lw=0.8, label=f"{body} used")
+        ax1.step(t, sub["n_filled"], where="mid", color=line.get_color(), lw=0.8, ls="--",
+                 label=f"{body} filled")
+    ax0.set_yscale("log")
+    ax0.set_ylabel("fit RMS residual (mm)")
+    ax0.set_title("Rigid-body fit residual of the markers to their layout")
+    ax0.legend(fontsize=8)
+    ax1.set_ylabel("markers (count)")
+    ax1.set_xlabel("Vicon time t (s)")
+    ax1.legend(fontsize=8, ncols=2)
+    return fig
+
+
+def plot_sync(streams: dict, dt_offset_s: float, quality: float | None = None,
+              method: str | None = None) -> Figure:
+    """Board angular speed of both systems on the Vicon clock after alignment.
+
+    Parameters
+    ----------
+    streams : dict
+        :func:`cvsflow.align.angular_speed_streams` output (rad/s, seconds).
+    dt_offset_s : float
+        t_vicon_s = t_video_s + dt_offset_s, s.
+    quality, method : optional
+        Shown in the title.
+
+    Returns
+    -------
+    Figure
+        Top: |omega| in deg/s of the video (shifted by the offset) and of the Vicon over the
+        video's span. Bottom: their difference in deg/s at the video samples.
+    """
+    t_c = streams["t_cvs_s"] + dt_offset_s
+    w_c = np.degrees(streams["omega_cvs_rad_s"])
+    t_v = streams["t_vicon_s"]
+    w_v = np.degrees(streams["omega_vicon_rad_s"])
+    span = (t_v >= t_c[0] - 1.0) & (t_v <= t_c[-1] + 1.0)
+    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(10.0, 6.0), sharex=True, layout="constrained",
+                                   height_ratios=[2, 1])
+    ax0.plot(t_v[span], w_v[span], lw=0.8, color="tab:orange", label="Vicon (board rel. camera body)")
+    ax0.plot(t_c, w_c, ".", ms=2.5, color="tab:blue", label="video (PnP), shifted")
+    ax0.set_ylabel("angular speed |omega| (deg/s)")
+    title = f"Synchronisation: dt_offset = {dt_offset_s * 1000:.1f} ms"
+    if method:
+        title += f" ({method})"
+    if quality is not None:
+        title += f", quality {quality:.2f}"
+    ax0.set_title(title)
+    ax0.legend(fontsize=8)
+    ok = np.isfinite(w_v)
+    w_v_at = np.interp(t_c, t_v[ok], w_v[ok], left=np.nan, right=np.nan)
+    ax1.plot(t_c, w_c - w_v_at, ".", ms=2.5, color="k")
+    ax1.axhline(0.0, color="grey", lw=0.5)
+    ax1.set_ylabel("video - Vicon (deg/s)")
+    ax1.set_xlabel("Vicon time t (s)")
+    return fig
