@@ -80,12 +80,67 @@ def _subpix_window(corners_px: np.ndarray, board: dict, max_window_px: int) -> i
     return int(max(2, min(max_window_px, np.floor((spacing - 1.0) / 2.0))))
 
 
+def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Distance of each corner from where its grid neighbours put it.
+
+    For every corner, a homography is fitted (least squares) from board grid coordinates to
+    the pixels of its neighbours within two grid steps (itself left out) and evaluated at the
+    corner. Over two squares the lens's curvature is small (below 0.45 px for the demo lens
+    at the image edge), so a larger deviation marks a corner that the detector misplaced.
+
+    Parameters
+    ----------
+    corners_px : ndarray, shape (nx * ny, 2)
+        Corners in grid order (OpenCV's or board order), pixels.
+    board : dict
+
+    Returns
+    -------
+    predicted_px : ndarray, shape (nx * ny, 2)
+        Position predicted by the neighbours, pixels.
+    deviation_px : ndarray, shape (nx * ny,)
+        Distance between corner and prediction, pixels.
+    """
+    nx, ny = board_pattern(board)
+    uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+    weights = _neighbour_weights(nx, ny)  # (N, N): 1 where corner j helps predict corner k
+    # Conditioning as in Hartley's normalised DLT: centre and scale the pixels.
+    centre = uv.mean(axis=0)
+    scale = np.sqrt(2.0) / max(np.linalg.norm(uv - centre, axis=1).mean(), 1e-9)
+    u, v = ((uv - centre) * scale).T
+    k = np.arange(nx * ny)
+    x, y = (k % nx).astype(np.float64), (k // nx).astype(np.float64)
+    zero, one = np.zeros_like(x), np.ones_like(x)
+    rows_u = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=1)
+    rows_v = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=1)
+    A = np.concatenate([rows_u, rows_v], axis=0)  # (2N, 9)
+    w2 = np.concatenate([weights, weights], axis=1)  # (N, 2N)
+    A_k = w2[:, :, None] * A[None]  # rows of non-neighbours zeroed: (N, 2N, 9)
+    h = np.linalg.svd(A_k)[2][:, -1, :]  # (N, 9): each corner's homography, null vector
+    p = np.einsum("kij,kj->ki", h.reshape(-1, 3, 3), np.stack([x, y, one], axis=1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        predicted = p[:, :2] / p[:, 2:3] / scale + centre
+    deviation = np.linalg.norm(predicted - uv, axis=1)
+    return predicted, np.where(np.isfinite(deviation), deviation, np.inf)
+
+
+def _neighbour_weights(nx: int, ny: int) -> np.ndarray:
+    """(N, N) mask: corner j within two grid steps of corner k, j != k."""
+    k = np.arange(nx * ny)
+    di = np.abs(k[:, None] % nx - k[None, :] % nx)
+    dj = np.abs(k[:, None] // nx - k[None, :] // nx)
+    near = (di <= 2) & (dj <= 2)
+    np.fill_diagonal(near, False)
+    return near.astype(np.float64)
+
+
 def detect_corners(
     gray: np.ndarray,
     board: dict,
     subpix_window_px: int = 5,
     previous_px: np.ndarray | None = None,
     flags: int = VIDEO_FIND_FLAGS,
+    max_grid_deviation_px: float = 2.0,
 ) -> tuple[np.ndarray | None, str]:
     """Chessboard corners of one frame, refined and in board order.
 
@@ -100,6 +155,10 @@ def detect_corners(
         Ordered corners of the previous found frame (pixels), for boards whose ends look alike.
     flags : int
         ``findChessboardCorners`` flags.
+    max_grid_deviation_px : float
+        Largest distance (px) of a refined corner from the position its neighbours predict
+        (``grid_deviation``). A corner beyond it is refined once more from the prediction; if
+        it still deviates, the frame counts as not found (``"inconsistent"``).
 
     Returns
     -------
@@ -107,15 +166,34 @@ def detect_corners(
         Corner k at board point (k % nx, k // nx) * square_m (see
         ``cvsflow.calibration.order_corners``).
     method : str
-        How the 180-degree ambiguity was decided, or ``"not_found"``.
+        How the 180-degree ambiguity was decided (``"colour"``, ``"continuity"``,
+        ``"unresolved"``), or ``"not_found"`` / ``"inconsistent"``.
+
+    Notes
+    -----
+    Under motion blur, findChessboardCorners' estimate of an outer corner can be more than a
+    search window away from the true corner; cornerSubPix then leaves it where it was
+    (it refuses moves larger than its window). Near the image border the window is cut off.
+    The neighbour check catches both.
     """
     pattern = board_pattern(board)
     found, corners = cv2.findChessboardCorners(gray, pattern, None, flags)
     if not found:
         return None, "not_found"
     w = _subpix_window(corners.reshape(-1, 2), board, subpix_window_px)
-    corners = cv2.cornerSubPix(gray, corners, (w, w), (-1, -1), SUBPIX_CRITERIA)
-    return order_corners(corners.reshape(-1, 2), gray, board, previous_px)
+    corners = cv2.cornerSubPix(gray, corners, (w, w), (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2)
+    predicted, deviation = grid_deviation(corners, board)
+    bad = deviation > max_grid_deviation_px
+    if bad.any():
+        retry = cv2.cornerSubPix(
+            gray, predicted[bad].astype(np.float32).reshape(-1, 1, 2), (w, w), (-1, -1),
+            SUBPIX_CRITERIA,
+        )
+        corners[bad] = retry.reshape(-1, 2)
+        _, deviation = grid_deviation(corners, board)
+        if (deviation > max_grid_deviation_px).any():
+            return None, "inconsistent"
+    return order_corners(corners, gray, board, previous_px)
 
 
 def extract_corners(
@@ -126,6 +204,7 @@ def extract_corners(
     log_every: int = 300,
     flags: int = VIDEO_FIND_FLAGS,
     max_continuity_gap: int = 3,
+    max_grid_deviation_px: float = 2.0,
 ) -> pd.DataFrame:
     """Chessboard corners of every video frame, the same physical corner under the same index.
 
@@ -147,6 +226,9 @@ def extract_corners(
     max_continuity_gap : int
         For boards whose ends look alike: the previous found frame is used for temporal
         continuity only if at most this many frames back.
+    max_grid_deviation_px : float
+        A frame with a corner farther than this (px) from where its grid neighbours put it,
+        even after a second refinement, counts as not found (see ``detect_corners``).
 
     Returns
     -------
@@ -181,7 +263,9 @@ def extract_corners(
             if previous_frame is not None and frame - previous_frame <= max_continuity_gap
             else None
         )
-        corners_px, method = detect_corners(gray, board, subpix_window_px, prev, flags)
+        corners_px, method = detect_corners(
+            gray, board, subpix_window_px, prev, flags, max_grid_deviation_px
+        )
         methods[method] = methods.get(method, 0) + 1
         if corners_px is None:
             frame_ids.append(np.array([frame], dtype=np.int64))
@@ -233,6 +317,13 @@ def extract_corners(
     )
     if n_done - n_found:
         log.warning("corners: %d frames without a board kept as found=False", n_done - n_found)
+    if methods.get("inconsistent"):
+        log.warning(
+            "corners: %d frames had a corner off its grid neighbours by more than %.1f px "
+            "after refinement; counted as not found",
+            methods["inconsistent"],
+            max_grid_deviation_px,
+        )
     if methods.get("unresolved"):
         log.warning(
             "corners: %d frames had an undecidable 180-degree corner order (board ends alike, "
