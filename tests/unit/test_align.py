@@ -251,3 +251,73 @@ def test_sync_figure(session):
     speed = ax0.lines[1].get_ydata()
     assert np.nanmedian(np.abs(resid)) < 0.2 * np.nanmedian(np.abs(speed))
     plt.close(fig)
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory):
+    """A 4 s session rendered by cvsflow.synth (marker noise off, dropouts on), read back from
+    its Nexus CSV through the whole Vicon half."""
+    import copy
+    from pathlib import Path
+
+    import yaml
+
+    synth = pytest.importorskip("cvsflow.synth")
+    from cvsflow.io.vicon import read_vicon
+    from cvsflow.mocap import fill_marker_gaps
+
+    cfg_path = Path(__file__).resolve().parents[2] / "config" / "config.yaml"
+    session_cfg = copy.deepcopy(yaml.safe_load(cfg_path.read_text())["sessions"]["demo"])
+    session_cfg["synth"].update(duration_s=4.0, n_stills=1, marker_noise_sigma_m=0.0)
+    out = tmp_path_factory.mktemp("render") / "demo"
+    synth.render_session(session_cfg, out)
+    truth = yaml.safe_load((out / "truth.yaml").read_text())
+    mk = session_cfg["markers"]
+    markers = read_vicon(out / "vicon.csv", names=mk["camera"]["names"] + mk["board"]["names"])
+    specs = {
+        body: {"names": mk[body]["names"], "layout_m": np.array([truth[key][n] for n in mk[body]["names"]])}
+        for body, key in (("camera", "markers_Cm_m"), ("board", "markers_Bm_m"))
+    }
+    filled, summary = fill_marker_gaps(markers, specs, max_gap_s=0.1)
+    bodies = fit_bodies(filled, specs)
+    frames = pd.read_parquet(out / "truth_frames.parquet")
+    return truth, frames, bodies, summary
+
+
+def test_rendered_session_bodies_within_1mm_01deg(rendered):
+    """On the rendered session (dropouts filled), camera and board body poses are within 1 mm and
+    0.1 deg of truth (T_W_Cm; T_W_Bm = T_W_Cm T_Cm_C T_C_B inv(T_Bm_B) at the true offset)."""
+    from cvsflow.mocap import body_poses, interpolate_bodies
+    from cvsflow.transforms import R_from_quat
+
+    truth, frames, bodies, summary = rendered
+    assert summary["total"]["missing"] == 0 and summary["total"]["rigid"] > 0
+    T_W_Cm = np.array(truth["T_W_Cm"])
+    T_C_B = make_T(R_from_quat(frames[["qx", "qy", "qz", "qw"]].to_numpy(copy=True)), frames[["x_m", "y_m", "z_m"]].to_numpy())
+    T_W_Bm = T_W_Cm @ np.array(truth["T_Cm_C"]) @ T_C_B @ invert_T(np.array(truth["T_Bm_B"]))
+    at = interpolate_bodies(bodies, frames["t_s"].to_numpy() + truth["dt_offset_s"])
+    for body, T_true in (("board", T_W_Bm), ("camera", np.broadcast_to(T_W_Cm, T_W_Bm.shape))):
+        _, T, ok = body_poses(at, body)
+        assert ok.all()
+        dT = invert_T(T_true) @ T
+        assert np.linalg.norm(dT[:, :3, 3], axis=1).max() < 0.001, body
+        assert np.degrees(rotation_angle(dT[:, :3, :3])).max() < 0.1, body
+
+
+def test_rendered_session_sync_within_3ms(rendered):
+    """Angular-speed sync of the true video poses plus 0.1 deg rotation noise against the
+    rendered Vicon export recovers truth.yaml's dt_offset_s within 3 ms."""
+    truth, frames, bodies, _ = rendered
+    rng = np.random.default_rng(21)
+    R = Rotation.from_quat(frames[["qx", "qy", "qz", "qw"]].to_numpy(copy=True))
+    R = R * Rotation.from_rotvec(rng.normal(0.0, np.radians(0.1), (len(frames), 3)))
+    rvec = R.as_rotvec()
+    poses = pd.DataFrame({
+        "frame": frames["frame"], "t_s": frames["t_s"], "valid": frames["in_view"],
+        "rvec_0": rvec[:, 0], "rvec_1": rvec[:, 1], "rvec_2": rvec[:, 2],
+        "x_m": frames["x_m"], "y_m": frames["y_m"], "z_m": frames["z_m"],
+    })
+    out = sync_angular_speed(poses, bodies, max_offset_s=10.0, min_quality=0.5)
+    assert abs(out["dt_offset_s"] - truth["dt_offset_s"]) < 0.003, (out, truth["dt_offset_s"])
+    pairs = build_pairs(poses, bodies, out["dt_offset_s"], mode="interp")
+    assert len(pairs) == int(frames["in_view"].sum())
