@@ -32,7 +32,7 @@ from cvsflow.synth.session import (
     vicon_recording,
     video_truth,
 )
-from cvsflow.transforms import pose6_from_T
+from cvsflow.transforms import invert_T, pose6_from_T, transform_points
 
 __all__ = ["render_session"]
 
@@ -64,7 +64,8 @@ def render_session(session_cfg: dict, out_dir) -> dict:
     spec = parse_session_config(session_cfg)
     rngs = random_streams(spec.seed)
     rig = make_rig(spec, rngs["mounting"])
-    renderer = Renderer(spec, rngs["background"])
+    markers_B = transform_points(invert_T(rig.T_Bm_B), rig.markers_Bm_m)
+    renderer = Renderer(spec, rngs["background"], markers_B)
 
     T_C_B_stills = still_poses(
         rngs["stills"], spec.n_stills, spec.K, spec.dist, IMAGE_SIZE, still_outline_B(spec.board)

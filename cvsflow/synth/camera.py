@@ -18,6 +18,7 @@ from cvsflow.transforms import invert_T
 
 A1_SHEET_M = (0.841, 0.594)  # printed sheet, width x height, metres
 INK_REFLECTANCE = 0.06
+MARKER_RADIUS_M = 0.007  # 14 mm Vicon marker
 PAPER_REFLECTANCE = 0.88
 # Beyond this normalised radius the 5-term polynomial is no longer a physical lens
 # (it folds back); rays there are far outside a 640x480 image at f ~ 700 px (r ~ 0.6).
@@ -183,11 +184,22 @@ class BoardTexture:
     y0_m: float
 
 
-def make_board_texture(board: Board, ppm=1200.0, n_levels=5) -> BoardTexture:
+def make_board_texture(board: Board, ppm=1200.0, n_levels=5, markers_B=None) -> BoardTexture:
     """Render the A1 sheet with its chessboard as a texture pyramid.
 
     The square diagonally outside inner corner 0 (negative x and y) is black, so the corner
     order is unambiguous (6x5 squares: a 180 degree turn makes that square white).
+
+    Parameters
+    ----------
+    board : Board
+    ppm : float
+        Texels per metre of the finest level.
+    n_levels : int
+        Pyramid levels, each half the resolution of the previous one.
+    markers_B : ndarray, shape (M, 3), optional
+        Vicon markers stuck on the sheet (frame B, metres); those over the sheet are drawn
+        as grey discs of ``MARKER_RADIUS_M`` seen face-on (their relief is ignored).
     """
     s = board.square_m
     x_min, _, y_min, _ = board.printed_B()
@@ -212,6 +224,8 @@ def make_board_texture(board: Board, ppm=1200.0, n_levels=5) -> BoardTexture:
     in_y = (iy >= 0) & (iy < board.squares_y)
     black = ((iy[:, None] + ix[None, :]) % 2 == 0) & in_y[:, None] & in_x[None, :]
     reflectance = np.where(black, INK_REFLECTANCE, PAPER_REFLECTANCE)
+    if markers_B is not None:
+        reflectance = _draw_markers(reflectance, markers_B, x0, y0, ppm, board.sheet_B())
     level = np.dstack([reflectance * alpha, alpha]).astype(np.float32)
     levels, ppms = [level], [ppm]
     for _ in range(n_levels - 1):
@@ -219,6 +233,21 @@ def make_board_texture(board: Board, ppm=1200.0, n_levels=5) -> BoardTexture:
         levels.append(level)
         ppms.append(ppms[-1] / 2)
     return BoardTexture(tuple(levels), tuple(ppms), float(x0), float(y0))
+
+
+def _draw_markers(reflectance, markers_B, x0, y0, ppm, sheet):
+    """Paint retro-reflective markers (grey, darker rim) on the sheet texture."""
+    reflectance = reflectance.astype(np.float32).copy()
+    shift = 4  # cv2.circle sub-texel precision, 1/16 texel
+    sx0, sx1, sy0, sy1 = sheet
+    for x, y, _ in np.asarray(markers_B, dtype=float):
+        if not (sx0 < x < sx1 and sy0 < y < sy1):
+            continue  # a marker off the sheet (on a stick or a tab) is not in the texture
+        centre = (int(round(((x - x0) * ppm - 0.5) * 16)), int(round(((y - y0) * ppm - 0.5) * 16)))
+        radius = MARKER_RADIUS_M * ppm
+        cv2.circle(reflectance, centre, int(radius * 16), 0.35, -1, cv2.LINE_AA, shift)
+        cv2.circle(reflectance, centre, int(0.75 * radius * 16), 0.6, -1, cv2.LINE_AA, shift)
+    return reflectance
 
 
 def _texel_from_ray(T_C_B, texture: BoardTexture, level: int):

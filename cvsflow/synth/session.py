@@ -269,12 +269,14 @@ class Renderer:
     spec : SynthSpec
     rng_background : numpy.random.Generator
         For the static cluttered background of the video and the pale one of the stills.
+    markers_B : ndarray, shape (M, 3), optional
+        Board markers in B (metres), drawn on the sheet where they lie on it.
     """
 
-    def __init__(self, spec: SynthSpec, rng_background):
+    def __init__(self, spec: SynthSpec, rng_background, markers_B=None):
         self.spec = spec
         self.xy_n = undistortion_grid(spec.K, spec.dist, IMAGE_SIZE)
-        self.texture: BoardTexture = make_board_texture(spec.board)
+        self.texture: BoardTexture = make_board_texture(spec.board, markers_B=markers_B)
         self.background = make_background(rng_background, IMAGE_SIZE)
         self.background_still = make_background(rng_background, IMAGE_SIZE, n_rects=8, light=True)
         self.shading = vignetting(IMAGE_SIZE, spec.K)
