@@ -608,3 +608,29 @@ def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", b
             n_drop_vic,
         )
     return pd.DataFrame(cols)
+
+
+def make_pairs(poses_raw, bodies, bodies_30hz, dt_offset_s, resample="block", camera="camera", board="board"):
+    """The pairs stage: :func:`build_pairs` on the table that ``vicon.resample`` calls for.
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        ``poses_raw.parquet`` (video clock).
+    bodies : DataFrame
+        Native-rate bodies table; used for ``resample="interp"`` (SLERP at each frame's exact
+        Vicon time, no second interpolation through a 30 Hz grid).
+    bodies_30hz : DataFrame
+        Block-averaged table; used for ``resample="block"`` (nearest block, at most half a
+        block, 16.7 ms at 300 Hz / 10, from the frame's Vicon time).
+    dt_offset_s : float
+        From sync.yaml: t_vicon_s = t_video_s + dt_offset_s, s.
+    resample : {"block", "interp"}
+
+    Returns
+    -------
+    pairs : DataFrame
+        ``pairs.parquet`` (see :func:`build_pairs`).
+    """
+    table = bodies_30hz if resample == "block" else bodies
+    return build_pairs(poses_raw, table, dt_offset_s, mode=resample, camera=camera, board=board)

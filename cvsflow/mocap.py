@@ -316,6 +316,42 @@ def fill_marker_gaps(markers, body_specs, max_gap_s, method="cubic"):
     return out, summary
 
 
+def repair_markers(markers, body_specs, vicon_cfg):
+    """The repair stage: gap fill, then the optional low-pass filter, as the config says.
+
+    Parameters
+    ----------
+    markers : DataFrame
+        Wide marker table (metres, W).
+    body_specs : dict
+        ``sessions.<s>.markers``: ``{body: {"names": [...], "layout_m": (M, 3) or None}}``.
+    vicon_cfg : dict
+        The ``vicon`` config block: ``max_gap_s`` (s), ``fill_method`` ("cubic" default or
+        "linear"), ``filter: {enabled, cutoff_hz, order}``.
+
+    Returns
+    -------
+    filled : DataFrame
+        ``markers_filled`` table (:func:`fill_marker_gaps`), filtered if enabled.
+    summary : dict
+        :func:`fill_marker_gaps` summary plus ``filter`` (the filter settings applied or
+        ``None``).
+    """
+    filled, summary = fill_marker_gaps(
+        markers,
+        body_specs,
+        max_gap_s=float(vicon_cfg.get("max_gap_s", 0.1)),
+        method=vicon_cfg.get("fill_method", "cubic"),
+    )
+    filt = vicon_cfg.get("filter") or {}
+    summary["filter"] = None
+    if filt.get("enabled", False):
+        cutoff_hz, order = float(filt["cutoff_hz"]), int(filt.get("order", 2))
+        filled = lowpass_markers(filled, cutoff_hz, order)
+        summary["filter"] = {"cutoff_hz": cutoff_hz, "order": order, "zero_lag": True}
+    return filled, summary
+
+
 def _interpolate_gaps(xyz, t_s, rate, max_gap_s, method):
     """Fill, in place, NaN runs of at most max_gap_s bounded by data on both sides; return count.
 
@@ -628,29 +664,36 @@ def _interp_T(t, T, valid, tq):
     return out, ok, near
 
 
-def downsample_bodies(bodies, rate_hz, fps, mode="block"):
+def downsample_bodies(bodies, fps, mode="block", rate_hz=None):
     """The 30 Hz bodies table: block mean (chapter) or interpolation on a regular 1/fps grid.
 
     Parameters
     ----------
     bodies : DataFrame
         Native-rate bodies table.
-    rate_hz : float
-        Native Vicon rate, Hz.
     fps : float
         Video frame rate, Hz.
     mode : {"block", "interp"}
-        ``block``: :func:`block_average_bodies` with factor ``round(rate_hz / fps)``;
-        ``interp``: :func:`interpolate_bodies` at ``t0 + k / fps`` over the take.
+        ``vicon.resample``. ``block``: :func:`block_average_bodies` with factor
+        ``round(rate_hz / fps)``; ``interp``: :func:`interpolate_bodies` at ``t0 + k / fps``
+        over the take.
+    rate_hz : float, optional
+        Native Vicon rate, Hz; default ``attrs["rate_hz"]`` or 1 / median sample spacing.
 
     Returns
     -------
     bodies_30hz : DataFrame
         ``bodies_30hz.parquet`` schema, Vicon clock.
     """
+    if rate_hz is None:
+        rate_hz = bodies.attrs.get("rate_hz")
+    if rate_hz is None:
+        t = np.sort(pd.unique(bodies["t_s"].to_numpy(float)))
+        rate_hz = 1.0 / float(np.median(np.diff(t)))
+    rate_hz = float(rate_hz)
     if mode == "block":
         factor = int(round(rate_hz / fps))
-        if abs(factor - rate_hz / fps) > 1e-6 * factor:
+        if abs(factor - rate_hz / fps) > 1e-3 * factor:
             log.warning("Vicon rate %g Hz is not a multiple of %g fps; blocks of %d", rate_hz, fps, factor)
         return block_average_bodies(bodies, factor)
     if mode == "interp":

@@ -79,7 +79,7 @@ def plot_marker_gaps(markers_filled: pd.DataFrame, summary: dict | None = None) 
     return fig
 
 
-def plot_body_fit(bodies: pd.DataFrame) -> Figure:
+def plot_fit_residuals(bodies: pd.DataFrame) -> Figure:
     """Rigid-body fit RMS residual (mm) and marker counts over time, per body.
 
     Parameters
@@ -116,18 +116,18 @@ def plot_body_fit(bodies: pd.DataFrame) -> Figure:
     return fig
 
 
-def plot_sync(streams: dict, dt_offset_s: float, quality: float | None = None,
-              method: str | None = None) -> Figure:
+def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict) -> Figure:
     """Board angular speed of both systems on the Vicon clock after alignment.
 
     Parameters
     ----------
-    streams : dict
-        :func:`cvsflow.align.angular_speed_streams` output (rad/s, seconds).
-    dt_offset_s : float
-        t_vicon_s = t_video_s + dt_offset_s, s.
-    quality, method : optional
-        Shown in the title.
+    poses_raw : DataFrame
+        ``poses_raw`` table (video clock).
+    bodies : DataFrame
+        Native-rate bodies table (Vicon clock).
+    sync : dict
+        sync.yaml content: ``dt_offset_s`` (t_vicon_s = t_video_s + dt_offset_s), ``method``,
+        ``quality``.
 
     Returns
     -------
@@ -135,6 +135,16 @@ def plot_sync(streams: dict, dt_offset_s: float, quality: float | None = None,
         Top: |omega| in deg/s of the video (shifted by the offset) and of the Vicon over the
         video's span. Bottom: their difference in deg/s at the video samples.
     """
+    from cvsflow.align import angular_speed_streams
+
+    return plot_sync_streams(
+        angular_speed_streams(poses_raw, bodies), sync["dt_offset_s"], sync.get("quality"), sync.get("method")
+    )
+
+
+def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None = None,
+                      method: str | None = None) -> Figure:
+    """:func:`plot_sync` from precomputed streams (:func:`cvsflow.align.angular_speed_streams`)."""
     t_c = streams["t_cvs_s"] + dt_offset_s
     w_c = np.degrees(streams["omega_cvs_rad_s"])
     t_v = streams["t_vicon_s"]

@@ -243,8 +243,7 @@ def test_sync_figure(session):
     from cvsflow.plots.mocap import plot_sync
 
     poses, bodies, _ = session
-    streams = angular_speed_streams(poses, bodies)
-    fig = plot_sync(streams, DT_OFFSET_S, quality=0.9, method="angular_speed")
+    fig = plot_sync(poses, bodies, {"dt_offset_s": DT_OFFSET_S, "quality": 0.9, "method": "angular_speed"})
     ax0, ax1 = fig.axes
     assert "deg/s" in ax0.get_ylabel() and ax1.get_xlabel() == "Vicon time t (s)"
     resid = ax1.lines[0].get_ydata()
@@ -321,3 +320,15 @@ def test_rendered_session_sync_within_3ms(rendered):
     assert abs(out["dt_offset_s"] - truth["dt_offset_s"]) < 0.003, (out, truth["dt_offset_s"])
     pairs = build_pairs(poses, bodies, out["dt_offset_s"], mode="interp")
     assert len(pairs) == int(frames["in_view"].sum())
+
+
+def test_make_pairs_picks_the_configured_table(clean_session):
+    """make_pairs uses the 30 Hz table for block and the native table for interp."""
+    from cvsflow.align import make_pairs
+
+    poses, bodies, _ = clean_session
+    lo = block_average_bodies(bodies, 10)
+    pd.testing.assert_frame_equal(make_pairs(poses, bodies, lo, DT_OFFSET_S, resample="block"),
+                                  build_pairs(poses, lo, DT_OFFSET_S, mode="block"))
+    pd.testing.assert_frame_equal(make_pairs(poses, bodies, lo, DT_OFFSET_S, resample="interp"),
+                                  build_pairs(poses, bodies, DT_OFFSET_S, mode="interp"))

@@ -17,6 +17,7 @@ from cvsflow.mocap import (
     interpolate_bodies,
     learn_layout,
     lowpass_markers,
+    repair_markers,
 )
 from cvsflow.transforms import invert_T, make_T, rotation_angle, transform_points
 
@@ -280,23 +281,23 @@ def test_downsample_bodies_modes():
     """downsample_bodies: block gives round(300/30)=10-sample blocks; interp gives a 1/30 s grid
     over the take; an unknown mode raises MocapError."""
     bodies, _ = _constant_rate_bodies(n=600)
-    blk = downsample_bodies(bodies, RATE_HZ, 30.0, "block")
-    itp = downsample_bodies(bodies, RATE_HZ, 30.0, "interp")
+    blk = downsample_bodies(bodies, 30.0, "block")  # rate from the sample spacing
+    itp = downsample_bodies(bodies, 30.0, "interp", rate_hz=RATE_HZ)
     assert len(blk) == 60
     np.testing.assert_allclose(itp["t_s"], np.arange(60) / 30.0, atol=1e-12)
     with pytest.raises(MocapError, match="mode"):
-        downsample_bodies(bodies, RATE_HZ, 30.0, "median")
+        downsample_bodies(bodies, 30.0, "median")
 
 
 def test_figures_have_units_and_data():
-    """plot_marker_gaps and plot_body_fit return Figures with labelled axes in s and mm, one row
+    """plot_marker_gaps and plot_fit_residuals return Figures with labelled axes in s and mm, one row
     per marker, and the fill counts in the labels."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from cvsflow.plots.mocap import plot_body_fit, plot_marker_gaps
+    from cvsflow.plots.mocap import plot_fit_residuals, plot_marker_gaps
 
     df, _, _ = synthetic_markers(duration_s=1.0, noise_m=0.0002, seed=9)
     df.loc[50:59, [f"board:B2_{a}_m" for a in "xyz"]] = np.nan
@@ -307,7 +308,7 @@ def test_figures_have_units_and_data():
     labels = [t.get_text() for t in ax.get_yticklabels()]
     assert len(labels) == 8 and "board:B2  (10/0/0)" in labels
     plt.close(fig)
-    fig = plot_body_fit(fit_bodies(filled, _specs()))
+    fig = plot_fit_residuals(fit_bodies(filled, _specs()))
     assert "(mm)" in fig.axes[0].get_ylabel() and "(s)" in fig.axes[1].get_xlabel()
     assert len(fig.axes[0].lines) >= 2
     plt.close(fig)
@@ -325,3 +326,17 @@ def test_maths_module_imports_no_plotting_or_io():
     )
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert res.returncode == 0, res.stdout + res.stderr
+
+
+def test_repair_markers_follows_config():
+    """repair_markers fills as fill_marker_gaps and low-passes only when filter.enabled."""
+    df, _, _ = synthetic_markers(duration_s=1.0, noise_m=0.001, seed=13)
+    df.loc[40:45, [f"board:B3_{a}_m" for a in "xyz"]] = np.nan
+    cfg = {"max_gap_s": 0.1, "filter": {"enabled": False, "cutoff_hz": 12.0, "order": 2}}
+    raw, summary = repair_markers(df, _specs(), cfg)
+    assert summary["filter"] is None and summary["total"]["rigid"] == 6
+    np.testing.assert_array_equal(raw["board:B1_x_m"], df["board:B1_x_m"])
+    cfg["filter"]["enabled"] = True
+    smooth, summary = repair_markers(df, _specs(), cfg)
+    assert summary["filter"] == {"cutoff_hz": 12.0, "order": 2, "zero_lag": True}
+    assert np.std(np.diff(smooth["board:B1_x_m"])) < 0.5 * np.std(np.diff(df["board:B1_x_m"]))
