@@ -492,6 +492,9 @@ def optimise_seed(
     are 16, 8, 4, 2, 1, 0.5 px. The grid search is local: one iteration moves f at most
     ``sum_l h_l`` pixels.
 
+    When a grid search returns its own centre, (f, P_bar) is a fixed point and all later
+    iterations would repeat it exactly; their rows are copied instead of recomputed.
+
     With ``objective="summed"`` the current point scores exactly 0 (eq. 1.10 then 1.11 at
     the same f makes sum_i eps_i = 0), so the iteration stays at ``f_init``; this is the
     literal reading of the chapter and cannot reproduce its 700 -> 628, 535.
@@ -552,6 +555,7 @@ def optimise_seed(
     t_grid = 0.0
     F_init = None
     eps_init = None
+    fixed_point = False
     try:
         for j in range(int(k_iterations) + 1):
             F = _pose6(R, t)
@@ -573,6 +577,12 @@ def optimise_seed(
                 rows.append(row)
                 break
             # step c), eq. 1.12: grid search with P_bar held from step a)
+            if fixed_point:
+                # the last grid search returned its own centre: the state (f, P_bar) is
+                # unchanged, so every further iteration is identical; copy, do not recompute
+                row["objective_grid_min"] = row["objective"]
+                rows.append(row)
+                continue
             tg = time.perf_counter()
             dtheta_df = _focal_sensitivity(uv, X_B, f[0], f[1], cx, cy, dist5, R, t)
             target = P_star[:, :3] + P_bar[:3]
@@ -605,6 +615,7 @@ def optimise_seed(
             t_grid += time.perf_counter() - tg
             row["objective_grid_min"] = best[0]
             rows.append(row)
+            fixed_point = bool(np.all(best[1] == f))
             f, R, t = best[1], best[2], best[3]
             log.debug("seed iteration %d: fx %.3f fy %.3f objective %.6g", j, f[0], f[1], best[0])
     finally:
