@@ -32,8 +32,9 @@ SESSION_FILES = (
 def staged_session_dir(out_dir):
     """Yield a temporary folder beside ``out_dir``; on success it replaces ``out_dir``.
 
-    An existing ``out_dir`` may only hold files a previous render wrote (``SESSION_FILES``),
-    so that a mistyped path never deletes a user's own recordings.
+    An existing ``out_dir`` may only hold files a previous render wrote (``SESSION_FILES``,
+    and Snakemake's ``.snakemake_timestamp``), so that a mistyped path never deletes a
+    user's own recordings.
 
     Raises
     ------
@@ -42,7 +43,11 @@ def staged_session_dir(out_dir):
     """
     out_dir = Path(out_dir)
     if out_dir.exists():
-        foreign = sorted(p.name for p in out_dir.iterdir() if p.name not in SESSION_FILES)
+        foreign = sorted(
+            p.name
+            for p in out_dir.iterdir()
+            if p.name not in SESSION_FILES and not p.name.startswith(".snakemake")
+        )
         if foreign:
             raise ConfigError(
                 f"{out_dir}: holds files the synthetic renderer did not write ({foreign[:5]}); "

@@ -328,3 +328,40 @@ def test_foreign_files_are_not_replaced(tmp_path):
     with pytest.raises(ConfigError, match="my_recording.mp4"):
         render_session(demo_cfg(duration_s=0.5, n_stills=1), out)
     assert (out / "my_recording.mp4").read_bytes() == b"precious"
+
+
+def test_files_agree_vicon_and_video_truth(rendered):
+    """vicon.csv read back, fitted and shifted by dt_offset_s matches truth_frames' T_C_B (2 mm)."""
+    from cvsflow.io.vicon import read_nexus_csv
+    from cvsflow.transforms import R_from_quat, make_T
+
+    folder = rendered["a"]
+    truth = yaml.safe_load((folder / "truth.yaml").read_text())
+    frames = pd.read_parquet(folder / "truth_frames.parquet")
+    markers = read_nexus_csv(folder / "vicon.csv")
+    rate = truth["vicon_rate_hz"]
+    T_W_Cm, T_Cm_C, T_Bm_B = (np.array(truth[k]) for k in ("T_W_Cm", "T_Cm_C", "T_Bm_B"))
+    names = list(truth["markers_Bm_m"])
+    layout = np.array(list(truth["markers_Bm_m"].values()))
+    checked = 0
+    for _, row in frames.iloc[::7].iterrows():
+        j = (row["t_s"] + truth["dt_offset_s"]) * rate  # fractional Vicon sample index
+        j0 = int(np.floor(j))
+        fits = []
+        for jj in (j0, j0 + 1):
+            xyz = np.stack([markers[[f"{n}_{a}_m" for a in "xyz"]].to_numpy()[jj] for n in names])
+            if np.isnan(xyz).any():
+                break
+            fits.append(fit_rigid(layout, xyz))
+        if len(fits) < 2:
+            continue
+        w = j - j0
+        T_W_Bm = fits[0].copy()
+        T_W_Bm[:3, 3] = (1 - w) * fits[0][:3, 3] + w * fits[1][:3, 3]
+        T_C_B_vicon = invert_T(T_W_Cm @ T_Cm_C) @ T_W_Bm @ T_Bm_B
+        q = row[["qx", "qy", "qz", "qw"]].to_numpy(float)
+        T_C_B = make_T(R_from_quat(q), row[["x_m", "y_m", "z_m"]].to_numpy(float))
+        assert np.linalg.norm(T_C_B_vicon[:3, 3] - T_C_B[:3, 3]) < 0.002
+        assert np.rad2deg(rotation_angle(T_C_B_vicon[:3, :3].T @ T_C_B[:3, :3])) < 0.2
+        checked += 1
+    assert checked > 8
