@@ -27,13 +27,7 @@ from cvsflow.synth.camera import (
     vignetting,
 )
 from cvsflow.synth.markers import add_dropouts, marker_table, true_mounting
-from cvsflow.synth.motion import (
-    HandMotion,
-    board_poses,
-    make_hand_motion,
-    random_sine_sum,
-    still_poses,
-)
+from cvsflow.synth.motion import HandMotion, board_poses, random_sine_sum
 from cvsflow.transforms import (
     T_from_pose6,
     euler_from_R,
@@ -125,10 +119,13 @@ def parse_session_config(session_cfg) -> SynthSpec:
     duration_s = float(synth.get("duration_s", 20.0))
     if not duration_s > 0.0:
         raise ConfigError(f"session config, synth.duration_s: expected > 0 s, got {duration_s}")
+    n_stills = int(synth.get("n_stills", 15))
+    if n_stills < 1:
+        raise ConfigError(f"session config, synth.n_stills: expected >= 1, got {n_stills}")
     return SynthSpec(
         seed=int(_require(synth, "seed", "synth")),
         duration_s=duration_s,
-        n_stills=int(synth.get("n_stills", 15)),
+        n_stills=n_stills,
         K=K,
         dist=dist,
         board=board,
