@@ -83,5 +83,7 @@ rule vicon_resample:
     resources:
         mem_mb=1000,
         runtime=10,
+    params:
+        resample=config["vicon"]["resample"],
     script:
         "../scripts/vicon_resample.py"
