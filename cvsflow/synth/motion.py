@@ -1,8 +1,13 @@
 """Board motion of the demo session: calibration-still poses and the hand-held video trajectory.
 
 All poses are ``T_C_B`` (board frame B into the camera optical frame C, metres), so that the
-field of view is easy to cover; the Vicon side is derived from them in ``cvsflow.synth.markers``.
+field of view is easy to cover; the Vicon side is derived from them in ``cvsflow.synth.session``.
 Every random choice comes from an explicit ``numpy.random.Generator``.
+
+The sync gesture (the chapter's forward tilt) turns the board about its own x axis, top edge
+towards the camera. With the board facing the camera that axis is C's x axis, so in
+``truth_frames`` it shows as a change of ``roll_rad`` (R_C_B = Rz Ry Rx); in the Vicon world it
+is a turn about the horizontal axis across the view (a pitch for a W-aligned body).
 """
 
 from __future__ import annotations

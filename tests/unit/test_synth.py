@@ -262,6 +262,8 @@ def test_sync_gesture_at_start(spec):
     assert np.ptp(roll) > 15.0
     center_C = T_C_B[:, :3, :3] @ spec.board.center_B() + T_C_B[:, :3, 3]
     assert np.ptp(center_C[t_s < 2.6], axis=0).max() < 0.03
+    # the gesture is filmed: the board is wholly in view while it is made
+    assert video_truth(spec, motion, np.full(90, 0.014)).in_view[: int(2.6 * 30)].all()
     # In W the gesture turns the board body about W's horizontal axis across the view
     # (a pitch for a W-aligned body), whatever the marker body's own axes.
     T_W_Bm = rig.T_W_Cm @ rig.T_Cm_C @ T_C_B @ invert_T(rig.T_Bm_B)
