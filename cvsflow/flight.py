@@ -43,6 +43,7 @@ from cvsflow.transforms import (
     euler_from_R,
     invert_T,
     make_T,
+    mean_rotation,
     quat_from_R,
     rotation_angle,
     wrap_angle,
@@ -75,15 +76,15 @@ def check_trajectory(df: pd.DataFrame, name: str = "trajectory") -> pd.DataFrame
     out = df.copy()
     out.attrs = dict(df.attrs)
     if "pos_valid" not in out:
-        out["pos_valid"] = np.isfinite(out[["x_m", "y_m", "z_m"]]).all(1)
+        out["pos_valid"] = np.isfinite(out[["x_m", "y_m", "z_m"]]).all(axis=1)
     if "rot_valid" not in out:
-        out["rot_valid"] = np.isfinite(out[["qx", "qy", "qz", "qw"]]).all(1)
+        out["rot_valid"] = np.isfinite(out[["qx", "qy", "qz", "qw"]]).all(axis=1)
     t = out["t_s"].to_numpy(dtype=float)
     bad = np.flatnonzero(~(np.diff(t) > 0))
     if len(bad):
         raise InputError(
-            f"{name}: t_s not strictly increasing at row {int(bad[0]) + 1} "
-            f"({t[bad[0]]!r} then {t[bad[0] + 1]!r})"
+            f"{name}: t_s not strictly increasing at row {int(bad[0]) + 1} (0-based): "
+            f"{float(t[bad[0] + 1])!r} s after {float(t[bad[0]])!r} s; expected increasing times"
         )
     return out
 
@@ -530,16 +531,71 @@ def _valid_rot(df):
     return df["t_s"].to_numpy(float)[m], R_from_quat(df.loc[m, ["qx", "qy", "qz", "qw"]].to_numpy(float))
 
 
-def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, rate_hz: float = 100.0,
-                   max_offset_s: float | None = None, estimate_skew: bool = True,
-                   min_quality: float = 0.3) -> Clock:
-    """Time offset (and skew) of the log against the camera stream from angular speed.
+def _hand_eye_rotation(R_ref_C_B, R_est_L_Q, lags=(3, 10, 30)):
+    """R_Q_B from relative rotations: their axes satisfy v_Q = R_Q_B v_B (Park and Martin 1994)."""
+    vB, vQ = [], []
+    for h in lags:
+        if len(R_ref_C_B) <= h:
+            continue
+        vB.append(Rotation.from_matrix(np.swapaxes(R_ref_C_B[:-h], -1, -2) @ R_ref_C_B[h:]).as_rotvec())
+        vQ.append(Rotation.from_matrix(np.swapaxes(R_est_L_Q[:-h], -1, -2) @ R_est_L_Q[h:]).as_rotvec())
+    if not vB:
+        return np.eye(3)
+    vB, vQ = np.concatenate(vB), np.concatenate(vQ)
+    U, _, Vt = np.linalg.svd(vQ.T @ vB)  # Kabsch: min sum |vQ - X vB|^2
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
 
-    1. Angular speed of both streams (frame-independent), resampled at ``rate_hz``;
-       normalised cross-correlation, peak refined by a parabola (below one sample).
-    2. Least squares on (offset, skew): the log's orientations SLERPed at the mapped
-       reference times and differenced over the same frame pairs as the reference, so both
-       speeds share one bandwidth (refines below one video frame).
+
+def rotation_alignment(R_ref_C_B, R_est_L_Q, R_Q_B=None, weights=None, n_iter: int = 10):
+    """Constant rotations linking two orientation streams: R_C_B ≈ R_C_L R_L_Q R_Q_B.
+
+    Closed-form chordal means; when ``R_Q_B`` is not given it is estimated too: started from
+    the axes of relative rotations (Park and Martin, IEEE TRA 10(5), 1994), then alternated
+    with R_C_L (the rotation part of a hand-eye calibration; needs rotation about two axes).
+
+    Parameters
+    ----------
+    R_ref_C_B : ndarray, shape (N, 3, 3)
+        Reference orientations of the board in C.
+    R_est_L_Q : ndarray, shape (N, 3, 3)
+        On-board orientations of the body in L, at the same instants.
+    R_Q_B : ndarray, shape (3, 3), optional
+        Known board mounting; None: estimated.
+    weights : ndarray, shape (N,), optional
+        Non-negative weights.
+
+    Returns
+    -------
+    R_C_L, R_Q_B : ndarray, shape (3, 3)
+    """
+    fixed = R_Q_B is not None
+    R_QB = _hand_eye_rotation(R_ref_C_B, R_est_L_Q) if R_Q_B is None else np.asarray(R_Q_B, float)
+    R_CL = mean_rotation(R_ref_C_B @ R_QB.T @ np.swapaxes(R_est_L_Q, -1, -2), weights)
+    if fixed:
+        return R_CL, R_QB
+    for _ in range(n_iter):
+        R_QB = mean_rotation(np.swapaxes(R_est_L_Q, -1, -2) @ R_CL.T @ R_ref_C_B, weights)
+        R_CL_new = mean_rotation(R_ref_C_B @ R_QB.T @ np.swapaxes(R_est_L_Q, -1, -2), weights)
+        done = rotation_angle(R_CL_new.T @ R_CL) < 1e-10
+        R_CL = R_CL_new
+        if done:
+            break
+    return R_CL, R_QB
+
+
+def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, R_Q_B=None,
+                   sigma_rot_rad=None, rate_hz: float = 100.0, max_offset_s: float | None = None,
+                   estimate_skew: bool = True, min_quality: float = 0.3) -> Clock:
+    """Time offset (and skew) of the log against the camera stream.
+
+    1. Coarse: angular speed of both streams (independent of every frame choice), resampled at
+       ``rate_hz``; normalised cross-correlation over all lags, peak refined by a parabola.
+    2. Fine (below one video frame): least squares over (offset, skew) of the orientation
+       residuals ``log(R_C_B^T R_C_L R_L_Q(tau) R_Q_B)``, with the log SLERPed at the mapped
+       times ``tau`` and the constant rotations R_C_L (and R_Q_B when not given) re-solved in
+       closed form (:func:`rotation_alignment`) at every trial. Orientation only: position
+       drift, scale and invalid positions do not enter.
 
     Parameters
     ----------
@@ -547,24 +603,30 @@ def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, rate_hz: f
         Camera reference (common form, T_C_B), reference clock.
     onboard : DataFrame
         On-board log (common form, T_L_Q), log clock.
+    R_Q_B : ndarray, shape (3, 3), optional
+        Board mounting rotation; None: estimated with the clock.
+    sigma_rot_rad : ndarray, shape (N_ref,), optional
+        Reference orientation standard deviation per row (weights 1/sigma).
     rate_hz : float
         Resampling rate of the cross-correlation, Hz.
     max_offset_s : float or None
-        Search |dt_offset_s - (t0_ref - t0_log)| up to this, seconds; None: all lags.
+        Largest lag searched, seconds, from the offset that lines up the two streams' starts.
     estimate_skew : bool
         Fit the skew too (else 0).
     min_quality : float
-        Smallest accepted peak correlation (0..1).
+        Smallest accepted normalised correlation peak (0..1).
 
     Returns
     -------
     Clock
+        ``details``: ``xcorr_offset_s``, ``refine_rms`` (weighted residual RMS), ``R_Q_B``.
 
     Raises
     ------
     SyncError
         Too few valid orientations or a correlation peak below ``min_quality``.
     """
+    m_r = reference["rot_valid"].to_numpy(bool)
     t_r, R_r = _valid_rot(reference)
     t_e, R_e = _valid_rot(onboard)
     if len(t_r) < 10 or len(t_e) < 10:
@@ -572,8 +634,7 @@ def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, rate_hz: f
                         "at least 10 each needed")
     tm_r, w_r = angular_speed(t_r, R_r)
     tm_e, w_e = angular_speed(t_e, R_e)
-    # reference gaps (missed frames) give no speed sample
-    gap_r = np.diff(t_r) < 2.5 * np.median(np.diff(t_r))
+    gap_r = np.diff(t_r) < 2.5 * np.median(np.diff(t_r))  # missed frames give no speed
     tm_r, w_r = tm_r[gap_r], w_r[gap_r]
     g_r = np.arange(tm_r[0], tm_r[-1], 1.0 / rate_hz)
     g_e = np.arange(tm_e[0], tm_e[-1], 1.0 / rate_hz)
@@ -583,11 +644,10 @@ def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, rate_hz: f
     a_e = (a_e - a_e.mean()) / (a_e.std() + 1e-12)
     c = correlate(a_r, a_e, mode="full", method="fft")
     lags = correlation_lags(len(a_r), len(a_e), mode="full")
-    # normalise by the overlap length, keep lags with at least a third of the shorter overlapping
-    overlap = np.minimum.reduce([np.full_like(lags, len(a_r)), np.full_like(lags, len(a_e)),
-                                 len(a_e) + lags, len(a_r) - lags]).astype(float)
+    # a_r[n + k] ~ a_e[n]  <=>  dt_offset = g_r[0] - g_e[0] + k / rate
+    overlap = np.minimum(np.minimum(len(a_e) + lags, len(a_r) - lags),
+                         min(len(a_r), len(a_e))).astype(float)
     ok = overlap >= max(10, min(len(a_r), len(a_e)) / 3)
-    base = g_r[0] - g_e[0]
     if max_offset_s is not None:
         ok &= np.abs(lags / rate_hz) <= max_offset_s
     if not ok.any():
@@ -599,37 +659,45 @@ def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, rate_hz: f
     if 0 < k < len(cn) - 1 and np.isfinite(cn[k - 1]) and np.isfinite(cn[k + 1]):
         den = cn[k - 1] - 2 * cn[k] + cn[k + 1]
         frac = float(0.5 * (cn[k - 1] - cn[k + 1]) / den) if den < 0 else 0.0
-    dt0 = base + (lags[k] + frac) / rate_hz
+    dt0 = g_r[0] - g_e[0] + (lags[k] + frac) / rate_hz
     if quality < min_quality:
         raise SyncError(f"time alignment: angular-speed correlation peak {quality:.2f} at offset "
                         f"{dt0:.3f} s is below min_quality {min_quality}")
-    # refinement on (offset at the reference's centre, skew)
+
+    # fine: orientation residuals; parameters (offset at the reference's centre, skew * 1e3)
+    w = np.ones(len(t_r)) if sigma_rot_rad is None else \
+        1.0 / np.maximum(np.asarray(sigma_rot_rad, float)[m_r], 1e-9)
     slerp = Slerp(t_e, Rotation.from_matrix(R_e))
     t_c = 0.5 * (t_r[0] + t_r[-1])
-    pair_ok = np.append(gap_r, False)  # frame i paired with i+1
+    state = {"R_Q_B": R_Q_B}
 
     def residual(x):
-        dt_c, skew = x[0], (x[1] * 1e-3 if estimate_skew else 0.0)
-        tau = (t_r - t_c) / (1 + skew) + (t_c - dt_c)  # log time of each reference frame
+        dt_c, skew = x[0], (x[1] * 1e-3 if len(x) > 1 else 0.0)
+        tau = (t_r - t_c) / (1 + skew) + (t_c - dt_c)  # log time of each reference row
         inside = (tau >= t_e[0]) & (tau <= t_e[-1])
-        use = pair_ok[:-1] & inside[:-1] & inside[1:]
-        tau_c = np.clip(tau, t_e[0], t_e[-1])
-        Re = slerp(tau_c).as_matrix()
-        w_est = rotation_angle(np.swapaxes(Re[:-1], -1, -2) @ Re[1:]) / np.diff(t_r)
-        w_ref = rotation_angle(np.swapaxes(R_r[:-1], -1, -2) @ R_r[1:]) / np.diff(t_r)
-        r = np.where(use, w_est - w_ref, 0.0)
-        return r / np.sqrt(max(use.sum(), 1))
+        if inside.sum() < 10:
+            return np.full(3 * len(t_r), 1e3)
+        Re = slerp(np.clip(tau, t_e[0], t_e[-1])).as_matrix()
+        R_CL, R_QB = rotation_alignment(R_r[inside], Re[inside], R_Q_B, w[inside] ** 2, n_iter=3)
+        state["R_Q_B"] = R_QB
+        r = Rotation.from_matrix(np.swapaxes(R_r, -1, -2) @ R_CL @ Re @ R_QB).as_rotvec()
+        r = np.where(inside[:, None], r * w[:, None], 0.0)
+        return r.ravel() / np.sqrt(inside.sum())
 
     x0 = np.array([dt0, 0.0]) if estimate_skew else np.array([dt0])  # dt_c = dt0 when skew = 0
-    res = least_squares(residual if estimate_skew else (lambda x: residual([x[0], 0.0])), x0,
-                        x_scale=[0.01, 0.1][: len(x0)], diff_step=[1e-4, 1e-2][: len(x0)])
+    res = least_squares(residual, x0, x_scale=[0.01, 0.1][: len(x0)],
+                        diff_step=[1e-5, 1e-3][: len(x0)], loss="soft_l1", f_scale=3.0)
     dt_c = float(res.x[0])
     skew = float(res.x[1] * 1e-3) if estimate_skew else 0.0
     # tau = (t_r - t_c)/(1+skew) + t_c - dt_c  =>  t_r = (1+skew)(tau - t_c + dt_c) + t_c
     dt_offset = t_c - (1 + skew) * (t_c - dt_c)
+    if abs(dt_c - dt0) > 0.5:
+        log.warning("time alignment: refinement moved the offset by %.3f s from the "
+                    "cross-correlation peak", dt_c - dt0)
     clock = Clock(dt_offset, skew, quality,
                   {"xcorr_offset_s": float(dt0), "rate_hz": rate_hz,
-                   "refine_rms_rad_s": float(np.sqrt(2 * res.cost)), "refine_status": int(res.status)})
+                   "refine_rms": float(np.sqrt(2 * res.cost / 3)),
+                   "refine_status": int(res.status), "R_Q_B": np.asarray(state["R_Q_B"]).tolist()})
     log.info("time alignment: dt_offset_s %.6f, skew %.3g, correlation %.3f", dt_offset, skew, quality)
     return clock
 
@@ -854,7 +922,8 @@ def evaluate_flight(reference: pd.DataFrame, onboard: pd.DataFrame, T_Q_B=None, 
     onboard : DataFrame
         On-board estimate T_L_Q, common form, log clock (:mod:`cvsflow.io.flightlog`).
     T_Q_B : ndarray, shape (4, 4), optional
-        Board mounting on the body (identity if None).
+        Board mounting on the body. None: its rotation is estimated from the data (hand-eye,
+        so a constant attitude error is absorbed) and its lever arm taken as zero.
     Sigma_ref : ndarray, shape (N_ref, 6, 6), optional
         Reference covariance per row of ``reference`` (module docstring); None: no band and
         no unresolved share.
@@ -882,14 +951,19 @@ def evaluate_flight(reference: pd.DataFrame, onboard: pd.DataFrame, T_Q_B=None, 
     """
     reference = check_trajectory(reference, "reference")
     onboard = check_trajectory(onboard, "on-board log")
-    T_Q_B = np.eye(4) if T_Q_B is None else np.asarray(T_Q_B, float)
+    mounting_given = T_Q_B is not None
+    T_Q_B = np.asarray(T_Q_B, float) if mounting_given else None
+    sigma_rot = None
     if Sigma_ref is not None:
         Sigma_ref = np.asarray(Sigma_ref, float)
         if Sigma_ref.shape != (len(reference), 6, 6):
             raise InputError(f"Sigma_ref: shape {Sigma_ref.shape}; expected ({len(reference)}, 6, 6)")
+        sigma_rot = np.sqrt(np.trace(Sigma_ref[:, 3:, 3:], axis1=1, axis2=2) / 3.0)
     if clock is None:
-        clock = estimate_clock(reference, onboard, rate_hz=sync_rate_hz, max_offset_s=max_offset_s,
-                               estimate_skew=estimate_skew, min_quality=min_quality)
+        clock = estimate_clock(reference, onboard, R_Q_B=T_Q_B[:3, :3] if mounting_given else None,
+                               sigma_rot_rad=sigma_rot, rate_hz=sync_rate_hz,
+                               max_offset_s=max_offset_s, estimate_skew=estimate_skew,
+                               min_quality=min_quality)
     ref_ok = (reference["pos_valid"] & reference["rot_valid"]).to_numpy()
     t_ref = reference["t_s"].to_numpy(float)
     est_i = interpolate_trajectory(onboard, clock.to_log(t_ref), max_gap_s=max_gap_s)
@@ -902,8 +976,16 @@ def evaluate_flight(reference: pd.DataFrame, onboard: pd.DataFrame, T_Q_B=None, 
             f"(dt_offset_s {clock.dt_offset_s:.3f}, skew {clock.skew:.3g}); at least 3 needed"
         )
     T_C_B = T_from_traj(reference)[use]
-    T_C_Q = T_C_B @ invert_T(T_Q_B)
     T_L_Q = T_from_traj(est_i)[use]
+    if not mounting_given:
+        # rotation of the mounting from the data (hand-eye), no lever arm: a constant attitude
+        # error of the estimate is then absorbed and cannot be measured
+        w = None if sigma_rot is None else 1.0 / np.maximum(sigma_rot[use], 1e-9) ** 2
+        _, R_QB = rotation_alignment(T_C_B[:, :3, :3], T_L_Q[:, :3, :3], None, w)
+        T_Q_B = make_T(R_QB, np.zeros(3))
+        log.warning("flight: board mounting T_Q_B not given; its rotation was estimated from the "
+                    "data (constant attitude errors are absorbed) and its lever arm set to 0")
+    T_C_Q = T_C_B @ invert_T(T_Q_B)
     if T_C_L is not None:
         al = Alignment(np.asarray(T_C_L, float), 1.0, "given")
     else:
@@ -929,6 +1011,8 @@ def evaluate_flight(reference: pd.DataFrame, onboard: pd.DataFrame, T_Q_B=None, 
         "ape_rot": error_stats(ape_r),
         "clock": {"dt_offset_s": clock.dt_offset_s, "skew": clock.skew, "quality": clock.quality},
         "alignment": {"method": al.method, "scale": al.scale, "T_C_L": al.T_ref_est.tolist()},
+        "T_Q_B": T_Q_B.tolist(),
+        "mounting_estimated": not mounting_given,
     }
     if n > rpe_delta:
         r = rpe(T_C_Q, T_est_C, rpe_delta)

@@ -62,8 +62,8 @@ def _normalise_quats(q_xyzw, path, what):
 def _finish(df, attrs):
     """Sort by time, set span attributes and return the common form."""
     df = df.sort_values("t_s", kind="stable").reset_index(drop=True)
-    df["pos_valid"] = df["pos_valid"].astype(bool) & np.isfinite(df[["x_m", "y_m", "z_m"]]).all(1)
-    df["rot_valid"] = df["rot_valid"].astype(bool) & np.isfinite(df[["qx", "qy", "qz", "qw"]]).all(1)
+    df["pos_valid"] = df["pos_valid"].astype(bool) & np.isfinite(df[["x_m", "y_m", "z_m"]]).all(axis=1)
+    df["rot_valid"] = df["rot_valid"].astype(bool) & np.isfinite(df[["qx", "qy", "qz", "qw"]]).all(axis=1)
     t = df["t_s"].to_numpy()
     attrs = dict(attrs)
     attrs.update(

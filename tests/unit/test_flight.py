@@ -1,0 +1,331 @@
+"""Tests of cvsflow.flight: association, alignment, APE/RPE against evo, clock, per-axis errors."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.spatial.transform import Rotation
+
+from cvsflow import flight as F
+from cvsflow.errors import InputError, OptimiseError, SyncError
+from cvsflow.flight_synth import render_flight
+from cvsflow.transforms import R_from_euler, euler_from_R, invert_T, make_T
+
+REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"
+TUM = REAL / "tum-fr2-desk"
+
+
+@pytest.fixture(scope="module")
+def tum():
+    """The TUM fr2/desk files (evo's test data); skip when absent."""
+    if not TUM.is_dir():
+        pytest.skip(f"real data not found at {TUM}")
+    from cvsflow.io.flightlog import read_tum
+
+    return {n: read_tum(TUM / f"{n}.txt")
+            for n in ("fr2_desk_groundtruth", "fr2_desk_ORB", "fr2_desk_ORB_kf_mono")}
+
+
+def _ape_evo(ref, est, with_scale):
+    """Association, Umeyama and translation APE, the way evo_ape -a[s] runs them."""
+    i_r, i_e = F.associate(ref["t_s"].to_numpy(), est["t_s"].to_numpy(), 0.01, 0.0)
+    p_r = ref[["x_m", "y_m", "z_m"]].to_numpy()[i_r]
+    p_e = est[["x_m", "y_m", "z_m"]].to_numpy()[i_e]
+    al = F.umeyama(p_r, p_e, with_scale)
+    return i_r, al, F.error_stats(F.ape_translation(p_r, al.apply_points(p_e)))
+
+
+EVO_SIM3 = dict(rmse=0.006123163030157291, mean=0.005586197318706158,
+                median=0.005305225075852879, std=0.0025074937707530087,
+                min=0.0001897958096084112, max=0.021476785562787627, sse=0.08151005482370602)
+EVO_SE3 = dict(rmse=0.008118977562045396, mean=0.007491776870216619,
+               median=0.0074146298293173854, std=0.0031290695070394156,
+               min=0.00034963619840638655, max=0.024299593694385224, sse=0.14330528992361463)
+
+
+def test_tum_sim3_reproduces_evo(tum):
+    """Sim(3) APE on fr2_desk_ORB equals evo 1.38.1's -as numbers (SOURCES.md §2) to 1e-6."""
+    i_r, al, st = _ape_evo(tum["fr2_desk_groundtruth"], tum["fr2_desk_ORB"], True)
+    assert len(i_r) == 2174
+    assert al.scale == pytest.approx(0.9969698308032563, abs=1e-9)
+    for k, v in EVO_SIM3.items():
+        assert st[k] == pytest.approx(v, abs=1e-6), k
+    R_evo = np.array([[0.17689826, -0.46681388, 0.86648243], [-0.9839238, -0.06194813, 0.16750041],
+                      [-0.02451455, -0.88218322, -0.4702678]])
+    np.testing.assert_allclose(al.T_ref_est[:3, :3], R_evo, atol=1e-7)
+    np.testing.assert_allclose(al.T_ref_est[:3, 3], [-0.15735542, -1.44381248, 1.4781991], atol=1e-7)
+
+
+def test_tum_se3_reproduces_evo(tum):
+    """SE(3) APE on fr2_desk_ORB equals evo's -a numbers (also in evo's performance.md) to 1e-6."""
+    i_r, al, st = _ape_evo(tum["fr2_desk_groundtruth"], tum["fr2_desk_ORB"], False)
+    assert len(i_r) == 2174 and al.scale == 1.0
+    for k, v in EVO_SE3.items():
+        assert st[k] == pytest.approx(v, abs=1e-6), k
+    np.testing.assert_allclose(al.T_ref_est[:3, 3], [-0.16114653, -1.446004, 1.47825039], atol=1e-7)
+
+
+def test_tum_mono_keyframes_sim3_reproduces_evo(tum):
+    """Monocular keyframes: 118 pairs, scale 2.228021753589329, rmse 0.007729264783424151 (evo)."""
+    i_r, al, st = _ape_evo(tum["fr2_desk_groundtruth"], tum["fr2_desk_ORB_kf_mono"], True)
+    assert len(i_r) == 118
+    assert al.scale == pytest.approx(2.228021753589329, abs=1e-9)
+    assert st["rmse"] == pytest.approx(0.007729264783424151, abs=1e-6)
+    assert st["max"] == pytest.approx(0.015688557595242313, abs=1e-6)
+    _, al3, st3 = _ape_evo(tum["fr2_desk_groundtruth"], tum["fr2_desk_ORB_kf_mono"], False)
+    assert st3["rmse"] == pytest.approx(0.9390492628342705, abs=1e-6)
+
+
+def test_tum_per_axis_errors_add_up_to_ape(tum):
+    """Per-axis position errors (what evo lacks) square-sum to the APE of each pair (1e-12 m)."""
+    ref, est = tum["fr2_desk_groundtruth"], tum["fr2_desk_ORB"]
+    i_r, i_e = F.associate(ref["t_s"].to_numpy(), est["t_s"].to_numpy())
+    T_r = F.T_from_traj(ref)[i_r]
+    T_e = F.T_from_traj(est)[i_e]
+    al = F.umeyama(T_r[:, :3, 3], T_e[:, :3, 3])
+    e = F.axis_errors(T_r, T_e, al)
+    ape = F.ape_translation(T_r[:, :3, 3], al.apply_points(T_e[:, :3, 3]))
+    np.testing.assert_allclose(np.linalg.norm(e[:, :3], axis=1), ape, atol=1e-12)
+    st = F.axis_stats(e)
+    assert np.sqrt(sum(st[a]["rmse"] ** 2 for a in "xyz")) == pytest.approx(EVO_SE3["rmse"], abs=1e-9)
+
+
+def test_associate_matches_brute_force_evo_rule():
+    """Association equals evo's loop (nearest by argmin, each stamp of the shorter series)."""
+    rng = np.random.default_rng(3)
+    t_ref = np.cumsum(rng.uniform(0.001, 0.02, 400))
+    t_est = np.sort(rng.uniform(t_ref[0] - 0.1, t_ref[-1] + 0.1, 150))
+    t_est[5] = 0.5 * (t_ref[10] + t_ref[11])  # an exact tie: the earlier stamp wins
+    i_r, i_e = F.associate(t_ref, t_est, 0.004, 0.001)
+    exp_r, exp_e = [], []
+    for j, s in enumerate(t_est + 0.001):
+        d = np.abs(t_ref - s)
+        k = int(np.argmin(d))
+        if d[k] <= 0.004:
+            exp_r.append(k)
+            exp_e.append(j)
+    np.testing.assert_array_equal(i_r, exp_r)
+    np.testing.assert_array_equal(i_e, exp_e)
+    # estimate longer than reference: the roles swap, indices still (ref, est)
+    i_e2, i_r2 = F.associate(t_est, t_ref, 0.004, -0.001)
+    assert len(i_r2) == len(i_e2) and np.all(np.abs(t_ref[i_r2] - t_est[i_e2] - 0.001) <= 0.004 + 1e-12)
+    with pytest.raises(SyncError, match="no pair"):
+        F.associate(t_ref, t_ref + 100.0, 0.01)
+
+
+def test_umeyama_recovers_known_similarity():
+    """Umeyama recovers a random Sim(3) from noiseless points to 1e-10 (rotation, t, scale)."""
+    rng = np.random.default_rng(4)
+    p = rng.normal(size=(50, 3))
+    R = Rotation.random(random_state=4).as_matrix()
+    t = rng.normal(size=3)
+    y = 1.7 * p @ R.T + t
+    al = F.umeyama(y, p, with_scale=True)
+    np.testing.assert_allclose(al.T_ref_est[:3, :3], R, atol=1e-10)
+    np.testing.assert_allclose(al.T_ref_est[:3, 3], t, atol=1e-10)
+    assert al.scale == pytest.approx(1.7, abs=1e-10)
+    with pytest.raises(OptimiseError, match="at least 3"):
+        F.umeyama(y[:2], p[:2])
+
+
+def test_yaw_alignment_is_four_dof_and_exact():
+    """Yaw-only alignment recovers a yaw + translation exactly and ignores a roll it cannot fit."""
+    rng = np.random.default_rng(5)
+    p = rng.normal(size=(80, 3))
+    R = R_from_euler([0.0, 0.0, 1.1])
+    y = p @ R.T + [1.0, -2.0, 0.5]
+    al = F.align_yaw(y, p)
+    np.testing.assert_allclose(al.T_ref_est[:3, :3], R, atol=1e-12)
+    np.testing.assert_allclose(al.T_ref_est[:3, 3], [1.0, -2.0, 0.5], atol=1e-12)
+    # a reference whose z axis is the estimate's -z (NED against ENU-like): given as z_est_in_ref
+    R2 = R_from_euler([np.pi, 0.0, 0.4])
+    al2 = F.align_yaw(p @ R2.T, p, z_est_in_ref=R2[:, 2])
+    np.testing.assert_allclose(al2.T_ref_est[:3, :3], R2, atol=1e-12)
+    # an SE(3) fit would take a roll; the 4-DoF fit keeps z vertical
+    al3 = F.align_yaw(p @ R_from_euler([0.2, 0.0, 0.3]).T, p)
+    assert al3.T_ref_est[2, 2] == pytest.approx(1.0, abs=1e-12)
+
+
+def test_rpe_of_a_constant_body_offset():
+    """RPE of an estimate that is the truth times a constant body offset equals the conjugated step."""
+    rng = np.random.default_rng(6)
+    T = make_T(R_from_euler(rng.normal(scale=0.3, size=(30, 3))), rng.normal(size=(30, 3)))
+    r0 = F.rpe(T, T.copy(), 1)
+    assert np.max(r0["trans_m"]) < 1e-12 and np.max(r0["rot_rad"]) < 1e-7
+    # a world-frame rigid change leaves RPE at zero (alignment-free)
+    G = make_T(R_from_euler([0.1, -0.2, 0.3]), [1.0, 2.0, 3.0])
+    r1 = F.rpe(T, G @ T, 2)
+    assert np.max(r1["trans_m"]) < 1e-12
+    with pytest.raises(InputError, match="delta"):
+        F.rpe(T, T, 30)
+
+
+def test_interpolation_exact_on_linear_motion_and_no_extrapolation():
+    """Linear positions and constant-rate rotation are interpolated exactly; outside/gaps invalid."""
+    t = np.arange(0.0, 1.0, 0.01)
+    R = R_from_euler(np.column_stack([0 * t, 0 * t, 0.8 * t]))
+    T = make_T(R, np.column_stack([t, 2 * t, -t]))
+    df = F.traj_from_T(t, T)
+    df.loc[50:54, "pos_valid"] = False
+    q_t = np.array([0.105, 0.2333, 0.52, 1.5, -0.1])
+    out = F.interpolate_trajectory(df, q_t, max_gap_s=0.011)
+    np.testing.assert_allclose(out.loc[:1, "x_m"], q_t[:2], atol=1e-12)
+    np.testing.assert_allclose(euler_from_R(F.T_from_traj(out.loc[:1]))[:, 2] if False else
+                               euler_from_R(F.T_from_traj(out.loc[:1])[:, :3, :3])[:, 2],
+                               0.8 * q_t[:2], atol=1e-10)
+    assert list(out["pos_valid"]) == [True, True, False, False, False]
+    assert bool(out.loc[2, "rot_valid"])
+
+
+def test_propagated_sigma_matches_monte_carlo():
+    """Per-axis reference sigma (first-order) matches a Monte-Carlo of the reference noise (5 %)."""
+    rng = np.random.default_rng(7)
+    T_C_B = make_T(R_from_euler([[0.3, -0.2, 0.4]]), [[0.5, -0.3, 8.0]])
+    T_Q_B = make_T(R_from_euler([0.0, 0.5, -1.0]), [-0.15, -0.2, -0.1])
+    R_C_L = R_from_euler([1.2, 0.1, -0.4])
+    Sigma = F.reference_covariance_model(T_C_B)
+    sig = F.propagate_reference_sigma(Sigma, T_C_B, T_Q_B, R_C_L)[0]
+    n = 20000
+    d = rng.multivariate_normal(np.zeros(6), Sigma[0], size=n)
+    Tm = np.repeat(T_C_B, n, axis=0)
+    Tm[:, :3, 3] += d[:, :3]
+    Tm[:, :3, :3] = Rotation.from_rotvec(d[:, 3:]).as_matrix() @ Tm[:, :3, :3]
+    al = F.Alignment(make_T(R_C_L, np.zeros(3)))
+    T_L_Q_true = make_T(R_C_L.T, np.zeros(3)) @ T_C_B[0] @ invert_T(T_Q_B)
+    e = F.axis_errors(Tm @ invert_T(T_Q_B), np.repeat(T_L_Q_true[None], n, axis=0), al)
+    np.testing.assert_allclose(e.std(0), sig, rtol=0.05)
+
+
+def test_axis_stats_unresolved_share():
+    """Unresolved share counts k*sigma > |e|; variance share and corrected RMSE as defined."""
+    e = np.zeros((4, 6))
+    e[:, 0] = [0.1, -0.1, 0.3, -0.3]
+    sig = np.full((4, 6), 0.2)
+    st = F.axis_stats(e, sig)["x"]
+    assert st["unresolved_fraction"] == 0.5
+    assert st["rmse"] == pytest.approx(np.sqrt(0.05), abs=1e-12)
+    assert st["ref_variance_share"] == pytest.approx(0.04 / 0.05, abs=1e-12)
+    assert st["rmse_corrected"] == pytest.approx(0.1, abs=1e-12)
+    assert st["max_abs"] == pytest.approx(0.3) and st["mean"] == pytest.approx(0.0)
+
+
+@pytest.fixture(scope="module")
+def demo():
+    """A rendered 60 s flight (seed 1)."""
+    return render_flight(seed=1)
+
+
+def test_clock_recovered_below_one_frame(demo):
+    """Offset and skew of the log clock are recovered: < 1 ms over the flight (1/33 of a frame)."""
+    clock = F.estimate_clock(demo.reference, demo.onboard, R_Q_B=demo.T_Q_B[:3, :3])
+    t = demo.onboard["t_s"].to_numpy()
+    worst = np.max(np.abs(clock.to_ref(t) - demo.clock.to_ref(t)))
+    assert worst < 1e-3
+    assert clock.skew == pytest.approx(demo.clock.skew, abs=2e-5)
+    assert 0.3 < clock.quality <= 1.0
+    # mounting not given: estimated alongside; the clock is as good, and the mounting differs
+    # from the truth by no more than the injected constant roll/pitch error (which it absorbs)
+    # plus 0.2 deg
+    clock2 = F.estimate_clock(demo.reference, demo.onboard)
+    assert np.max(np.abs(clock2.to_ref(t) - demo.clock.to_ref(t))) < 1e-3
+    dR = np.array(clock2.details["R_Q_B"]).T @ demo.T_Q_B[:3, :3]
+    absorbed = np.hypot(0.012, 0.009)  # render_flight's default att_bias_rad roll, pitch
+    assert np.linalg.norm(Rotation.from_matrix(dR).as_rotvec()) < absorbed + np.deg2rad(0.2)
+
+
+def test_recovered_error_matches_injected_within_reference_uncertainty_known_frames(demo):
+    """With the true clock and T_C_L, recovered - injected error is the reference noise: z-RMS ~ 1."""
+    r = F.evaluate_flight(demo.reference, demo.onboard, demo.T_Q_B, demo.Sigma_ref,
+                          clock=demo.clock, T_C_L=invert_T(demo.T_L_C))
+    inj = demo.injected.set_index("frame").loc[r.errors["frame"], F.ERR_COLS].to_numpy()
+    z = (r.errors[F.ERR_COLS].to_numpy() - inj) / r.errors[F.SIG_COLS].to_numpy()
+    np.testing.assert_allclose(np.sqrt(np.mean(z**2, axis=0)), 1.0, atol=0.1)
+    assert np.mean(np.abs(z) < 3.0) > 0.99
+
+
+def test_recovered_error_matches_injected_full_pipeline(demo):
+    """Estimated clock and SE(3) fit: recovered error = injected error seen through the fitted
+    alignment, within the reference's stated uncertainty (z-RMS within 0.85..1.2 per axis)."""
+    r = F.evaluate_flight(demo.reference, demo.onboard, demo.T_Q_B, demo.Sigma_ref)
+    fr = r.errors["frame"].to_numpy()
+    al = r.alignment
+    R = al.T_ref_est[:3, :3]
+    T_true_C_Q = invert_T(demo.T_L_C) @ F.T_from_traj(demo.truth)[fr]
+    est = F.interpolate_trajectory(demo.onboard, demo.clock.to_log(demo.truth["t_s"].to_numpy()[fr]),
+                                   0.05)
+    T_est = F.T_from_traj(est)
+    inj_seen = F.axis_errors(T_true_C_Q, T_est, al)  # the injected error through the same fit
+    z = (r.errors[F.ERR_COLS].to_numpy() - inj_seen) / r.errors[F.SIG_COLS].to_numpy()
+    zr = np.sqrt(np.mean(z**2, axis=0))
+    assert np.all((zr > 0.85) & (zr < 1.2)), zr
+    # the fit itself: within 0.5 deg of the true camera pose in L (drift and bias absorbed)
+    dR = R.T @ invert_T(demo.T_L_C)[:3, :3]
+    assert np.rad2deg(np.linalg.norm(Rotation.from_matrix(dR).as_rotvec())) < 0.5
+    # attitude error statistics: the injected roll/pitch bias (0.012, -0.009 rad) is seen, up to
+    # the tilt of the fitted alignment (0.2 deg = 3.5 mrad: it absorbs part of the drift)
+    inj = demo.injected.set_index("frame").loc[fr]
+    for ax in ("roll", "pitch"):
+        i = F.AXES.index(ax)
+        assert r.stats["axes"][ax]["mean"] == pytest.approx(inj_seen[:, i].mean(), abs=5e-4)
+        assert r.stats["axes"][ax]["mean"] == pytest.approx(inj[f"e{ax}_rad"].mean(), abs=3.5e-3)
+    assert r.stats["n_pairs"] == len(fr) and len(fr) > 0.95 * len(demo.reference)
+    assert 0.0 < r.stats["axes"]["x"]["unresolved_fraction"] < 1.0
+
+
+def test_sim3_and_yaw_alignments_in_the_pipeline(demo):
+    """Sim(3) scale of a metric log is 1 within 0.5 %; yaw-only fit with the camera's known up."""
+    r = F.evaluate_flight(demo.reference, demo.onboard, demo.T_Q_B, demo.Sigma_ref,
+                          clock=demo.clock, alignment="sim3")
+    assert r.alignment.scale == pytest.approx(1.0, abs=5e-3)
+    z_L_in_C = invert_T(demo.T_L_C)[:3, 2]
+    r2 = F.evaluate_flight(demo.reference, demo.onboard, demo.T_Q_B, demo.Sigma_ref,
+                           clock=demo.clock, alignment="yaw", z_est_in_ref=z_L_in_C)
+    np.testing.assert_allclose(r2.alignment.T_ref_est[:3, 2], z_L_in_C, atol=1e-12)
+    dR = r2.alignment.T_ref_est[:3, :3].T @ invert_T(demo.T_L_C)[:3, :3]
+    assert np.rad2deg(np.linalg.norm(Rotation.from_matrix(dR).as_rotvec())) < 0.5
+
+
+def test_bad_inputs_raise_named_errors(demo):
+    """Missing columns, unsorted times, wrong Sigma shape, no overlap: named errors naming the input."""
+    with pytest.raises(InputError, match="reference: missing column"):
+        F.evaluate_flight(demo.reference.drop(columns="qw"), demo.onboard)
+    bad = demo.onboard.copy()
+    bad.loc[10, "t_s"] = bad.loc[9, "t_s"]
+    with pytest.raises(InputError, match="on-board log: t_s not strictly increasing at row 10"):
+        F.evaluate_flight(demo.reference, bad)
+    with pytest.raises(InputError, match="Sigma_ref"):
+        F.evaluate_flight(demo.reference, demo.onboard, None, demo.Sigma_ref[:5])
+    with pytest.raises(SyncError):
+        F.evaluate_flight(demo.reference, demo.onboard, demo.T_Q_B,
+                          clock=F.Clock(dt_offset_s=1e4))
+    with pytest.raises(InputError, match="alignment method"):
+        F.align_trajectories(np.zeros((3, 3)), np.zeros((3, 3)), "affine")
+
+
+def test_reference_from_poses_raw():
+    """poses_raw rows (rvec_C_B, tvec) become T_C_B; invalid rows are flagged, not dropped."""
+    rv = np.array([[0.1, -0.2, 0.3], [np.nan] * 3])
+    df = pd.DataFrame({"frame": [0, 1], "t_s": [0.0, 1 / 30], "valid": [True, False],
+                       "rvec_0": rv[:, 0], "rvec_1": rv[:, 1], "rvec_2": rv[:, 2],
+                       "x_m": [0.1, np.nan], "y_m": [0.2, np.nan], "z_m": [3.0, np.nan]})
+    ref = F.reference_from_poses(df)
+    T = F.T_from_traj(ref)
+    np.testing.assert_allclose(T[0, :3, :3], Rotation.from_rotvec(rv[0]).as_matrix(), atol=1e-12)
+    assert list(ref["pos_valid"]) == [True, False] and list(ref["frame"]) == [0, 1]
+
+
+def test_maths_module_has_no_io_or_plotting_imports():
+    """cvsflow.flight imports neither matplotlib, cvsflow.io, cvsflow.plots nor snakemake."""
+    import importlib
+    import subprocess
+
+    code = ("import sys, cvsflow.flight, cvsflow.flight_synth; "
+            "bad=[m for m in sys.modules if m.startswith(('matplotlib','snakemake','cvsflow.io',"
+            "'cvsflow.plots'))]; print(bad); sys.exit(1 if bad else 0)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stdout + out.stderr
+    importlib.import_module("cvsflow.flight")
