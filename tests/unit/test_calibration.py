@@ -201,3 +201,26 @@ def test_synthetic_stills_recover_known_focal_lengths():
     assert K[1, 1] == pytest.approx(698.0, rel=0.002)
     assert abs(K[0, 2] - 331.5) < 2.0 and abs(K[1, 2] - 247.0) < 2.0
     assert camera["rms_px"] < 0.15
+
+
+def test_rendered_stills_give_true_focal_lengths(tmp_path):
+    """The renderer's 15 stills (cvsflow.synth, demo camera with distortion) calibrate to fx
+    and fy within 1 % of the truth (measured 0.07 % and 0.05 %), RMS < 0.5 px (measured
+    0.05 px), all stills used."""
+    synth = pytest.importorskip("cvsflow.synth")
+    from cvsflow.io import read_yaml
+    from cvsflow.io.media import list_stills, read_gray
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_pose import synth_session_cfg
+
+    out = tmp_path / "session"
+    synth.render_session(synth_session_cfg(0.5), out)
+    truth = read_yaml(out / "truth.yaml")
+    stills = [(p.name, read_gray(p)) for p in list_stills(out / "calib")]
+    camera, _ = calibrate_camera(stills, truth["board"])
+    K, K_true = np.array(camera["K"]), np.array(truth["camera"]["K"])
+    assert camera["n_used"] == len(stills) == 15
+    assert K[0, 0] == pytest.approx(K_true[0, 0], rel=0.01)
+    assert K[1, 1] == pytest.approx(K_true[1, 1], rel=0.01)
+    assert camera["rms_px"] < 0.5

@@ -330,3 +330,97 @@ def test_extract_corners_rejects_a_colour_frame():
     bad = np.zeros((H, W, 3), np.uint8)
     with pytest.raises(InputError, match="frame 5"):
         extract_corners([(5, 0.1, bad)], BOARD)
+
+
+# --------------------------------------------------------------------------------------------
+# Against the renderer's truth (cvsflow.synth): a short rendered session
+
+
+def synth_session_cfg(duration_s, seed=7):
+    """A demo-like session config (values of config/config.yaml's demo) for the renderer."""
+    return {
+        "synth": {
+            "seed": seed,
+            "duration_s": duration_s,
+            "n_stills": 15,
+            "camera": {"fx_px": 702.0, "fy_px": 698.0, "cx_px": 331.5, "cy_px": 247.0,
+                       "dist": [-0.12, 0.09, 0.0009, -0.0007, -0.02]},
+            "T_Cm_C_pose6": [0.03, -0.02, 0.05, -1.5708, 0.0, -1.5708],
+            "T_Bm_B_pose6": [0.1, 0.07, -0.004, 3.1416, 0.0, 0.0],
+            "image_noise_sigma": 2.0,
+            "video_quality": 75,
+        },
+        "board": dict(BOARD),
+        "markers": {
+            "camera": {"names": ["camera:C1", "camera:C2", "camera:C3", "camera:C4"],
+                       "layout_m": [[0.0, 0.0, 0.0], [0.0, 0.16, 0.0], [0.0, 0.0, 0.12],
+                                    [0.0, 0.11, 0.17]]},
+            "board": {"names": ["board:B1", "board:B2", "board:B3", "board:B4"],
+                      "layout_m": [[0.0, 0.0, 0.0], [0.76, 0.0, 0.0], [0.0, 0.52, 0.0],
+                                   [0.58, 0.5, 0.0]]},
+        },
+    }
+
+
+@pytest.fixture(scope="module")
+def rendered_session(tmp_path_factory):
+    """A 4 s rendered session (120 frames) with its truth, corners and PnP poses (true K)."""
+    synth = pytest.importorskip("cvsflow.synth")
+    from cvsflow.io import read_parquet, read_yaml
+    from cvsflow.io.media import iter_video_gray
+
+    out = tmp_path_factory.mktemp("synth") / "session"
+    synth.render_session(synth_session_cfg(4.0), out)
+    truth = read_yaml(out / "truth.yaml")
+    K = np.array(truth["camera"]["K"])
+    dist = np.array(truth["camera"]["dist"])
+    corners = extract_corners(iter_video_gray(out / "video.mp4"), BOARD)
+    poses = estimate_poses(corners, K, dist, BOARD)
+    return {
+        "frames": read_parquet(out / "truth_frames.parquet"),
+        "truth_corners": read_parquet(out / "truth_corners.parquet"),
+        "corners": corners,
+        "poses": poses,
+    }
+
+
+def test_rendered_board_found_when_wholly_in_view(rendered_session):
+    """The board is found in >= 95 % of the frames where it is wholly in view (measured:
+    120 of 120 on 4 s; 842 of 853 on a 30 s render, the misses blurred by 1.7 to 4.3 px),
+    and never where it is not."""
+    found = rendered_session["corners"].groupby("frame")["found"].first()
+    in_view = rendered_session["frames"].set_index("frame")["in_view"].reindex(found.index)
+    assert in_view.sum() >= 100
+    assert found[in_view].mean() >= 0.95
+    assert not found[~in_view].any()
+
+
+def test_rendered_corner_k_is_true_corner_k(rendered_session):
+    """Every detected corner k lies within 1 px of the true corner k (no index flips, no
+    misplaced outer corner); median error below 0.15 px (measured 0.07 px, max 0.58 px)."""
+    corners = rendered_session["corners"]
+    merged = corners[corners["found"]].merge(
+        rendered_session["truth_corners"], on=["frame", "corner"], suffixes=("", "_true")
+    )
+    assert len(merged) == 20 * corners.loc[corners["found"], "frame"].nunique()
+    err = np.hypot(merged["u_px"] - merged["u_px_true"], merged["v_px"] - merged["v_px_true"])
+    assert err.max() < 1.0
+    assert np.median(err) < 0.15
+
+
+def test_rendered_pnp_pose_errors(rendered_session):
+    """With the true intrinsics, PnP position error has median < 1 % of distance (measured
+    0.03 %) and angle error median < 0.5 degrees (measured 0.05 to 0.13 degrees)."""
+    poses = rendered_session["poses"]
+    p = poses[poses["valid"]].merge(rendered_session["frames"], on="frame", suffixes=("", "_t"))
+    assert len(p) >= 0.95 * rendered_session["frames"]["in_view"].sum()
+    T_est = tf.T_from_rvec_tvec(np.array(p[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)),
+                                np.array(p[["x_m", "y_m", "z_m"]].to_numpy(float)))
+    t_true = p[["x_m_t", "y_m_t", "z_m_t"]].to_numpy(float)
+    R_true = tf.R_from_quat(np.array(p[["qx", "qy", "qz", "qw"]].to_numpy(float)))
+    rel_pos = np.linalg.norm(T_est[:, :3, 3] - t_true, axis=1) / np.linalg.norm(t_true, axis=1)
+    angle_deg = np.degrees(tf.rotation_angle(np.swapaxes(R_true, 1, 2) @ T_est[:, :3, :3]))
+    assert np.median(rel_pos) < 0.01
+    assert np.median(angle_deg) < 0.5
+    assert np.percentile(angle_deg, 95) < 1.0
+    assert p["reproj_rms_px"].median() < 0.3
