@@ -110,8 +110,16 @@ def traj_from_T(t_s, T, pos_valid=None, rot_valid=None, attrs=None) -> pd.DataFr
         q[ok] = quat_from_R(R[ok])
     p = T[:, :3, 3]
     df = pd.DataFrame(
-        {"t_s": np.asarray(t_s, dtype=float), "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
-         "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]}
+        {
+            "t_s": np.asarray(t_s, dtype=float),
+            "x_m": p[:, 0],
+            "y_m": p[:, 1],
+            "z_m": p[:, 2],
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
+        }
     )
     df["pos_valid"] = np.isfinite(p).all(1) if pos_valid is None else np.asarray(pos_valid, bool)
     df["rot_valid"] = ok if rot_valid is None else np.asarray(rot_valid, bool)
@@ -170,7 +178,7 @@ def interpolate_trajectory(df: pd.DataFrame, t_s, max_gap_s: float = 0.1) -> pd.
     rv = df["rot_valid"].to_numpy(bool)
     pos_ok = np.zeros(len(t_q), bool)
     rot_ok = np.zeros(len(t_q), bool)
-    for cols, valid, sl in (([1, 2, 3], pv, slice(0, 3)), ([4, 5, 6, 7], rv, slice(3, 7))):
+    for valid, is_pos in ((pv, True), (rv, False)):
         tv = t[valid]
         if len(tv) < 2:
             continue
@@ -180,7 +188,7 @@ def interpolate_trajectory(df: pd.DataFrame, t_s, max_gap_s: float = 0.1) -> pd.
         ok |= np.isin(t_q, tv)
         if not ok.any():
             continue
-        if sl.start == 0:
+        if is_pos:
             p = df[["x_m", "y_m", "z_m"]].to_numpy(dtype=float)[valid]
             w = ((t_q - t0) / np.where(t1 > t0, t1 - t0, 1.0))[:, None]
             out[ok, 0:3] = ((1 - w) * p[i - 1] + w * p[i])[ok]
@@ -239,8 +247,11 @@ def associate(t_ref, t_est, max_diff_s: float = 0.01, offset_s: float = 0.0):
         raise SyncError("associate: an empty trajectory")
     order = np.argsort(long_, kind="stable")
     ls = long_[order]
-    j = np.clip(np.searchsorted(ls, short, side="left"), 1, len(ls) - 1) if len(ls) > 1 else \
-        np.zeros(len(short), int)
+    j = (
+        np.clip(np.searchsorted(ls, short, side="left"), 1, len(ls) - 1)
+        if len(ls) > 1
+        else np.zeros(len(short), int)
+    )
     if len(ls) > 1:
         d_lo = np.abs(short - ls[j - 1])
         d_hi = np.abs(short - ls[j])
@@ -303,8 +314,10 @@ def _check_points(p_ref, p_est, n_min):
     p_ref = np.asarray(p_ref, dtype=float)
     p_est = np.asarray(p_est, dtype=float)
     if p_ref.shape != p_est.shape or p_ref.ndim != 2 or p_ref.shape[1] != 3:
-        raise OptimiseError(f"alignment: point sets of shapes {p_ref.shape} and {p_est.shape}; "
-                            "expected two (N, 3) arrays")
+        raise OptimiseError(
+            f"alignment: point sets of shapes {p_ref.shape} and {p_est.shape}; "
+            "expected two (N, 3) arrays"
+        )
     if not (np.isfinite(p_ref).all() and np.isfinite(p_est).all()):
         raise OptimiseError("alignment: non-finite points; pass valid pairs only")
     if len(p_ref) < n_min:
@@ -369,7 +382,9 @@ def _R_between(a, b):
         if np.linalg.norm(axis) < 1e-6:
             axis = np.cross(a, [0.0, 1.0, 0.0])
         return Rotation.from_rotvec(np.pi * axis / np.linalg.norm(axis)).as_matrix()
-    return Rotation.from_rotvec(v / np.linalg.norm(v) * np.arctan2(np.linalg.norm(v), c)).as_matrix()
+    return Rotation.from_rotvec(
+        v / np.linalg.norm(v) * np.arctan2(np.linalg.norm(v), c)
+    ).as_matrix()
 
 
 def align_yaw(p_ref, p_est, z_est_in_ref=(0.0, 0.0, 1.0)) -> Alignment:
@@ -402,8 +417,10 @@ def align_yaw(p_ref, p_est, z_est_in_ref=(0.0, 0.0, 1.0)) -> Alignment:
     yl = y @ R0  # reference points in a frame whose z is the estimate's z: R0^T y
     xc, yc = x - x.mean(0), yl - yl.mean(0)
     # minimise sum |yc - Rz(psi) xc|^2 -> psi = atan2(sum(x*y' - y*x'), sum(x*x' + y*y'))
-    psi = np.arctan2(np.sum(xc[:, 0] * yc[:, 1] - xc[:, 1] * yc[:, 0]),
-                     np.sum(xc[:, 0] * yc[:, 0] + xc[:, 1] * yc[:, 1]))
+    psi = np.arctan2(
+        np.sum(xc[:, 0] * yc[:, 1] - xc[:, 1] * yc[:, 0]),
+        np.sum(xc[:, 0] * yc[:, 0] + xc[:, 1] * yc[:, 1]),
+    )
     Rz = Rotation.from_euler("z", psi).as_matrix()
     R = R0 @ Rz
     t = y.mean(0) - R @ x.mean(0)
@@ -432,7 +449,8 @@ def error_stats(e) -> dict:
     e = e[np.isfinite(e)]
     if len(e) == 0:
         return {k: float("nan") for k in ("rmse", "mean", "median", "std", "min", "max", "sse")} | {
-            "n": 0}
+            "n": 0
+        }
     return {
         "rmse": float(np.sqrt(np.mean(e**2))),
         "mean": float(np.mean(e)),
@@ -528,7 +546,9 @@ class Clock:
 def _valid_rot(df):
     """Times and rotation matrices of the valid orientations of a trajectory."""
     m = df["rot_valid"].to_numpy(bool)
-    return df["t_s"].to_numpy(float)[m], R_from_quat(df.loc[m, ["qx", "qy", "qz", "qw"]].to_numpy(float))
+    return df["t_s"].to_numpy(float)[m], R_from_quat(
+        df.loc[m, ["qx", "qy", "qz", "qw"]].to_numpy(float)
+    )
 
 
 def _hand_eye_rotation(R_ref_C_B, R_est_L_Q, lags=(3, 10, 30)):
@@ -537,8 +557,12 @@ def _hand_eye_rotation(R_ref_C_B, R_est_L_Q, lags=(3, 10, 30)):
     for h in lags:
         if len(R_ref_C_B) <= h:
             continue
-        vB.append(Rotation.from_matrix(np.swapaxes(R_ref_C_B[:-h], -1, -2) @ R_ref_C_B[h:]).as_rotvec())
-        vQ.append(Rotation.from_matrix(np.swapaxes(R_est_L_Q[:-h], -1, -2) @ R_est_L_Q[h:]).as_rotvec())
+        vB.append(
+            Rotation.from_matrix(np.swapaxes(R_ref_C_B[:-h], -1, -2) @ R_ref_C_B[h:]).as_rotvec()
+        )
+        vQ.append(
+            Rotation.from_matrix(np.swapaxes(R_est_L_Q[:-h], -1, -2) @ R_est_L_Q[h:]).as_rotvec()
+        )
     if not vB:
         return np.eye(3)
     vB, vQ = np.concatenate(vB), np.concatenate(vQ)
@@ -584,9 +608,17 @@ def rotation_alignment(R_ref_C_B, R_est_L_Q, R_Q_B=None, weights=None, n_iter: i
     return R_CL, R_QB
 
 
-def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, R_Q_B=None,
-                   sigma_rot_rad=None, rate_hz: float = 100.0, max_offset_s: float | None = None,
-                   estimate_skew: bool = True, min_quality: float = 0.3) -> Clock:
+def estimate_clock(
+    reference: pd.DataFrame,
+    onboard: pd.DataFrame,
+    *,
+    R_Q_B=None,
+    sigma_rot_rad=None,
+    rate_hz: float = 100.0,
+    max_offset_s: float | None = None,
+    estimate_skew: bool = True,
+    min_quality: float = 0.3,
+) -> Clock:
     """Time offset (and skew) of the log against the camera stream.
 
     1. Coarse: angular speed of both streams (independent of every frame choice), resampled at
@@ -630,8 +662,10 @@ def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, R_Q_B=None
     t_r, R_r = _valid_rot(reference)
     t_e, R_e = _valid_rot(onboard)
     if len(t_r) < 10 or len(t_e) < 10:
-        raise SyncError(f"time alignment: {len(t_r)} reference and {len(t_e)} log orientations; "
-                        "at least 10 each needed")
+        raise SyncError(
+            f"time alignment: {len(t_r)} reference and {len(t_e)} log orientations; "
+            "at least 10 each needed"
+        )
     tm_r, w_r = angular_speed(t_r, R_r)
     tm_e, w_e = angular_speed(t_e, R_e)
     gap_r = np.diff(t_r) < 2.5 * np.median(np.diff(t_r))  # missed frames give no speed
@@ -645,8 +679,9 @@ def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, R_Q_B=None
     c = correlate(a_r, a_e, mode="full", method="fft")
     lags = correlation_lags(len(a_r), len(a_e), mode="full")
     # a_r[n + k] ~ a_e[n]  <=>  dt_offset = g_r[0] - g_e[0] + k / rate
-    overlap = np.minimum(np.minimum(len(a_e) + lags, len(a_r) - lags),
-                         min(len(a_r), len(a_e))).astype(float)
+    overlap = np.minimum(
+        np.minimum(len(a_e) + lags, len(a_r) - lags), min(len(a_r), len(a_e))
+    ).astype(float)
     ok = overlap >= max(10, min(len(a_r), len(a_e)) / 3)
     if max_offset_s is not None:
         ok &= np.abs(lags / rate_hz) <= max_offset_s
@@ -661,12 +696,17 @@ def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, R_Q_B=None
         frac = float(0.5 * (cn[k - 1] - cn[k + 1]) / den) if den < 0 else 0.0
     dt0 = g_r[0] - g_e[0] + (lags[k] + frac) / rate_hz
     if quality < min_quality:
-        raise SyncError(f"time alignment: angular-speed correlation peak {quality:.2f} at offset "
-                        f"{dt0:.3f} s is below min_quality {min_quality}")
+        raise SyncError(
+            f"time alignment: angular-speed correlation peak {quality:.2f} at offset "
+            f"{dt0:.3f} s is below min_quality {min_quality}"
+        )
 
     # fine: orientation residuals; parameters (offset at the reference's centre, skew * 1e3)
-    w = np.ones(len(t_r)) if sigma_rot_rad is None else \
-        1.0 / np.maximum(np.asarray(sigma_rot_rad, float)[m_r], 1e-9)
+    w = (
+        np.ones(len(t_r))
+        if sigma_rot_rad is None
+        else 1.0 / np.maximum(np.asarray(sigma_rot_rad, float)[m_r], 1e-9)
+    )
     slerp = Slerp(t_e, Rotation.from_matrix(R_e))
     t_c = 0.5 * (t_r[0] + t_r[-1])
     state = {"R_Q_B": R_Q_B}
@@ -685,20 +725,38 @@ def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, R_Q_B=None
         return r.ravel() / np.sqrt(inside.sum())
 
     x0 = np.array([dt0, 0.0]) if estimate_skew else np.array([dt0])  # dt_c = dt0 when skew = 0
-    res = least_squares(residual, x0, x_scale=[0.01, 0.1][: len(x0)],
-                        diff_step=[1e-5, 1e-3][: len(x0)], loss="soft_l1", f_scale=3.0)
+    res = least_squares(
+        residual,
+        x0,
+        x_scale=[0.01, 0.1][: len(x0)],
+        diff_step=[1e-5, 1e-3][: len(x0)],
+        loss="soft_l1",
+        f_scale=3.0,
+    )
     dt_c = float(res.x[0])
     skew = float(res.x[1] * 1e-3) if estimate_skew else 0.0
     # tau = (t_r - t_c)/(1+skew) + t_c - dt_c  =>  t_r = (1+skew)(tau - t_c + dt_c) + t_c
     dt_offset = t_c - (1 + skew) * (t_c - dt_c)
     if abs(dt_c - dt0) > 0.5:
-        log.warning("time alignment: refinement moved the offset by %.3f s from the "
-                    "cross-correlation peak", dt_c - dt0)
-    clock = Clock(dt_offset, skew, quality,
-                  {"xcorr_offset_s": float(dt0), "rate_hz": rate_hz,
-                   "refine_rms": float(np.sqrt(2 * res.cost / 3)),
-                   "refine_status": int(res.status), "R_Q_B": np.asarray(state["R_Q_B"]).tolist()})
-    log.info("time alignment: dt_offset_s %.6f, skew %.3g, correlation %.3f", dt_offset, skew, quality)
+        log.warning(
+            "time alignment: refinement moved the offset by %.3f s from the cross-correlation peak",
+            dt_c - dt0,
+        )
+    clock = Clock(
+        dt_offset,
+        skew,
+        quality,
+        {
+            "xcorr_offset_s": float(dt0),
+            "rate_hz": rate_hz,
+            "refine_rms": float(np.sqrt(2 * res.cost / 3)),
+            "refine_status": int(res.status),
+            "R_Q_B": np.asarray(state["R_Q_B"]).tolist(),
+        },
+    )
+    log.info(
+        "time alignment: dt_offset_s %.6f, skew %.3g, correlation %.3f", dt_offset, skew, quality
+    )
     return clock
 
 
@@ -707,8 +765,9 @@ def estimate_clock(reference: pd.DataFrame, onboard: pd.DataFrame, *, R_Q_B=None
 # --------------------------------------------------------------------------------------------
 
 
-def reference_covariance_model(T_C_B, f_px: float = 700.0, board_m: float = 0.5,
-                               sigma_px: float = 0.3, n_corners: int = 20) -> np.ndarray:
+def reference_covariance_model(
+    T_C_B, f_px: float = 700.0, board_m: float = 0.5, sigma_px: float = 0.3, n_corners: int = 20
+) -> np.ndarray:
     """A simple distance-dependent covariance of a PnP board pose (stand-in for se3's model).
 
     Lateral position error ~ d sigma_px / (f sqrt(n)); depth error ~ d^2 sigma_px /
@@ -751,7 +810,7 @@ def _skew(v):
 
 def _euler_rate_inverse(rpy):
     """E^-1 with E mapping roll/pitch/yaw increments to a world-frame rotation vector."""
-    r, p, y = rpy[:, 0], rpy[:, 1], rpy[:, 2]
+    p, y = rpy[:, 1], rpy[:, 2]  # E does not depend on roll
     cy, sy, cp, sp = np.cos(y), np.sin(y), np.cos(p), np.sin(p)
     E = np.zeros((len(rpy), 3, 3))
     E[:, :, 0] = np.column_stack([cy * cp, sy * cp, -sp])  # Rz Ry e_x
@@ -781,7 +840,7 @@ def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L) -> np.ndarray:
     """
     T_B_Q = invert_T(T_Q_B)
     T_C_Q = T_C_B @ T_B_Q
-    lever = (T_C_B[:, :3, :3] @ T_B_Q[:3, 3])  # R_C_B t_B_Q
+    lever = T_C_B[:, :3, :3] @ T_B_Q[:3, 3]  # R_C_B t_B_Q
     J = np.zeros((len(T_C_B), 6, 6))
     R_L_C = R_C_L.T
     J[:, :3, :3] = R_L_C
@@ -856,19 +915,29 @@ def axis_stats(e, sigma=None, k_sigma: float = 1.0) -> dict:
         ek = ek[m]
         st = {"n": int(m.sum())}
         if st["n"] == 0:
-            out[name] = st | {"rmse": float("nan"), "mean": float("nan"), "std": float("nan"),
-                              "max_abs": float("nan")}
+            out[name] = st | {
+                "rmse": float("nan"),
+                "mean": float("nan"),
+                "std": float("nan"),
+                "max_abs": float("nan"),
+            }
             continue
         ms = float(np.mean(ek**2))
-        st |= {"rmse": float(np.sqrt(ms)), "mean": float(ek.mean()), "std": float(ek.std()),
-               "max_abs": float(np.abs(ek).max())}
+        st |= {
+            "rmse": float(np.sqrt(ms)),
+            "mean": float(ek.mean()),
+            "std": float(ek.std()),
+            "max_abs": float(np.abs(ek).max()),
+        }
         if sigma is not None:
             sk = sigma[m, k]
             s2 = float(np.mean(sk**2))
-            st |= {"ref_rms": float(np.sqrt(s2)),
-                   "unresolved_fraction": float(np.mean(k_sigma * sk > np.abs(ek))),
-                   "ref_variance_share": float(min(s2 / ms, 1.0)) if ms > 0 else 1.0,
-                   "rmse_corrected": float(np.sqrt(max(ms - s2, 0.0)))}
+            st |= {
+                "ref_rms": float(np.sqrt(s2)),
+                "unresolved_fraction": float(np.mean(k_sigma * sk > np.abs(ek))),
+                "ref_variance_share": float(min(s2 / ms, 1.0)) if ms > 0 else 1.0,
+                "rmse_corrected": float(np.sqrt(max(ms - s2, 0.0))),
+            }
         out[name] = st
     return out
 
@@ -906,12 +975,24 @@ class FlightResult:
     est_aligned: pd.DataFrame
 
 
-def evaluate_flight(reference: pd.DataFrame, onboard: pd.DataFrame, T_Q_B=None, Sigma_ref=None,
-                    *, alignment: str = "se3", clock: Clock | None = None, T_C_L=None,
-                    z_est_in_ref=(0.0, 0.0, 1.0), max_gap_s: float = 0.1,
-                    sync_rate_hz: float = 100.0, max_offset_s: float | None = None,
-                    estimate_skew: bool = True, min_quality: float = 0.3,
-                    rpe_delta: int = 1, k_sigma: float = 1.0) -> FlightResult:
+def evaluate_flight(
+    reference: pd.DataFrame,
+    onboard: pd.DataFrame,
+    T_Q_B=None,
+    Sigma_ref=None,
+    *,
+    alignment: str = "se3",
+    clock: Clock | None = None,
+    T_C_L=None,
+    z_est_in_ref=(0.0, 0.0, 1.0),
+    max_gap_s: float = 0.1,
+    sync_rate_hz: float = 100.0,
+    max_offset_s: float | None = None,
+    estimate_skew: bool = True,
+    min_quality: float = 0.3,
+    rpe_delta: int = 1,
+    k_sigma: float = 1.0,
+) -> FlightResult:
     """On-board pose error of a flight against the camera reference.
 
     Parameters
@@ -957,13 +1038,21 @@ def evaluate_flight(reference: pd.DataFrame, onboard: pd.DataFrame, T_Q_B=None, 
     if Sigma_ref is not None:
         Sigma_ref = np.asarray(Sigma_ref, float)
         if Sigma_ref.shape != (len(reference), 6, 6):
-            raise InputError(f"Sigma_ref: shape {Sigma_ref.shape}; expected ({len(reference)}, 6, 6)")
+            raise InputError(
+                f"Sigma_ref: shape {Sigma_ref.shape}; expected ({len(reference)}, 6, 6)"
+            )
         sigma_rot = np.sqrt(np.trace(Sigma_ref[:, 3:, 3:], axis1=1, axis2=2) / 3.0)
     if clock is None:
-        clock = estimate_clock(reference, onboard, R_Q_B=T_Q_B[:3, :3] if mounting_given else None,
-                               sigma_rot_rad=sigma_rot, rate_hz=sync_rate_hz,
-                               max_offset_s=max_offset_s, estimate_skew=estimate_skew,
-                               min_quality=min_quality)
+        clock = estimate_clock(
+            reference,
+            onboard,
+            R_Q_B=T_Q_B[:3, :3] if mounting_given else None,
+            sigma_rot_rad=sigma_rot,
+            rate_hz=sync_rate_hz,
+            max_offset_s=max_offset_s,
+            estimate_skew=estimate_skew,
+            min_quality=min_quality,
+        )
     ref_ok = (reference["pos_valid"] & reference["rot_valid"]).to_numpy()
     t_ref = reference["t_s"].to_numpy(float)
     est_i = interpolate_trajectory(onboard, clock.to_log(t_ref), max_gap_s=max_gap_s)
@@ -983,8 +1072,10 @@ def evaluate_flight(reference: pd.DataFrame, onboard: pd.DataFrame, T_Q_B=None, 
         w = None if sigma_rot is None else 1.0 / np.maximum(sigma_rot[use], 1e-9) ** 2
         _, R_QB = rotation_alignment(T_C_B[:, :3, :3], T_L_Q[:, :3, :3], None, w)
         T_Q_B = make_T(R_QB, np.zeros(3))
-        log.warning("flight: board mounting T_Q_B not given; its rotation was estimated from the "
-                    "data (constant attitude errors are absorbed) and its lever arm set to 0")
+        log.warning(
+            "flight: board mounting T_Q_B not given; its rotation was estimated from the "
+            "data (constant attitude errors are absorbed) and its lever arm set to 0"
+        )
     T_C_Q = T_C_B @ invert_T(T_Q_B)
     if T_C_L is not None:
         al = Alignment(np.asarray(T_C_L, float), 1.0, "given")
@@ -992,8 +1083,11 @@ def evaluate_flight(reference: pd.DataFrame, onboard: pd.DataFrame, T_Q_B=None, 
         al = align_trajectories(T_C_Q[:, :3, 3], T_L_Q[:, :3, 3], alignment, z_est_in_ref)
     T_est_C = al.apply_T(T_L_Q)
     e = axis_errors(T_C_Q, T_L_Q, al)
-    sigma = (propagate_reference_sigma(Sigma_ref[use], T_C_B, T_Q_B, al.T_ref_est[:3, :3])
-             if Sigma_ref is not None else np.full_like(e, np.nan))
+    sigma = (
+        propagate_reference_sigma(Sigma_ref[use], T_C_B, T_Q_B, al.T_ref_est[:3, :3])
+        if Sigma_ref is not None
+        else np.full_like(e, np.nan)
+    )
     ape_t = ape_translation(T_C_Q[:, :3, 3], T_est_C[:, :3, 3])
     ape_r = ape_rotation(T_C_Q[:, :3, :3], T_est_C[:, :3, :3])
     errors = pd.DataFrame(np.column_stack([e, sigma]), columns=ERR_COLS + SIG_COLS)
@@ -1022,6 +1116,9 @@ def evaluate_flight(reference: pd.DataFrame, onboard: pd.DataFrame, T_Q_B=None, 
     est_aligned = traj_from_T(t_ref[use], T_est_C, attrs={"frames": "T_C_Q (on-board, aligned)"})
     for name, st in stats["axes"].items():
         if "unresolved_fraction" in st and st["unresolved_fraction"] > 0.5:
-            log.warning("flight: on axis %s the reference cannot resolve %.0f%% of the samples",
-                        name, 100 * st["unresolved_fraction"])
+            log.warning(
+                "flight: on axis %s the reference cannot resolve %.0f%% of the samples",
+                name,
+                100 * st["unresolved_fraction"],
+            )
     return FlightResult(errors, stats, clock, al, ref_aligned, est_aligned)

@@ -85,7 +85,7 @@ def camera_pose(height_m: float = 1.0, tilt_up_rad: float = np.deg2rad(8.0)) -> 
     Optical axes in NED: z_C north, x_C east, y_C down, then pitched up by ``tilt_up_rad``.
     """
     R_level = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # columns x_C y_C z_C
-    R_tilt = Rotation.from_rotvec([-tilt_up_rad, 0.0, 0.0]).as_matrix()  # about x_C: z_C goes up
+    R_tilt = Rotation.from_rotvec([tilt_up_rad, 0.0, 0.0]).as_matrix()  # about x_C: z_C goes up
     return make_T(R_level @ R_tilt, [0.0, 0.0, -height_m])
 
 
@@ -106,25 +106,41 @@ def true_flight(seed: int, duration_s: float, range_m=(3.0, 20.0), T_L_C=None):
         t = np.asarray(t_s, float)
         ph = np.clip(t / duration_s, 0.0, 1.0)
         r = r_lo + 0.3 + (r_hi - r_lo - 0.6) * 0.5 * (1 - np.cos(2 * np.pi * ph)) + r_wobble(t)
+        r = np.clip(r, r_lo, r_hi)
         a = bearing(t)
         b = np.deg2rad(5.0) + elev(t)  # above the horizon through the lens
-        p = c + r[:, None] * np.column_stack([np.cos(b) * np.cos(a), np.cos(b) * np.sin(a),
-                                              -np.sin(b)])
+        p = c + r[:, None] * np.column_stack(
+            [np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), -np.sin(b)]
+        )
         rpy = np.column_stack([roll(t), pitch(t), a + yaw(t)])
         return make_T(R_from_euler(rpy), p)
 
     return f
 
 
-def render_flight(seed: int = 0, duration_s: float = 60.0, fps: float = 30.0,
-                  log_rate_hz: float = 100.0, range_m=(3.0, 20.0), dt_offset_s: float = -17.25,
-                  skew: float = 2e-4, log_margin_s: float = 5.0,
-                  pos_bias_m=(0.06, -0.04, 0.08), pos_rw_m_sqrt_s: float = 0.01,
-                  pos_noise_m: float = 0.01, att_bias_rad=(0.012, -0.009, 0.04),
-                  att_rw_rad_sqrt_s: float = 0.002, att_noise_rad: float = 0.003,
-                  f_px: float = 700.0, board_m: float = 0.5, sigma_px: float = 0.3,
-                  n_corners: int = 20, missed_frame_rate: float = 0.02,
-                  Sigma_ref=None, T_Q_B=None) -> FlightDemo:
+def render_flight(
+    seed: int = 0,
+    duration_s: float = 60.0,
+    fps: float = 30.0,
+    log_rate_hz: float = 100.0,
+    range_m=(3.0, 20.0),
+    dt_offset_s: float = -17.25,
+    skew: float = 2e-4,
+    log_margin_s: float = 5.0,
+    pos_bias_m=(0.06, -0.04, 0.08),
+    pos_rw_m_sqrt_s: float = 0.01,
+    pos_noise_m: float = 0.01,
+    att_bias_rad=(0.012, -0.009, 0.04),
+    att_rw_rad_sqrt_s: float = 0.002,
+    att_noise_rad: float = 0.003,
+    f_px: float = 700.0,
+    board_m: float = 0.5,
+    sigma_px: float = 0.3,
+    n_corners: int = 20,
+    missed_frame_rate: float = 0.02,
+    Sigma_ref=None,
+    T_Q_B=None,
+) -> FlightDemo:
     """Render a flight: truth, on-board estimate on its own clock, camera reference.
 
     Parameters
@@ -162,8 +178,10 @@ def render_flight(seed: int = 0, duration_s: float = 60.0, fps: float = 30.0,
         Non-positive durations or rates, a range outside (0, inf), skew of 1 % or more.
     """
     if duration_s <= 0 or fps <= 0 or log_rate_hz <= 0:
-        raise ConfigError(f"flight demo: duration_s={duration_s}, fps={fps}, "
-                          f"log_rate_hz={log_rate_hz}; all must be > 0")
+        raise ConfigError(
+            f"flight demo: duration_s={duration_s}, fps={fps}, "
+            f"log_rate_hz={log_rate_hz}; all must be > 0"
+        )
     if not (0 < range_m[0] < range_m[1]):
         raise ConfigError(f"flight demo: range_m={range_m}; expected 0 < near < far (m)")
     if abs(skew) >= 1e-2:
@@ -184,7 +202,9 @@ def render_flight(seed: int = 0, duration_s: float = 60.0, fps: float = 30.0,
         Sigma_ref = reference_covariance_model(T_C_B, f_px, board_m, sigma_px, n_corners)
     Sigma_ref = np.asarray(Sigma_ref, float)
     if Sigma_ref.shape != (n_fr, 6, 6):
-        raise ConfigError(f"flight demo: Sigma_ref shape {Sigma_ref.shape}; expected ({n_fr}, 6, 6)")
+        raise ConfigError(
+            f"flight demo: Sigma_ref shape {Sigma_ref.shape}; expected ({n_fr}, 6, 6)"
+        )
     L = np.linalg.cholesky(Sigma_ref + 1e-30 * np.eye(6))
     d = (L @ rng.standard_normal((n_fr, 6, 1)))[..., 0]
     T_meas = T_C_B.copy()
@@ -192,7 +212,9 @@ def render_flight(seed: int = 0, duration_s: float = 60.0, fps: float = 30.0,
     T_meas[:, :3, :3] = Rotation.from_rotvec(d[:, 3:]).as_matrix() @ T_C_B[:, :3, :3]
     seen = rng.random(n_fr) >= missed_frame_rate
     T_meas[~seen] = np.nan
-    reference = traj_from_T(t_cam, T_meas, seen, seen, {"source": "flight_synth", "frames": "T_C_B"})
+    reference = traj_from_T(
+        t_cam, T_meas, seen, seen, {"source": "flight_synth", "frames": "T_C_B"}
+    )
     reference.insert(0, "frame", frame)
 
     # on-board log on its own clock
@@ -211,15 +233,19 @@ def render_flight(seed: int = 0, duration_s: float = 60.0, fps: float = 30.0,
     e_att = process(att_bias_rad, att_rw_rad_sqrt_s, att_noise_rad)
     rpy_est = euler_from_R(T_true_log[:, :3, :3]) + e_att
     T_est = make_T(R_from_euler(rpy_est), T_true_log[:, :3, 3] + e_pos)
-    onboard = traj_from_T(t_log, T_est, attrs={"source": "flight_synth", "frames": "T_L_Q, NED/FRD"})
+    onboard = traj_from_T(
+        t_log, T_est, attrs={"source": "flight_synth", "frames": "T_L_Q, NED/FRD"}
+    )
 
     # injected error at the video frames, as a perfect reference would measure it
     est_cam = interpolate_trajectory(onboard, clock.to_log(t_cam), max_gap_s=2.0 / log_rate_hz)
     R_e = Rotation.from_quat(est_cam[["qx", "qy", "qz", "qw"]].to_numpy()).as_matrix()
-    e = np.column_stack([
-        est_cam[["x_m", "y_m", "z_m"]].to_numpy() - T_L_Q_cam[:, :3, 3],
-        wrap_angle(euler_from_R(R_e) - euler_from_R(T_L_Q_cam[:, :3, :3])),
-    ])
+    e = np.column_stack(
+        [
+            est_cam[["x_m", "y_m", "z_m"]].to_numpy() - T_L_Q_cam[:, :3, 3],
+            wrap_angle(euler_from_R(R_e) - euler_from_R(T_L_Q_cam[:, :3, :3])),
+        ]
+    )
     injected = pd.DataFrame(e, columns=ERR_COLS)
     injected.insert(0, "t_s", t_cam)
     injected.insert(0, "frame", frame)

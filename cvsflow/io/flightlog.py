@@ -51,7 +51,10 @@ def _normalise_quats(q_xyzw, path, what):
     if bad_norm.any():
         log.warning(
             "%s: %s: %d quaternions have a norm differing from 1 by more than %g; renormalised",
-            path, what, int(bad_norm.sum()), _QUAT_NORM_TOL,
+            path,
+            what,
+            int(bad_norm.sum()),
+            _QUAT_NORM_TOL,
         )
     out = np.full_like(q, np.nan)
     out[ok] = q[ok] / norm[ok, None]
@@ -62,8 +65,12 @@ def _normalise_quats(q_xyzw, path, what):
 def _finish(df, attrs):
     """Sort by time, set span attributes and return the common form."""
     df = df.sort_values("t_s", kind="stable").reset_index(drop=True)
-    df["pos_valid"] = df["pos_valid"].astype(bool) & np.isfinite(df[["x_m", "y_m", "z_m"]]).all(axis=1)
-    df["rot_valid"] = df["rot_valid"].astype(bool) & np.isfinite(df[["qx", "qy", "qz", "qw"]]).all(axis=1)
+    df["pos_valid"] = df["pos_valid"].astype(bool) & np.isfinite(df[["x_m", "y_m", "z_m"]]).all(
+        axis=1
+    )
+    df["rot_valid"] = df["rot_valid"].astype(bool) & np.isfinite(df[["qx", "qy", "qz", "qw"]]).all(
+        axis=1
+    )
     t = df["t_s"].to_numpy()
     attrs = dict(attrs)
     attrs.update(
@@ -128,9 +135,18 @@ def read_tum(path) -> pd.DataFrame:
     a = np.asarray(rows, dtype=float)
     q, ok = _normalise_quats(a[:, 4:8], path, "quaternion")
     df = pd.DataFrame(
-        {"t_s": a[:, 0], "x_m": a[:, 1], "y_m": a[:, 2], "z_m": a[:, 3],
-         "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
-         "pos_valid": True, "rot_valid": ok}
+        {
+            "t_s": a[:, 0],
+            "x_m": a[:, 1],
+            "y_m": a[:, 2],
+            "z_m": a[:, 3],
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
+            "pos_valid": True,
+            "rot_valid": ok,
+        }
     )
     return _finish(df, {"source": "tum", "path": str(path), "frames": "as in the file"})
 
@@ -206,12 +222,19 @@ def read_csv_log(path, spec: dict | None = None) -> pd.DataFrame:
     spec = {**CSV_DEFAULTS, **(spec or {})}
     unknown = set(spec) - set(CSV_DEFAULTS)
     if unknown:
-        raise InputError(f"{path}: unknown CSV spec keys {sorted(unknown)}; expected {list(CSV_DEFAULTS)}")
-    for key, choices in (("time_unit", _TIME_SCALE), ("pos_unit", _POS_SCALE),
-                         ("rot", ("quat_xyzw", "quat_wxyz", "euler_rpy")),
-                         ("angle_unit", ("rad", "deg"))):
+        raise InputError(
+            f"{path}: unknown CSV spec keys {sorted(unknown)}; expected {list(CSV_DEFAULTS)}"
+        )
+    for key, choices in (
+        ("time_unit", _TIME_SCALE),
+        ("pos_unit", _POS_SCALE),
+        ("rot", ("quat_xyzw", "quat_wxyz", "euler_rpy")),
+        ("angle_unit", ("rad", "deg")),
+    ):
         if spec[key] not in choices:
-            raise InputError(f"{path}: CSV spec {key}={spec[key]!r}; expected one of {list(choices)}")
+            raise InputError(
+                f"{path}: CSV spec {key}={spec[key]!r}; expected one of {list(choices)}"
+            )
     n_rot = 3 if spec["rot"] == "euler_rpy" else 4
     if len(spec["pos_cols"]) != 3 or len(spec["rot_cols"]) != n_rot:
         raise InputError(
@@ -236,9 +259,7 @@ def read_csv_log(path, spec: dict | None = None) -> pd.DataFrame:
         bad = v.isna() & raw[c].notna()
         if bad.any():
             i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise InputError(
-                f"{path}, row {i + 2}, column {c}: {raw[c].iloc[i]!r} is not a number"
-            )
+            raise InputError(f"{path}, row {i + 2}, column {c}: {raw[c].iloc[i]!r} is not a number")
         num[c] = v.to_numpy(dtype=float)
     t = num[spec["time_col"]]
     if np.isnan(t).any():
@@ -265,9 +286,18 @@ def read_csv_log(path, spec: dict | None = None) -> pd.DataFrame:
         ok &= np.nan_to_num(num[spec["rot_valid_col"]]) != 0
     p = np.where(pos_valid[:, None], p, np.nan)
     df = pd.DataFrame(
-        {"t_s": t_s, "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
-         "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
-         "pos_valid": pos_valid, "rot_valid": ok}
+        {
+            "t_s": t_s,
+            "x_m": p[:, 0],
+            "y_m": p[:, 1],
+            "z_m": p[:, 2],
+            "qx": q[:, 0],
+            "qy": q[:, 1],
+            "qz": q[:, 2],
+            "qw": q[:, 3],
+            "pos_valid": pos_valid,
+            "rot_valid": ok,
+        }
     )
     n_bad = int((~pos_valid).sum())
     if n_bad:
@@ -328,7 +358,7 @@ def read_ulog_topic(path, topic: str, multi_id: int = 0) -> pd.DataFrame:
 
 
 def _interp_valid(t_out, t_in, v_in, valid_in, max_gap_s):
-    """Linear interpolation of v_in at t_out, NaN outside, across gaps or next to invalid samples."""
+    """Linear interpolation of v_in at t_out; NaN outside, across gaps, next to invalid samples."""
     out = np.full(len(t_out), np.nan)
     if len(t_in) < 2:
         return out
@@ -389,8 +419,12 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
 
     def summary(name, data):
         us, key = _time_field(data)
-        topics[name] = {"n": int(len(us)), "t_first_us": int(us[0]) if len(us) else None,
-                        "t_last_us": int(us[-1]) if len(us) else None, "time_field": key}
+        topics[name] = {
+            "n": int(len(us)),
+            "t_first_us": int(us[0]) if len(us) else None,
+            "t_last_us": int(us[-1]) if len(us) else None,
+            "time_field": key,
+        }
         return us
 
     def field(data, name, f):
@@ -415,27 +449,44 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
         y = _interp_valid(t_att, t_pos, xyz[1], xy_valid, max_gap_s)
         z = _interp_valid(t_att, t_pos, xyz[2], z_valid, max_gap_s)
         df = pd.DataFrame(
-            {"t_s": t_att, "x_m": x, "y_m": y, "z_m": z,
-             "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
-             "pos_valid": np.isfinite(x) & np.isfinite(y) & np.isfinite(z),
-             "rot_valid": rot_ok,
-             "xy_valid": np.isfinite(x) & np.isfinite(y), "z_valid": np.isfinite(z)}
+            {
+                "t_s": t_att,
+                "x_m": x,
+                "y_m": y,
+                "z_m": z,
+                "qx": q[:, 0],
+                "qy": q[:, 1],
+                "qz": q[:, 2],
+                "qw": q[:, 3],
+                "pos_valid": np.isfinite(x) & np.isfinite(y) & np.isfinite(z),
+                "rot_valid": rot_ok,
+                "xy_valid": np.isfinite(x) & np.isfinite(y),
+                "z_valid": np.isfinite(z),
+            }
         )
         xy_frac = float(xy_valid.mean()) if len(xy_valid) else 0.0
         z_frac = float(z_valid.mean()) if len(z_valid) else 0.0
-        for name, frac, n_bad in (("xy_valid", xy_frac, int((~xy_valid).sum())),
-                                  ("z_valid", z_frac, int((~z_valid).sum()))):
+        for name, n_bad in (
+            ("xy_valid", int((~xy_valid).sum())),
+            ("z_valid", int((~z_valid).sum())),
+        ):
             if n_bad:
                 axes = "x and y" if name == "xy_valid" else "z"
-                msg = (f"{path}: vehicle_local_position {name} = 0 in {n_bad} of "
-                       f"{len(xy_valid)} samples; {axes} set to NaN there and pos_valid False")
+                msg = (
+                    f"{path}: vehicle_local_position {name} = 0 in {n_bad} of "
+                    f"{len(xy_valid)} samples; {axes} set to NaN there and pos_valid False"
+                )
                 log.warning(msg)
                 warnings_.append(msg)
         extra = {"xy_valid_fraction": xy_frac, "z_valid_fraction": z_frac}
     else:
         odo = _topic(ulog, path, "vehicle_odometry")
         t = summary("vehicle_odometry", odo) * 1e-6
-        pf = ("position[0]", "position[1]", "position[2]") if "position[0]" in odo else ("x", "y", "z")
+        pf = (
+            ("position[0]", "position[1]", "position[2]")
+            if "position[0]" in odo
+            else ("x", "y", "z")
+        )
         p = np.column_stack([field(odo, "vehicle_odometry", f) for f in pf])
         q_wxyz = np.column_stack([field(odo, "vehicle_odometry", f"q[{k}]") for k in range(4)])
         q, rot_ok = _normalise_quats(q_wxyz[:, [1, 2, 3, 0]], path, "vehicle_odometry.q")
@@ -445,23 +496,44 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
             topics["vehicle_odometry"][frame_key] = frames_logged
         pos_ok = np.isfinite(p).all(1)
         df = pd.DataFrame(
-            {"t_s": t, "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
-             "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
-             "pos_valid": pos_ok, "rot_valid": rot_ok}
+            {
+                "t_s": t,
+                "x_m": p[:, 0],
+                "y_m": p[:, 1],
+                "z_m": p[:, 2],
+                "qx": q[:, 0],
+                "qy": q[:, 1],
+                "qz": q[:, 2],
+                "qw": q[:, 3],
+                "pos_valid": pos_ok,
+                "rot_valid": rot_ok,
+            }
         )
         if (~pos_ok).any():
-            msg = f"{path}: vehicle_odometry position NaN in {int((~pos_ok).sum())} of {len(t)} samples"
+            n_bad = int((~pos_ok).sum())
+            msg = f"{path}: vehicle_odometry position NaN in {n_bad} of {len(t)} samples"
             log.warning(msg)
             warnings_.append(msg)
         extra = {}
     header_s = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
-    out = _finish(df, {"source": f"px4_ulog:{source}", "path": str(path),
-                       "frames": "L = local NED, Q = body FRD", "topics": topics,
-                       "header_duration_s": float(header_s), "warnings": warnings_, **extra})
+    out = _finish(
+        df,
+        {
+            "source": f"px4_ulog:{source}",
+            "path": str(path),
+            "frames": "L = local NED, Q = body FRD",
+            "topics": topics,
+            "header_duration_s": float(header_s),
+            "warnings": warnings_,
+            **extra,
+        },
+    )
     if header_s > out.attrs["span_s"] + 1.0:
-        msg = (f"{path}: ULog header spans {header_s:.3f} s but the pose data span "
-               f"{out.attrs['span_s']:.3f} s ({out.attrs['t_start_s']:.6f} to "
-               f"{out.attrs['t_end_s']:.6f} s since boot); using the data span")
+        msg = (
+            f"{path}: ULog header spans {header_s:.3f} s but the pose data span "
+            f"{out.attrs['span_s']:.3f} s ({out.attrs['t_start_s']:.6f} to "
+            f"{out.attrs['t_end_s']:.6f} s since boot); using the data span"
+        )
         log.warning(msg)
         out.attrs["warnings"].append(msg)
     if not out["pos_valid"].any():
