@@ -17,6 +17,11 @@ from scipy.spatial.transform import Rotation
 EULER_SEQ = "xyz"  # extrinsic x, then y, then z: R = Rz Ry Rx
 
 
+def _writable(a):
+    """A float copy: scipy's Rotation rejects read-only buffers, which pandas >= 3 hands out."""
+    return np.array(a, dtype=float)
+
+
 def wrap_angle(angle_rad):
     """Wrap angles to (-pi, pi]."""
     a = np.asarray(angle_rad, dtype=float)
@@ -62,12 +67,12 @@ def transform_points(T_A_B, p_B):
 
 def R_from_rvec(rvec):
     """Rotation matrices from Rodrigues vectors, shape (3,) or (N, 3) -> (3, 3) or (N, 3, 3)."""
-    return Rotation.from_rotvec(np.asarray(rvec, dtype=float)).as_matrix()
+    return Rotation.from_rotvec(_writable(rvec)).as_matrix()
 
 
 def rvec_from_R(R):
     """Rodrigues vectors from rotation matrices, (3, 3) or (N, 3, 3) -> (3,) or (N, 3)."""
-    return Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec()
+    return Rotation.from_matrix(_writable(R)).as_rotvec()
 
 
 def T_from_rvec_tvec(rvec, tvec):
@@ -91,12 +96,12 @@ def euler_from_R(R):
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
-        return Rotation.from_matrix(np.asarray(R, dtype=float)).as_euler(EULER_SEQ)
+        return Rotation.from_matrix(_writable(R)).as_euler(EULER_SEQ)
 
 
 def R_from_euler(rpy):
     """Rotation matrices from roll, pitch, yaw (radians), shape (3,) or (N, 3)."""
-    return Rotation.from_euler(EULER_SEQ, np.asarray(rpy, dtype=float)).as_matrix()
+    return Rotation.from_euler(EULER_SEQ, _writable(rpy)).as_matrix()
 
 
 def pose6_from_T(T):
@@ -113,23 +118,23 @@ def T_from_pose6(pose6):
 
 def quat_from_R(R):
     """Scalar-last quaternions (qx, qy, qz, qw) with qw >= 0."""
-    q = Rotation.from_matrix(np.asarray(R, dtype=float)).as_quat()
+    q = Rotation.from_matrix(_writable(R)).as_quat()
     return np.where(q[..., 3:4] < 0, -q, q)
 
 
 def R_from_quat(q_xyzw):
     """Rotation matrices from scalar-last quaternions (qx, qy, qz, qw)."""
-    return Rotation.from_quat(np.asarray(q_xyzw, dtype=float)).as_matrix()
+    return Rotation.from_quat(_writable(q_xyzw)).as_matrix()
 
 
 def rotation_angle(R):
     """Angle (radians, in [0, pi]) of rotation matrices."""
-    return np.linalg.norm(Rotation.from_matrix(np.asarray(R, dtype=float)).as_rotvec(), axis=-1)
+    return np.linalg.norm(Rotation.from_matrix(_writable(R)).as_rotvec(), axis=-1)
 
 
 def mean_rotation(R, weights=None):
     """Chordal L2 mean of rotations (N, 3, 3): the proper mean, not a mean of Euler angles."""
-    return Rotation.from_matrix(np.asarray(R, dtype=float)).mean(weights=weights).as_matrix()
+    return Rotation.from_matrix(_writable(R)).mean(weights=weights).as_matrix()
 
 
 def pose_difference(T_ref, T_est):
