@@ -199,11 +199,6 @@ def test_mean_rotation_of_symmetric_spread_is_the_centre():
     np.testing.assert_allclose(tf.mean_rotation(R), R0, atol=1e-9)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="bug: R_from_rvec passes read-only arrays to scipy's from_rotvec, which rejects "
-    "them (pandas >= 3 to_numpy() returns read-only views); fix: np.array(rvec, dtype=float)",
-)
 def test_R_from_rvec_accepts_read_only_arrays():
     """R_from_rvec (and T_from_rvec_tvec) work on read-only arrays, as pandas returns them."""
     rvec = np.array([0.1, 0.2, 0.3])
