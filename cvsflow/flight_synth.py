@@ -38,6 +38,9 @@ R_Q_B_DEFAULT = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
 T_Q_B_DEFAULT = make_T(R_Q_B_DEFAULT, [-0.15, -0.2, -0.15])
 
 
+MIN_HEIGHT_M = 0.5  # the body never flies lower above the ground (metres)
+
+
 @dataclass
 class FlightDemo:
     """A rendered flight: inputs of :func:`cvsflow.flight.evaluate_flight` and their truth.
@@ -109,6 +112,9 @@ def true_flight(seed: int, duration_s: float, range_m=(3.0, 20.0), T_L_C=None):
         r = np.clip(r, r_lo, r_hi)
         a = bearing(t)
         b = np.deg2rad(5.0) + elev(t)  # above the horizon through the lens
+        b = np.maximum(
+            b, np.arcsin(np.clip((MIN_HEIGHT_M + c[2]) / r, -1.0, 1.0))
+        )  # off the ground
         p = c + r[:, None] * np.column_stack(
             [np.cos(b) * np.cos(a), np.cos(b) * np.sin(a), -np.sin(b)]
         )

@@ -382,3 +382,20 @@ def test_maths_module_has_no_io_or_plotting_imports():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stdout + out.stderr
     importlib.import_module("cvsflow.flight")
+
+
+def test_tum_export_reproduces_ape_without_alignment(demo, tmp_path):
+    """The exported aligned trajectories (TUM), re-read and associated as evo would, give the
+    same APE with no further alignment (1e-8 m, the file's 9 decimals)."""
+    from cvsflow.io.flightlog import read_tum, write_tum
+
+    r = F.evaluate_flight(demo.reference, demo.onboard, demo.T_Q_B, demo.Sigma_ref)
+    write_tum(r.ref_aligned, tmp_path / "ref.txt")
+    write_tum(r.est_aligned, tmp_path / "est.txt")
+    ref, est = read_tum(tmp_path / "ref.txt"), read_tum(tmp_path / "est.txt")
+    i_r, i_e = F.associate(ref["t_s"].to_numpy(), est["t_s"].to_numpy())
+    assert len(i_r) == r.stats["n_pairs"]
+    e = F.ape_translation(
+        ref[["x_m", "y_m", "z_m"]].to_numpy()[i_r], est[["x_m", "y_m", "z_m"]].to_numpy()[i_e]
+    )
+    assert F.error_stats(e)["rmse"] == pytest.approx(r.stats["ape_trans"]["rmse"], abs=1e-8)

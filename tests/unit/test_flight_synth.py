@@ -37,6 +37,7 @@ def test_geometry_range_and_board_faces_camera(demo):
     dq = np.linalg.norm(T_C_Q[:, :3, 3], axis=1)
     assert dq.min() >= 3.0 - 1e-9 and dq.max() <= 20.0 + 1e-9
     assert dq.max() - dq.min() > 10.0
+    assert demo.truth["z_m"].max() <= -0.5 + 1e-9  # NED: at least 0.5 m above the ground
     T_C_B = T_C_Q @ T_Q_B_DEFAULT
     d = np.linalg.norm(T_C_B[:, :3, 3], axis=1)
     cos_view = np.einsum("ni,ni->n", T_C_B[:, :3, 2], T_C_B[:, :3, 3] / d[:, None])
