@@ -15,6 +15,8 @@ include: "workflow/rules/synth.smk"
 include: "workflow/rules/camera.smk"
 include: "workflow/rules/vicon.smk"
 include: "workflow/rules/align.smk"
+include: "workflow/rules/optimise.smk"
+include: "workflow/rules/analyse.smk"
 
 
 report: "workflow/report/workflow.rst"

@@ -70,8 +70,47 @@ def session_targets(session):
             f"results/{session}/pairs.parquet",
             f"results/{session}/figures/sync.png",
         ]
+        out += optimiser_targets(session)
     return out
 
 
 def all_targets():
     return [t for s in SESSIONS for t in session_targets(s)]
+
+
+wildcard_constraints:
+    method="seed|se3",
+    finit="calib|[0-9]+(\.[0-9]+)?",
+
+
+def finit_label(value):
+    """Wildcard value of a focal initialisation: 'calib' or the px value without trailing zeros."""
+    return "calib" if value == "calib" else f"{float(value):g}"
+
+
+def f_init_px(finit):
+    return None if finit == "calib" else float(finit)
+
+
+def analysis_figure(name):
+    return report(
+        f"results/{{session}}/{{method}}/{{finit}}/figures/{name}.png",
+        caption=f"../report/{name}.rst",
+        category="Errors",
+        subcategory="{method}, f_init {finit}",
+        labels={
+            "session": "{session}",
+            "method": "{method}",
+            "f_init": "{finit}",
+            "figure": name,
+        },
+    )
+
+
+def optimiser_targets(session):
+    out = []
+    for method in config["optimise"]["methods"]:
+        for value in config["optimise"]["f_init"]:
+            base = f"results/{session}/{method}/{finit_label(value)}"
+            out += [f"{base}/result.yaml", f"{base}/stats.json"]
+    return out

@@ -1,0 +1,25 @@
+rule analyse:
+    input:
+        iterations="results/{session}/{method}/{finit}/iterations.parquet",
+        errors="results/{session}/{method}/{finit}/errors.parquet",
+        result="results/{session}/{method}/{finit}/result.yaml",
+    output:
+        stats="results/{session}/{method}/{finit}/stats.json",
+        convergence=analysis_figure("convergence"),
+        histograms=analysis_figure("histograms"),
+        qq=analysis_figure("qq"),
+        vicon_vs_cvs=analysis_figure("vicon_vs_cvs"),
+        covariance=analysis_figure("covariance"),
+        error_maps=analysis_figure("error_maps"),
+    log:
+        "logs/{session}/analyse.{method}.{finit}.log",
+    benchmark:
+        "benchmarks/{session}/analyse.{method}.{finit}.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        analyse=config["analyse"],
+    script:
+        "../scripts/analyse.py"

@@ -1,0 +1,30 @@
+"""Error statistics and the chapter's figures 1.6-1.9 for one optimiser run (rule analyse)."""
+
+import json
+
+from cvsflow import analyse
+from cvsflow.io import atomic_output, read_parquet, read_yaml, save_figure
+from cvsflow.io.logs import stage_logging
+from cvsflow.plots import results as plots
+
+with stage_logging(snakemake.log[0], "analyse") as log:
+    errors = read_parquet(snakemake.input.errors)
+    result = read_yaml(snakemake.input.result)
+    cfg = snakemake.params.analyse
+    stats = analyse.error_statistics(errors)
+    stats["optimum"] = analyse.optimum_summary(result)
+    with atomic_output(snakemake.output.stats) as tmp:
+        tmp.write_text(json.dumps(stats, indent=2))
+    tests = analyse.normality_tests(errors)
+    Sigma, corr = analyse.error_covariance(errors)
+    out = snakemake.output
+    save_figure(plots.plot_convergence(analyse.convergence(read_parquet(snakemake.input.iterations))),
+                out.convergence)
+    save_figure(plots.plot_error_histograms(errors, tests), out.histograms)
+    save_figure(plots.plot_qq(analyse.qq_data(errors)), out.qq)
+    save_figure(plots.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(errors, result)), out.vicon_vs_cvs)
+    save_figure(plots.plot_covariance(Sigma, corr), out.covariance)
+    maps = analyse.error_maps(errors, bins=cfg["contour_bins"], min_count=cfg["contour_min_count"])
+    save_figure(plots.plot_error_maps(maps), out.error_maps)
+    log.info("n = %d pairs; error norm %.4f -> %.4f m", stats["n"],
+             stats["optimum"]["norm_normalised_init_m"], stats["optimum"]["norm_normalised_final_m"])

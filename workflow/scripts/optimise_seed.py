@@ -1,0 +1,26 @@
+"""The chapter's focal-length and offset optimisation, eqs. 1.5-1.12 (rule optimise_seed)."""
+
+import numpy as np
+
+from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.io.logs import stage_logging
+from cvsflow.optimise.seed import optimise_seed
+
+with stage_logging(snakemake.log[0], "optimise_seed") as log:
+    camera = read_yaml(snakemake.input.camera)
+    f_init = snakemake.params.f_init_px
+    out = optimise_seed(
+        read_parquet(snakemake.input.pairs),
+        read_parquet(snakemake.input.corners),
+        np.array(camera["K"]),
+        np.array(camera["dist"]),
+        snakemake.params.board,
+        f_init_px=None if f_init is None else (f_init, f_init),
+        n_workers=snakemake.threads,
+        **snakemake.params.seed,
+    )
+    log.info("fx %.2f px, fy %.2f px after %d iterations", out.result["fx_px"], out.result["fy_px"],
+             out.result["iterations"])
+    write_parquet(out.iterations, snakemake.output.iterations)
+    write_parquet(out.errors, snakemake.output.errors)
+    write_yaml(out.result, snakemake.output.result)
