@@ -1,0 +1,1397 @@
+"""The ``se3`` method: joint SE(3) calibration by corner reprojection over all frames.
+
+Unknowns (all shared by every frame; there are no per-frame unknowns):
+
+- the intrinsics fx, fy, cx, cy (px) and the distortion terms k1, k2, p1, p2, k3 that the
+  caller frees (OpenCV's 5-term model);
+- ``T_Cm_C``: the camera optical frame C in the camera-marker body Cm (rotation as a local
+  perturbation ``R_Cm_C = R0_Cm_C @ exp([w_C]x)``, w_C in rad about the axes of C; translation
+  t_Cm_C in m, in Cm);
+- ``T_Bm_B``: the board frame B in the board-marker body Bm (``R_Bm_B = R0_Bm_B @ exp([w_B]x)``,
+  w_B in rad about the axes of B; t_Bm_B in m, in Bm);
+- ``dt_offset_s``: the time offset, ``t_vicon_s = t_video_s + dt_offset_s`` (docs/contracts.md),
+  a refinement of the sync stage's value.
+
+Residuals: for video frame i at time t_i, the board pose predicted by the Vicon,
+
+    T_C_B,i = inv(T_Cm_C) @ inv(T_W_Cm(t_i + dt)) @ T_W_Bm(t_i + dt) @ T_Bm_B      (1)
+
+projects the board's inner corners (corner k at ((k % nx) s, (k // nx) s, 0) in B) through
+K and dist (:func:`project_points`); the residual is observed minus projected, in px, under a
+robust loss (soft_l1 or Huber, scale ``f_scale_px``). The Vicon poses are interpolated at
+t_i + dt (linear in position, SLERP in rotation) so dt is a continuous unknown.
+
+Initialisation is closed form: the time offset from sync, the intrinsics from calibration,
+and T_Cm_C, T_Bm_B from the robot-world/hand-eye problem A_i X = Z B_i
+(:func:`solve_hand_eye`, Shah 2013) with A_i = T_Cm_Bm,i (Vicon), B_i = T_C_B,i (PnP),
+X = T_Bm_B, Z = T_Cm_C.
+
+Refinement: ``scipy.optimize.least_squares`` (trust-region reflective) with our own Jacobian
+(central differences per shared parameter). Since every residual depends on the same ~22
+shared parameters, the Jacobian is dense but narrow (2 P N x 22); no sparsity pattern is
+needed and each iteration costs ~45 evaluations of (1).
+
+Uncertainty: the Gauss-Newton covariance of an M-estimator (Huber 1981, sec. 7.6)
+``sigma_eff^2 (J^T J)^-1`` with ``sigma_eff^2 = m/(m-n) mean(psi^2) / mean(psi')^2`` (equal to
+``sum r^2 / (m - n)`` for a quadratic loss), and a cluster-robust sandwich
+``H^-1 (sum_c g_c g_c^T) H^-1`` over contiguous time blocks (residuals of one frame share the
+Vicon pose noise and are not independent). Standard errors are the larger of the two per
+parameter; correlations (identifiability) come from ``(J^T J)^-1``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import cv2
+import numpy as np
+import pandas as pd
+from scipy.optimize import least_squares
+
+from cvsflow import transforms as tf
+from cvsflow.errors import OptimiseError
+from cvsflow.optimise import OptimiseResult
+
+log = logging.getLogger(__name__)
+
+#: Names of the intrinsic parameters, in the order of the parameter vector.
+INTRINSIC_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+#: Intrinsics freed by default.
+DEFAULT_FREE = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+#: Names of the six pose parameters of each marker transform (m, rad).
+POSE_PARAM_SUFFIXES = ("rx_rad", "ry_rad", "rz_rad", "x_m", "y_m", "z_m")
+LOSSES = ("linear", "soft_l1", "huber")
+#: Fewest frames the solver accepts.
+MIN_FRAMES = 10
+#: Half-width (s) of the time window around t_i + dt0 that must hold valid Vicon samples.
+DT_MARGIN_S = 0.05
+
+
+# --------------------------------------------------------------------------- projection
+
+
+def project_points(p_C, K, dist):
+    """Project camera-frame points to distorted pixels with OpenCV's 5-term model.
+
+    Parameters
+    ----------
+    p_C : ndarray, shape (..., 3)
+        Points in the camera optical frame C (x right, y down, z forward), metres; z > 0.
+    K : ndarray, shape (3, 3)
+        Camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], px.
+    dist : ndarray, shape (5,)
+        [k1, k2, p1, p2, k3] (OpenCV order), dimensionless.
+
+    Returns
+    -------
+    uv_px : ndarray, shape (..., 2)
+        Distorted pixel coordinates (u right, v down), px.
+
+    Notes
+    -----
+    OpenCV ``projectPoints`` (calib3d docs, "Detailed description"): x' = X/Z, y' = Y/Z,
+    r^2 = x'^2 + y'^2, x'' = x'(1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x'y' + p2 (r^2 + 2x'^2),
+    y'' = y'(1 + ...) + p1 (r^2 + 2y'^2) + 2 p2 x'y', u = fx x'' + cx, v = fy y'' + cy.
+    Skew is taken as zero.
+    """
+    p_C = np.asarray(p_C, dtype=float)
+    K = np.asarray(K, dtype=float)
+    k1, k2, p1, p2, k3 = np.asarray(dist, dtype=float).ravel()[:5]
+    x = p_C[..., 0] / p_C[..., 2]
+    y = p_C[..., 1] / p_C[..., 2]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    xy = x * y
+    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
+    return np.stack([K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=-1)
+
+
+def board_points_B(board):
+    """Inner-corner positions of the board in its own frame B.
+
+    Parameters
+    ----------
+    board : dict
+        ``squares_x``, ``squares_y`` (int, squares along x and y of B), ``square_m`` (m).
+
+    Returns
+    -------
+    p_B : ndarray, shape (P, 3)
+        Corner k at ((k % nx) s, (k // nx) s, 0), nx = squares_x - 1, metres.
+
+    Raises
+    ------
+    OptimiseError
+        Missing keys, fewer than 2 x 2 inner corners or a non-positive square.
+    """
+    try:
+        nx = int(board["squares_x"]) - 1
+        ny = int(board["squares_y"]) - 1
+        s = float(board["square_m"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise OptimiseError(
+            f"se3: board {board!r}: expected squares_x, squares_y (int) and square_m (m)"
+        ) from exc
+    if nx < 2 or ny < 2 or not s > 0.0:
+        raise OptimiseError(
+            f"se3: board has {nx}x{ny} inner corners of {s} m; expected >= 2x2 and square_m > 0"
+        )
+    k = np.arange(nx * ny)
+    return np.stack([(k % nx) * s, (k // nx) * s, np.zeros(k.size)], axis=1)
+
+
+def K_from_intrinsics(fx, fy, cx, cy):
+    """Camera matrix (3, 3) from focal lengths and principal point, px."""
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+# --------------------------------------------------------------------------- Vicon tracks
+
+
+def body_track(bodies, body):
+    """One rigid body of a bodies table as arrays, sorted by time.
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        bodies.parquet (long): ``t_s, body, valid, x_m, y_m, z_m, qx, qy, qz, qw``.
+    body : str
+        ``"camera"`` (T_W_Cm) or ``"board"`` (T_W_Bm).
+
+    Returns
+    -------
+    t_s : ndarray, shape (N,)
+        Vicon-clock times, s.
+    T_W_X : ndarray, shape (N, 4, 4)
+        Body pose in the Vicon world W, metres; identity where invalid.
+    valid : ndarray of bool, shape (N,)
+
+    Raises
+    ------
+    OptimiseError
+        Missing columns, no such body, or fewer than two valid samples.
+    """
+    need = {"t_s", "body", "valid", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"}
+    missing = need - set(bodies.columns)
+    if missing:
+        raise OptimiseError(
+            f"se3: bodies table lacks columns {sorted(missing)} (docs/contracts.md bodies.parquet)"
+        )
+    sub = bodies[bodies["body"] == body].sort_values("t_s", kind="stable")
+    if sub.empty:
+        raise OptimiseError(
+            f"se3: bodies table has no body {body!r} (has {sorted(set(bodies['body']))})"
+        )
+    t = sub["t_s"].to_numpy(float)
+    q = sub[["qx", "qy", "qz", "qw"]].to_numpy(float, copy=True)
+    p = sub[["x_m", "y_m", "z_m"]].to_numpy(float, copy=True)
+    valid = sub["valid"].to_numpy(bool) & np.isfinite(q).all(axis=1) & np.isfinite(p).all(axis=1)
+    valid &= np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1) > 0.5
+    if valid.sum() < 2:
+        raise OptimiseError(f"se3: body {body!r} has {int(valid.sum())} valid samples; need >= 2")
+    if np.any(np.diff(t) <= 0):
+        i = int(np.argmax(np.diff(t) <= 0))
+        raise OptimiseError(
+            f"se3: body {body!r}: t_s not strictly increasing at row {i + 1} ({t[i]} -> {t[i + 1]})"
+        )
+    q[~valid] = [0.0, 0.0, 0.0, 1.0]
+    p[~valid] = 0.0
+    return t, tf.make_T(tf.R_from_quat(q), p), valid
+
+
+def smooth_track(t_s, T_W_X, valid, window_s):
+    """Moving average of a body track over a centred window (for a static or slow body).
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (N,)
+        Sample times, s (uniform rate).
+    T_W_X : ndarray, shape (N, 4, 4)
+        Body poses in W, metres.
+    valid : ndarray of bool, shape (N,)
+    window_s : float
+        Window length, s; 0 or less returns the track unchanged.
+
+    Returns
+    -------
+    T_W_X_smooth : ndarray, shape (N, 4, 4)
+        Positions averaged over the valid samples of the window; rotations averaged as
+        rotation vectors about the take's chordal mean rotation (exact for rotations within a
+        few tens of degrees of it).
+
+    Notes
+    -----
+    The camera of a session is static in practice and its markers span only ~0.17 m, so the
+    raw Vicon orientation of the camera body carries mrad-level noise that reaches ~1 px at
+    the board (lever arm of metres). Averaging over a window removes it without assuming a
+    static camera; a camera that moves is followed with a lag-free (centred) filter.
+    """
+    T_W_X = np.asarray(T_W_X, float)
+    if window_s <= 0 or len(t_s) < 3:
+        return T_W_X.copy()
+    rate = (len(t_s) - 1) / (t_s[-1] - t_s[0])
+    n = 2 * int(round(0.5 * window_s * rate)) + 1  # odd: a centred window, no time shift
+    w = valid.astype(float)
+    R_ref = tf.mean_rotation(T_W_X[valid, :3, :3])
+    rv = tf.rvec_from_R(R_ref.T @ T_W_X[:, :3, :3])
+    kernel = np.ones(n)
+
+    def box(a):
+        return np.convolve(a, kernel, mode="same")
+
+    den = np.maximum(box(w), 1e-12)
+    p = np.stack([box(w * T_W_X[:, j, 3]) for j in range(3)], axis=1) / den[:, None]
+    r = np.stack([box(w * rv[:, j]) for j in range(3)], axis=1) / den[:, None]
+    return tf.make_T(R_ref @ tf.R_from_rvec(r), p)
+
+
+def is_static(T_W_X, tol_m, tol_rad):
+    """True when every pose of a (smoothed) track lies within tol_m and tol_rad of its mean.
+
+    Parameters
+    ----------
+    T_W_X : ndarray, shape (N, 4, 4)
+        Valid body poses, metres.
+    tol_m, tol_rad : float
+        Largest deviation of the position (m) and rotation angle (rad) from the mean.
+    """
+    p = T_W_X[:, :3, 3]
+    R_mean = tf.mean_rotation(T_W_X[:, :3, :3])
+    dev_m = np.linalg.norm(p - p.mean(axis=0), axis=1).max()
+    dev_rad = tf.rotation_angle(R_mean.T @ T_W_X[:, :3, :3]).max()
+    return bool(dev_m <= tol_m and dev_rad <= tol_rad)
+
+
+class _Track:
+    """Linear/SLERP interpolator of one body track, vectorised over query times."""
+
+    def __init__(self, t_s, T_W_X, valid, smooth_s=0.0, static_tol=None):
+        self.t = np.asarray(t_s, float)
+        self.valid = np.asarray(valid, bool)
+        T_W_X = smooth_track(self.t, T_W_X, self.valid, smooth_s)
+        self.static = False
+        if static_tol is not None:
+            self.static = is_static(T_W_X[self.valid], *static_tol)
+            if self.static:  # one pose for the take: the mean of every valid sample
+                T_mean = tf.make_T(
+                    tf.mean_rotation(T_W_X[self.valid, :3, :3]), T_W_X[self.valid, :3, 3].mean(0)
+                )
+                T_W_X = np.broadcast_to(T_mean, T_W_X.shape).copy()
+        self.R = T_W_X[:, :3, :3]
+        self.p = T_W_X[:, :3, 3]
+        # relative rotation of each sample interval, as a rotation vector in the earlier sample
+        self.w = tf.rvec_from_R(np.swapaxes(self.R[:-1], 1, 2) @ self.R[1:])
+
+    def _index(self, tq):
+        return np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self.t) - 2)
+
+    def ok(self, tq):
+        """True where tq lies inside the take between two valid samples."""
+        tq = np.asarray(tq, float)
+        i0 = self._index(tq)
+        inside = (tq >= self.t[0]) & (tq <= self.t[-1])
+        return inside & self.valid[i0] & self.valid[i0 + 1]
+
+    def __call__(self, tq, rates=False):
+        """T_W_X at times tq (K,), shape (K, 4, 4): linear position, SLERP rotation.
+
+        With ``rates``, also the velocity v_W (K, 3), m/s, and the body-frame angular
+        velocity omega_X (K, 3), rad/s, of the interpolant (dR/dt = R [omega_X]x).
+        """
+        tq = np.asarray(tq, float)
+        i0 = self._index(tq)
+        h = self.t[i0 + 1] - self.t[i0]
+        frac = (tq - self.t[i0]) / h
+        R = self.R[i0] @ tf.R_from_rvec(frac[:, None] * self.w[i0])  # SLERP
+        dp = self.p[i0 + 1] - self.p[i0]
+        T = tf.make_T(R, self.p[i0] + frac[:, None] * dp)
+        if not rates:
+            return T
+        return T, dp / h[:, None], self.w[i0] / h[:, None]
+
+
+def interpolate_body(bodies, body, t_query_s):
+    """Pose of one body at arbitrary Vicon-clock times (linear position, SLERP rotation).
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        bodies.parquet (see :func:`body_track`).
+    body : str
+        ``"camera"`` or ``"board"``.
+    t_query_s : array_like, shape (K,)
+        Vicon-clock times, s.
+
+    Returns
+    -------
+    T_W_X : ndarray, shape (K, 4, 4)
+        Interpolated pose, metres; NaN where ``ok`` is False.
+    ok : ndarray of bool, shape (K,)
+        Query inside the take, between two valid samples.
+    """
+    track = _Track(*body_track(bodies, body))
+    tq = np.atleast_1d(np.asarray(t_query_s, float))
+    T = track(tq)
+    ok = track.ok(tq)
+    T[~ok] = np.nan
+    return T, ok
+
+
+# --------------------------------------------------------------------------- hand-eye init
+
+
+def solve_hand_eye(T_Cm_Bm, T_C_B):
+    """Closed-form T_Cm_C and T_Bm_B from pose pairs (robot-world/hand-eye, AX = ZB).
+
+    Parameters
+    ----------
+    T_Cm_Bm : ndarray, shape (N, 4, 4)
+        Board-marker body in the camera-marker body, from the Vicon (A_i), metres.
+    T_C_B : ndarray, shape (N, 4, 4)
+        Board in the camera optical frame, from PnP (B_i), metres.
+
+    Returns
+    -------
+    T_Cm_C : ndarray, shape (4, 4)
+        Camera optical frame in the camera-marker body (Z), metres.
+    T_Bm_B : ndarray, shape (4, 4)
+        Board frame in the board-marker body (X), metres.
+
+    Raises
+    ------
+    OptimiseError
+        Fewer than 3 pairs, mismatched shapes, or rotations too alike to separate X from Z.
+
+    Notes
+    -----
+    T_Cm_Bm,i @ T_Bm_B = T_Cm_C @ T_C_B,i, i.e. A_i X = Z B_i. Rotation: R_A R_X = R_Z R_B is
+    linear in (vec R_X, vec R_Z) via Kronecker products,
+    [I (x) R_A, -(R_B^T (x) I)] [vec R_X; vec R_Z] = 0 (Shah 2013, "Solving the robot-world/
+    hand-eye calibration problem using the Kronecker product", eq. 11); the null vector is
+    scaled to det > 0 and each block projected to SO(3). Translation:
+    [R_A, -I] [t_X; t_Z] = R_Z t_B - t_A, linear least squares (Shah eq. 14). This is the
+    problem ``cv2.calibrateRobotWorldHandEye`` solves with A = cTw ("world2cam"),
+    X = wTb ("base2world"), Z = cTg ("gripper2cam"), B = gTb ("base2gripper").
+    """
+    A = np.asarray(T_Cm_Bm, float)
+    B = np.asarray(T_C_B, float)
+    if A.shape != B.shape or A.ndim != 3 or A.shape[1:] != (4, 4):
+        raise OptimiseError(
+            f"se3 hand-eye: T_Cm_Bm {A.shape} and T_C_B {B.shape}; expected equal (N, 4, 4)"
+        )
+    keep = np.isfinite(A).all(axis=(1, 2)) & np.isfinite(B).all(axis=(1, 2))
+    A, B = A[keep], B[keep]
+    n = len(A)
+    if n < 3:
+        raise OptimiseError(f"se3 hand-eye: {n} usable pose pairs; need at least 3")
+    RA, RB = A[:, :3, :3], B[:, :3, :3]
+    eye3 = np.eye(3)
+    # rows of each pair: (I (x) R_A) vec X - (R_B^T (x) I) vec Z = 0  (column-major vec)
+    M = np.concatenate(
+        [
+            np.einsum("ij,nkl->nikjl", eye3, RA).reshape(n, 9, 9),
+            -np.einsum("nji,kl->nikjl", RB, eye3).reshape(n, 9, 9),
+        ],
+        axis=2,
+    )
+    MtM = np.einsum("nij,nik->jk", M, M)
+    evals, evecs = np.linalg.eigh(MtM)
+    if evals[1] < 1e-9 * max(evals[-1], 1e-300) * n:
+        raise OptimiseError(
+            "se3 hand-eye: the board rotations are too alike to separate T_Cm_C from T_Bm_B "
+            f"(second smallest eigenvalue {evals[1]:.3g}); the board must turn about two axes"
+        )
+    v = evecs[:, 0]
+    X = v[:9].reshape(3, 3, order="F")
+    Z = v[9:].reshape(3, 3, order="F")
+    if np.linalg.det(X) < 0:
+        X, Z = -X, -Z
+    R_X, R_Z = _project_SO3(X), _project_SO3(Z)
+    # translations: R_A t_X - t_Z = R_Z t_B - t_A
+    lhs = np.concatenate([RA, -np.broadcast_to(eye3, RA.shape)], axis=2).reshape(3 * n, 6)
+    rhs = (np.einsum("ij,nj->ni", R_Z, B[:, :3, 3]) - A[:, :3, 3]).reshape(3 * n)
+    t_XZ = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+    return tf.make_T(R_Z, t_XZ[3:]), tf.make_T(R_X, t_XZ[:3])
+
+
+def _project_SO3(M):
+    """Nearest rotation matrix (Frobenius) to a 3x3 matrix."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
+# --------------------------------------------------------------------------- corners, PnP
+
+
+def corner_arrays(corners, n_corners):
+    """Complete found frames of a corners table as arrays.
+
+    Parameters
+    ----------
+    corners : DataFrame
+        corners.parquet: ``frame, t_s, found, corner, u_px, v_px``.
+    n_corners : int
+        Inner corners per board (P).
+
+    Returns
+    -------
+    frame : ndarray of int, shape (F,)
+    t_s : ndarray, shape (F,)
+        Video times, s.
+    uv_px : ndarray, shape (F, P, 2)
+        Observed distorted pixels, corner k in row k.
+
+    Raises
+    ------
+    OptimiseError
+        Missing columns or no complete frame.
+    """
+    need = {"frame", "t_s", "found", "corner", "u_px", "v_px"}
+    missing = need - set(corners.columns)
+    if missing:
+        raise OptimiseError(
+            f"se3: corners table lacks columns {sorted(missing)} (docs/contracts.md corners.parquet)"
+        )
+    c = corners[corners["found"].astype(bool) & (corners["corner"] >= 0)]
+    c = c[c["corner"] < n_corners].drop_duplicates(["frame", "corner"])
+    if c.empty:
+        raise OptimiseError("se3: corners table has no found frame")
+    frames = np.sort(c["frame"].unique())
+    t = c.groupby("frame")["t_s"].first().reindex(frames).to_numpy(float)
+    uv = np.full((len(frames), n_corners, 2), np.nan)
+    fi = np.searchsorted(frames, c["frame"].to_numpy())
+    ci = c["corner"].to_numpy(int)
+    uv[fi, ci, 0] = c["u_px"].to_numpy(float)
+    uv[fi, ci, 1] = c["v_px"].to_numpy(float)
+    complete = np.isfinite(uv).all(axis=(1, 2)) & np.isfinite(t)
+    n_bad = int((~complete).sum())
+    if n_bad:
+        log.warning("se3: %d found frames without all %d corners skipped", n_bad, n_corners)
+    if not complete.any():
+        raise OptimiseError(f"se3: no frame has all {n_corners} corners with finite u_px, v_px")
+    return frames[complete], t[complete], uv[complete]
+
+
+def solve_pnp_frames(uv_px, p_B, K, dist):
+    """PnP pose T_C_B of every frame (IPPE then Levenberg-Marquardt refinement).
+
+    Parameters
+    ----------
+    uv_px : ndarray, shape (F, P, 2)
+        Observed distorted pixels.
+    p_B : ndarray, shape (P, 3)
+        Corner positions in the board frame B, metres (planar, z = 0).
+    K : ndarray, shape (3, 3)
+        Camera matrix, px.
+    dist : ndarray, shape (5,)
+        [k1, k2, p1, p2, k3].
+
+    Returns
+    -------
+    T_C_B : ndarray, shape (F, 4, 4)
+        Board in camera, metres; NaN where PnP failed.
+    ok : ndarray of bool, shape (F,)
+    """
+    K = np.asarray(K, np.float64)
+    dist = np.asarray(dist, np.float64).ravel()
+    obj = np.asarray(p_B, np.float64).reshape(-1, 1, 3)
+    T = np.full((len(uv_px), 4, 4), np.nan)
+    ok = np.zeros(len(uv_px), bool)
+    for i, uv in enumerate(np.asarray(uv_px, np.float64)):
+        img = uv.reshape(-1, 1, 2)
+        try:
+            good, rvec, tvec = cv2.solvePnP(obj, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
+            if not good:
+                continue
+            rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, dist, rvec, tvec)
+        except cv2.error:
+            continue
+        if np.isfinite(rvec).all() and np.isfinite(tvec).all() and tvec[2, 0] > 0:
+            T[i] = tf.T_from_rvec_tvec(rvec.ravel(), tvec.ravel())
+            ok[i] = True
+    return T, ok
+
+
+# --------------------------------------------------------------------------- the model
+
+
+def _skew(v):
+    """Cross-product matrices [v]x of vectors (..., 3) -> (..., 3, 3)."""
+    v = np.asarray(v, float)
+    S = np.zeros(v.shape[:-1] + (3, 3))
+    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
+    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
+    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
+    return S
+
+
+def _right_jacobian(w):
+    """Right Jacobian of SO(3) at w (3,): exp(w + d) = exp(w) exp(Jr(w) d) to first order."""
+    w = np.asarray(w, float)
+    th = np.linalg.norm(w)
+    W = _skew(w)
+    if th < 1e-8:
+        return np.eye(3) - 0.5 * W
+    # Chirikjian (2011) eq. 10.86
+    return np.eye(3) - (1 - np.cos(th)) / th**2 * W + (th - np.sin(th)) / th**3 * (W @ W)
+
+
+def project_points_jac(p_C, K, dist):
+    """Distorted pixels and their derivatives w.r.t. the point and the intrinsics.
+
+    Parameters
+    ----------
+    p_C : ndarray, shape (..., 3)
+        Points in the camera frame C, metres.
+    K : ndarray, shape (3, 3)
+    dist : ndarray, shape (5,)
+
+    Returns
+    -------
+    uv_px : ndarray, shape (..., 2)
+    d_uv_d_p : ndarray, shape (..., 2, 3)
+        px per metre.
+    d_uv_d_intr : ndarray, shape (..., 2, 9)
+        Derivatives w.r.t. [fx, fy, cx, cy, k1, k2, p1, p2, k3].
+    """
+    p_C = np.asarray(p_C, float)
+    fx, fy = K[0, 0], K[1, 1]
+    k1, k2, p1, p2, k3 = np.asarray(dist, float).ravel()[:5]
+    iz = 1.0 / p_C[..., 2]
+    x = p_C[..., 0] * iz
+    y = p_C[..., 1] * iz
+    r2 = x * x + y * y
+    r4 = r2 * r2
+    radial = 1.0 + k1 * r2 + k2 * r4 + k3 * r4 * r2
+    drad_dr2 = k1 + 2.0 * k2 * r2 + 3.0 * k3 * r4
+    xy = x * y
+    xd = x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * xy
+    uv = np.stack([fx * xd + K[0, 2], fy * yd + K[1, 2]], axis=-1)
+    # d(xd, yd)/d(x, y)
+    a = radial + 2.0 * x * x * drad_dr2 + 2.0 * p1 * y + 6.0 * p2 * x
+    b = 2.0 * x * y * drad_dr2 + 2.0 * p1 * x + 2.0 * p2 * y
+    d = radial + 2.0 * y * y * drad_dr2 + 6.0 * p1 * y + 2.0 * p2 * x
+    # d(x, y)/d(X, Y, Z) = [[1/Z, 0, -x/Z], [0, 1/Z, -y/Z]]
+    J_p = np.zeros(p_C.shape[:-1] + (2, 3))
+    J_p[..., 0, 0] = fx * a * iz
+    J_p[..., 0, 1] = fx * b * iz
+    J_p[..., 0, 2] = -fx * (a * x + b * y) * iz
+    J_p[..., 1, 0] = fy * b * iz
+    J_p[..., 1, 1] = fy * d * iz
+    J_p[..., 1, 2] = -fy * (b * x + d * y) * iz
+    J_i = np.zeros(p_C.shape[:-1] + (2, 9))
+    J_i[..., 0, 0] = xd
+    J_i[..., 1, 1] = yd
+    J_i[..., 0, 2] = 1.0
+    J_i[..., 1, 3] = 1.0
+    J_i[..., 0, 4], J_i[..., 1, 4] = fx * x * r2, fy * y * r2
+    J_i[..., 0, 5], J_i[..., 1, 5] = fx * x * r4, fy * y * r4
+    J_i[..., 0, 6], J_i[..., 1, 6] = fx * 2.0 * xy, fy * (r2 + 2.0 * y * y)
+    J_i[..., 0, 7], J_i[..., 1, 7] = fx * (r2 + 2.0 * x * x), fy * 2.0 * xy
+    J_i[..., 0, 8], J_i[..., 1, 8] = fx * x * r4 * r2, fy * y * r4 * r2
+    return uv, J_p, J_i
+
+
+class _Model:
+    """Parameter packing, the residuals of eq. (1) and their analytic Jacobian."""
+
+    def __init__(self, intr0, free, R0_Cm_C, R0_Bm_B, fit_dt, dt0, t_video, uv, p_B, cam, brd):
+        self.intr0 = np.asarray(intr0, float)
+        self.free = np.array([name in free for name in INTRINSIC_NAMES])
+        self.R0_Cm_C, self.R0_Bm_B = R0_Cm_C, R0_Bm_B
+        self.fit_dt, self.dt0 = fit_dt, float(dt0)
+        self.t_video = t_video
+        self.uv = uv
+        self.p_B = p_B
+        self.cam, self.brd = cam, brd
+        self.names = [n for n, f in zip(INTRINSIC_NAMES, self.free, strict=True) if f]
+        self.names += [f"T_Cm_C_{s}" for s in POSE_PARAM_SUFFIXES]
+        self.names += [f"T_Bm_B_{s}" for s in POSE_PARAM_SUFFIXES]
+        if fit_dt:
+            self.names.append("dt_offset_s")
+
+    @property
+    def n_params(self):
+        return len(self.names)
+
+    def pack(self, intr, t_Cm_C, t_Bm_B, dt):
+        x = list(np.asarray(intr, float)[self.free])
+        x += [0.0, 0.0, 0.0, *t_Cm_C, 0.0, 0.0, 0.0, *t_Bm_B]
+        if self.fit_dt:
+            x.append(dt)
+        return np.array(x, float)
+
+    def _split(self, x):
+        nf = int(self.free.sum())
+        intr = self.intr0.copy()
+        intr[self.free] = x[:nf]
+        c = x[nf : nf + 6]
+        b = x[nf + 6 : nf + 12]
+        dt = x[nf + 12] if self.fit_dt else self.dt0
+        return intr, c, b, float(dt)
+
+    def unpack(self, x):
+        """(intrinsics (9,), T_Cm_C (4, 4), T_Bm_B (4, 4), dt) from a parameter vector."""
+        intr, c, b, dt = self._split(x)
+        T_Cm_C = tf.make_T(self.R0_Cm_C @ tf.R_from_rvec(c[:3]), c[3:])
+        T_Bm_B = tf.make_T(self.R0_Bm_B @ tf.R_from_rvec(b[:3]), b[3:])
+        return intr, T_Cm_C, T_Bm_B, dt
+
+    def _evaluate(self, x, want_jac):
+        intr, T_Cm_C, T_Bm_B, dt = self.unpack(x)
+        tq = self.t_video + dt
+        T_W_Cm, v_Cm, om_Cm = self.cam(tq, rates=True)
+        T_W_Bm, v_Bm, om_Bm = self.brd(tq, rates=True)
+        T_Cm_Bm = tf.invert_T(T_W_Cm) @ T_W_Bm
+        R_Cm_C, t_Cm_C = T_Cm_C[:3, :3], T_Cm_C[:3, 3]
+        p_Bm = self.p_B @ T_Bm_B[:3, :3].T + T_Bm_B[:3, 3]  # (P, 3)
+        p_Cm = np.einsum("fij,pj->fpi", T_Cm_Bm[:, :3, :3], p_Bm) + T_Cm_Bm[:, None, :3, 3]
+        p_C = (p_Cm - t_Cm_C) @ R_Cm_C  # R_Cm_C^T (p_Cm - t_Cm_C), eq. (1)
+        K = K_from_intrinsics(*intr[:4])
+        if not want_jac:
+            return self.uv - project_points(p_C, K, intr[4:])
+        uv, J_p, J_i = project_points_jac(p_C, K, intr[4:])
+        F, P = p_C.shape[:2]
+        _, c, b, _ = self._split(x)
+        R_C_Bm = R_Cm_C.T @ T_Cm_Bm[:, :3, :3]  # (F, 3, 3)
+        R_C_B = R_C_Bm @ T_Bm_B[:3, :3]
+        d_pC = np.zeros((F, P, 3, 13))
+        d_pC[..., 0:3] = _skew(p_C) @ _right_jacobian(c[:3])  # w_C
+        d_pC[..., 3:6] = -R_Cm_C.T  # t_Cm_C
+        d_pC[..., 6:9] = -np.einsum("fij,pjk->fpik", R_C_B, _skew(self.p_B)) @ _right_jacobian(
+            b[:3]
+        )  # w_B
+        d_pC[..., 9:12] = R_C_Bm[:, None]  # t_Bm_B
+        # dt: the Vicon poses move along their interpolants (v, omega in the body frames)
+        dp_W = (
+            np.einsum("fij,fpj->fpi", T_W_Bm[:, :3, :3], np.cross(om_Bm[:, None], p_Bm[None]))
+            + v_Bm[:, None]
+        )
+        dp_Cm = np.einsum("fji,fpj->fpi", T_W_Cm[:, :3, :3], dp_W - v_Cm[:, None]) - np.cross(
+            om_Cm[:, None], p_Cm
+        )
+        d_pC[..., 12] = dp_Cm @ R_Cm_C
+        J = np.concatenate(
+            [J_i[..., self.free], J_p @ (d_pC if self.fit_dt else d_pC[..., :12])], axis=-1
+        )
+        return self.uv - uv, -J  # residual = observed - projected
+
+    def residuals(self, x):
+        return self._evaluate(x, False).ravel()
+
+    def jacobian(self, x):
+        """d residuals / d x, analytic, shape (m, n)."""
+        _, J = self._evaluate(x, True)
+        return J.reshape(-1, J.shape[-1])
+
+    def jacobian_fd(self, x, h=1e-6):
+        """Central-difference Jacobian (for tests), shape (m, n)."""
+        cols = []
+        for j in range(len(x)):
+            xp, xm = x.copy(), x.copy()
+            xp[j] += h
+            xm[j] -= h
+            cols.append((self.residuals(xp) - self.residuals(xm)) / (2.0 * h))
+        return np.stack(cols, axis=1)
+
+
+def _loss_weights(r, loss, f_scale):
+    """psi(r) and psi'(r) of the robust loss rho(z), z = (r/c)^2 (scipy's definitions)."""
+    z = (r / f_scale) ** 2
+    if loss == "linear":
+        return r, np.ones_like(r)
+    if loss == "soft_l1":
+        d1 = 1.0 / np.sqrt(1.0 + z)
+        d2 = -0.5 * (1.0 + z) ** -1.5
+    else:  # huber
+        big = z > 1.0
+        zs = np.where(big, z, 1.0)
+        d1 = np.where(big, zs**-0.5, 1.0)
+        d2 = np.where(big, -0.5 * zs**-1.5, 0.0)
+    # cost = 0.5 sum c^2 rho(z): gradient row weight psi = rho'(z) r, curvature rho' + 2 z rho''
+    return d1 * r, np.maximum(d1 + 2.0 * z * d2, 1e-12)
+
+
+def _covariances(J, r, loss, f_scale, clusters):
+    """Gauss-Newton M-estimator covariance, cluster-robust sandwich, and (J^T J)^-1."""
+    m, n = J.shape
+    psi, dpsi = _loss_weights(r, loss, f_scale)
+    JtJ = _gram(J)
+    JtJ_inv = np.linalg.pinv(JtJ)
+    # Huber (1981) eq. 7.6.x: sigma_eff^2 = m/(m-n) mean(psi^2) / mean(psi')^2
+    sigma2 = (m / max(m - n, 1)) * np.mean(psi**2) / np.mean(dpsi) ** 2
+    cov_gn = sigma2 * JtJ_inv
+    H = _gram(J, dpsi)
+    H_inv = np.linalg.pinv(H)
+    g_rows = J * psi[:, None]
+    labels, inv = np.unique(clusters, return_inverse=True)
+    G = len(labels)
+    g_c = np.zeros((G, n))
+    np.add.at(g_c, inv, g_rows)
+    meat = _gram(g_c) * (G / max(G - 1, 1)) * ((m - 1) / max(m - n, 1))
+    cov_cl = H_inv @ meat @ H_inv
+    return cov_gn, cov_cl, JtJ_inv, float(sigma2), G
+
+
+def _corr(cov):
+    d = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    return cov / np.outer(d, d)
+
+
+# --------------------------------------------------------------------------- the solver
+
+
+def optimise_se3(
+    corners,
+    bodies,
+    camera,
+    board,
+    dt_offset_s,
+    *,
+    free=DEFAULT_FREE,
+    fit_dt=True,
+    loss="soft_l1",
+    f_scale_px=1.0,
+    max_nfev=100,
+    corr_warn=0.95,
+    cluster_s=1.0,
+    camera_smooth_s=1.0,
+    board_smooth_s=0.01,
+    camera_static_tol=(0.002, 0.002),
+    solver="lm",
+    frames=None,
+    init=None,
+):
+    """Joint estimate of intrinsics, T_Cm_C, T_Bm_B and the time offset (method ``se3``).
+
+    Parameters
+    ----------
+    corners : DataFrame
+        corners.parquet: ``frame, t_s`` (video clock, s), ``found, corner, u_px, v_px``.
+    bodies : DataFrame
+        bodies.parquet (native rate, long): ``t_s`` (Vicon clock, s), ``body``
+        (``camera``/``board``), ``valid``, ``x_m, y_m, z_m, qx, qy, qz, qw`` (T_W_Cm / T_W_Bm).
+    camera : dict
+        camera.yaml content: ``K`` (3x3, px) and ``dist`` ([k1, k2, p1, p2, k3]); the start.
+    board : dict
+        ``squares_x``, ``squares_y``, ``square_m`` (m).
+    dt_offset_s : float
+        Starting time offset (sync.yaml), t_vicon_s = t_video_s + dt_offset_s.
+    free : sequence of str
+        Intrinsics to estimate, from ``INTRINSIC_NAMES``; the others stay at ``camera``.
+    fit_dt : bool
+        Refine the time offset (else held at ``dt_offset_s``).
+    loss : {"soft_l1", "huber", "linear"}
+        Robust loss on the corner residuals.
+    f_scale_px : float
+        Scale of the robust loss, px (residuals well below it count quadratically).
+    max_nfev : int
+        Most residual evaluations of the trust-region solver.
+    corr_warn : float
+        Warn when two estimates correlate beyond this (absolute value).
+    cluster_s : float
+        Length (s of video time) of the contiguous blocks of frames treated as independent
+        clusters in the cluster-robust covariance.
+    camera_smooth_s : float
+        Window (s) of the centred moving average applied to the camera body track before
+        interpolation (:func:`smooth_track`); 0 uses the raw track.
+    camera_static_tol : (float, float) or None
+        (m, rad): when the smoothed camera track stays this close to its mean over the whole
+        take (:func:`is_static`), the camera is treated as static and its mean pose is used
+        for every frame (its marker noise then averages over the take). None: never.
+    board_smooth_s : float
+        Window (s) of the moving average of the board body track (a few Vicon samples: it
+        takes the marker noise out of the interpolant's slope, which otherwise puts kinks in
+        the cost as a function of dt at every 1/300 s, since 300 Hz is a multiple of 30 fps).
+    solver : {"lm", "scipy"}
+        ``lm``: Levenberg-Marquardt on the 22 x 22 normal equations with the robust loss by
+        iterative reweighting (fast: the work per iteration is one m x n product);
+        ``scipy``: ``scipy.optimize.least_squares`` (TRF, exact trust-region solver: an SVD of
+        the m x n Jacobian per iteration). Both minimise the same robust cost.
+    frames : array_like of int, optional
+        Video frames to fit on (e.g. the training blocks); default all usable frames.
+    init : dict, optional
+        ``T_Cm_C`` and ``T_Bm_B`` (4x4, m) to start from instead of the hand-eye closed form
+        (e.g. a board that never turns, or a previous fit).
+
+    Returns
+    -------
+    OptimiseResult
+        ``iterations``: one row per accepted-or-tried step (``nfev, cost, fx_px, fy_px,
+        dt_offset_s``); ``errors``: the per-frame table of :func:`apply_se3` for the fitted
+        frames (plus ``rms_px``, ``weight_min``); ``result``: the result.yaml mapping (see
+        Notes).
+
+    Raises
+    ------
+    OptimiseError
+        Bad tables, fewer than ``MIN_FRAMES`` usable frames, bad options, or a failed
+        hand-eye initialisation.
+
+    Notes
+    -----
+    ``result`` keys: ``method``; ``K`` (3x3), ``dist`` (5); ``T_Cm_C``, ``T_Bm_B`` (4x4) and their
+    ``*_pose6`` [x, y, z, roll, pitch, yaw] (m, rad); ``dt_offset_s``; ``estimates``
+    (name -> value) and ``std_errors`` (name -> 1-sigma) of every free parameter (rotation
+    parameters are the local perturbations about the axes of C and B, so their sigma is the
+    rotation uncertainty in rad about those axes); ``std_errors_gn`` and ``std_errors_cluster``
+    (the two estimates whose maximum is ``std_errors``); ``correlation`` (names, matrix);
+    ``init`` (the closed-form start); ``n_frames``, ``n_residuals``, ``rms_px``,
+    ``sigma_px`` (robust pixel noise, from the M-estimator scale), ``cost``, ``n_iterations``
+    (residual evaluations; scipy's TRF takes one per iteration), ``n_jacobians``, ``time_s``,
+    ``status``, ``message``, ``warnings`` (list of str).
+    """
+    t0 = time.perf_counter()
+    if loss not in LOSSES:
+        raise OptimiseError(f"se3: loss {loss!r}; expected one of {LOSSES}")
+    if solver not in ("lm", "scipy"):
+        raise OptimiseError(f"se3: solver {solver!r}; expected 'lm' or 'scipy'")
+    if not f_scale_px > 0:
+        raise OptimiseError(f"se3: f_scale_px {f_scale_px!r}; expected > 0 px")
+    bad_free = [f for f in free if f not in INTRINSIC_NAMES]
+    if bad_free:
+        raise OptimiseError(f"se3: free {bad_free} unknown; expected names from {INTRINSIC_NAMES}")
+    try:
+        K0 = np.asarray(camera["K"], float).reshape(3, 3)
+        dist0 = np.zeros(5)
+        d = np.asarray(camera["dist"], float).ravel()[:5]
+        dist0[: d.size] = d
+    except (KeyError, TypeError, ValueError) as exc:
+        raise OptimiseError(
+            f"se3: camera {camera!r}: expected K (3x3, px) and dist [k1 k2 p1 p2 k3]"
+        ) from exc
+    if not np.isfinite(dt_offset_s):
+        raise OptimiseError(f"se3: dt_offset_s {dt_offset_s!r}; expected a finite time in s")
+    p_B = board_points_B(board)
+    frame, t_video, uv = corner_arrays(corners, len(p_B))
+    if frames is not None:
+        sel = np.isin(frame, np.asarray(frames))
+        frame, t_video, uv = frame[sel], t_video[sel], uv[sel]
+    cam = _Track(
+        *body_track(bodies, "camera"), smooth_s=camera_smooth_s, static_tol=camera_static_tol
+    )
+    brd = _Track(*body_track(bodies, "board"), smooth_s=board_smooth_s)
+    log.info("se3: camera body %s", "static (mean pose used)" if cam.static else "moving")
+    usable = np.ones(len(frame), bool)
+    for off in (-DT_MARGIN_S, 0.0, DT_MARGIN_S):
+        tq = t_video + dt_offset_s + off
+        usable &= cam.ok(tq) & brd.ok(tq)
+    n_skip = int((~usable).sum())
+    if n_skip:
+        log.warning(
+            "se3: %d of %d frames skipped (no valid Vicon pose within %.2f s of t + dt)",
+            n_skip,
+            len(frame),
+            DT_MARGIN_S,
+        )
+    frame, t_video, uv = frame[usable], t_video[usable], uv[usable]
+    if len(frame) < MIN_FRAMES:
+        raise OptimiseError(
+            f"se3: {len(frame)} frames with corners and valid Vicon poses at t_video + "
+            f"{dt_offset_s:.3f} s; need at least {MIN_FRAMES}"
+        )
+
+    # --- closed-form start: PnP at the calibrated intrinsics, then AX = ZB
+    if init is not None:
+        try:
+            T_Cm_C0 = np.asarray(init["T_Cm_C"], float).reshape(4, 4)
+            T_Bm_B0 = np.asarray(init["T_Bm_B"], float).reshape(4, 4)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise OptimiseError(f"se3: init {init!r}: expected T_Cm_C and T_Bm_B (4x4)") from exc
+    else:
+        T_C_B_pnp, ok = solve_pnp_frames(uv, p_B, K0, dist0)
+        tq = t_video + dt_offset_s
+        T_Cm_Bm = tf.invert_T(cam(tq)) @ brd(tq)
+        T_Cm_C0, T_Bm_B0 = solve_hand_eye(T_Cm_Bm[ok], T_C_B_pnp[ok])
+    intr0 = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], *dist0])
+    model = _Model(
+        intr0, set(free), T_Cm_C0[:3, :3], T_Bm_B0[:3, :3], fit_dt, dt_offset_s,
+        t_video, uv, p_B, cam, brd,
+    )  # fmt: skip
+    x0 = model.pack(intr0, T_Cm_C0[:3, 3], T_Bm_B0[:3, 3], dt_offset_s)
+    r0 = model.residuals(x0)
+    if not np.isfinite(r0).all():
+        raise OptimiseError("se3: non-finite residuals at the start (board behind the camera?)")
+    log.info(
+        "se3: %d frames, %d parameters; start RMS %.3f px",
+        len(frame),
+        model.n_params,
+        float(np.sqrt(np.mean(r0**2))),
+    )
+
+    history = []
+    n_jac = [0]
+
+    def fun(x):
+        r = model.residuals(x)
+        intr, _, _, dt = model.unpack(x)
+        rho = _robust_cost(r, loss, f_scale_px)
+        history.append(
+            {"nfev": len(history), "cost": rho, "fx_px": intr[0], "fy_px": intr[1],
+             "dt_offset_s": dt, "rms_px": float(np.sqrt(np.mean(r**2)))}
+        )  # fmt: skip
+        return r
+
+    def jac(x):
+        n_jac[0] += 1
+        return model.jacobian(x)
+
+    if solver == "scipy":
+        sol = least_squares(
+            fun, x0, jac=jac, method="trf", loss=loss, f_scale=f_scale_px, x_scale="jac",
+            max_nfev=max_nfev, xtol=1e-10, ftol=1e-12, gtol=1e-10,
+        )  # fmt: skip
+    else:
+        sol = _levenberg_marquardt(fun, jac, x0, loss, f_scale_px, max_nfev)
+    if not np.isfinite(sol.x).all():
+        raise OptimiseError(f"se3: the solver diverged ({sol.message})")
+    x = sol.x
+    r = model.residuals(x)
+    J = model.jacobian(x)
+    frame_of_row = np.repeat(np.arange(len(frame)), 2 * len(p_B))
+    block = np.floor((t_video - t_video[0]) / max(cluster_s, 1e-9)).astype(int)
+    cov_gn, cov_cl, JtJ_inv, sigma2, n_clusters = _covariances(
+        J, r, loss, f_scale_px, block[frame_of_row]
+    )
+    se_gn = np.sqrt(np.diag(cov_gn))
+    se_cl = np.sqrt(np.diag(cov_cl))
+    se = np.maximum(se_gn, se_cl)
+    corr = _corr(JtJ_inv)
+    warnings_out = []
+    names = model.names
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if abs(corr[i, j]) > corr_warn:
+                msg = (
+                    f"se3: {names[i]} and {names[j]} correlate at {corr[i, j]:+.3f} "
+                    f"(|corr| > {corr_warn}): the data hardly separate them"
+                )
+                warnings_out.append(msg)
+                log.warning(msg)
+    if sol.status <= 0:
+        msg = f"se3: solver stopped before converging: {sol.message}"
+        warnings_out.append(msg)
+        log.warning(msg)
+    intr, T_Cm_C, T_Bm_B, dt = model.unpack(x)
+    K = K_from_intrinsics(*intr[:4])
+    dist = intr[4:]
+
+    per_frame = apply_se3(
+        {"K": K, "dist": dist, "T_Cm_C": T_Cm_C, "T_Bm_B": T_Bm_B, "dt_offset_s": dt,
+         "camera_smooth_s": camera_smooth_s, "board_smooth_s": board_smooth_s,
+         "camera_static_tol": camera_static_tol},
+        corners, bodies, board, frames=frame,
+    )  # fmt: skip
+    res2 = r.reshape(len(frame), -1)
+    rms_frame = np.sqrt(np.mean(res2**2, axis=1))
+    wmin = _loss_weights(r, loss, f_scale_px)[0] / np.where(r == 0, 1.0, r)
+    wmin = np.where(r == 0, 1.0, wmin).reshape(len(frame), -1).min(axis=1)
+    per_frame = per_frame.merge(
+        pd.DataFrame({"frame": frame, "rms_px": rms_frame, "weight_min": wmin}), on="frame"
+    )
+    elapsed = time.perf_counter() - t0
+    result = {
+        "method": "se3",
+        "K": K.tolist(),
+        "dist": dist.tolist(),
+        "T_Cm_C": T_Cm_C.tolist(),
+        "T_Bm_B": T_Bm_B.tolist(),
+        "T_Cm_C_pose6": tf.pose6_from_T(T_Cm_C).tolist(),
+        "T_Bm_B_pose6": tf.pose6_from_T(T_Bm_B).tolist(),
+        "dt_offset_s": dt,
+        "free": [n for n in INTRINSIC_NAMES if n in set(free)],
+        "fit_dt": bool(fit_dt),
+        "estimates": {n: float(v) for n, v in zip(names, x, strict=True)},
+        "std_errors": {n: float(v) for n, v in zip(names, se, strict=True)},
+        "std_errors_gn": {n: float(v) for n, v in zip(names, se_gn, strict=True)},
+        "std_errors_cluster": {n: float(v) for n, v in zip(names, se_cl, strict=True)},
+        "correlation": {"names": list(names), "matrix": np.round(corr, 6).tolist()},
+        "init": {
+            "K": K0.tolist(),
+            "dist": dist0.tolist(),
+            "T_Cm_C": T_Cm_C0.tolist(),
+            "T_Bm_B": T_Bm_B0.tolist(),
+            "dt_offset_s": float(dt_offset_s),
+            "rms_px": float(np.sqrt(np.mean(r0**2))),
+        },
+        "n_frames": len(frame),
+        "n_frames_skipped": n_skip,
+        "n_residuals": int(r.size),
+        "n_clusters": int(n_clusters),
+        "cluster_s": float(cluster_s),
+        "camera_smooth_s": float(camera_smooth_s),
+        "board_smooth_s": float(board_smooth_s),
+        "camera_static": bool(cam.static),
+        "camera_static_tol": None if camera_static_tol is None else list(camera_static_tol),
+        "rms_px": float(np.sqrt(np.mean(r**2))),
+        "sigma_px": float(np.sqrt(sigma2)),
+        "cost": float(sol.cost),
+        "loss": loss,
+        "f_scale_px": float(f_scale_px),
+        "n_iterations": int(sol.nfev),
+        "n_jacobians": int(n_jac[0]),
+        "solver": solver,
+        "time_s": float(elapsed),
+        "status": int(sol.status),
+        "message": str(sol.message),
+        "warnings": warnings_out,
+    }
+    log.info(
+        "se3: fx %.2f fy %.2f dt %.4f s, RMS %.3f px, %d evaluations, %.2f s",
+        intr[0], intr[1], dt, result["rms_px"], sol.nfev, elapsed,
+    )  # fmt: skip
+    return OptimiseResult(iterations=pd.DataFrame(history), errors=per_frame, result=result)
+
+
+def _gram(J, w=None):
+    """J^T diag(w) J without BLAS threads (which thrash on a shared machine), (n, n)."""
+    if w is None:
+        return np.einsum("mi,mj->ij", J, J, optimize=False)
+    return np.einsum("mi,m,mj->ij", J, w, J, optimize=False)
+
+
+class _Solution:
+    """The fields of scipy's OptimizeResult that optimise_se3 reads."""
+
+    def __init__(self, x, cost, nfev, njev, status, message):
+        self.x, self.cost, self.nfev, self.njev = x, cost, nfev, njev
+        self.status, self.message = status, message
+
+
+def _levenberg_marquardt(fun, jac, x0, loss, f_scale, max_nfev, max_iter=100):
+    """Robust Levenberg-Marquardt: IRLS weights, Marquardt-scaled damping, normal equations.
+
+    Minimises 0.5 sum c^2 rho((r/c)^2) (scipy's robust cost). Each iteration: weights
+    w = rho'(z) (Triggs et al. 2000, "Bundle adjustment - a modern synthesis", sec. 4.3),
+    H = J^T W J, g = J^T W r, step from (H + lambda diag H) dx = -g (Marquardt 1963).
+    """
+    x = np.asarray(x0, float).copy()
+    r = fun(x)
+    nfev, njev = 1, 0
+    cost = _robust_cost(r, loss, f_scale)
+    lam = 1e-3
+    status, message = 0, "maximum number of iterations reached"
+    for _ in range(max_iter):
+        J = jac(x)
+        njev += 1
+        w = _loss_weights(r, loss, f_scale)[0] / np.where(r == 0, 1.0, r)
+        w = np.where(r == 0, 1.0, w)
+        H = _gram(J, w)
+        g = np.einsum("mi,m->i", J, w * r, optimize=False)
+        d = np.maximum(np.diag(H), 1e-300)
+        accepted = False
+        while nfev < max_nfev:
+            try:
+                dx = -np.linalg.solve(H + lam * np.diag(d), g)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            x_new = x + dx
+            r_new = fun(x_new)
+            nfev += 1
+            cost_new = _robust_cost(r_new, loss, f_scale) if np.isfinite(r_new).all() else np.inf
+            if cost_new < cost:
+                accepted = True
+                break
+            lam *= 4.0
+            if lam > 1e12:
+                break
+        if not accepted:
+            status = 2 if lam > 1e12 else 0
+            message = "no cost decrease along the damped step" if status else "max_nfev reached"
+            break
+        decrease = cost - cost_new
+        x, r, cost = x_new, r_new, cost_new
+        lam = max(lam / 3.0, 1e-9)
+        # converged: the step moves no parameter by more than 1e-6 of its own uncertainty scale
+        step_sigma = np.abs(dx) * np.sqrt(d) / np.sqrt(max(2.0 * cost / max(len(r), 1), 1e-300))
+        if decrease <= 1e-12 * cost or step_sigma.max() < 1e-6:
+            status, message = 1, "converged (step below 1e-6 sigma or relative decrease < 1e-12)"
+            break
+    return _Solution(x, cost, nfev, njev, status, message)
+
+
+def _robust_cost(r, loss, f_scale):
+    """0.5 sum c^2 rho((r/c)^2), scipy's robust cost."""
+    z = (r / f_scale) ** 2
+    if loss == "linear":
+        rho = z
+    elif loss == "soft_l1":
+        rho = 2.0 * (np.sqrt(1.0 + z) - 1.0)
+    else:
+        rho = np.where(z <= 1.0, z, 2.0 * np.sqrt(z) - 1.0)
+    return float(0.5 * f_scale**2 * np.sum(rho))
+
+
+def apply_se3(params, corners, bodies, board, frames=None):
+    """Per-frame CVS pose (PnP at the fitted intrinsics) and Vicon reference pose (eq. 1).
+
+    Parameters
+    ----------
+    params : dict
+        ``K`` (3x3, px), ``dist`` (5), ``T_Cm_C``, ``T_Bm_B`` (4x4, m), ``dt_offset_s`` (s),
+        optional ``camera_smooth_s``, ``board_smooth_s`` (s, default 0) and
+        ``camera_static_tol`` ((m, rad), default None); e.g. ``optimise_se3(...).result``.
+    corners : DataFrame
+        corners.parquet (``frame, t_s, found, corner, u_px, v_px``).
+    bodies : DataFrame
+        bodies.parquet (see :func:`body_track`).
+    board : dict
+        ``squares_x``, ``squares_y``, ``square_m``.
+    frames : array_like of int, optional
+        Frames to evaluate (e.g. a held-out block); default all complete found frames.
+
+    Returns
+    -------
+    frames : DataFrame
+        One row per frame with all corners, a PnP solution and valid Vicon poses at
+        t + dt: ``frame, t_s, t_vicon_s``; CVS pose T_C_B ``cvs_x_m, cvs_y_m, cvs_z_m,
+        cvs_qx, cvs_qy, cvs_qz, cvs_qw, cvs_rvec_0..2, cvs_roll_rad, cvs_pitch_rad,
+        cvs_yaw_rad``; reference T_C_B from the Vicon with ``ref_`` prefix, same columns
+        (no rvec); ``reproj_rms_px`` (PnP reprojection RMS at the fitted intrinsics).
+    """
+    p_B = board_points_B(board)
+    frame, t_video, uv = corner_arrays(corners, len(p_B))
+    if frames is not None:
+        sel = np.isin(frame, np.asarray(frames))
+        frame, t_video, uv = frame[sel], t_video[sel], uv[sel]
+    K = np.asarray(params["K"], float)
+    dist = np.asarray(params["dist"], float)
+    T_Cm_C = np.asarray(params["T_Cm_C"], float)
+    T_Bm_B = np.asarray(params["T_Bm_B"], float)
+    dt = float(params["dt_offset_s"])
+    cam = _Track(
+        *body_track(bodies, "camera"),
+        smooth_s=float(params.get("camera_smooth_s", 0.0)),
+        static_tol=params.get("camera_static_tol"),
+    )
+    brd = _Track(*body_track(bodies, "board"), smooth_s=float(params.get("board_smooth_s", 0.0)))
+    tq = t_video + dt
+    ok_vicon = cam.ok(tq) & brd.ok(tq)
+    T_ref = tf.invert_T(cam(tq) @ T_Cm_C) @ brd(tq) @ T_Bm_B  # eq. (1)
+    T_cvs, ok_pnp = solve_pnp_frames(uv, p_B, K, dist)
+    keep = ok_vicon & ok_pnp
+    T_ref, T_cvs = T_ref[keep], T_cvs[keep]
+    p_C = np.einsum("fij,pj->fpi", T_cvs[:, :3, :3], p_B) + T_cvs[:, None, :3, 3]
+    rms = np.sqrt(np.mean(np.sum((project_points(p_C, K, dist) - uv[keep]) ** 2, axis=-1), axis=1))
+    out = {"frame": frame[keep], "t_s": t_video[keep], "t_vicon_s": tq[keep]}
+    for prefix, T in (("cvs_", T_cvs), ("ref_", T_ref)):
+        q = tf.quat_from_R(T[:, :3, :3])
+        rpy = tf.euler_from_R(T[:, :3, :3]).reshape(-1, 3)
+        for j, ax in enumerate("xyz"):
+            out[f"{prefix}{ax}_m"] = T[:, j, 3]
+        for j, ax in enumerate(("qx", "qy", "qz", "qw")):
+            out[f"{prefix}{ax}"] = q[:, j]
+        if prefix == "cvs_":
+            rv = tf.rvec_from_R(T[:, :3, :3]).reshape(-1, 3)
+            for j in range(3):
+                out[f"cvs_rvec_{j}"] = rv[:, j]
+        for j, ax in enumerate(("roll", "pitch", "yaw")):
+            out[f"{prefix}{ax}_rad"] = rpy[:, j]
+    out["reproj_rms_px"] = rms
+    return pd.DataFrame(out)
+
+
+def poses_from_table(frames, prefix):
+    """Stack of T_C_B (F, 4, 4) from the ``{prefix}x_m .. {prefix}qw`` columns of a table."""
+    q = frames[[f"{prefix}qx", f"{prefix}qy", f"{prefix}qz", f"{prefix}qw"]].to_numpy(float)
+    t = frames[[f"{prefix}x_m", f"{prefix}y_m", f"{prefix}z_m"]].to_numpy(float)
+    return tf.make_T(tf.R_from_quat(q).reshape(-1, 3, 3), t)
+
+
+# --------------------------------------------------------------------------- synthetic data
+
+
+def simulate_session(
+    seed,
+    duration_s=20.0,
+    fps=30.0,
+    vicon_rate_hz=300.0,
+    pixel_noise_px=0.3,
+    marker_noise_m=0.0003,
+    dt_offset_s=2.37,
+    camera_motion_m=0.0,
+    board=None,
+    max_tilt_rad=0.7,
+):
+    """Corner-level synthetic session with known truth (no rendering): for tests and bench.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of every random choice.
+    duration_s : float
+        Video length, s.
+    fps : float
+        Video frame rate, Hz.
+    vicon_rate_hz : float
+        Vicon sample rate, Hz.
+    pixel_noise_px : float
+        Standard deviation of the corner noise per axis, px.
+    marker_noise_m : float
+        Standard deviation of each Vicon marker position per axis, m; the body poses are
+        rigid fits of four noisy markers.
+    dt_offset_s : float
+        True offset, t_vicon = t_video + dt_offset_s.
+    camera_motion_m : float
+        Amplitude of a slow sway of the camera body (0: static camera).
+    board : dict, optional
+        Board geometry; default 6 x 5 squares of 0.09 m (20 inner corners).
+    max_tilt_rad : float
+        Largest board roll/pitch/yaw about its facing pose, rad.
+
+    Returns
+    -------
+    session : dict
+        ``corners`` (corners.parquet table), ``bodies`` (bodies.parquet table),
+        ``camera`` (K, dist: the truth), ``board``, ``truth`` (``K, dist, T_Cm_C, T_Bm_B,
+        dt_offset_s``, ``T_C_B`` (F, 4, 4) true board poses at the video frames,
+        ``frame``, ``t_s``, ``uv_true_px`` (F, P, 2)).
+    """
+    rng = np.random.default_rng(seed)
+    if board is None:
+        board = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
+    p_B = board_points_B(board)
+    centre_B = p_B.mean(axis=0)
+    K = K_from_intrinsics(
+        700.0 + rng.normal(0, 5), 700.0 + rng.normal(0, 5), 320 + rng.normal(0, 5),
+        240 + rng.normal(0, 5),
+    )  # fmt: skip
+    dist = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02]) * (1 + 0.1 * rng.normal(size=5))
+    T_Cm_C = tf.T_from_pose6(
+        [0.03, -0.02, 0.05, -np.pi / 2, 0.0, -np.pi / 2] + rng.normal(0, [0.005] * 3 + [0.03] * 3)
+    )
+    T_Bm_B = tf.T_from_pose6(
+        [0.1, 0.07, -0.004, np.pi, 0.0, 0.0] + rng.normal(0, [0.005] * 3 + [0.03] * 3)
+    )
+    T_W_Cm0 = tf.T_from_pose6([-1.0, 0.5, 1.2, 0.05, -0.1, 0.3])
+
+    # smooth hand motion: sums of sines per channel (board centre in C, tilt angles)
+    def sines(n, f_lo, f_hi):
+        f = rng.uniform(f_lo, f_hi, (n, 3))
+        ph = rng.uniform(0, 2 * np.pi, (n, 3))
+        a = rng.uniform(0.5, 1.0, (n, 3))
+        a /= a.sum(axis=1, keepdims=True)
+        return lambda t: np.sum(
+            a[:, None, :] * np.sin(2 * np.pi * f[:, None, :] * np.asarray(t)[None, :, None]
+                                   + ph[:, None, :]), axis=0,
+        )  # fmt: skip
+
+    s_pos = sines(6, 0.03, 0.4)
+    s_rot = sines(6, 0.05, 0.6)
+
+    def T_C_B_at(t):
+        t = np.atleast_1d(np.asarray(t, float))
+        s = s_pos(t).T  # (t,) per channel
+        z = 2.5 + 1.3 * s[2]
+        x = z * 0.22 * s[0]
+        y = z * 0.16 * s[1]
+        rpy = max_tilt_rad * s_rot(t)
+        R = tf.R_from_euler(rpy)
+        centre_C = np.stack([x, y, z], axis=1)
+        t_C_B = centre_C - (R @ centre_B)
+        return tf.make_T(R, t_C_B)
+
+    def T_W_Cm_at(t):
+        t = np.atleast_1d(np.asarray(t, float))
+        T = np.repeat(T_W_Cm0[None], len(t), axis=0)
+        if camera_motion_m > 0:
+            sway = camera_motion_m * np.stack(
+                [np.sin(0.2 * t), np.sin(0.13 * t + 1), np.sin(0.17 * t + 2)], axis=1
+            )
+            T[:, :3, 3] += sway
+            T[:, :3, :3] = T[:, :3, :3] @ tf.R_from_euler(2.0 * sway)
+        return T
+
+    # video frames and corners
+    n_frames = int(round(duration_s * fps))
+    t_video = np.arange(n_frames) / fps
+    T_C_B = T_C_B_at(t_video)
+    p_C = np.einsum("fij,pj->fpi", T_C_B[:, :3, :3], p_B) + T_C_B[:, None, :3, 3]
+    uv_true = project_points(p_C, K, dist)
+    uv_obs = uv_true + rng.normal(0, pixel_noise_px, uv_true.shape)
+    P = len(p_B)
+    corners = pd.DataFrame(
+        {
+            "frame": np.repeat(np.arange(n_frames), P),
+            "t_s": np.repeat(t_video, P),
+            "found": True,
+            "corner": np.tile(np.arange(P), n_frames),
+            "u_px": uv_obs[..., 0].ravel(),
+            "v_px": uv_obs[..., 1].ravel(),
+        }
+    )
+
+    # Vicon: t_vicon = t_video + dt, covering the video with margins; rigid fits of noisy markers
+    t_vicon = np.arange(0.0, duration_s + dt_offset_s + 1.0, 1.0 / vicon_rate_hz)
+    t_vid_of_vicon = t_vicon - dt_offset_s
+    T_W_Cm = T_W_Cm_at(t_vid_of_vicon)
+    T_W_Bm = T_W_Cm @ T_Cm_C @ T_C_B_at(t_vid_of_vicon) @ tf.invert_T(T_Bm_B)
+    layout = {
+        "camera": np.array([[0, 0, 0], [0, 0.16, 0], [0, 0, 0.12], [0, 0.11, 0.17]], float),
+        "board": np.array([[0, 0, 0], [0.76, 0, 0], [0, 0.52, 0], [0.58, 0.5, 0]], float),
+    }
+    rows = []
+    for body, T_true in (("camera", T_W_Cm), ("board", T_W_Bm)):
+        L = layout[body]
+        m_W = np.einsum("nij,kj->nki", T_true[:, :3, :3], L) + T_true[:, None, :3, 3]
+        m_W = m_W + rng.normal(0, marker_noise_m, m_W.shape)
+        T_fit = _fit_rigid_batch(L, m_W)
+        q = tf.quat_from_R(T_fit[:, :3, :3])
+        rows.append(
+            pd.DataFrame(
+                {
+                    "frame": np.arange(len(t_vicon)),
+                    "t_s": t_vicon,
+                    "body": body,
+                    "valid": True,
+                    "x_m": T_fit[:, 0, 3],
+                    "y_m": T_fit[:, 1, 3],
+                    "z_m": T_fit[:, 2, 3],
+                    "qx": q[:, 0],
+                    "qy": q[:, 1],
+                    "qz": q[:, 2],
+                    "qw": q[:, 3],
+                }
+            )
+        )
+    bodies = pd.concat(rows, ignore_index=True)
+    truth = {
+        "K": K,
+        "dist": dist,
+        "T_Cm_C": T_Cm_C,
+        "T_Bm_B": T_Bm_B,
+        "dt_offset_s": float(dt_offset_s),
+        "frame": np.arange(n_frames),
+        "t_s": t_video,
+        "T_C_B": T_C_B,
+        "uv_true_px": uv_true,
+    }
+    return {
+        "corners": corners,
+        "bodies": bodies,
+        "camera": {"K": K.tolist(), "dist": dist.tolist()},
+        "board": board,
+        "truth": truth,
+    }
+
+
+def _fit_rigid_batch(P_body, Q_world):
+    """Kabsch fits T_W_X (N, 4, 4) of a body layout (K, 3) to world points (N, K, 3)."""
+    pc = P_body.mean(axis=0)
+    qc = Q_world.mean(axis=1)
+    H = np.einsum("ki,nkj->nij", P_body - pc, Q_world - qc[:, None, :])
+    U, _, Vt = np.linalg.svd(H)
+    d = np.sign(np.linalg.det(np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)))
+    D = np.zeros_like(H)
+    D[:, 0, 0] = 1.0
+    D[:, 1, 1] = 1.0
+    D[:, 2, 2] = d
+    R = np.swapaxes(Vt, 1, 2) @ D @ np.swapaxes(U, 1, 2)
+    t = qc - np.einsum("nij,j->ni", R, pc)
+    return tf.make_T(R, t)
+
