@@ -22,10 +22,10 @@ report: demo
 	$(BIN)/snakemake --cores $(CORES) --report report.html
 
 test: install
-	$(BIN)/python -m pytest -n $(CORES) -m "not slow"
+	$(BIN)/python -m pytest -n $(CORES) --dist loadfile -m "not slow"
 
 test-all: install
-	$(BIN)/python -m pytest -n $(CORES)
+	$(BIN)/python -m pytest -n $(CORES) --dist loadfile
 
 clean:
 	rm -rf results logs benchmarks .snakemake report.html

@@ -55,6 +55,7 @@ def demo_config(duration_s: float = 6.0) -> dict:
     demo = config["sessions"]["demo"]
     demo["synth"]["duration_s"] = duration_s
     demo["synth"]["n_stills"] = 12
+    config.setdefault("optimise", {}).setdefault("seed", {})["k_iterations"] = 5
     for key in ("calib_dir", "video", "vicon"):
         demo.pop(key, None)
     return config
@@ -166,6 +167,8 @@ def test_demo_writes_every_table_with_its_schema(demo_run):
         assert len(df) > 0, name
     for fig in ("calibration_errors", "calibration_coverage", "poses_raw", "vicon_markers", "sync"):
         assert (res / "figures" / f"{fig}.png").stat().st_size > 5000
+    for fig in ("convergence", "histograms", "qq", "vicon_vs_cvs", "covariance", "error_maps"):
+        assert (res / "seed" / "calib" / "figures" / f"{fig}.png").stat().st_size > 5000
 
 
 def test_demo_sync_matches_truth(demo_run):
@@ -180,30 +183,49 @@ def test_demo_rerun_has_nothing_to_do(demo_run):
     assert dry_run_jobs(demo_run) == set()
 
 
+def _jobs_after_change(workdir, change):
+    """Rules a dry run would rerun after `change(config)`; the config is restored afterwards."""
+    config = yaml.safe_load((workdir / "config/config.yaml").read_text())
+    changed = copy.deepcopy(config)
+    change(changed)
+    write_config(workdir, changed)
+    try:
+        return dry_run_jobs(workdir)
+    finally:
+        write_config(workdir, config)
+
+
 def test_changed_pnp_threshold_reruns_only_its_dependants(demo_run):
     """Changing the RANSAC threshold reruns poses and what depends on it, nothing upstream."""
-    config = yaml.safe_load((demo_run / "config/config.yaml").read_text())
-    changed = copy.deepcopy(config)
-    changed["pnp"]["ransac_reproj_px"] = 2.5
-    write_config(demo_run, changed)
-    try:
-        jobs = dry_run_jobs(demo_run)
-    finally:
-        write_config(demo_run, config)
-    assert jobs == {"poses", "sync", "pairs", "all"}
+    jobs = _jobs_after_change(demo_run, lambda c: c["pnp"].update(ransac_reproj_px=2.5))
+    assert jobs == {"poses", "sync", "pairs", "optimise_seed", "analyse", "all"}
 
 
-def test_lint_reports_nothing_but_missing_conda_envs(tmp_path):
-    """`snakemake --lint` finds no problem other than the tolerated 'no conda environment'."""
-    write_config(tmp_path, demo_config())
-    proc = snakemake(tmp_path, "--lint", check=False)
-    lints = [ln.strip() for ln in (proc.stdout + proc.stderr).splitlines() if ln.strip().startswith("* ")]
-    assert lints, "expected lint output (the conda hint) to parse"
-    assert all("conda environment" in ln for ln in lints), lints
+def test_changed_iteration_count_reruns_only_the_optimiser(demo_run):
+    """Changing the seed optimiser's k reruns the optimiser and its analysis only."""
+    jobs = _jobs_after_change(demo_run, lambda c: c["optimise"]["seed"].update(k_iterations=7))
+    assert jobs == {"optimise_seed", "analyse", "all"}
 
 
-def test_snakefiles_are_formatted():
-    """snakefmt --check passes on the Snakefile and the rule files."""
-    proc = subprocess.run([sys.executable, "-m", "snakefmt", "--check", "Snakefile", "workflow/"],
-                          cwd=REPO, capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr
+def test_changed_filter_cutoff_reruns_from_vicon_repair(demo_run):
+    """Changing the Butterworth cut-off reruns the Vicon repair and what follows, not the camera half."""
+    jobs = _jobs_after_change(demo_run, lambda c: c["vicon"]["filter"].update(cutoff_hz=8.0))
+    assert jobs == {"vicon_repair", "vicon_bodies", "vicon_resample", "sync", "pairs",
+                    "optimise_seed", "analyse", "all"}
+
+
+def test_demo_stats_match_the_error_table(demo_run):
+    """stats.json's per-dimension mean, std and Σ equal numpy on errors.parquet of the same run."""
+    import json
+
+    run = demo_run / "results" / "demo" / "seed" / "calib"
+    stats = json.loads((run / "stats.json").read_text())
+    errors = pd.read_parquet(run / "errors.parquet")
+    dims = ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"]
+    eps = errors[[f"eps_{d}" for d in dims]].to_numpy(float)
+    for k, d in enumerate(dims):
+        assert stats["per_dim"][d]["mean"] == pytest.approx(eps[:, k].mean(), abs=1e-12)
+        assert stats["per_dim"][d]["std"] == pytest.approx(eps[:, k].std(ddof=1), rel=1e-9)
+    np.testing.assert_allclose(np.array(stats["Sigma"]), np.cov(eps, rowvar=False), rtol=1e-9)
+    result = yaml.safe_load((run / "result.yaml").read_text())
+    assert stats["optimum"]["fx_px"] == result["fx_px"]
