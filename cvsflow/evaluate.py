@@ -1,0 +1,312 @@
+"""Pose errors done right: composed SE(3) errors, held-out time blocks, block bootstrap.
+
+- :func:`pose_errors`: per-axis errors from the composed transform (not from subtracting
+  6-vectors), in a named frame.
+- :func:`make_time_blocks` and :func:`cross_validate_se3`: fit on some contiguous time
+  blocks, score on the others; the held-out figures are the ones to state.
+- :func:`bootstrap_error_stats`: moving-block bootstrap confidence intervals of the mean,
+  standard deviation and covariance Sigma of autocorrelated per-frame errors.
+
+Errors are ``estimate - reference``: the CVS pose (PnP) against the Vicon reference.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pandas as pd
+
+from cvsflow import transforms as tf
+from cvsflow.errors import OptimiseError
+
+log = logging.getLogger(__name__)
+
+#: The six error dimensions, in the chapter's order [x y z roll pitch yaw] (m, rad).
+ERROR_DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+FRAMES = ("C", "B")
+
+
+def pose_errors(T_C_B_ref, T_C_B_est, frame="C"):
+    """Per-axis errors of estimated board poses from the composed transform.
+
+    Parameters
+    ----------
+    T_C_B_ref : ndarray, shape (N, 4, 4)
+        Reference (true) board pose in the camera, metres.
+    T_C_B_est : ndarray, shape (N, 4, 4)
+        Estimated board pose in the camera, metres.
+    frame : {"C", "B"}
+        Frame the error is expressed in. ``"C"`` (default): translation t_est - t_ref in C
+        and the rotation error dR = R_est R_ref^T, a rotation about the axes of C.
+        ``"B"``: the composed error dT = T_ref^-1 T_est itself, translation
+        R_ref^T (t_est - t_ref) and rotation R_ref^T R_est, both in the reference board frame.
+
+    Returns
+    -------
+    errors : DataFrame
+        ``err_x_m, err_y_m, err_z_m`` (m), ``err_roll_rad, err_pitch_rad, err_yaw_rad`` (rad,
+        Euler angles of dR, R = Rz(yaw) Ry(pitch) Rx(roll)), ``err_angle_rad`` (rotation
+        angle of dR, in [0, pi]) and ``err_dist_m`` (length of the translation error).
+
+    Raises
+    ------
+    OptimiseError
+        Shapes differ or are not (N, 4, 4), or ``frame`` is unknown.
+
+    Notes
+    -----
+    A pure yaw error of 1 degree about C's z axis gives err_yaw 1 degree and err_angle
+    1 degree; a 6-vector difference of Euler angles (the chapter's eq. 1.11) instead mixes
+    axes whenever roll or pitch are not small.
+    """
+    ref = np.asarray(T_C_B_ref, float)
+    est = np.asarray(T_C_B_est, float)
+    if ref.shape != est.shape or ref.ndim != 3 or ref.shape[1:] != (4, 4):
+        raise OptimiseError(
+            f"pose_errors: reference {ref.shape} and estimate {est.shape}; expected (N, 4, 4)"
+        )
+    if frame not in FRAMES:
+        raise OptimiseError(f"pose_errors: frame {frame!r}; expected one of {FRAMES}")
+    R_ref, R_est = ref[:, :3, :3], est[:, :3, :3]
+    dt_C = est[:, :3, 3] - ref[:, :3, 3]
+    if frame == "C":
+        dt = dt_C
+        dR = R_est @ np.swapaxes(R_ref, 1, 2)
+    else:
+        dT = tf.pose_difference(ref, est)  # T_ref^-1 T_est
+        dt, dR = dT[:, :3, 3], dT[:, :3, :3]
+    rpy = tf.euler_from_R(dR).reshape(-1, 3)
+    return pd.DataFrame(
+        {
+            "err_x_m": dt[:, 0],
+            "err_y_m": dt[:, 1],
+            "err_z_m": dt[:, 2],
+            "err_roll_rad": rpy[:, 0],
+            "err_pitch_rad": rpy[:, 1],
+            "err_yaw_rad": rpy[:, 2],
+            "err_angle_rad": tf.rotation_angle(dR).reshape(-1),
+            "err_dist_m": np.linalg.norm(dt_C, axis=1),
+        }
+    )
+
+
+def error_columns():
+    """Names of the six per-axis error columns written by :func:`pose_errors`."""
+    return [f"err_{d}" for d in ERROR_DIMS]
+
+
+def frame_errors(frames, frame="C"):
+    """Composed and chapter-style errors of a per-frame table of CVS and reference poses.
+
+    Parameters
+    ----------
+    frames : DataFrame
+        Output of :func:`cvsflow.optimise.se3.apply_se3`: ``cvs_`` and ``ref_`` pose columns
+        (``x_m, y_m, z_m, qx, qy, qz, qw``).
+    frame : {"C", "B"}
+        See :func:`pose_errors`.
+
+    Returns
+    -------
+    errors : DataFrame
+        ``frames`` with the :func:`pose_errors` columns and, for comparison, the chapter's
+        6-vector differences ``d6_x_m .. d6_yaw_rad`` (pose6(cvs) - pose6(ref), angles
+        wrapped to (-pi, pi]); column ``error_frame`` names the frame.
+    """
+    from cvsflow.optimise.se3 import poses_from_table
+
+    T_ref = poses_from_table(frames, "ref_")
+    T_cvs = poses_from_table(frames, "cvs_")
+    err = pose_errors(T_ref, T_cvs, frame=frame)
+    d6 = tf.pose6_from_T(T_cvs) - tf.pose6_from_T(T_ref)
+    d6[:, 3:] = tf.wrap_angle(d6[:, 3:])
+    out = pd.concat([frames.reset_index(drop=True), err], axis=1)
+    for j, d in enumerate(ERROR_DIMS):
+        out[f"d6_{d}"] = d6[:, j]
+    out["error_frame"] = frame
+    return out
+
+
+def make_time_blocks(t_s, block_s, n_folds, seed):
+    """Assign frames to folds by contiguous time blocks, the blocks shuffled by a seed.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (N,)
+        Frame times, s.
+    block_s : float
+        Block length, s (longer than the errors' correlation time: a few seconds).
+    n_folds : int
+        Number of folds (>= 2).
+    seed : int
+        Seed of the shuffle of blocks to folds.
+
+    Returns
+    -------
+    fold : ndarray of int, shape (N,)
+        Fold of every frame, 0..n_folds-1; each fold gets whole blocks, in near-equal numbers.
+
+    Raises
+    ------
+    OptimiseError
+        Fewer blocks than folds, n_folds < 2 or block_s <= 0.
+    """
+    t = np.asarray(t_s, float)
+    if n_folds < 2 or not block_s > 0:
+        raise OptimiseError(
+            f"make_time_blocks: n_folds={n_folds}, block_s={block_s}; expected >= 2 and > 0 s"
+        )
+    block = np.floor((t - t.min()) / block_s).astype(int)
+    blocks = np.unique(block)
+    if len(blocks) < n_folds:
+        raise OptimiseError(
+            f"make_time_blocks: {len(blocks)} blocks of {block_s} s in {np.ptp(t):.1f} s, "
+            f"fewer than {n_folds} folds; shorten block_s"
+        )
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(blocks))
+    fold_of_block = np.empty(len(blocks), int)
+    fold_of_block[order] = np.arange(len(blocks)) % n_folds
+    return fold_of_block[np.searchsorted(blocks, block)]
+
+
+def cross_validate_se3(
+    corners, bodies, camera, board, dt_offset_s, *, n_folds=5, block_s=5.0, seed=0,
+    frame="C", **se3_options,
+):  # fmt: skip
+    """Fit se3 on all folds but one, score the held-out fold; every fold in turn.
+
+    Parameters
+    ----------
+    corners, bodies, camera, board, dt_offset_s
+        As :func:`cvsflow.optimise.se3.optimise_se3`.
+    n_folds : int
+        Folds of contiguous time blocks.
+    block_s : float
+        Block length, s.
+    seed : int
+        Seed of the block-to-fold assignment.
+    frame : {"C", "B"}
+        Frame of the errors (:func:`pose_errors`).
+    **se3_options
+        Passed to ``optimise_se3`` (free, loss, f_scale_px, ...).
+
+    Returns
+    -------
+    heldout : DataFrame
+        One row per frame, scored by the fit that did not see it: the :func:`frame_errors`
+        columns plus ``fold``; ``sigma_px`` of that fit.
+    fits : list of dict
+        ``result`` of each fold's fit, with ``fold`` added.
+    """
+    from cvsflow.optimise.se3 import apply_se3, board_points_B, corner_arrays, optimise_se3
+
+    frame_ids, t_video, _ = corner_arrays(corners, len(board_points_B(board)))
+    fold = make_time_blocks(t_video, block_s, n_folds, seed)
+    parts, fits = [], []
+    for k in range(n_folds):
+        train = frame_ids[fold != k]
+        test = frame_ids[fold == k]
+        fit = optimise_se3(corners, bodies, camera, board, dt_offset_s, frames=train, **se3_options)
+        res = dict(fit.result)
+        res["fold"] = k
+        fits.append(res)
+        scored = frame_errors(apply_se3(res, corners, bodies, board, frames=test), frame=frame)
+        scored["fold"] = k
+        scored["sigma_px"] = res["sigma_px"]
+        parts.append(scored)
+        log.info("cross-validation fold %d: %d train, %d test frames", k, len(train), len(test))
+    heldout = pd.concat(parts, ignore_index=True).sort_values("frame", ignore_index=True)
+    return heldout, fits
+
+
+def summarise_errors(errors, columns=None):
+    """Mean, standard deviation, RMS and covariance Sigma of per-frame errors.
+
+    Parameters
+    ----------
+    errors : DataFrame
+        Per-frame errors.
+    columns : list of str, optional
+        Columns to summarise; default the six ``err_`` columns.
+
+    Returns
+    -------
+    summary : dict
+        ``columns``, ``n``, ``mean``, ``std`` (ddof 1), ``rms`` (lists, SI units) and
+        ``Sigma`` (covariance, list of lists).
+    """
+    cols = list(columns or error_columns())
+    E = errors[cols].to_numpy(float)
+    return {
+        "columns": cols,
+        "n": int(len(E)),
+        "mean": E.mean(axis=0).tolist(),
+        "std": E.std(axis=0, ddof=1).tolist(),
+        "rms": np.sqrt(np.mean(E**2, axis=0)).tolist(),
+        "Sigma": np.cov(E, rowvar=False).tolist(),
+    }
+
+
+def bootstrap_error_stats(errors, block_len, n_boot=1000, seed=0, level=0.95):
+    """Moving-block bootstrap confidence intervals of the mean, std and Sigma of errors.
+
+    Parameters
+    ----------
+    errors : ndarray, shape (N, d), or DataFrame
+        Per-frame errors in time order (SI units).
+    block_len : int
+        Block length in frames (longer than the errors' autocorrelation; e.g. 1-2 s of
+        frames). 1 gives the ordinary iid bootstrap.
+    n_boot : int
+        Bootstrap resamples.
+    seed : int
+        Seed of the resampling.
+    level : float
+        Confidence level of the percentile intervals, in (0, 1).
+
+    Returns
+    -------
+    stats : dict
+        For each of ``mean``, ``std`` (shape (d,)) and ``Sigma`` (shape (d, d)): the estimate
+        and its interval ``{name}_lo``, ``{name}_hi`` (ndarrays), plus ``block_len``,
+        ``n_boot``, ``level``.
+
+    Raises
+    ------
+    OptimiseError
+        Fewer than 2 rows, block_len out of [1, N], or level not in (0, 1).
+
+    Notes
+    -----
+    Künsch (1989), "The jackknife and the bootstrap for general stationary observations":
+    ceil(N / L) blocks of L consecutive frames drawn with replacement from the N - L + 1
+    overlapping blocks, concatenated and cut to N. Percentile intervals.
+    """
+    E = np.asarray(errors.to_numpy(float) if isinstance(errors, pd.DataFrame) else errors, float)
+    if E.ndim == 1:
+        E = E[:, None]
+    n, d = E.shape
+    L = int(block_len)
+    if n < 2 or not 1 <= L <= n:
+        raise OptimiseError(f"bootstrap: {n} rows and block_len {block_len}; need N >= 2 and 1 <= block_len <= N")
+    if not 0 < level < 1:
+        raise OptimiseError(f"bootstrap: level {level}; expected in (0, 1)")
+    rng = np.random.default_rng(seed)
+    n_blocks = -(-n // L)
+    starts = rng.integers(0, n - L + 1, size=(n_boot, n_blocks))
+    idx = (starts[:, :, None] + np.arange(L)[None, None, :]).reshape(n_boot, -1)[:, :n]
+    S = E[idx]  # (B, n, d)
+    means = S.mean(axis=1)
+    C = S - means[:, None, :]
+    sigmas = np.einsum("bni,bnj->bij", C, C, optimize=False) / (n - 1)
+    stds = np.sqrt(np.einsum("bii->bi", sigmas))
+    a = (1.0 - level) / 2.0
+    out = {"block_len": L, "n_boot": int(n_boot), "level": float(level)}
+    est = {"mean": E.mean(axis=0), "std": E.std(axis=0, ddof=1), "Sigma": np.cov(E, rowvar=False)}
+    for name, boot in (("mean", means), ("std", stds), ("Sigma", sigmas)):
+        out[name] = np.atleast_1d(est[name]) if name != "Sigma" else np.atleast_2d(est[name])
+        out[f"{name}_lo"] = np.quantile(boot, a, axis=0)
+        out[f"{name}_hi"] = np.quantile(boot, 1.0 - a, axis=0)
+    return out
