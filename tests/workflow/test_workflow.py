@@ -229,3 +229,17 @@ def test_demo_stats_match_the_error_table(demo_run):
     np.testing.assert_allclose(np.array(stats["Sigma"]), np.cov(eps, rowvar=False), rtol=1e-9)
     result = yaml.safe_load((run / "result.yaml").read_text())
     assert stats["optimum"]["fx_px"] == result["fx_px"]
+
+
+def test_demo_summary_and_report(demo_run):
+    """The summary table has the run with its truth, and `--report` builds an HTML report with every figure."""
+    summary = pd.read_csv(demo_run / "results" / "summary.csv")
+    row = summary.set_index(["session", "method", "f_init"]).loc[("demo", "seed", "calib")]
+    truth = yaml.safe_load((demo_run / "data/demo/truth.yaml").read_text())
+    assert row["fx_true_px"] == pytest.approx(truth["camera"]["K"][0][0])
+    result = yaml.safe_load((demo_run / "results/demo/seed/calib/result.yaml").read_text())
+    assert row["fx_px"] == pytest.approx(result["fx_px"], rel=1e-5)
+    snakemake(demo_run, "--report", "report.html")
+    html = (demo_run / "report.html").read_text(errors="replace")
+    for name in ("convergence.png", "histograms.png", "covariance.png", "sync.png", "summary.csv"):
+        assert name in html

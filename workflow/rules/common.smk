@@ -75,7 +75,10 @@ def session_targets(session):
 
 
 def all_targets():
-    return [t for s in SESSIONS for t in session_targets(s)]
+    targets = [t for s in SESSIONS for t in session_targets(s)]
+    if optimiser_runs():
+        targets.append("results/summary.csv")
+    return targets
 
 
 wildcard_constraints:
@@ -114,3 +117,31 @@ def optimiser_targets(session):
             base = f"results/{session}/{method}/{finit_label(value)}"
             out += [f"{base}/result.yaml", f"{base}/stats.json"]
     return out
+
+
+def optimiser_runs():
+    """(session, method, finit) of every optimiser run the config asks for."""
+    runs = []
+    for session in SESSIONS:
+        if (
+            has(session, "vicon")
+            and has(session, "video")
+            and has(session, "calib_dir")
+        ):
+            for method in config["optimise"]["methods"]:
+                for value in config["optimise"]["f_init"]:
+                    runs.append((session, method, finit_label(value)))
+    return runs
+
+
+def summary_inputs(wildcards):
+    files = {}
+    for session, method, finit in optimiser_runs():
+        base = f"results/{session}/{method}/{finit}"
+        files[f"{session}/{method}/{finit}/result"] = f"{base}/result.yaml"
+        files[f"{session}/{method}/{finit}/stats"] = f"{base}/stats.json"
+        files[f"{session}/pairs"] = f"results/{session}/pairs.parquet"
+        if is_synth(session):
+            files[f"{session}/truth"] = f"data/{session}/truth.yaml"
+            files[f"{session}/truth_frames"] = f"data/{session}/truth_frames.parquet"
+    return files
