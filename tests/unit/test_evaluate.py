@@ -117,3 +117,32 @@ def test_cross_validation_held_out_errors_match_pnp_noise():
     assert np.degrees(held["err_angle_rad"]).quantile(0.95) < 1.5
     assert abs(summ["mean"][0]) < 3 * std["err_x_m"] / np.sqrt(len(held) / 30)
     assert {"d6_x_m", "d6_yaw_rad", "fold", "error_frame"} <= set(held.columns)
+
+
+def test_se3_figures_build_with_labelled_axes():
+    """The three se3 figures build from synthetic tables with unit-labelled axes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from cvsflow.plots import se3 as plots
+
+    rng = np.random.default_rng(9)
+    n = 300
+    errors = {"t_s": np.arange(n) / 30.0, "error_frame": "C"}
+    for d in ev.ERROR_DIMS:
+        errors[f"err_{d}"] = rng.normal(0, 1e-3, n)
+        errors[f"d6_{d}"] = rng.normal(0, 1e-3, n)
+    import pandas as pd
+
+    errors = pd.DataFrame(errors)
+    f1 = plots.plot_heldout_errors(errors)
+    f2 = plots.plot_error_bands(errors, np.full((n, 6), 1e-3))
+    f3 = plots.plot_parameter_correlation(
+        {"correlation": {"names": ["fx", "fy"], "matrix": [[1.0, 0.97], [0.97, 1.0]]}}
+    )
+    assert "(mm)" in f1.axes[0].get_xlabel() and "(deg)" in f1.axes[3].get_xlabel()
+    assert "(s)" in f2.axes[-1].get_xlabel() and "(mm)" in f2.axes[0].get_ylabel()
+    assert f3.axes[0].get_xticklabels()[0].get_text() == "fx"
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
