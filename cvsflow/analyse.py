@@ -319,6 +319,8 @@ def summary_row(session, method, finit, result, stats, truth=None, pairs=None, t
     row = {"session": session, "method": method, "f_init": finit,
            "n_pairs": int(result.get("n_pairs", stats.get("n", 0))),
            "fx_px": float(result["fx_px"]), "fy_px": float(result["fy_px"])}
+    f_init = result.get("f_init_px", [np.nan, np.nan])
+    row["fx_init_px"], row["fy_init_px"] = float(f_init[0]), float(f_init[1])
     if truth is not None:
         K = np.asarray(truth["camera"]["K"], dtype=float)
         row["fx_true_px"], row["fy_true_px"] = float(K[0, 0]), float(K[1, 1])

@@ -2,11 +2,23 @@ rule summary:
     input:
         unpack(summary_inputs),
     output:
-        report(
+        table=report(
             "results/summary.csv",
             caption="../report/summary.rst",
             category="Summary",
-            labels={"table": "optimiser runs"},
+            labels={"figure": "optimiser runs (table)"},
+        ),
+        sweep=report(
+            "results/figures/sweep.png",
+            caption="../report/sweep.rst",
+            category="Summary",
+            labels={"figure": "focal initialisation sweep"},
+        ),
+        sessions=report(
+            "results/figures/sessions.png",
+            caption="../report/sessions.rst",
+            category="Summary",
+            labels={"figure": "sessions compared"},
         ),
     log:
         "logs/summary.log",

@@ -5,8 +5,9 @@ import json
 import pandas as pd
 
 from cvsflow.analyse import summary_row
-from cvsflow.io import atomic_output, read_parquet, read_yaml
+from cvsflow.io import atomic_output, read_parquet, read_yaml, save_figure
 from cvsflow.io.logs import stage_logging
+from cvsflow.plots import summary as plots
 
 with stage_logging(snakemake.log[0], "summary") as log:
     inp = dict(snakemake.input.items())
@@ -24,5 +25,7 @@ with stage_logging(snakemake.log[0], "summary") as log:
         ))
     table = pd.DataFrame(rows)
     log.info("%d runs summarised", len(table))
-    with atomic_output(snakemake.output[0]) as tmp:
+    with atomic_output(snakemake.output.table) as tmp:
         table.to_csv(tmp, index=False, float_format="%.6g")
+    save_figure(plots.plot_sweep(table), snakemake.output.sweep)
+    save_figure(plots.plot_sessions(table), snakemake.output.sessions)
