@@ -11,6 +11,7 @@ from cvsflow.align import (
     angular_speed_vicon,
     build_pairs,
     check_take_covers_video,
+    refine_offset_rotations,
     sync_angular_speed,
     sync_gesture,
     synchronise,
@@ -135,6 +136,103 @@ def test_sync_angular_speed_within_3ms(session):
     assert out["method"] == "angular_speed"
     assert 0.5 < out["quality"] <= 1.0
     assert abs(out["details"]["dt_coarse_s"] - DT_OFFSET_S) < 0.02
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_sync_angular_speed_refined_within_1ms(seed):
+    """The seeds on which the former angular-speed mismatch refinement was -2.9 and +3.4 ms off:
+    the relative-rotation-angle refinement is within 1 ms of the true offset (0.3 ms seen on
+    seeds 0..7), records itself in details, and its jackknife standard error is positive and
+    below 1 ms."""
+    poses, bodies, _ = make_session(seed=seed)
+    out = sync_angular_speed(poses, bodies, max_offset_s=10.0, min_quality=0.5)
+    d = out["details"]
+    assert abs(out["dt_offset_s"] - DT_OFFSET_S) < 0.001, d
+    assert d["refinement"] == "relative_rotation_angles"
+    assert d["dt_refined_s"] == out["dt_offset_s"]
+    assert 0.0 < d["dt_sigma_s"] < 0.001
+    assert d["n_refine_pairs"] > 10 * d["n_refine_frames"]  # baselines 1..15 frames
+    # a tenth of a degree of CVS noise and 0.3 mm of marker noise: residual angle RMS ~0.2 deg
+    assert np.radians(0.05) < d["residual_rms_rad"] < np.radians(0.5)
+
+
+def test_sync_leaves_out_pose_flips(session):
+    """Video poses flipped by 30 deg (PnP's ambiguity), single frames and a run of 3, made the
+    former correlation peak land seconds off on a rendered session: they are left out
+    (exactly those with a pose) and the offset stays within 1 ms."""
+    poses, bodies, _ = session
+    flipped = poses.copy()
+    rows = np.array([40, 41, 42, 120, 200, 300])
+    rows = rows[flipped.loc[rows, "valid"].to_numpy()]
+    R = Rotation.from_rotvec(flipped.loc[rows, ["rvec_0", "rvec_1", "rvec_2"]].to_numpy(copy=True))
+    flipped.loc[rows, ["rvec_0", "rvec_1", "rvec_2"]] = (R * Rotation.from_rotvec([np.radians(30.0), 0.0, 0.0])).as_rotvec()
+    out = sync_angular_speed(flipped, bodies, max_offset_s=10.0, min_quality=0.5)
+    assert out["details"]["n_jump_frames"] == len(rows)
+    assert abs(out["dt_offset_s"] - DT_OFFSET_S) < 0.001, out
+
+
+def _rotation_stream(t_s):
+    """A smooth, hand-like R_Cm_Bm(t) (several frequencies about all three axes)."""
+    rotvec = np.stack([
+        0.4 * np.sin(2 * np.pi * 0.7 * t_s) + 0.1 * np.sin(2 * np.pi * 2.3 * t_s + 1.0),
+        0.3 * np.sin(2 * np.pi * 0.5 * t_s + 0.4) + 0.05 * np.sin(2 * np.pi * 3.1 * t_s),
+        0.2 * np.sin(2 * np.pi * 0.9 * t_s + 2.0),
+    ], axis=1)
+    return Rotation.from_rotvec(rotvec).as_matrix()
+
+
+@pytest.mark.parametrize("smooth_s", [0.0, 0.01])
+def test_refine_offset_rotations_invariant_to_mounting(smooth_s):
+    """Noise-free, with arbitrary constant rotations on both sides (R_C_B = R_C_Cm R_Cm_Bm
+    R_Bm_B), 10 % of the frames and a 0.1 s Vicon gap missing, started 12 ms off: the offset
+    is recovered within 0.05 ms (the Gaussian smoothing is symmetric: no time shift). The angle
+    residual is below 0.01 deg unsmoothed; the 10 ms Gaussian damps the 3 Hz component by 2 %,
+    which leaves at most 0.1 deg."""
+    dt_true = 1.2345
+    t_v = np.arange(0.0, 9.0, 1.0 / RATE_HZ)
+    R_v = _rotation_stream(t_v)
+    valid_v = np.ones(len(t_v), bool)
+    valid_v[(t_v > 4.0) & (t_v < 4.1)] = False
+    t_c = np.arange(0.0, 6.0, 1.0 / FPS)
+    A = Rotation.from_rotvec([0.3, -1.2, 2.0]).as_matrix()
+    B = Rotation.from_rotvec([2.5, 0.4, -0.7]).as_matrix()
+    R_c = A @ _rotation_stream(t_c + dt_true) @ B
+    valid_c = np.random.default_rng(0).uniform(size=len(t_c)) > 0.1
+    out = refine_offset_rotations(t_c, R_c, valid_c, t_v, R_v, valid_v, dt_true + 0.012, search_s=1.0 / FPS,
+                                  smooth_s=smooth_s)
+    assert abs(out["dt_s"] - dt_true) < 5e-5, out
+    assert out["residual_rms_rad"] < np.radians(0.01 if smooth_s == 0.0 else 0.1)
+    # frames whose Vicon time, anywhere in the search range, falls in the gap take no part
+    in_gap = (t_c + dt_true + 0.012 + 1.0 / FPS > 4.0 - 1.0 / RATE_HZ) & (t_c + dt_true + 0.012 - 1.0 / FPS < 4.1)
+    assert out["n_frames"] <= int((valid_c & ~in_gap).sum())
+
+
+def test_refine_offset_rotations_too_few_pairs():
+    """Fewer than 20 frame pairs: no estimate (dt_s None), no exception."""
+    t_v = np.arange(0.0, 3.0, 1.0 / RATE_HZ)
+    t_c = np.arange(0.0, 0.2, 1.0 / FPS)
+    out = refine_offset_rotations(t_c, _rotation_stream(t_c), np.ones(len(t_c), bool), t_v, _rotation_stream(t_v),
+                                  np.ones(len(t_v), bool), 0.0, search_s=0.01, max_baseline=2)
+    assert out["dt_s"] is None and out["n_pairs"] < 20
+
+
+def test_smooth_rotations_keeps_time_and_masks_holes():
+    """A constant-rate turn is its own Gaussian mean (to 1e-9 rad): smoothing shifts nothing in
+    time; samples within 2.5 sigma of an invalid one, or of either end, are marked invalid."""
+    from cvsflow.align import _smooth_rotations
+
+    t = np.arange(0.0, 1.0, 1.0 / RATE_HZ)
+    R = Rotation.from_rotvec(np.outer(1.7 * t, [0.36, 0.48, 0.8])).as_matrix()
+    valid = np.ones(len(t), bool)
+    valid[150] = False
+    q, ok = _smooth_rotations(t, R, valid, 0.01)
+    half = int(np.ceil(2.5 * 0.01 * RATE_HZ))
+    expect = valid.copy()
+    expect[150 - half : 150 + half + 1] = False
+    expect[:half] = expect[-half:] = False
+    np.testing.assert_array_equal(ok, expect)
+    err = (Rotation.from_quat(q[ok]).inv() * Rotation.from_matrix(R[ok])).magnitude()
+    assert err.max() < 1e-9
 
 
 def test_sync_gesture_within_one_frame(session):
@@ -305,7 +403,8 @@ def test_rendered_session_bodies_within_1mm_01deg(rendered):
 
 def test_rendered_session_sync_within_3ms(rendered):
     """Angular-speed sync of the true video poses plus 0.1 deg rotation noise against the
-    rendered Vicon export recovers truth.yaml's dt_offset_s within 3 ms."""
+    rendered Vicon export recovers truth.yaml's dt_offset_s within 2 ms (0.4 ms seen; the
+    issue asks for 3 ms)."""
     truth, frames, bodies, _ = rendered
     rng = np.random.default_rng(21)
     R = Rotation.from_quat(frames[["qx", "qy", "qz", "qw"]].to_numpy(copy=True))
@@ -317,7 +416,7 @@ def test_rendered_session_sync_within_3ms(rendered):
         "x_m": frames["x_m"], "y_m": frames["y_m"], "z_m": frames["z_m"],
     })
     out = sync_angular_speed(poses, bodies, max_offset_s=10.0, min_quality=0.5)
-    assert abs(out["dt_offset_s"] - truth["dt_offset_s"]) < 0.003, (out, truth["dt_offset_s"])
+    assert abs(out["dt_offset_s"] - truth["dt_offset_s"]) < 0.002, (out, truth["dt_offset_s"])
     pairs = build_pairs(poses, bodies, out["dt_offset_s"], mode="interp")
     assert len(pairs) == int(frames["in_view"].sum())
 
