@@ -17,6 +17,7 @@ include: "workflow/rules/vicon.smk"
 include: "workflow/rules/align.smk"
 include: "workflow/rules/optimise.smk"
 include: "workflow/rules/analyse.smk"
+include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/summary.smk"
 
 

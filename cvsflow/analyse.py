@@ -138,7 +138,7 @@ def optimum_summary(result):
     normalisation. Ours: the RMS over frames of the translation error norm,
     sqrt(mean_i ||eps_i[x, y, z]||^2), in metres.
     """
-    keys = ["fx_px", "fy_px", "P_bar", "norm_normalised_init_m", "norm_normalised_final_m"]
+    keys = ["fx_px", "fy_px", "norm_normalised_init_m", "norm_normalised_final_m"]
     missing = [k for k in keys if k not in result]
     if missing:
         raise InputError(f"result.yaml: missing keys {missing}")
@@ -146,7 +146,7 @@ def optimum_summary(result):
     return {
         "fx_px": float(result["fx_px"]), "fy_px": float(result["fy_px"]),
         "f_init_px": [float(v) for v in result.get("f_init_px", [np.nan, np.nan])],
-        "P_bar": [float(v) for v in result["P_bar"]],
+        "P_bar": [float(v) for v in result.get("P_bar", [np.nan] * 6)],
         "norm_normalised_init_m": float(init), "norm_normalised_final_m": float(final),
         "norm_ratio": float(final / init) if init else float("nan"),
     }
@@ -169,8 +169,9 @@ def vicon_vs_cvs(errors, result):
         ``original_*`` = F(f_init) - P_bar_init + P_bar and ``improved_*`` = F(f_final);
         each CVS track minus the Vicon track is exactly its eps (eq. 1.11), angles wrapped.
     """
-    P_bar = np.asarray(result["P_bar"], dtype=float)
-    P_bar0 = np.asarray(result.get("P_bar_init", result["P_bar"]), dtype=float)
+    # se3 compares poses in one frame and has no 6-vector offset: P_bar is then zero.
+    P_bar = np.asarray(result.get("P_bar", np.zeros(6)), dtype=float)
+    P_bar0 = np.asarray(result.get("P_bar_init", P_bar), dtype=float)
     vic = _eps(errors, "vic") + P_bar
     orig = _eps(errors, "cvs_orig") - P_bar0 + P_bar
     impr = _eps(errors, "cvs")

@@ -310,3 +310,223 @@ def bootstrap_error_stats(errors, block_len, n_boot=1000, seed=0, level=0.95):
         out[f"{name}_lo"] = np.quantile(boot, a, axis=0)
         out[f"{name}_hi"] = np.quantile(boot, 1.0 - a, axis=0)
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Tables the workflow hands to the analysis, and the side-by-side comparison of methods
+
+
+def _pose6_block(frames, prefix):
+    """(N, 6) pose6 [x, y, z, roll, pitch, yaw] of the ``prefix`` pose columns (m, rad)."""
+    from cvsflow.optimise.se3 import poses_from_table
+
+    return tf.pose6_from_T(poses_from_table(frames, prefix))
+
+
+def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C"):
+    """The se3 run in the analysis' form: per-iteration table, per-frame errors, result.
+
+    Parameters
+    ----------
+    fit : OptimiseResult
+        :func:`cvsflow.optimise.se3.optimise_se3` output.
+    corners, bodies : DataFrame
+        corners.parquet and the native-rate bodies.parquet.
+    board : dict
+        ``squares_x``, ``squares_y``, ``square_m``.
+    poses_raw : DataFrame
+        poses_raw.parquet: the PnP poses at the calibrated intrinsics ("original" CVS).
+    frame : {"C", "B"}
+        Frame of the composed errors.
+
+    Returns
+    -------
+    iterations : DataFrame
+        The solver's steps: ``iteration``, ``cost``, ``rms_px``, ``fx_px``, ``fy_px``,
+        ``dt_offset_s``.
+    errors : DataFrame
+        Per frame: ``frame, t_s``; ``eps_{dim}`` the composed error (estimate - Vicon
+        reference, :func:`pose_errors`), ``d6_{dim}`` the chapter's 6-vector difference,
+        ``err_angle_rad``, ``err_dist_m``; ``vic_{dim}`` (reference T_C_B from the Vicon),
+        ``cvs_{dim}`` (PnP at the fitted intrinsics), ``cvs_orig_{dim}`` (poses_raw).
+    result : dict
+        ``fit.result`` plus ``fx_px``, ``fy_px``, ``f_init_px``, ``n_pairs``, the error frame
+        and the RMS translation error at the start and at the optimum
+        (``norm_normalised_init_m``, ``norm_normalised_final_m``).
+    """
+    from cvsflow.optimise.se3 import apply_se3
+
+    result = dict(fit.result)
+    final = frame_errors(apply_se3(result, corners, bodies, board), frame=frame)
+    errors = pd.DataFrame({"frame": final["frame"].to_numpy(), "t_s": final["t_s"].to_numpy()})
+    vic, cvs = _pose6_block(final, "ref_"), _pose6_block(final, "cvs_")
+    orig = poses_raw.set_index("frame").reindex(final["frame"].to_numpy())
+    for j, d in enumerate(ERROR_DIMS):
+        errors[f"eps_{d}"] = final[f"err_{d}"].to_numpy()
+        errors[f"d6_{d}"] = final[f"d6_{d}"].to_numpy()
+        errors[f"vic_{d}"] = vic[:, j]
+        errors[f"cvs_{d}"] = cvs[:, j]
+        errors[f"cvs_orig_{d}"] = orig[d].to_numpy(float)
+    errors["err_angle_rad"] = final["err_angle_rad"].to_numpy()
+    errors["err_dist_m"] = final["err_dist_m"].to_numpy()
+
+    init = result.get("init")
+    norm_init = np.nan
+    if isinstance(init, dict) and {"K", "dist", "T_Cm_C", "T_Bm_B", "dt_offset_s"} <= set(init):
+        start = frame_errors(apply_se3({**result, **init}, corners, bodies, board), frame=frame)
+        norm_init = float(np.sqrt(np.mean(start["err_dist_m"] ** 2)))
+    K = np.asarray(result["K"], float)
+    K0 = np.asarray(init["K"], float) if isinstance(init, dict) and "K" in init else K
+    result.update(
+        fx_px=float(K[0, 0]), fy_px=float(K[1, 1]), f_init_px=[float(K0[0, 0]), float(K0[1, 1])],
+        n_pairs=int(len(errors)), error_frame=frame,
+        norm_normalised_init_m=norm_init,
+        norm_normalised_final_m=float(np.sqrt(np.mean(final["err_dist_m"] ** 2))),
+    )
+    iterations = fit.iterations.reset_index(drop=True).copy()
+    iterations.insert(0, "iteration", np.arange(len(iterations)))
+    return iterations, errors, result
+
+
+def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.0, seed=0,
+                        **seed_options):
+    """Fit the chapter's method on all folds but one, score the held-out fold; every fold.
+
+    The fit gives f and P̄ (eqs. 1.10-1.12) from the training frames only; the held-out
+    frames' poses are re-estimated at that f and their error is eq. 1.11 with the training P̄.
+
+    Parameters
+    ----------
+    pairs, corners : DataFrame
+        pairs.parquet and corners.parquet.
+    K, dist : array_like
+        Calibrated intrinsics (the seed method's start).
+    board : dict
+    n_folds, block_s, seed
+        As :func:`make_time_blocks` (same folds as :func:`cross_validate_se3` for the same
+        frame times and seed).
+    **seed_options
+        Passed to :func:`cvsflow.optimise.seed.optimise_seed`.
+
+    Returns
+    -------
+    heldout : DataFrame
+        ``frame, t_s, fold, fx_px, fy_px`` and ``eps_{dim}`` (6-vector errors, m and rad).
+    """
+    from cvsflow.optimise.seed import compute_eps, optimise_seed
+
+    t_s = pairs["t_s"].to_numpy(float)
+    fold = make_time_blocks(t_s, block_s, n_folds, seed)
+    dims = list(ERROR_DIMS)
+    parts = []
+    for k in range(n_folds):
+        train, test = pairs[fold != k], pairs[fold == k]
+        if len(test) == 0:
+            continue
+        fit = optimise_seed(train, corners, K, dist, board, **seed_options)
+        f = (fit.result["fx_px"], fit.result["fy_px"])
+        opts = {**seed_options, "k_iterations": 0, "f_init_px": f}
+        scored = optimise_seed(test, corners, K, dist, board, **opts).errors
+        F = scored[[f"cvs_{d}" for d in dims]].to_numpy(float)
+        P_star = scored[[f"vic_{d}" for d in dims]].to_numpy(float)
+        eps = compute_eps(F, P_star, np.asarray(fit.result["P_bar"], float))  # eq. 1.11
+        part = pd.DataFrame({"frame": scored["frame"].to_numpy(), "t_s": scored["t_s"].to_numpy()})
+        part["fold"], part["fx_px"], part["fy_px"] = k, f[0], f[1]
+        for j, d in enumerate(dims):
+            part[f"eps_{d}"] = eps[:, j]
+        parts.append(part)
+        log.info("seed cross-validation fold %d: %d train, %d test frames, f = (%.1f, %.1f) px",
+                 k, len(train), len(test), *f)
+    return pd.concat(parts, ignore_index=True).sort_values("frame", ignore_index=True)
+
+
+def crossfit_error_model(heldout, features, cov_err=None):
+    """Train the error model on the held-out errors of all folds but one, score the last.
+
+    Every error used is out of sample for the calibration (cross-validated); the model is
+    then also scored on frames it was not trained on. Pooled over the folds.
+
+    Parameters
+    ----------
+    heldout : DataFrame
+        :func:`cross_validate_se3` output (``fold``, ``err_{dim}``, ``t_s``).
+    features : DataFrame
+        :func:`cvsflow.uncertainty.error_features` of the same rows.
+    cov_err : ndarray, shape (N, 6, 6), optional
+        The propagated PnP error covariance of the same rows (per-frame correlation of NEES).
+
+    Returns
+    -------
+    score : dict
+        ``n``, ``inside_68``, ``inside_95`` (per dimension and ``_all`` pooled), ``nees_mean``,
+        ``nees_inside_95``, ``folds`` (per-fold scores).
+    sigma : ndarray, shape (N, 6)
+        Predicted standard deviation of every row, by the model that did not see its fold.
+    mu : ndarray, shape (N, 6)
+        Predicted bias of every row.
+    """
+    from cvsflow.uncertainty import fit_error_model, predict_error_sigma, score_error_model
+
+    fold = heldout["fold"].to_numpy()
+    sigma = np.full((len(heldout), 6), np.nan)
+    mu = np.full((len(heldout), 6), np.nan)
+    folds = []
+    for k in np.unique(fold):
+        train, test = fold != k, fold == k
+        model = fit_error_model(features[train].reset_index(drop=True),
+                                heldout[train].reset_index(drop=True))
+        f_test = features[test].reset_index(drop=True)
+        sigma[test], mu[test] = predict_error_sigma(model, f_test)
+        s = score_error_model(model, f_test, heldout[test].reset_index(drop=True),
+                              None if cov_err is None else cov_err[test])
+        s["fold"] = int(k)
+        folds.append(s)
+    n = np.array([s["n"] for s in folds], float)
+    w = n / n.sum()
+    out = {"n": int(n.sum()), "folds": folds}
+    for band in ("68", "95"):
+        out[f"inside_{band}"] = {d: float(sum(wi * s[f"inside_{band}"][d] for wi, s in zip(w, folds)))
+                                 for d in ERROR_DIMS}
+        out[f"inside_{band}_all"] = float(sum(wi * s[f"inside_{band}_all"] for wi, s in zip(w, folds)))
+    out["nees_mean"] = float(sum(wi * s["nees_mean"] for wi, s in zip(w, folds)))
+    out["nees_inside_95"] = float(sum(wi * s["nees_inside_95"] for wi, s in zip(w, folds)))
+    return out, sigma, mu
+
+
+def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, level=0.95):
+    """Held-out error statistics of each method side by side, with block-bootstrap intervals.
+
+    Parameters
+    ----------
+    heldout_by_method : dict
+        Method name -> held-out table with ``eps_{dim}`` (se3: composed errors; seed: the
+        chapter's 6-vector errors), in time order.
+    block_len : int
+        Bootstrap block length in frames.
+
+    Returns
+    -------
+    dict
+        Per method: ``n`` and per dimension ``mean``, ``std``, ``rms`` with ``*_lo``, ``*_hi``
+        intervals of mean and std (SI); and, when both ``seed`` and ``se3`` are given,
+        ``rms_ratio_se3_to_seed`` per dimension.
+    """
+    out = {}
+    for method, table in heldout_by_method.items():
+        E = table[[f"eps_{d}" for d in ERROR_DIMS]].to_numpy(float)
+        boot = bootstrap_error_stats(E, min(block_len, len(E)), n_boot=n_boot, seed=seed, level=level)
+        per_dim = {}
+        for j, d in enumerate(ERROR_DIMS):
+            per_dim[d] = {
+                "mean": float(E[:, j].mean()), "mean_lo": float(boot["mean_lo"][j]),
+                "mean_hi": float(boot["mean_hi"][j]),
+                "std": float(E[:, j].std(ddof=1)), "std_lo": float(boot["std_lo"][j]),
+                "std_hi": float(boot["std_hi"][j]),
+                "rms": float(np.sqrt(np.mean(E[:, j] ** 2))),
+            }
+        out[method] = {"n": int(len(E)), "per_dim": per_dim}
+    if {"seed", "se3"} <= set(out):
+        out["rms_ratio_se3_to_seed"] = {
+            d: out["se3"]["per_dim"][d]["rms"] / out["seed"]["per_dim"][d]["rms"] for d in ERROR_DIMS
+        }
+    return out

@@ -111,3 +111,25 @@ def plot_parameter_correlation(result: dict) -> Figure:
     fig.colorbar(im, ax=ax, label="correlation (dimensionless)")
     ax.set_title("se3 estimate correlations (from (J^T J)^-1)")
     return fig
+
+
+def plot_solver_convergence(iterations: pd.DataFrame) -> Figure:
+    """The se3 solver's steps: robust cost, reprojection RMS (px), fx, fy (px) and time offset (ms)."""
+    fig = Figure(figsize=(10.0, 6.0), layout="constrained")
+    ax = fig.subplots(2, 2).ravel()
+    it = iterations["iteration"].to_numpy()
+    ax[0].semilogy(it, iterations["cost"], "o-")
+    ax[0].set(ylabel="robust cost", title="cost")
+    ax[1].plot(it, iterations["rms_px"], "o-")
+    ax[1].set(ylabel="reprojection RMS (px)", title="corner residuals")
+    ax[2].plot(it, iterations["fx_px"], "o-", label="fx")
+    ax[2].plot(it, iterations["fy_px"], "s-", label="fy")
+    ax[2].set(ylabel="focal length (px)", title="focal lengths")
+    ax[2].legend()
+    ax[3].plot(it, 1e3 * iterations["dt_offset_s"], "o-")
+    ax[3].set(ylabel="time offset (ms)", title="video to Vicon offset")
+    for a in ax:
+        a.set_xlabel("solver step")
+        a.grid(alpha=0.3)
+    fig.suptitle("se3: convergence of the joint calibration")
+    return fig

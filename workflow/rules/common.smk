@@ -71,6 +71,8 @@ def session_targets(session):
             f"results/{session}/figures/sync.png",
         ]
         out += optimiser_targets(session)
+        if {"seed", "se3"} <= set(config["optimise"]["methods"]):
+            out.append(f"results/{session}/comparison.yaml")
     return out
 
 

@@ -21,3 +21,31 @@ rule optimise_seed:
         f_init_px=lambda wc: f_init_px(wc.finit),
     script:
         "../scripts/optimise_seed.py"
+
+
+rule optimise_se3:
+    input:
+        corners="results/{session}/corners.parquet",
+        bodies="results/{session}/bodies.parquet",
+        camera="results/{session}/camera.yaml",
+        sync="results/{session}/sync.yaml",
+        poses="results/{session}/poses_raw.parquet",
+    output:
+        iterations="results/{session}/se3/{finit}/iterations.parquet",
+        errors="results/{session}/se3/{finit}/errors.parquet",
+        result="results/{session}/se3/{finit}/result.yaml",
+    log:
+        "logs/{session}/optimise.se3.{finit}.log",
+    benchmark:
+        "benchmarks/{session}/optimise.se3.{finit}.tsv"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        se3=config["optimise"]["se3"],
+        frame=config["evaluate"]["frame"],
+        f_init_px=lambda wc: f_init_px(wc.finit),
+    script:
+        "../scripts/optimise_se3.py"

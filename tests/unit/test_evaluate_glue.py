@@ -1,0 +1,101 @@
+"""The tables the workflow builds for the analysis and the method comparison."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cvsflow import evaluate as ev
+from cvsflow.optimise import se3
+
+DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+
+
+@pytest.fixture(scope="module")
+def session():
+    return se3.simulate_session(5, duration_s=12.0)
+
+
+def _poses_raw(s):
+    """poses_raw in the contract's form, from the true poses (the "original" CVS)."""
+    from cvsflow.transforms import pose6_from_T
+
+    p6 = pose6_from_T(s["truth"]["T_C_B"])
+    df = pd.DataFrame(p6, columns=list(DIMS))
+    df.insert(0, "frame", s["truth"]["frame"])
+    return df
+
+
+def test_se3_run_tables_errors_equal_composed_errors_by_hand(session):
+    """eps_* equal pose_errors of the same poses; vic_/cvs_ are pose6 of ref/cvs; norms are RMS."""
+    s = session
+    fit = se3.optimise_se3(s["corners"], s["bodies"], s["camera"], s["board"],
+                           s["truth"]["dt_offset_s"] + 0.004, free=("fx", "fy"))
+    iterations, errors, result = ev.se3_run_tables(fit, s["corners"], s["bodies"], s["board"],
+                                                   _poses_raw(s))
+    frames = se3.apply_se3(fit.result, s["corners"], s["bodies"], s["board"])
+    by_hand = ev.pose_errors(se3.poses_from_table(frames, "ref_"), se3.poses_from_table(frames, "cvs_"))
+    for d in DIMS:
+        np.testing.assert_allclose(errors[f"eps_{d}"], by_hand[f"err_{d}"], atol=1e-12)
+    assert result["norm_normalised_final_m"] == pytest.approx(
+        np.sqrt(np.mean(by_hand["err_dist_m"] ** 2)))
+    assert result["norm_normalised_init_m"] > result["norm_normalised_final_m"]
+    assert result["fx_px"] == pytest.approx(np.asarray(s["truth"]["K"])[0, 0], rel=2e-3)
+    assert list(iterations["iteration"]) == list(range(len(iterations)))
+    assert errors["cvs_orig_x_m"].notna().all()
+
+
+def test_cross_validate_seed_scores_each_frame_once_with_training_offset():
+    """Every pair frame is scored once; its error is F - P* - P̄ with P̄ from the other folds,
+    so on a constant-offset synthetic session the held-out error is small and near zero mean."""
+    from cvsflow.transforms import pose6_from_T
+
+    s = se3.simulate_session(8, duration_s=12.0, pixel_noise_px=0.2)
+    p6 = pose6_from_T(s["truth"]["T_C_B"])
+    offset = np.array([0.05, -0.02, 0.1, 0.01, 0.02, -0.03])
+    pairs = pd.DataFrame({"frame": s["truth"]["frame"], "t_s": s["truth"]["t_s"]})
+    from scipy.spatial.transform import Rotation
+
+    rv = Rotation.from_matrix(s["truth"]["T_C_B"][:, :3, :3]).as_rotvec()
+    for j, d in enumerate(DIMS):
+        pairs[f"cvs_{d}"] = p6[:, j]
+        pairs[f"vic_{d}"] = p6[:, j] - offset[j]
+    for j in range(3):
+        pairs[f"cvs_rvec_{j}"] = rv[:, j]
+    held = ev.cross_validate_seed(pairs, s["corners"], s["camera"]["K"], s["camera"]["dist"],
+                                  s["board"], n_folds=3, block_s=2.0, seed=1, k_iterations=1)
+    assert held["frame"].is_unique and len(held) == len(pairs)
+    assert set(held["fold"]) == {0, 1, 2}
+    assert np.abs(held["eps_x_m"]).median() < 0.01
+
+
+def test_crossfit_error_model_bands_on_model_data():
+    """On errors drawn from the model's own form, pooled held-out band shares are near 68/95 %."""
+    rng = np.random.default_rng(4)
+    n = 1500
+    v = rng.uniform(0.5, 2.0, (n, 6)) ** 2
+    features = pd.DataFrame({f"pnp_var_{d}": v[:, j] * 1e-6 for j, d in enumerate(DIMS)})
+    features["log_distance"] = np.log(rng.uniform(1, 4, n))
+    features["tilt_rad"] = rng.uniform(0, 0.8, n)
+    features["radius_norm"] = rng.uniform(0, 1, n)
+    held = pd.DataFrame({"fold": np.repeat(np.arange(5), n // 5), "t_s": np.arange(n) / 30})
+    for j, d in enumerate(DIMS):
+        held[f"err_{d}"] = rng.normal(0, 1e-3 * np.sqrt(v[:, j]))
+    score, sigma, mu = ev.crossfit_error_model(held, features)
+    assert 0.62 < score["inside_68_all"] < 0.74
+    assert 0.91 < score["inside_95_all"] < 0.98
+    assert sigma.shape == (n, 6) and np.isfinite(sigma).all()
+
+
+def test_compare_methods_ratio_and_rms_by_hand():
+    """compare_methods gives the RMS per dimension by hand and their se3/seed ratio."""
+    rng = np.random.default_rng(2)
+    a = pd.DataFrame({f"eps_{d}": rng.normal(0, 1.0, 200) for d in DIMS})
+    b = pd.DataFrame({f"eps_{d}": rng.normal(0, 0.1, 200) for d in DIMS})
+    out = ev.compare_methods({"seed": a, "se3": b}, block_len=10, n_boot=200)
+    for d in DIMS:
+        rms_a = np.sqrt(np.mean(a[f"eps_{d}"] ** 2))
+        assert out["seed"]["per_dim"][d]["rms"] == pytest.approx(rms_a)
+        assert out["rms_ratio_se3_to_seed"][d] == pytest.approx(
+            out["se3"]["per_dim"][d]["rms"] / rms_a)
+        lo, hi = out["seed"]["per_dim"][d]["std_lo"], out["seed"]["per_dim"][d]["std_hi"]
+        assert lo < out["seed"]["per_dim"][d]["std"] < hi

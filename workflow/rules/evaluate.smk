@@ -1,0 +1,86 @@
+rule heldout_seed:
+    input:
+        pairs="results/{session}/pairs.parquet",
+        corners="results/{session}/corners.parquet",
+        camera="results/{session}/camera.yaml",
+    output:
+        "results/{session}/heldout/seed.parquet",
+    log:
+        "logs/{session}/heldout.seed.log",
+    benchmark:
+        "benchmarks/{session}/heldout.seed.tsv"
+    threads: 2
+    resources:
+        mem_mb=3000,
+        runtime=60,
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        seed=config["optimise"]["seed"],
+        evaluate=config["evaluate"],
+    script:
+        "../scripts/heldout_seed.py"
+
+
+rule heldout_se3:
+    input:
+        corners="results/{session}/corners.parquet",
+        bodies="results/{session}/bodies.parquet",
+        camera="results/{session}/camera.yaml",
+        sync="results/{session}/sync.yaml",
+    output:
+        heldout="results/{session}/heldout/se3.parquet",
+        folds="results/{session}/heldout/se3_folds.yaml",
+    log:
+        "logs/{session}/heldout.se3.log",
+    benchmark:
+        "benchmarks/{session}/heldout.se3.tsv"
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        se3=config["optimise"]["se3"],
+        evaluate=config["evaluate"],
+    script:
+        "../scripts/heldout_se3.py"
+
+
+rule compare:
+    input:
+        seed="results/{session}/heldout/seed.parquet",
+        se3="results/{session}/heldout/se3.parquet",
+        se3_result="results/{session}/se3/calib/result.yaml",
+    output:
+        comparison="results/{session}/comparison.yaml",
+        heldout=report(
+            "results/{session}/figures/heldout_errors.png",
+            caption="../report/heldout_errors.rst",
+            category="Errors done right",
+            labels={"session": "{session}", "figure": "held-out errors"},
+        ),
+        bands=report(
+            "results/{session}/figures/error_bands.png",
+            caption="../report/error_bands.rst",
+            category="Errors done right",
+            labels={"session": "{session}", "figure": "predicted error bands"},
+        ),
+        correlation=report(
+            "results/{session}/figures/se3_correlation.png",
+            caption="../report/se3_correlation.rst",
+            category="Errors done right",
+            labels={"session": "{session}", "figure": "se3 estimate correlations"},
+        ),
+    log:
+        "logs/{session}/compare.log",
+    benchmark:
+        "benchmarks/{session}/compare.tsv"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        board=lambda wc: session_cfg(wc.session)["board"],
+        evaluate=config["evaluate"],
+    script:
+        "../scripts/compare.py"

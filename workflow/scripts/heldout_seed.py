@@ -1,0 +1,20 @@
+"""The chapter's method scored on time blocks it was not fitted on (rule heldout_seed)."""
+
+import numpy as np
+
+from cvsflow.evaluate import cross_validate_seed
+from cvsflow.io import read_parquet, read_yaml, write_parquet
+from cvsflow.io.logs import stage_logging
+
+with stage_logging(snakemake.log[0], "heldout_seed") as log:
+    camera = read_yaml(snakemake.input.camera)
+    ev = snakemake.params.evaluate
+    seed_options = {**snakemake.params.seed, "k_iterations": ev["seed_k_iterations"],
+                    "n_workers": snakemake.threads}
+    heldout = cross_validate_seed(
+        read_parquet(snakemake.input.pairs), read_parquet(snakemake.input.corners),
+        np.array(camera["K"]), np.array(camera["dist"]), snakemake.params.board,
+        n_folds=ev["n_folds"], block_s=ev["block_s"], seed=ev["seed"], **seed_options,
+    )
+    log.info("%d held-out frames", len(heldout))
+    write_parquet(heldout, snakemake.output[0])

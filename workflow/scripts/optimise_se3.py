@@ -1,0 +1,30 @@
+"""Joint SE(3) calibration: intrinsics, both marker mountings and the time offset (rule optimise_se3)."""
+
+import numpy as np
+
+from cvsflow.evaluate import se3_run_tables
+from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.io.logs import stage_logging
+from cvsflow.optimise.se3 import optimise_se3
+
+with stage_logging(snakemake.log[0], "optimise_se3") as log:
+    camera = read_yaml(snakemake.input.camera)
+    if snakemake.params.f_init_px is not None:
+        K = np.array(camera["K"], dtype=float)
+        K[0, 0] = K[1, 1] = snakemake.params.f_init_px
+        camera["K"] = K.tolist()
+    corners = read_parquet(snakemake.input.corners)
+    bodies = read_parquet(snakemake.input.bodies)
+    board = snakemake.params.board
+    fit = optimise_se3(corners, bodies, camera, board, read_yaml(snakemake.input.sync)["dt_offset_s"],
+                       **snakemake.params.se3)
+    for warning in fit.result.get("warnings", []):
+        log.warning(warning)
+    iterations, errors, result = se3_run_tables(fit, corners, bodies, board,
+                                                read_parquet(snakemake.input.poses),
+                                                frame=snakemake.params.frame)
+    log.info("fx %.2f px, fy %.2f px, dt %.4f s, corner RMS %.3f px", result["fx_px"],
+             result["fy_px"], result["dt_offset_s"], result["rms_px"])
+    write_parquet(iterations, snakemake.output.iterations)
+    write_parquet(errors, snakemake.output.errors)
+    write_yaml(result, snakemake.output.result)
