@@ -6,6 +6,7 @@ from cvsflow import analyse
 from cvsflow.io import atomic_output, read_parquet, read_yaml, save_figure
 from cvsflow.io.logs import stage_logging
 from cvsflow.plots import results as plots
+from cvsflow.plots import se3 as plots_se3
 
 with stage_logging(snakemake.log[0], "analyse") as log:
     errors = read_parquet(snakemake.input.errors)
@@ -18,8 +19,11 @@ with stage_logging(snakemake.log[0], "analyse") as log:
     tests = analyse.normality_tests(errors)
     Sigma, corr = analyse.error_covariance(errors)
     out = snakemake.output
-    save_figure(plots.plot_convergence(analyse.convergence(read_parquet(snakemake.input.iterations))),
-                out.convergence)
+    iterations = read_parquet(snakemake.input.iterations)
+    if snakemake.wildcards.method == "se3":
+        save_figure(plots_se3.plot_solver_convergence(iterations), out.convergence)
+    else:
+        save_figure(plots.plot_convergence(analyse.convergence(iterations)), out.convergence)
     save_figure(plots.plot_error_histograms(errors, tests), out.histograms)
     save_figure(plots.plot_qq(analyse.qq_data(errors)), out.qq)
     save_figure(plots.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(errors, result)), out.vicon_vs_cvs)
