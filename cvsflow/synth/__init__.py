@@ -34,9 +34,70 @@ from cvsflow.synth.session import (
 )
 from cvsflow.transforms import invert_T, pose6_from_T, transform_points
 
-__all__ = ["render_session"]
+__all__ = ["render_session", "render_stills"]
 
 log = logging.getLogger(__name__)
+
+
+def _session_setup(spec):
+    """Random streams, rig, renderer and calibration-still poses of a session.
+
+    Raises
+    ------
+    ConfigError
+        Fewer than ``spec.n_stills`` still poses with the board wholly in view were found.
+    """
+    rngs = random_streams(spec.seed)
+    rig = make_rig(spec, rngs["mounting"])
+    markers_B = transform_points(invert_T(rig.T_Bm_B), rig.markers_Bm_m)
+    renderer = Renderer(spec, rngs["background"], markers_B)
+    T_C_B_stills = still_poses(
+        rngs["stills"],
+        spec.n_stills,
+        spec.K,
+        spec.dist,
+        IMAGE_SIZE,
+        still_outline_B(spec.board),
+        board=spec.board,
+    )
+    if len(T_C_B_stills) < spec.n_stills:
+        raise ConfigError(
+            f"session config, synth.n_stills: found only {len(T_C_B_stills)} still poses with "
+            f"the board wholly in view, expected {spec.n_stills} (board too large for the camera?)"
+        )
+    return rngs, rig, renderer, T_C_B_stills
+
+
+def _still_images(renderer, T_C_B_stills, rng_images):
+    """(file name, uint8 image, T_C_B) of each calibration still, in order."""
+    for i, T_C_B in enumerate(T_C_B_stills):
+        yield f"still_{i:02d}.png", renderer.still(T_C_B, rng_images), T_C_B
+
+
+def render_stills(session_cfg: dict) -> list:
+    """The session's calibration stills alone, in memory, as ``render_session`` writes them.
+
+    The images stream renders the stills before any video frame, so these are the very
+    pixels of ``calib/still_*.png``; no video, Vicon export or truth tables are made.
+
+    Parameters
+    ----------
+    session_cfg : dict
+        ``config["sessions"][name]`` with its ``synth``, ``board`` and ``markers`` blocks.
+
+    Returns
+    -------
+    stills : list of (str, ndarray, ndarray)
+        ``(file name, 480 x 640 uint8 image, true T_C_B (4, 4), metres)`` per still.
+
+    Raises
+    ------
+    ConfigError
+        As ``render_session``.
+    """
+    spec = parse_session_config(session_cfg)
+    rngs, _, renderer, T_C_B_stills = _session_setup(spec)
+    return list(_still_images(renderer, T_C_B_stills, rngs["images"]))
 
 
 def render_session(session_cfg: dict, out_dir) -> dict:
@@ -62,19 +123,7 @@ def render_session(session_cfg: dict, out_dir) -> dict:
     """
     wall_start = time.perf_counter()
     spec = parse_session_config(session_cfg)
-    rngs = random_streams(spec.seed)
-    rig = make_rig(spec, rngs["mounting"])
-    markers_B = transform_points(invert_T(rig.T_Bm_B), rig.markers_Bm_m)
-    renderer = Renderer(spec, rngs["background"], markers_B)
-
-    T_C_B_stills = still_poses(
-        rngs["stills"], spec.n_stills, spec.K, spec.dist, IMAGE_SIZE, still_outline_B(spec.board)
-    )
-    if len(T_C_B_stills) < spec.n_stills:
-        raise ConfigError(
-            f"session config, synth.n_stills: found only {len(T_C_B_stills)} still poses with "
-            f"the board wholly in view, expected {spec.n_stills} (board too large for the camera?)"
-        )
+    rngs, rig, renderer, T_C_B_stills = _session_setup(spec)
     motion = make_hand_motion(rngs["motion"], spec.K, IMAGE_SIZE, spec.board.center_B())
     n_frames = int(round(spec.duration_s * FPS))
     exposure_s = exposure_times(rngs["lighting"], np.arange(n_frames) / FPS)
@@ -86,9 +135,8 @@ def render_session(session_cfg: dict, out_dir) -> dict:
     out_dir = Path(out_dir)
     stills_truth = {}
     with staged_session_dir(out_dir) as tmp:
-        for i, T_C_B in enumerate(T_C_B_stills):
-            name = f"still_{i:02d}.png"
-            write_still(tmp, name, renderer.still(T_C_B, rngs["images"]))
+        for name, image, T_C_B in _still_images(renderer, T_C_B_stills, rngs["images"]):
+            write_still(tmp, name, image)
             stills_truth[name] = {"T_C_B": T_C_B, "pose6": pose6_from_T(T_C_B)}
         render_start = time.perf_counter()
         with VideoSink(tmp / "video.mp4", FPS, IMAGE_SIZE, spec.video_quality) as sink:
