@@ -19,6 +19,7 @@ include: "workflow/rules/optimise.smk"
 include: "workflow/rules/analyse.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/summary.smk"
+include: "workflow/rules/flight.smk"
 
 
 report: "workflow/report/workflow.rst"

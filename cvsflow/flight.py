@@ -1122,3 +1122,91 @@ def evaluate_flight(
                 100 * st["unresolved_fraction"],
             )
     return FlightResult(errors, stats, clock, al, ref_aligned, est_aligned)
+
+
+def sigma_columns(Sigma):
+    """Flatten (N, 6, 6) covariances into a DataFrame of columns ``S00 .. S55`` (SI)."""
+    Sigma = np.asarray(Sigma, float)
+    return pd.DataFrame(Sigma.reshape(len(Sigma), 36), columns=[f"S{i}{j}" for i in range(6) for j in range(6)])
+
+
+def sigma_from_columns(df):
+    """Inverse of :func:`sigma_columns`: (N, 6, 6) from columns ``S00 .. S55``."""
+    cols = [f"S{i}{j}" for i in range(6) for j in range(6)]
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise InputError(f"reference covariance table lacks columns {missing[:3]}...")
+    return df[cols].to_numpy(float).reshape(len(df), 6, 6)
+
+
+def check_against_truth(result, onboard, truth, T_L_C, clock, max_gap_s=0.05):
+    """How well a flight evaluation recovered the injected on-board error (rendered flights).
+
+    The injected error is seen through the evaluation's own fitted alignment (a fitted
+    alignment absorbs a constant part of it), then compared with the recovered error in units
+    of the reference's stated standard deviation.
+
+    Parameters
+    ----------
+    result : FlightResult
+    onboard : DataFrame
+        The on-board log (common form, log clock).
+    truth : DataFrame
+        Common form of the true T_L_Q at the video frames (reference clock), one row per
+        frame in order (row k is frame k) or with a ``frame`` column.
+    T_L_C : ndarray, shape (4, 4)
+        True camera pose in L.
+    clock : Clock
+        The true log clock.
+
+    Returns
+    -------
+    dict
+        ``z_rms`` per axis (RMS of (recovered - injected) / sigma: 1 when the stated
+        uncertainty is right), ``inside_3sigma`` per axis, ``n``.
+    """
+    fr = result.errors["frame"].to_numpy()
+    if "frame" not in truth.columns:
+        truth = truth.assign(frame=np.arange(len(truth)))
+    truth = truth.set_index("frame").loc[fr].reset_index()
+    T_true_C_Q = invert_T(np.asarray(T_L_C, float)) @ T_from_traj(truth)
+    est = interpolate_trajectory(onboard, clock.to_log(truth["t_s"].to_numpy(float)), max_gap_s)
+    seen = axis_errors(T_true_C_Q, T_from_traj(est), result.alignment)
+    z = (result.errors[ERR_COLS].to_numpy(float) - seen) / result.errors[SIG_COLS].to_numpy(float)
+    ok = np.isfinite(z).all(axis=1)
+    return {
+        "n": int(ok.sum()),
+        "z_rms": {a: float(np.sqrt(np.mean(z[ok, i] ** 2))) for i, a in enumerate(AXES)},
+        "inside_3sigma": {a: float(np.mean(np.abs(z[ok, i]) < 3.0)) for i, a in enumerate(AXES)},
+    }
+
+
+def reference_covariance_from_pnp(poses_raw, p_B, K, dist, sigma_px):
+    """Reference covariance per frame of a real flight, propagated from the corner noise.
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet of the flight's video (``valid``, ``rvec_0..2``, ``x_m..z_m``).
+    p_B : ndarray, shape (P, 3)
+        Board corners in B, m.
+    K, dist : array_like
+        Intrinsics (the se3 calibration's where available), px.
+    sigma_px : float
+        Corner noise per axis, px (the se3 fit's ``sigma_px``).
+
+    Returns
+    -------
+    Sigma_ref : ndarray, shape (N, 6, 6)
+        ``[dt, dtheta]`` in C (module docstring) per row of ``poses_raw``; NaN where not valid.
+    """
+    from cvsflow.uncertainty import error_covariance, pnp_covariance
+
+    valid = poses_raw["valid"].to_numpy(bool)
+    Sigma = np.full((len(poses_raw), 6, 6), np.nan)
+    if valid.any():
+        rv = poses_raw.loc[valid, ["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
+        tv = poses_raw.loc[valid, ["x_m", "y_m", "z_m"]].to_numpy(float)
+        cov_rt = pnp_covariance(rv, tv, p_B, np.asarray(K, float), np.asarray(dist, float), sigma_px)
+        Sigma[valid] = error_covariance(rv, tv, cov_rt, frame="C")
+    return Sigma

@@ -539,3 +539,33 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
     if not out["pos_valid"].any():
         out.attrs["warnings"].append(f"{path}: no valid position sample at all")
     return out
+
+
+def write_flight_demo(demo, out_dir) -> None:
+    """Write a rendered flight (:class:`cvsflow.flight_synth.FlightDemo`) as the files a real
+    flight session has, plus its truth: ``reference.parquet`` (T_C_B per video frame with its
+    covariance columns S00..S55), ``onboard.tum`` (the log), ``truth.parquet`` (true T_L_Q at
+    the frames), ``injected.parquet`` and ``truth.yaml`` (T_L_C, T_Q_B, clock)."""
+    from cvsflow.flight import sigma_columns
+    from cvsflow.io.files import write_parquet, write_yaml
+
+    out_dir = Path(out_dir)
+    ref = pd.concat([demo.reference.reset_index(drop=True), sigma_columns(demo.Sigma_ref)], axis=1)
+    write_parquet(ref, out_dir / "reference.parquet")
+    write_tum(demo.onboard, out_dir / "onboard.tum")
+    write_parquet(demo.truth, out_dir / "truth.parquet")
+    write_parquet(demo.injected, out_dir / "injected.parquet")
+    write_yaml({"T_L_C": demo.T_L_C, "T_Q_B": demo.T_Q_B,
+                "clock": {"dt_offset_s": demo.clock.dt_offset_s, "skew": demo.clock.skew}},
+               out_dir / "truth.yaml")
+
+
+def read_flight_log(path, fmt, ulog_source="local_position", csv_spec=None) -> pd.DataFrame:
+    """An on-board log in the common form, by declared format: ``ulog``, ``csv`` or ``tum``."""
+    if fmt == "ulog":
+        return read_ulog(path, source=ulog_source)
+    if fmt == "csv":
+        return read_csv_log(path, csv_spec)
+    if fmt == "tum":
+        return read_tum(path)
+    raise InputError(f"{path}: unknown flight log format {fmt!r} (expected ulog, csv or tum)")

@@ -56,6 +56,8 @@ def demo_config(duration_s: float = 6.0) -> dict:
     demo["synth"]["duration_s"] = duration_s
     demo["synth"]["n_stills"] = 12
     config.setdefault("optimise", {}).setdefault("seed", {})["k_iterations"] = 5
+    config.setdefault("evaluate", {}).update(n_folds=3, seed_k_iterations=2, n_boot=200)
+    config["flights"]["flight_demo"]["synth"]["duration_s"] = 30.0
     for key in ("calib_dir", "video", "vicon"):
         demo.pop(key, None)
     return config
@@ -198,20 +200,22 @@ def _jobs_after_change(workdir, change):
 def test_changed_pnp_threshold_reruns_only_its_dependants(demo_run):
     """Changing the RANSAC threshold reruns poses and what depends on it, nothing upstream."""
     jobs = _jobs_after_change(demo_run, lambda c: c["pnp"].update(ransac_reproj_px=2.5))
-    assert jobs == {"poses", "sync", "pairs", "optimise_seed", "analyse", "all"}
+    assert jobs == {"poses", "sync", "pairs", "optimise_seed", "optimise_se3", "analyse",
+                    "heldout_seed", "heldout_se3", "compare", "summary", "all"}
 
 
 def test_changed_iteration_count_reruns_only_the_optimiser(demo_run):
     """Changing the seed optimiser's k reruns the optimiser and its analysis only."""
     jobs = _jobs_after_change(demo_run, lambda c: c["optimise"]["seed"].update(k_iterations=7))
-    assert jobs == {"optimise_seed", "analyse", "all"}
+    assert jobs == {"optimise_seed", "analyse", "heldout_seed", "compare", "summary", "all"}
 
 
 def test_changed_filter_cutoff_reruns_from_vicon_repair(demo_run):
     """Changing the Butterworth cut-off reruns the Vicon repair and what follows, not the camera half."""
     jobs = _jobs_after_change(demo_run, lambda c: c["vicon"]["filter"].update(cutoff_hz=8.0))
     assert jobs == {"vicon_repair", "vicon_bodies", "vicon_resample", "sync", "pairs",
-                    "optimise_seed", "analyse", "all"}
+                    "optimise_seed", "optimise_se3", "analyse", "heldout_seed", "heldout_se3",
+                    "compare", "summary", "all"}
 
 
 def test_demo_stats_match_the_error_table(demo_run):
@@ -243,3 +247,28 @@ def test_demo_summary_and_report(demo_run):
     html = (demo_run / "report.html").read_text(errors="replace")
     for name in ("convergence.png", "histograms.png", "covariance.png", "sync.png", "summary.csv"):
         assert name in html
+
+
+def test_demo_flight_recovers_the_injected_error(demo_run):
+    """On the rendered flight, recovered minus injected on-board error is the reference's stated
+    uncertainty (z-RMS 0.8..1.25 per axis) and the aligned trajectories are exported for evo."""
+    stats = yaml.safe_load((demo_run / "results/flights/flight_demo/stats.yaml").read_text())
+    z = stats["truth_check"]["z_rms"]
+    assert all(0.8 < v < 1.25 for v in z.values()), z
+    from cvsflow.io.flightlog import read_tum
+
+    ref = read_tum(demo_run / "results/flights/flight_demo/reference_aligned.tum")
+    est = read_tum(demo_run / "results/flights/flight_demo/onboard_aligned.tum")
+    assert len(ref) == len(est) == stats["n_pairs"]
+
+
+def test_demo_se3_against_truth_and_beats_seed(demo_run):
+    """se3 on the short demo: fx, fy within 0.3 %, time offset within 2 ms; held-out RMS of se3
+    at most half of seed's in every dimension."""
+    truth = yaml.safe_load((demo_run / "data/demo/truth.yaml").read_text())
+    result = yaml.safe_load((demo_run / "results/demo/se3/calib/result.yaml").read_text())
+    K, K_true = np.array(result["K"]), np.array(truth["camera"]["K"])
+    assert abs(K[0, 0] / K_true[0, 0] - 1) < 3e-3 and abs(K[1, 1] / K_true[1, 1] - 1) < 3e-3
+    assert abs(result["dt_offset_s"] - truth["dt_offset_s"]) < 0.002
+    comparison = yaml.safe_load((demo_run / "results/demo/comparison.yaml").read_text())
+    assert all(r <= 0.5 for r in comparison["rms_ratio_se3_to_seed"].values())

@@ -80,7 +80,7 @@ def all_targets():
     targets = [t for s in SESSIONS for t in session_targets(s)]
     if optimiser_runs():
         targets.append("results/summary.csv")
-    return targets
+    return targets + flight_targets()
 
 
 wildcard_constraints:
@@ -147,3 +147,45 @@ def summary_inputs(wildcards):
             files[f"{session}/truth"] = f"data/{session}/truth.yaml"
             files[f"{session}/truth_frames"] = f"data/{session}/truth_frames.parquet"
     return files
+
+
+FLIGHTS = config.get("flights", {})
+
+
+wildcard_constraints:
+    flight="[A-Za-z0-9_-]+",
+
+
+def flight_inputs(wildcards):
+    """A rendered flight's files, or a real flight's log and its camera session's tables."""
+    f = FLIGHTS[wildcards.flight]
+    if "synth" in f:
+        base = f"data/flights/{wildcards.flight}"
+        return {
+            "reference": f"{base}/reference.parquet",
+            "onboard": f"{base}/onboard.tum",
+            "truth": f"{base}/truth.parquet",
+            "truth_yaml": f"{base}/truth.yaml",
+        }
+    s = f["session"]
+    files = {
+        "onboard": f["log"],
+        "poses": f"results/{s}/poses_raw.parquet",
+        "camera": f"results/{s}/camera.yaml",
+    }
+    if "calibration" in f:
+        files["se3_result"] = f"results/{f['calibration']}/se3/calib/result.yaml"
+    return files
+
+
+def flight_board(flight):
+    f = FLIGHTS[flight]
+    return None if "synth" in f else SESSIONS[f["session"]]["board"]
+
+
+def flight_targets():
+    return [
+        f"results/flights/{name}/{leaf}"
+        for name in FLIGHTS
+        for leaf in ("stats.yaml", "figures/errors.png", "onboard_aligned.tum")
+    ]

@@ -1,0 +1,50 @@
+"""A quadcopter's on-board pose error against the camera reference (rule flight)."""
+
+import numpy as np
+
+from cvsflow import flight as fl
+from cvsflow.calibration import board_object_points
+from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet, write_yaml
+from cvsflow.io.flightlog import read_flight_log, read_tum, write_tum
+from cvsflow.io.logs import stage_logging
+from cvsflow.plots import flight as plots
+from cvsflow.transforms import T_from_pose6
+
+with stage_logging(snakemake.log[0], "flight") as log:
+    cfg = snakemake.params.flight
+    inp = snakemake.input
+    if "synth" in cfg:
+        table = read_parquet(inp.reference)
+        reference, Sigma_ref = table, fl.sigma_from_columns(table)
+        onboard = read_tum(inp.onboard)
+        truth_cfg = read_yaml(inp.truth_yaml)
+        T_Q_B = np.array(truth_cfg["T_Q_B"]) if cfg.get("mounting_known", True) else None
+    else:
+        poses = read_parquet(inp.poses)
+        calib = read_yaml(inp.se3_result) if "se3_result" in inp.keys() else read_yaml(inp.camera)
+        sigma_px = float(calib.get("sigma_px", np.nanmedian(poses["reproj_rms_px"])))
+        reference = fl.reference_from_poses(poses)
+        Sigma_ref = fl.reference_covariance_from_pnp(
+            poses, board_object_points(snakemake.params.board), calib["K"], calib["dist"], sigma_px)
+        onboard = read_flight_log(inp.onboard, cfg["format"], cfg.get("ulog_source", "local_position"),
+                                  cfg.get("csv"))
+        T_Q_B = T_from_pose6(cfg["T_Q_B_pose6"]) if "T_Q_B_pose6" in cfg else None
+    result = fl.evaluate_flight(reference, onboard, T_Q_B, Sigma_ref,
+                                alignment=cfg.get("alignment", "se3"), k_sigma=cfg.get("k_sigma", 1.0))
+    stats = dict(result.stats)
+    if "synth" in cfg:
+        truth = read_parquet(inp.truth)
+        clock = fl.Clock(**truth_cfg["clock"])
+        stats["truth_check"] = fl.check_against_truth(result, onboard, truth, np.array(truth_cfg["T_L_C"]),
+                                                      clock)
+        log.info("recovered vs injected error, z-RMS per axis: %s", stats["truth_check"]["z_rms"])
+    log.info("%d pairs; APE RMSE %.4f m", stats["n_pairs"], stats["ape_trans"]["rmse"])
+    write_parquet(result.errors, snakemake.output.errors)
+    write_yaml(stats, snakemake.output.stats)
+    write_tum(result.ref_aligned, snakemake.output.reference_tum)
+    write_tum(result.est_aligned, snakemake.output.onboard_tum)
+    k = cfg.get("k_sigma", 1.0)
+    save_figure(plots.plot_flight_errors(result.errors, k_sigma=max(2.0, k)), snakemake.output.fig_errors)
+    save_figure(plots.plot_flight_trajectories(result.ref_aligned, result.est_aligned),
+                snakemake.output.fig_trajectories)
+    save_figure(plots.plot_ape(result.errors, stats), snakemake.output.fig_ape)
