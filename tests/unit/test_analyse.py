@@ -135,8 +135,11 @@ def test_optimum_summary_and_convergence():
     s = analyse.optimum_summary(res)
     assert s["norm_ratio"] == pytest.approx(0.81 / 1.15)
     assert s["fx_px"] == 628.0 and len(s["P_bar"]) == 6
-    with pytest.raises(InputError, match="P_bar"):
+    with pytest.raises(InputError, match="fy_px"):
         analyse.optimum_summary({"fx_px": 1.0})
+    # se3 has no 6-vector offset: P_bar is optional and then NaN
+    no_offset = {k: v for k, v in res.items() if k != "P_bar"}
+    assert np.isnan(analyse.optimum_summary(no_offset)["P_bar"]).all()
     conv = analyse.convergence(_iterations(5))
     assert len(conv) == 6 and "eps_rms_yaw_rad" in conv
 
