@@ -6,6 +6,14 @@ enough features to guarantee accurate results from the ePnP method".
 
 Tables are those of docs/contracts.md: ``corners.parquet`` (``extract_corners``) and
 ``poses_raw.parquet`` (``estimate_poses``).
+
+Speed: the full detector (``detect_corners``) costs ~3 ms on a frame with a whole board and
+~30 ms on one without (a board partly out of view is the worst case). ``extract_corners``
+therefore follows the board from frame to frame (``track_corners``: optical flow, then the
+same refinement and checks), keeps following it while it is partly out of view, looks for a
+lost board with a quick half-size detector and tracks backwards from where it finds it, and
+runs the full detector only where all of that fails. ``cvsflow.corners_fast`` runs it in
+chunks on several cores. bench/bench_corners.py measures both against the renderer's truth.
 """
 
 from __future__ import annotations
@@ -65,6 +73,11 @@ PNP_FLAG = cv2.SOLVEPNP_IPPE
 # Fewer points than this leaves too little redundancy to trust a 6-dof pose.
 MIN_INLIERS = 6
 
+# extract_corners starts afresh (full detection, no state) at frame indices that are multiples
+# of this: 5 s at 30 fps. Costs one full detection per 150 frames; lets a video be cut into
+# chunks (one per core) whose tables join into exactly the single-pass table.
+RESTART_EVERY_FRAMES = 150
+
 
 def _subpix_window(corners_px: np.ndarray, board: dict, max_window_px: int) -> int:
     """cornerSubPix half window: at most ``max_window_px`` and under half the corner spacing.
@@ -114,10 +127,12 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     zero, one = np.zeros_like(x), np.ones_like(x)
     rows_u = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=1)
     rows_v = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=1)
-    A = np.concatenate([rows_u, rows_v], axis=0)  # (2N, 9)
-    w2 = np.concatenate([weights, weights], axis=1)  # (N, 2N)
-    A_k = w2[:, :, None] * A[None]  # rows of non-neighbours zeroed: (N, 2N, 9)
-    h = np.linalg.svd(A_k)[2][:, -1, :]  # (N, 9): each corner's homography, null vector
+    # Corner k's DLT system keeps only its neighbours' rows; its homography is the null
+    # vector, the eigenvector of the smallest eigenvalue of A_k^T A_k (9x9 per corner, half
+    # the time of an SVD of each (2N, 9) A_k; same vector to 1e-11 px after conditioning).
+    outer = rows_u[:, :, None] * rows_u[:, None, :] + rows_v[:, :, None] * rows_v[:, None, :]
+    normal = np.tensordot(weights, outer, axes=1)  # (N, 9, 9): sum of neighbours' rows
+    h = np.linalg.eigh(normal)[1][:, :, 0]  # (N, 9): each corner's homography
     p = np.einsum("kij,kj->ki", h.reshape(-1, 3, 3), np.stack([x, y, one], axis=1))
     with np.errstate(divide="ignore", invalid="ignore"):
         predicted = p[:, :2] / p[:, 2:3] / scale + centre
@@ -181,6 +196,39 @@ def detect_corners(
     found, corners = cv2.findChessboardCorners(gray, pattern, None, flags)
     if not found:
         return None, "not_found"
+    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation_px)
+    if corners is None:
+        return None, "inconsistent"
+    return order_corners(corners, gray, board, previous_px)
+
+
+def refine_corners(
+    gray: np.ndarray,
+    corners_px: np.ndarray,
+    board: dict,
+    subpix_window_px: int = 5,
+    max_grid_deviation_px: float = 2.0,
+) -> np.ndarray | None:
+    """cornerSubPix from initial corners, then the grid-neighbour check (``detect_corners``).
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), uint8
+    corners_px : ndarray, shape (nx * ny, 2) or (nx * ny, 1, 2)
+        Initial corners in grid order, pixels.
+    board : dict
+    subpix_window_px : int
+        Largest cornerSubPix half window, pixels (see ``_subpix_window``).
+    max_grid_deviation_px : float
+        Largest distance (px) of a refined corner from where its neighbours put it; a corner
+        beyond it is refined once more from that prediction.
+
+    Returns
+    -------
+    corners_px : ndarray, shape (nx * ny, 2), float64, or None
+        Refined corners in the order given; None when a corner still deviates.
+    """
+    corners = np.ascontiguousarray(corners_px, dtype=np.float32).reshape(-1, 1, 2)
     w = _subpix_window(corners.reshape(-1, 2), board, subpix_window_px)
     corners = cv2.cornerSubPix(gray, corners, (w, w), (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2)
     predicted, deviation = grid_deviation(corners, board)
@@ -193,8 +241,369 @@ def detect_corners(
         corners[bad] = retry.reshape(-1, 2)
         _, deviation = grid_deviation(corners, board)
         if (deviation > max_grid_deviation_px).any():
-            return None, "inconsistent"
-    return order_corners(corners, gray, board, previous_px)
+            return None
+    return corners.astype(np.float64)
+
+
+# Tracking (extract_corners' fast path). Pyramidal Lucas-Kanade (Bouguet 2000) moves the
+# previous frame's corners into the current frame; cornerSubPix and the checks of
+# detect_corners then decide, as for a detected board. 21 px windows over 3 pyramid levels
+# follow a corner moving up to ~80 px between frames.
+LK_WINDOW_PX = 21
+LK_LEVELS = 3
+LK_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 20, 0.03)
+# A board is tracked while at least this many of its corners are seen. A tracked frame counts
+# as found only with every refined corner this far inside the image. The full detector needs
+# the squares around each corner: on the demo render it found 2 of the 12 frames whose nearest
+# corner is 3 to 5 px from the border, and none nearer.
+MIN_TRACKED_CORNERS = 8
+TRACK_BORDER_PX = 4.0
+# Largest RMS (px) of the tracked corners about the board homography through them. The lens's
+# departure from a homography over the demo board is below ~1.5 px; a corner tracked onto the
+# wrong feature is off by a good part of a square.
+MAX_TRACK_HOMOGRAPHY_RMS_PX = 2.5
+# The checkerboard seen through the tracked corners must have this much contrast (grey levels)
+# between its white and black squares, and every square on the right side of the midpoint.
+MIN_PATTERN_CONTRAST = 20.0
+
+
+def board_squares_pattern_ok(
+    gray: np.ndarray, H_img_grid: np.ndarray, board: dict, min_contrast: float = 20.0
+) -> bool:
+    """Whether the board's squares seen through a homography have the chessboard's colours.
+
+    Every square of the board (``squares_x`` by ``squares_y``, the outer ring included) whose
+    centre region is inside the image is sampled at 9 points (25 % to 75 % across); square
+    (i, j) must be darker than the midpoint of the black and white means when black
+    (``i + j`` even), lighter when white, with white minus black at least ``min_contrast``.
+    A grid shifted by one square fails on colour, one shifted by two on the outer ring (the
+    white border of the sheet where black squares belong).
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), uint8
+    H_img_grid : ndarray, shape (3, 3)
+        Homography from grid coordinates (corner k at (k % nx, k // nx)) to pixels.
+    board : dict
+    min_contrast : float
+        Smallest mean white-minus-black difference, grey levels.
+
+    Returns
+    -------
+    ok : bool
+    """
+    sx, sy = int(board["squares_x"]), int(board["squares_y"])
+    jj, ii = np.mgrid[0:sy, 0:sx]
+    a = np.array([-0.25, 0.0, 0.25])
+    da, db = (g.ravel() for g in np.meshgrid(a, a))
+    # Square (i, j) spans grid x in [i - 1, i], y in [j - 1, j] (corner 0 at (0, 0)).
+    gx = (ii.ravel() - 0.5)[:, None] + da[None]
+    gy = (jj.ravel() - 0.5)[:, None] + db[None]
+    p = np.einsum("ij,jsk->isk", H_img_grid, np.stack([gx, gy, np.ones_like(gx)]))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = p[0] / p[2], p[1] / p[2]
+    h, w = gray.shape
+    inside = np.all((u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1) & (p[2] > 0), axis=1)
+    if not inside.any():
+        return False
+    level = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)].mean(axis=1)
+    black = ((ii.ravel() + jj.ravel()) % 2 == 0)[inside]
+    if black.all() or not black.any():
+        return False
+    lo, hi = level[black], level[~black]
+    if hi.mean() - lo.mean() < min_contrast:
+        return False
+    mid = 0.5 * (hi.mean() + lo.mean())
+    return bool(lo.max() < mid < hi.min())
+
+
+def _grid_points(board: dict) -> np.ndarray:
+    """Grid coordinates (k % nx, k // nx) of the inner corners, shape (N, 2), float32."""
+    nx, ny = board_pattern(board)
+    k = np.arange(nx * ny)
+    return np.stack([k % nx, k // nx], axis=1).astype(np.float32)
+
+
+def track_corners(
+    prev_gray: np.ndarray,
+    gray: np.ndarray,
+    prev_px: np.ndarray,
+    board: dict,
+    subpix_window_px: int = 5,
+    max_grid_deviation_px: float = 2.0,
+) -> tuple[np.ndarray | None, str]:
+    """Board corners of a frame from those of an earlier frame (optical flow, then checks).
+
+    Parameters
+    ----------
+    prev_gray : ndarray, shape (H, W), uint8
+        The earlier frame.
+    gray : ndarray, shape (H, W), uint8
+        This frame.
+    prev_px : ndarray, shape (nx * ny, 2)
+        Corners of the earlier frame in board order, pixels; corners outside the image (a
+        board partly out of view) are predictions.
+    board : dict
+    subpix_window_px : int
+        Largest cornerSubPix half window, pixels.
+    max_grid_deviation_px : float
+        As in ``detect_corners``.
+
+    Returns
+    -------
+    corners_px : ndarray, shape (nx * ny, 2), float64, or None
+        With ``"tracked"``: the refined corners in board order. With ``"out_of_view"``: where
+        the corners are (refined where inside the image, predicted elsewhere), to track from.
+        None with ``"lost"``.
+    method : str
+        ``"tracked"``: every corner inside the image, refined, consistent with its grid
+        neighbours, in the order the colours of the squares confirm (``order_corners``), and
+        every square of the board of the right colour (``board_squares_pattern_ok``).
+        ``"out_of_view"``: the board is followed but a corner is within ``TRACK_BORDER_PX`` of
+        the border or outside (the frame has no whole board). ``"lost"``: any check failed;
+        the caller falls back to ``detect_corners``.
+
+    Notes
+    -----
+    ``cv2.calcOpticalFlowPyrLK`` (pyramidal Lucas-Kanade) on the corners inside the earlier
+    image, a RANSAC homography (``cv2.findHomography``) from grid to image through them to
+    place the others and to reject corners the flow lost, then ``refine_corners``. A one-square
+    slip of the whole grid keeps its geometry; the colour checks catch it.
+    """
+    h, w = gray.shape
+    grid = _grid_points(board)
+    prev = np.asarray(prev_px, dtype=np.float32).reshape(-1, 2)
+    seen = (
+        (prev[:, 0] >= 0) & (prev[:, 0] <= w - 1) & (prev[:, 1] >= 0) & (prev[:, 1] <= h - 1)
+    )
+    if seen.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    moved, status, _ = cv2.calcOpticalFlowPyrLK(
+        prev_gray, gray, prev[seen].reshape(-1, 1, 2), None,
+        winSize=(LK_WINDOW_PX, LK_WINDOW_PX), maxLevel=LK_LEVELS, criteria=LK_CRITERIA,
+    )
+    ok = status.ravel() == 1
+    if ok.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    H, inliers = cv2.findHomography(
+        grid[seen][ok], moved.reshape(-1, 2)[ok], cv2.RANSAC, MAX_TRACK_HOMOGRAPHY_RMS_PX
+    )
+    if H is None or inliers.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    p = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
+    track_ok = np.zeros(len(grid), bool)
+    track_ok[np.flatnonzero(seen)[ok][inliers.ravel() == 1]] = True
+    p[track_ok] = moved.reshape(-1, 2)[ok][inliers.ravel() == 1]
+    if not _inside(p, w, h, 0.0).all():
+        return _follow_partial(gray, p, _inside(p, w, h, TRACK_BORDER_PX), grid, board,
+                               subpix_window_px)
+    corners = refine_corners(gray, p, board, subpix_window_px, max_grid_deviation_px)
+    if corners is None:
+        return None, "lost"
+    inner = _inside(corners, w, h, TRACK_BORDER_PX)
+    if not inner.all():
+        return _follow_partial(gray, corners, inner, grid, board, subpix_window_px)
+    ordered, _ = order_corners(corners, gray, board, corners)
+    if not np.array_equal(ordered, corners):
+        return None, "lost"
+    H_fit, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
+    if H_fit is None or not board_squares_pattern_ok(gray, H_fit, board, MIN_PATTERN_CONTRAST):
+        return None, "lost"
+    return corners, "tracked"
+
+
+def _inside(p: np.ndarray, w: int, h: int, margin: float) -> np.ndarray:
+    """(N,) bool: points at least ``margin`` px inside a w x h image."""
+    return (p[:, 0] >= margin) & (p[:, 0] <= w - 1 - margin) & (p[:, 1] >= margin) & (
+        p[:, 1] <= h - 1 - margin
+    )
+
+
+def _follow_partial(gray, p, inner, grid, board, subpix_window_px):
+    """Refine the corners inside the image of a board partly out of view and check them."""
+    if inner.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    w = _subpix_window(p, board, subpix_window_px)
+    refined = cv2.cornerSubPix(
+        gray, np.ascontiguousarray(p[inner], dtype=np.float32).reshape(-1, 1, 2), (w, w),
+        (-1, -1), SUBPIX_CRITERIA,
+    ).reshape(-1, 2)
+    H, _ = cv2.findHomography(grid[inner], refined, 0)
+    if H is None:
+        return None, "lost"
+    fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
+    rms = np.sqrt(np.mean(np.sum((fit[inner] - refined) ** 2, axis=1)))
+    if rms > MAX_TRACK_HOMOGRAPHY_RMS_PX or not board_squares_pattern_ok(
+        gray, H, board, MIN_PATTERN_CONTRAST
+    ):
+        return None, "lost"
+    out = fit.astype(np.float64)
+    out[inner] = refined
+    return out, "out_of_view"
+
+
+# While no board is followed, a quick detector looks for it: findChessboardCorners without
+# adaptive threshold on the image at half size (measured on the demo render: 2.3 ms on a frame
+# with a partly visible board against 33 ms for the full detector; it finds 52 of 60 whole
+# boards, against 60). Frames it misses wait; once a board is found they are tracked
+# backwards from it, and only those still undecided go to the full detector.
+QUICK_FIND_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE
+QUICK_SCALE = 0.5
+# Most frames kept waiting for a board (grey images, ~0.3 MB each at 640x480).
+MAX_PENDING_FRAMES = 300
+
+
+def quick_detect_corners(
+    gray: np.ndarray,
+    board: dict,
+    subpix_window_px: int = 5,
+    max_grid_deviation_px: float = 2.0,
+) -> tuple[np.ndarray | None, str]:
+    """Corners of a whole board found on the half-size image, refined at full size.
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), uint8
+    board : dict
+    subpix_window_px, max_grid_deviation_px
+        As in ``detect_corners``.
+
+    Returns
+    -------
+    corners_px : ndarray, shape (nx * ny, 2), float64, or None
+        In board order (``order_corners`` without a previous frame).
+    method : str
+        ``"quick"``, or ``"not_found"`` (also when a check fails).
+
+    Notes
+    -----
+    ``cv2.findChessboardCorners`` with ``QUICK_FIND_FLAGS`` on ``cv2.resize`` (area) of the
+    frame, then ``refine_corners`` from the corners scaled up, ``order_corners`` and
+    ``board_squares_pattern_ok``. A miss costs little; it never decides that a frame has
+    no board (see ``extract_corners``).
+    """
+    h, w = gray.shape
+    small = cv2.resize(gray, None, fx=QUICK_SCALE, fy=QUICK_SCALE, interpolation=cv2.INTER_AREA)
+    found, corners = cv2.findChessboardCorners(small, board_pattern(board), None, QUICK_FIND_FLAGS)
+    if not found:
+        return None, "not_found"
+    scale = np.array([w / small.shape[1], h / small.shape[0]])
+    # Pixel centres: small pixel i covers full pixels [s i, s (i + 1)), centre s (i + 0.5) - 0.5.
+    corners = (corners.reshape(-1, 2) + 0.5) * scale - 0.5
+    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation_px)
+    if corners is None or not _inside(corners, w, h, TRACK_BORDER_PX).all():
+        return None, "not_found"
+    ordered, _ = order_corners(corners, gray, board)
+    H, _ = cv2.findHomography(_grid_points(board), ordered.astype(np.float32), 0)
+    if H is None or not board_squares_pattern_ok(gray, H, board, MIN_PATTERN_CONTRAST):
+        return None, "not_found"
+    return ordered, "quick"
+
+
+class _CornerFollower:
+    """extract_corners' per-frame decisions: track, detect quickly, or detect fully.
+
+    ``push`` takes frames in order and returns the ``(frame, t_s, corners_px or None,
+    method)`` results that are decided, in frame order; ``finish`` returns the rest.
+    """
+
+    def __init__(self, board, subpix_window_px, max_grid_deviation_px, max_gap, flags, track,
+                 restart_every):
+        self.board = board
+        self.subpix = subpix_window_px
+        self.max_dev = max_grid_deviation_px
+        self.max_gap = max_gap
+        self.flags = flags
+        self.track = track
+        self.restart_every = restart_every
+        self.pending = []  # (frame, t_s, gray) waiting for a board to track back from
+        self._reset()
+
+    def _reset(self):
+        self.state = None  # (gray, corners_px, frame) of the last frame the board was followed
+        self.last_found = None  # (corners_px, frame): continuity for detect_corners
+
+    def push(self, frame, t_s, gray):
+        out = []
+        if self.restart_every and frame % self.restart_every == 0:
+            out += self.finish()
+            self._reset()
+        if not self.track:
+            out.append(self._detect(frame, t_s, gray))
+            return out
+        if self.state is not None and frame - self.state[2] <= self.max_gap:
+            out.append(self._track(frame, t_s, gray, self.state))
+            return out
+        corners_px, method = quick_detect_corners(gray, self.board, self.subpix, self.max_dev)
+        if corners_px is None:
+            self.pending.append((frame, t_s, gray))
+            if len(self.pending) >= MAX_PENDING_FRAMES:
+                out += self.finish()
+            return out
+        out += self._track_back(gray, corners_px, frame)
+        self._keep(gray, corners_px, frame, found=True)
+        out.append((frame, t_s, corners_px, method))
+        return out
+
+    def finish(self):
+        """Full detection (and tracking forwards from it) on the frames still waiting."""
+        pending, self.pending = self.pending, []
+        out = []
+        for frame, t_s, gray in pending:
+            if self.state is not None and frame - self.state[2] <= self.max_gap:
+                out.append(self._track(frame, t_s, gray, self.state))
+            else:
+                out.append(self._detect(frame, t_s, gray))
+        return out
+
+    def _keep(self, gray, corners_px, frame, found):
+        self.state = (gray, corners_px, frame)
+        if found:
+            self.last_found = (corners_px, frame)
+
+    def _track(self, frame, t_s, gray, ref):
+        corners_px, method = track_corners(
+            ref[0], gray, ref[1], self.board, self.subpix, self.max_dev
+        )
+        if method == "lost":
+            return self._detect(frame, t_s, gray)
+        self._keep(gray, corners_px, frame, found=method == "tracked")
+        return frame, t_s, (corners_px if method == "tracked" else None), method
+
+    def _detect(self, frame, t_s, gray):
+        prev = None
+        if self.last_found is not None and frame - self.last_found[1] <= self.max_gap:
+            prev = self.last_found[0]
+        flags = self.flags
+        if flags is None:
+            flags = VIDEO_FIND_FLAGS if prev is not None else VIDEO_SEARCH_FLAGS
+        corners_px, method = detect_corners(gray, self.board, self.subpix, prev, flags,
+                                            self.max_dev)
+        if corners_px is not None:
+            self._keep(gray, corners_px, frame, found=True)
+        return frame, t_s, corners_px, method
+
+    def _track_back(self, gray, corners_px, frame):
+        """Results of the waiting frames, tracked backwards from a frame with the board."""
+        pending, self.pending = self.pending, []
+        ref = (gray, corners_px, frame)
+        out = []
+        for f, t_s, g in reversed(pending):
+            result = None
+            if ref[2] - f <= self.max_gap:
+                px, method = track_corners(ref[0], g, ref[1], self.board, self.subpix,
+                                           self.max_dev)
+                if method != "lost":
+                    ref = (g, px, f)
+                    result = (f, t_s, px if method == "tracked" else None, method + "_back")
+            if result is None:
+                px, method = detect_corners(g, self.board, self.subpix, None,
+                                            self.flags or VIDEO_SEARCH_FLAGS, self.max_dev)
+                if px is not None:
+                    ref = (g, px, f)
+                result = (f, t_s, px, method)
+            out.append(result)
+        return out[::-1]
 
 
 def extract_corners(
@@ -206,6 +615,8 @@ def extract_corners(
     flags: int | None = None,
     max_continuity_gap: int = 3,
     max_grid_deviation_px: float = 2.0,
+    track: bool = True,
+    restart_every: int | None = RESTART_EVERY_FRAMES,
 ) -> pd.DataFrame:
     """Chessboard corners of every video frame, the same physical corner under the same index.
 
@@ -232,6 +643,14 @@ def extract_corners(
     max_grid_deviation_px : float
         A frame with a corner farther than this (px) from where its grid neighbours put it,
         even after a second refinement, counts as not found (see ``detect_corners``).
+    track : bool
+        Follow the board from the last frame where it was seen (``track_corners``) and run the
+        full detector only where that fails; False runs ``detect_corners`` on every frame.
+    restart_every : int or None
+        Frames whose index is a multiple of this start afresh: no tracking state, no
+        continuity, full detection. A frame's result then depends only on the frames since the
+        last such index, so a video cut into chunks at multiples of it
+        (``cvsflow.corners_fast``) gives exactly the table of one pass. None: never.
 
     Returns
     -------
@@ -240,7 +659,9 @@ def extract_corners(
         ``u_px``, ``v_px`` (float64, distorted pixels). A found frame has one row per inner
         corner, corner k at board point (k % nx, k // nx) * square_m; a frame without a board
         has one row with ``corner = -1`` and NaN pixels. ``attrs`` holds counts:
-        ``n_frames``, ``n_found``, ``order_methods`` (dict method -> frames).
+        ``n_frames``, ``n_found``, ``order_methods`` (dict method -> frames: ``tracked``,
+        ``out_of_view`` (followed partly out of the image), and ``detect_corners``' methods
+        for frames where the full detector ran).
 
     Raises
     ------
@@ -251,9 +672,29 @@ def extract_corners(
     corner_ids = np.arange(n_corners, dtype=np.int64)
     frame_ids, times, founds, corner_col, uv_blocks = [], [], [], [], []
     methods: dict[str, int] = {}
-    previous_px, previous_frame = None, None
+    follower = _CornerFollower(board, subpix_window_px, max_grid_deviation_px,
+                               max_continuity_gap, flags, track, restart_every)
     t_start = time.perf_counter()
     n_done = n_found = 0
+
+    def record(results):
+        nonlocal n_found
+        for frame, t_s, corners_px, method in results:
+            methods[method] = methods.get(method, 0) + 1
+            if corners_px is None:
+                frame_ids.append(np.array([frame], dtype=np.int64))
+                times.append(np.array([t_s], dtype=np.float64))
+                founds.append(np.array([False]))
+                corner_col.append(np.array([-1], dtype=np.int64))
+                uv_blocks.append(np.full((1, 2), np.nan))
+            else:
+                n_found += 1
+                frame_ids.append(np.full(n_corners, frame, dtype=np.int64))
+                times.append(np.full(n_corners, t_s, dtype=np.float64))
+                founds.append(np.ones(n_corners, dtype=bool))
+                corner_col.append(corner_ids)
+                uv_blocks.append(corners_px)
+
     for frame, t_s, gray in frames:
         gray = np.asarray(gray)
         if gray.ndim != 2 or gray.dtype != np.uint8:
@@ -261,33 +702,7 @@ def extract_corners(
                 f"video frame {frame}: expected an 8-bit grayscale image, got dtype "
                 f"{gray.dtype}, shape {gray.shape}"
             )
-        prev = (
-            previous_px
-            if previous_frame is not None and frame - previous_frame <= max_continuity_gap
-            else None
-        )
-        if flags is not None:
-            frame_flags = flags
-        else:
-            frame_flags = VIDEO_FIND_FLAGS if prev is not None else VIDEO_SEARCH_FLAGS
-        corners_px, method = detect_corners(
-            gray, board, subpix_window_px, prev, frame_flags, max_grid_deviation_px
-        )
-        methods[method] = methods.get(method, 0) + 1
-        if corners_px is None:
-            frame_ids.append(np.array([frame], dtype=np.int64))
-            times.append(np.array([t_s], dtype=np.float64))
-            founds.append(np.array([False]))
-            corner_col.append(np.array([-1], dtype=np.int64))
-            uv_blocks.append(np.full((1, 2), np.nan))
-        else:
-            n_found += 1
-            previous_px, previous_frame = corners_px, frame
-            frame_ids.append(np.full(n_corners, frame, dtype=np.int64))
-            times.append(np.full(n_corners, t_s, dtype=np.float64))
-            founds.append(np.ones(n_corners, dtype=bool))
-            corner_col.append(corner_ids)
-            uv_blocks.append(corners_px)
+        record(follower.push(int(frame), float(t_s), gray))
         n_done += 1
         if log_every and n_done % log_every == 0:
             rate = n_done / max(time.perf_counter() - t_start, 1e-9)
@@ -299,6 +714,7 @@ def extract_corners(
                 n_found,
                 rate,
             )
+    record(follower.finish())
     elapsed = time.perf_counter() - t_start
     if n_done == 0:
         raise InputError("video: no frames to extract corners from (expected at least one)")

@@ -67,7 +67,7 @@ def iter_video_gray(path, start=0, stop=None) -> Iterator[tuple[int, float, np.n
     fps = cap.get(cv2.CAP_PROP_FPS) or 30.0
     try:
         if start:
-            cap.set(cv2.CAP_PROP_POS_FRAMES, start)
+            _seek(cap, path, start)
         index = start
         while stop is None or index < stop:
             ok, frame = cap.read()
@@ -81,3 +81,15 @@ def iter_video_gray(path, start=0, stop=None) -> Iterator[tuple[int, float, np.n
             index += 1
     finally:
         cap.release()
+
+
+def _seek(cap: cv2.VideoCapture, path, start: int) -> None:
+    """Put ``cap`` before frame ``start``: a seek where the backend reports it exact, else
+    reading frames from the start (some codecs and containers seek only to key frames). A
+    video shorter than ``start`` frames is left at its end."""
+    if cap.set(cv2.CAP_PROP_POS_FRAMES, start) and int(cap.get(cv2.CAP_PROP_POS_FRAMES)) == start:
+        return
+    cap.open(str(path))
+    for _ in range(start):
+        if not cap.grab():
+            return

@@ -1,0 +1,234 @@
+"""Tests of the fast corner path: tracking in cvsflow.pose.extract_corners, and the chunked
+and parallel extraction of cvsflow.corners_fast, against rendered ground truth."""
+
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from cvsflow import transforms as tf
+from cvsflow.calibration import board_object_points
+from cvsflow.corners_fast import (
+    chunk_ranges,
+    extract_corners_parallel,
+    extract_corners_range,
+    merge_corner_chunks,
+)
+from cvsflow.errors import InputError
+from cvsflow.io.media import iter_video_gray
+from cvsflow.pose import (
+    detect_corners,
+    extract_corners,
+    quick_detect_corners,
+    track_corners,
+)
+
+BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}  # the demo board, 5x4 inner corners
+W, H = 640, 480
+K = np.array([[700.0, 0.0, (W - 1) / 2], [0.0, 700.0, (H - 1) / 2], [0.0, 0.0, 1.0]])
+N_FRAMES = 96
+
+
+def _render(T_C_B, seed, pps=24, margin=1, noise_sigma=2.0):
+    """Grey image of the board (white margin of ``margin`` squares, mid-grey background) seen
+    by a distortion-free camera, and the true corners (N, 2) in board order."""
+    sx, sy, s = BOARD["squares_x"], BOARD["squares_y"], BOARD["square_m"]
+    tex_w, tex_h = (sx + 2 * margin) * pps, (sy + 2 * margin) * pps
+    cols, rows = np.arange(tex_w) // pps - margin, np.arange(tex_h) // pps - margin
+    ii, jj = np.meshgrid(cols, rows)
+    inside = (ii >= 0) & (ii < sx) & (jj >= 0) & (jj < sy)
+    texture = np.where(inside & ((ii + jj) % 2 == 0), 20, 235).astype(np.uint8)
+    A_B_tex = np.array(
+        [
+            [s / pps, 0.0, (0.5 / pps - 1 - margin) * s],
+            [0.0, s / pps, (0.5 / pps - 1 - margin) * s],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+    H_img_tex = K @ np.column_stack([T_C_B[:3, 0], T_C_B[:3, 1], T_C_B[:3, 3]]) @ A_B_tex
+    img = cv2.warpPerspective(
+        texture, H_img_tex, (W, H), flags=cv2.INTER_AREA, borderValue=128
+    ).astype(np.float64)
+    img = cv2.GaussianBlur(img, (0, 0), 0.7)
+    img += np.random.default_rng(seed).normal(0.0, noise_sigma, img.shape)
+    uv, _ = cv2.projectPoints(
+        board_object_points(BOARD), tf.rvec_from_R(T_C_B[:3, :3]), T_C_B[:3, 3], K, None
+    )
+    return np.clip(np.rint(img), 0, 255).astype(np.uint8), uv.reshape(-1, 2)
+
+
+def _pose(frame):
+    """Board pose at a frame of the test sequence: it swings right until partly out of view
+    (frames 24 to 29), then left (65 to 72), turning and tilting as it goes."""
+    a = 2 * np.pi * frame / N_FRAMES
+    centre = np.array([0.45 * np.sin(a), 0.08 * np.sin(2 * a), 1.5 + 0.2 * np.cos(a)])
+    rpy = np.radians([15 * np.sin(a), 20 * np.cos(a), 30 * np.sin(0.5 * a)])
+    R = tf.R_from_euler(rpy)
+    c_B = np.array([2 * BOARD["square_m"], 1.5 * BOARD["square_m"], 0.0])
+    return tf.make_T(R, centre - R @ c_B)
+
+
+def sequence_source(start, stop=None):
+    """Frame source of the test sequence: (frame, t_s, gray) for frames [start, stop)."""
+    for f in range(start, N_FRAMES if stop is None else min(stop, N_FRAMES)):
+        yield f, f / 30.0, _render(_pose(f), seed=f)[0]
+
+
+@pytest.fixture(scope="module")
+def sequence():
+    """Frames, true corners and in-view flags (all corners >= 4 px inside) of the sequence."""
+    frames, truth = [], []
+    for f in range(N_FRAMES):
+        gray, uv = _render(_pose(f), seed=f)
+        frames.append((f, f / 30.0, gray))
+        truth.append(uv)
+    truth = np.array(truth)
+    in_view = np.all((truth >= 4) & (truth <= np.array([W - 5, H - 5])), axis=(1, 2))
+    return frames, truth, in_view
+
+
+def _found(corners):
+    return corners.groupby("frame")["found"].first().to_numpy()
+
+
+def test_sequence_leaves_and_reenters_the_view(sequence):
+    """The test sequence does what the tracking tests need: whole board, then partly out of
+    view for several frames, then whole again."""
+    _, _, in_view = sequence
+    assert in_view[:20].all() and in_view[-20:].all()
+    assert (~in_view).sum() >= 8
+
+
+def test_tracking_against_truth_and_full_detection(sequence):
+    """With tracking, the board is found in every frame where full detection finds it (and
+    maybe more), never where a corner is out of view, corner k within 0.3 px of true corner k;
+    most frames are tracked, and frames partly out of view are followed, not detected."""
+    frames, truth, in_view = sequence
+    full = extract_corners(iter(frames), BOARD, track=False, restart_every=None)
+    fast = extract_corners(iter(frames), BOARD)
+    found_full, found_fast = _found(full), _found(fast)
+    assert found_full[in_view].mean() > 0.9
+    assert (found_fast >= found_full).all()
+    assert not found_fast[~in_view].any()
+    uv = fast[fast["found"]]
+    err = np.linalg.norm(uv[["u_px", "v_px"]].to_numpy() - truth[uv["frame"], uv["corner"]], axis=1)
+    assert err.max() < 0.3
+    methods = fast.attrs["order_methods"]
+    assert methods.get("tracked", 0) >= 0.7 * N_FRAMES
+    assert methods.get("out_of_view", 0) + methods.get("out_of_view_back", 0) >= 5
+
+
+def test_chunks_equal_single_pass(sequence):
+    """Chunks cut at multiples of restart_every, joined, give exactly the single-pass table
+    (also when a chunk starts while the board is partly out of view)."""
+    frames, _, in_view = sequence
+    single = extract_corners(iter(frames), BOARD, restart_every=8)
+    ranges = chunk_ranges(N_FRAMES, 4, restart_every=8)
+    assert [r[0] for r in ranges] == [0, 24, 48, 72] and ranges[-1][1] is None
+    assert not in_view[24] and not in_view[72]  # chunks starting with the board partly out
+    chunks = [
+        extract_corners_range(sequence_source, a, b, BOARD, restart_every=8) for a, b in ranges
+    ]
+    merged = merge_corner_chunks(chunks[::-1])
+    pd.testing.assert_frame_equal(merged, single)
+    assert merged.attrs == single.attrs
+
+
+def test_parallel_equals_single_pass():
+    """Two worker processes give the single-pass table."""
+    single = extract_corners(sequence_source(0), BOARD, restart_every=48)
+    parallel = extract_corners_parallel(
+        sequence_source, N_FRAMES, BOARD, n_workers=2, restart_every=48
+    )
+    pd.testing.assert_frame_equal(parallel, single)
+
+
+def test_chunk_must_start_at_a_restart():
+    """A chunk starting between restarts would differ from a single pass: refused."""
+    with pytest.raises(ValueError, match="multiple of restart_every"):
+        extract_corners_range(sequence_source, 10, 20, BOARD, restart_every=8)
+
+
+def test_merge_refuses_a_gap_between_chunks(sequence):
+    """Chunks leaving frames out are an InputError naming the frames."""
+    frames, _, _ = sequence
+    a = extract_corners(iter(frames[:8]), BOARD)
+    b = extract_corners(iter(frames[10:16]), BOARD)
+    with pytest.raises(InputError, match="ending at frame 7.*starting at frame 10"):
+        merge_corner_chunks([a, b])
+
+
+@pytest.mark.parametrize("shift", [1, 2])
+def test_tracking_refuses_a_grid_slipped_by_squares(sequence, shift):
+    """Previous corners slipped by one or two squares along the board's x (a grid whose
+    geometry is right but whose corner k is the wrong physical corner) are not accepted."""
+    frames, truth, _ = sequence
+    f = 5
+    slipped = truth[f].reshape(4, 5, 2).copy()
+    step = slipped[:, 1:] - slipped[:, :-1]
+    for _ in range(shift):
+        slipped[:, :-1] = slipped[:, 1:]
+        slipped[:, -1] = slipped[:, -2] + step[:, -1]
+    corners, method = track_corners(frames[f - 1][2], frames[f][2], slipped.reshape(-1, 2), BOARD)
+    assert method == "lost" and corners is None
+    corners, method = track_corners(frames[f - 1][2], frames[f][2], truth[f - 1], BOARD)
+    assert method == "tracked"
+    assert np.abs(corners - truth[f]).max() < 0.3
+
+
+def test_quick_detection_matches_full_detection(sequence):
+    """The half-size detector, refined at full size, gives the full detector's corners (same
+    order, within 0.05 px) where it finds the board."""
+    frames, truth, _ = sequence
+    n = 0
+    for f in range(0, 20, 4):
+        gray = frames[f][2]
+        quick, method = quick_detect_corners(gray, BOARD)
+        full, _ = detect_corners(gray, BOARD)
+        if quick is None:
+            continue
+        n += 1
+        assert method == "quick"
+        assert np.abs(quick - full).max() < 0.05
+        assert np.abs(quick - truth[f]).max() < 0.3
+    assert n >= 4
+
+
+def test_video_range_reads_the_frames_of_a_full_read(tmp_path, sequence):
+    """iter_video_gray(path, start, stop) yields the same frames and times as reading the
+    whole video, from frames inside and at the end of the file."""
+    frames, _, _ = sequence
+    path = tmp_path / "seq.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (W, H), False)
+    for _, _, gray in frames[:40]:
+        writer.write(gray)
+    writer.release()
+    whole = list(iter_video_gray(path))
+    assert len(whole) == 40
+    for start, stop in [(16, 24), (32, None), (39, 45)]:
+        part = list(iter_video_gray(path, start, stop))
+        ref = whole[start:stop]
+        assert [p[0] for p in part] == [r[0] for r in ref]
+        assert [p[1] for p in part] == pytest.approx([r[1] for r in ref])
+        assert all(np.array_equal(p[2], r[2]) for p, r in zip(part, ref, strict=True))
+    src = functools.partial(iter_video_gray, path)
+    assert [f for f, _, _ in src(38, None)] == [38, 39]
+
+
+def test_fast_path_imports_no_io_plots_or_snakemake():
+    """cvsflow.pose and cvsflow.corners_fast stay maths: they import neither cvsflow.io,
+    matplotlib nor snakemake (frames come in through a frame source)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, cvsflow.corners_fast; "
+        "bad=[m for m in sys.modules if m.startswith(('matplotlib','snakemake','cvsflow.io'))]; "
+        "print(bad)"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
