@@ -224,4 +224,12 @@ def extract_corners_parallel(
     log.info("corners: %d chunks %s on %d processes", len(ranges), ranges, n_workers)
     with ProcessPoolExecutor(max_workers=min(n_workers, len(ranges)), mp_context=context) as ex:
         chunks = list(ex.map(_run_chunk, jobs))
-    return merge_corner_chunks(chunks)
+    corners = merge_corner_chunks(chunks)
+    a = corners.attrs
+    log.info(
+        "corners: board found in %d of %d frames (all chunks); frames by method %s",
+        a["n_found"],
+        a["n_frames"],
+        a["order_methods"],
+    )
+    return corners
