@@ -40,7 +40,7 @@ rule corners:
         "logs/{session}/corners.log",
     benchmark:
         "benchmarks/{session}/corners.tsv"
-    threads: 1
+    threads: 2
     resources:
         mem_mb=2000,
         runtime=60,

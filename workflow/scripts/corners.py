@@ -1,17 +1,22 @@
 """Chessboard corners of every video frame (rule corners)."""
 
+from functools import partial
+
+from cvsflow.corners_fast import extract_corners_parallel
 from cvsflow.io import write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import iter_video_gray, video_info
-from cvsflow.pose import extract_corners
 
 with stage_logging(snakemake.log[0], "corners") as log:
-    info = video_info(snakemake.input[0])
-    log.info("video %s: %s", snakemake.input[0], info)
-    corners = extract_corners(
-        iter_video_gray(snakemake.input[0]),
+    video = snakemake.input[0]
+    info = video_info(video)
+    log.info("video %s: %s; %d processes", video, info, snakemake.threads)
+    corners = extract_corners_parallel(
+        partial(iter_video_gray, video),
+        info["n_frames"],
         snakemake.params.board,
+        n_workers=snakemake.threads,
         subpix_window_px=snakemake.params.corners["subpix_window_px"],
-        n_frames=info["n_frames"],
+        restart_every=snakemake.params.corners["restart_every_frames"],
     )
     write_parquet(corners, snakemake.output[0])
