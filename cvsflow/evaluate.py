@@ -451,15 +451,18 @@ def crossfit_error_model(heldout, features, cov_err=None):
     heldout : DataFrame
         :func:`cross_validate_se3` output (``fold``, ``err_{dim}``, ``t_s``).
     features : DataFrame
-        :func:`cvsflow.uncertainty.error_features` of the same rows.
+        :func:`cvsflow.uncertainty.error_features` of the same rows; when made with the
+        folds' fits (``fits=``) the model is (P) (the scored fit's parameter covariance,
+        scaled, plus a floor; its full covariance is used in the NEES), else (M).
     cov_err : ndarray, shape (N, 6, 6), optional
-        The propagated PnP error covariance of the same rows (per-frame correlation of NEES).
+        The propagated PnP error covariance of the same rows (per-frame correlation of the
+        NEES of model (M)).
 
     Returns
     -------
     score : dict
         ``n``, ``inside_68``, ``inside_95`` (per dimension and ``_all`` pooled), ``nees_mean``,
-        ``nees_inside_95``, ``folds`` (per-fold scores).
+        ``nees_inside_95``, ``folds`` (per-fold scores), ``model`` (``P`` or ``M``).
     sigma : ndarray, shape (N, 6)
         Predicted standard deviation of every row, by the model that did not see its fold.
     mu : ndarray, shape (N, 6)
@@ -483,7 +486,7 @@ def crossfit_error_model(heldout, features, cov_err=None):
         folds.append(s)
     n = np.array([s["n"] for s in folds], float)
     w = n / n.sum()
-    out = {"n": int(n.sum()), "folds": folds}
+    out = {"n": int(n.sum()), "folds": folds, "model": model.get("kind", "M")}
     for band in ("68", "95"):
         out[f"inside_{band}"] = {d: float(sum(wi * s[f"inside_{band}"][d] for wi, s in zip(w, folds)))
                                  for d in ERROR_DIMS}

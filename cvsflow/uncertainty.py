@@ -16,6 +16,20 @@
    image position) for what remains; the errors e_d,i ~ N(mu_d, sigma_d,i^2), fitted by
    maximum likelihood. :func:`score_error_model` reports its calibration on held-out data:
    the share of errors inside the predicted 68 % and 95 % bands, and NEES.
+4. :func:`parameter_covariance`: the error covariance of each held-out frame that comes from
+   the uncertainty of the se3 fit that scored it (intrinsics fx, fy, k1, k2, p1, p2 through
+   the PnP pose; the mountings T_Cm_C, T_Bm_B through the Vicon reference), from that fit's
+   cluster-robust parameter covariance. Errors of a held-out fold share that fit, so this is
+   what makes them large together (a fold whose distortion is extrapolated, a mounting off
+   by a fraction of a mrad seen at 3 m). When these columns are present (``error_features``
+   with ``fits``), model (P) replaces (M):
+
+       Sigma_i = D(c) P_i D(c) + D(k) K_i D(k) + diag(b^2)                               (P)
+
+   with P_i the full propagated parameter covariance, K_i its intrinsics part, and per
+   dimension scales c_d, k_d and floor b_d fitted by maximum likelihood (normal); the PnP
+   variance with the pooled sigma_px and the pose features are left out: on the rendered
+   sessions they over-fit the training folds (coverage of held-out folds drops).
 """
 
 from __future__ import annotations
@@ -153,7 +167,135 @@ def pose6_covariance(rvec_C_B, tvec_C_B, cov_rt):
     return G @ cov_rt @ np.swapaxes(G, 1, 2)
 
 
-def error_features(frames, p_B, K, dist, sigma_px, frame="C"):
+#: Columns of :func:`cv2.projectPoints`' Jacobian per intrinsic parameter name.
+_INTRINSIC_COLUMN = {"fx": 6, "fy": 7, "cx": 8, "cy": 9, "k1": 10, "k2": 11, "p1": 12, "p2": 13,
+                     "k3": 14}
+_MOUNT_NAMES = tuple(f"{body}_{s}" for body in ("T_Cm_C", "T_Bm_B")
+                     for s in ("rx_rad", "ry_rad", "rz_rad", "x_m", "y_m", "z_m"))
+#: Names of the (co)variance blocks :func:`error_features` adds with ``fits``.
+PARAM_BLOCKS = ("parcov", "intrcov")
+
+
+def _fit_parameter_cov(fit):
+    """(names, covariance) of a se3 fit's intrinsics and mountings (no time offset)."""
+    names = list(fit["correlation"]["names"])
+    std = fit.get("std_errors_cluster") or fit["std_errors"]
+    sd = np.array([float(std[n]) for n in names])
+    cov = np.asarray(fit["correlation"]["matrix"], float) * np.outer(sd, sd)
+    keep = [i for i, n in enumerate(names) if n in _INTRINSIC_COLUMN or n in _MOUNT_NAMES]
+    return [names[i] for i in keep], cov[np.ix_(keep, keep)]
+
+
+def parameter_covariance(frames, p_B, fits, frame="C", h=1e-6):
+    """Error covariance of held-out frames from the uncertainty of the fit that scored them.
+
+    Parameters
+    ----------
+    frames : DataFrame
+        Held-out rows (:func:`cvsflow.evaluate.cross_validate_se3`): ``fold``, the CVS pose
+        ``cvs_rvec_0..2``, ``cvs_x_m..cvs_z_m`` and the reference ``ref_qx..ref_qw``,
+        ``ref_x_m..ref_z_m`` (T_C_B).
+    p_B : ndarray, shape (P, 3)
+        Board corners in B, m.
+    fits : list of dict
+        The folds' se3 results (``fold``, ``K``, ``dist``, ``T_Cm_C``, ``T_Bm_B``,
+        ``std_errors_cluster`` or ``std_errors``, ``correlation: {names, matrix}``), as in
+        heldout/se3_folds.yaml.
+    frame : {"C", "B"}
+        Error frame.
+
+    Returns
+    -------
+    cov_par : ndarray, shape (N, 6, 6)
+        Covariance of [err_x_m .. err_yaw_rad] from all fitted intrinsics and both mountings
+        (rotations perturbed on the right, R = R0 exp([w]x), translations added, as in
+        :mod:`cvsflow.optimise.se3`).
+    cov_intr : ndarray, shape (N, 6, 6)
+        The part from the intrinsics alone (through the PnP pose).
+
+    Raises
+    ------
+    OptimiseError
+        Missing columns, or a row whose fold has no fit.
+    """
+    need = ["fold", *[f"cvs_rvec_{j}" for j in range(3)], "cvs_x_m", "cvs_y_m", "cvs_z_m",
+            "ref_qx", "ref_qy", "ref_qz", "ref_qw", "ref_x_m", "ref_y_m", "ref_z_m"]
+    missing = [c for c in need if c not in frames.columns]
+    if missing:
+        raise OptimiseError(f"parameter_covariance: frames table lacks columns {missing}")
+    by_fold = {int(f["fold"]): f for f in fits}
+    fold = frames["fold"].to_numpy().astype(int)
+    absent = sorted(set(fold.tolist()) - set(by_fold))
+    if absent:
+        raise OptimiseError(f"parameter_covariance: no fit for fold(s) {absent}")
+    obj = np.asarray(p_B, np.float64).reshape(-1, 1, 3)
+    rt_all = frames[need[1:7]].to_numpy(float)
+    q_all = frames[need[7:11]].to_numpy(float)
+    t_all = frames[need[11:]].to_numpy(float)
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    cov_par = np.zeros((len(frames), 6, 6))
+    cov_intr = np.zeros((len(frames), 6, 6))
+    for k, fit in by_fold.items():
+        idx = np.flatnonzero(fold == k)
+        if not len(idx):
+            continue
+        names, Sig = _fit_parameter_cov(fit)
+        K = np.asarray(fit["K"], np.float64)
+        dist = np.asarray(fit["dist"], np.float64).ravel()
+        T_Cm_C = np.asarray(fit["T_Cm_C"], float)
+        T_Bm_B = np.asarray(fit["T_Bm_B"], float)
+        kn = [n for n in names if n in _INTRINSIC_COLUMN]
+        rt = rt_all[idx]
+        # d(rvec, tvec)/d(intrinsics) of the PnP pose: -(J^T J)^-1 J^T J_K (implicit function)
+        A = np.zeros((len(idx), 6, len(kn)))
+        for i in range(len(idx)):
+            _, jac = cv2.projectPoints(obj, rt[i, :3], rt[i, 3:], K, dist)
+            Jp = jac[:, :6]
+            A[i] = -np.linalg.lstsq(Jp.T @ Jp, Jp.T @ jac[:, [_INTRINSIC_COLUMN[n] for n in kn]],
+                                    rcond=None)[0]
+        T_ref = tf.make_T(tf.R_from_quat(q_all[idx]), t_all[idx])
+        T_Cm_Bm = T_Cm_C[None] @ T_ref @ tf.invert_T(T_Bm_B)[None]
+
+        def mount(T0, p, body):
+            w = np.array([p.get(f"{body}_r{a}_rad", 0.0) for a in "xyz"])
+            dt = np.array([p.get(f"{body}_{a}_m", 0.0) for a in "xyz"])
+            return tf.make_T(T0[:3, :3] @ tf.R_from_rvec(w), T0[:3, 3] + dt)
+
+        def err(theta):
+            p = dict(zip(names, theta))
+            rt_i = rt + A @ np.array([p[n] for n in kn])
+            T_cvs = tf.T_from_rvec_tvec(rt_i[:, :3], rt_i[:, 3:])
+            T_r = (tf.invert_T(mount(T_Cm_C, p, "T_Cm_C"))[None] @ T_Cm_Bm
+                   @ mount(T_Bm_B, p, "T_Bm_B")[None])
+            return pose_errors(T_r, T_cvs, frame=frame)[cols].to_numpy()
+
+        G = np.zeros((len(idx), 6, len(names)))
+        for j in range(len(names)):
+            step = np.zeros(len(names))
+            step[j] = h
+            G[:, :, j] = (err(step) - err(-step)) / (2 * h)
+        cov_par[idx] = G @ Sig @ np.swapaxes(G, 1, 2)
+        ki = [names.index(n) for n in kn]
+        Gk = G[:, :, ki]
+        cov_intr[idx] = Gk @ Sig[np.ix_(ki, ki)] @ np.swapaxes(Gk, 1, 2)
+    return cov_par, cov_intr
+
+
+def _cov_columns(block):
+    return [f"{block}_{a}{b}" for a in range(6) for b in range(a, 6)]
+
+
+def _cov_from_columns(features, block):
+    """(N, 6, 6) symmetric covariance stored as the upper triangle ``{block}_{a}{b}``."""
+    vals = features[_cov_columns(block)].to_numpy(float)
+    iu = np.triu_indices(6)
+    C = np.zeros((len(vals), 6, 6))
+    C[:, iu[0], iu[1]] = vals
+    C[:, iu[1], iu[0]] = vals
+    return C
+
+
+def error_features(frames, p_B, K, dist, sigma_px, frame="C", fits=None):
     """Pose features and propagated PnP error covariance of every frame.
 
     Parameters
@@ -169,6 +311,12 @@ def error_features(frames, p_B, K, dist, sigma_px, frame="C"):
         Corner noise, px (the se3 fit's ``sigma_px``).
     frame : {"C", "B"}
         Frame of the errors to be predicted.
+    fits : list of dict, optional
+        The cross-validation folds' se3 results (heldout/se3_folds.yaml ``folds``); with them
+        and ``frames`` a held-out table (``fold``, ``ref_*``), the features also hold the
+        parameter covariance of every row (:func:`parameter_covariance`) as upper triangles
+        ``parcov_{a}{b}`` and ``intrcov_{a}{b}`` (a <= b over the six error dimensions), and
+        the error model is (P).
 
     Returns
     -------
@@ -205,6 +353,12 @@ def error_features(frames, p_B, K, dist, sigma_px, frame="C"):
     )
     for j, d in enumerate(ERROR_DIMS):
         out[f"pnp_var_{d}"] = cov_err[:, j, j]
+    if fits is not None:
+        iu = np.triu_indices(6)
+        for block, C in zip(PARAM_BLOCKS, parameter_covariance(frames, p_B, fits, frame=frame)):
+            vals = C[:, iu[0], iu[1]]
+            for c, name in enumerate(_cov_columns(block)):
+                out[name] = vals[:, c]
     return out, cov_err
 
 
@@ -229,6 +383,9 @@ def fit_error_model(features, errors, use_features=True):
     Returns
     -------
     model : dict
+        With the ``parcov``/``intrcov`` columns in ``features``: model (P), ``kind: P`` and
+        per dimension ``mu``, ``c``, ``k``, ``b``, ``nll``, plus ``n_train``. Otherwise
+        model (M), ``kind: M``:
         ``dims``; per dimension ``mu`` (bias), ``a`` (scale of the PnP sigma), ``b`` (floor,
         m or rad), ``gamma`` (list, per feature); ``feature_mean``, ``feature_std`` (the
         standardisation), ``features``; ``corr`` (6x6 correlation of the standardised
@@ -240,6 +397,8 @@ def fit_error_model(features, errors, use_features=True):
         Missing columns, fewer than 20 frames, or non-finite data.
     """
     cols = [f"err_{d}" for d in ERROR_DIMS]
+    if all(c in features.columns for b in PARAM_BLOCKS for c in _cov_columns(b)):
+        return _fit_parameter_model(features, errors)
     vcols = [f"pnp_var_{d}" for d in ERROR_DIMS]
     missing = [c for c in cols if c not in errors.columns] + [
         c for c in [*vcols, *FEATURES] if c not in features.columns
@@ -259,6 +418,7 @@ def fit_error_model(features, errors, use_features=True):
     f_std = np.where(f_std > 0, f_std, 1.0)
     Z = (F - f_mean) / f_std if use_features else np.zeros((len(F), 0))
     model = {
+        "kind": "M",
         "dims": list(ERROR_DIMS),
         "features": list(FEATURES) if use_features else [],
         "feature_mean": f_mean.tolist(),
@@ -296,6 +456,42 @@ def fit_error_model(features, errors, use_features=True):
     return model
 
 
+def _fit_parameter_model(features, errors):
+    """Model (P) per dimension by maximum likelihood (normal): var = c^2 P_dd + k^2 K_dd + b^2."""
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    missing = [c for c in cols if c not in errors.columns]
+    if missing:
+        raise OptimiseError(f"fit_error_model: missing columns {missing}")
+    E = errors[cols].to_numpy(float)
+    P = _cov_from_columns(features, "parcov")
+    Ki = _cov_from_columns(features, "intrcov")
+    if len(E) != len(P) or len(E) < 20:
+        raise OptimiseError(
+            f"fit_error_model: {len(E)} error rows and {len(P)} feature rows; need equal and >= 20"
+        )
+    if not (np.isfinite(E).all() and np.isfinite(P).all() and np.isfinite(Ki).all()):
+        raise OptimiseError("fit_error_model: non-finite errors or parameter covariances")
+    model = {"kind": "P", "dims": list(ERROR_DIMS), "features": [], "n_train": int(len(E))}
+    std_resid = np.empty_like(E)
+    for j, d in enumerate(ERROR_DIMS):
+        e, vp, vk = E[:, j], P[:, j, j], Ki[:, j, j]
+        s0 = float(np.std(e)) + 1e-12
+
+        def nll(q, e=e, vp=vp, vk=vk, s0=s0):
+            mu = q[0] * s0
+            var = np.exp(2 * q[1]) * vp + np.exp(2 * q[2]) * vk + np.exp(2 * q[3])
+            return float(np.mean(0.5 * np.log(var) + 0.5 * (e - mu) ** 2 / var))
+
+        x0 = np.r_[np.median(e) / s0, 0.0, 0.0, np.log(0.3 * s0)]
+        sol = minimize(nll, x0, method="L-BFGS-B", bounds=[(None, None)] + [(-20, 20)] * 3)
+        mu = float(sol.x[0] * s0)
+        c, k, b = (float(np.exp(x)) for x in sol.x[1:])
+        std_resid[:, j] = (e - mu) / np.sqrt(c**2 * vp + k**2 * vk + b**2)
+        model[d] = {"mu": mu, "c": c, "k": k, "b": b, "nll": float(sol.fun)}
+    model["corr"] = np.corrcoef(std_resid, rowvar=False).tolist()
+    return model
+
+
 def predict_error_sigma(model, features):
     """Predicted error standard deviation per frame and dimension (model M).
 
@@ -313,6 +509,9 @@ def predict_error_sigma(model, features):
     mu : ndarray, shape (6,)
         Predicted bias per dimension.
     """
+    if model.get("kind") == "P":
+        var = np.einsum("nii->ni", _parameter_model_covariance(model, features))
+        return np.sqrt(var), np.array([model[d]["mu"] for d in ERROR_DIMS])
     V = features[[f"pnp_var_{d}" for d in ERROR_DIMS]].to_numpy(float)
     if model["features"]:
         F = features[model["features"]].to_numpy(float)
@@ -329,6 +528,16 @@ def predict_error_sigma(model, features):
     return sigma, mu
 
 
+def _parameter_model_covariance(model, features):
+    """Model (P): D(c) P_i D(c) + D(k) K_i D(k) + diag(b^2), (N, 6, 6)."""
+    c = np.array([model[d]["c"] for d in ERROR_DIMS])
+    k = np.array([model[d]["k"] for d in ERROR_DIMS])
+    b = np.array([model[d]["b"] for d in ERROR_DIMS])
+    P = _cov_from_columns(features, "parcov")
+    Ki = _cov_from_columns(features, "intrcov")
+    return (c[:, None] * P * c[None, :] + k[:, None] * Ki * k[None, :]) + np.diag(b**2)[None]
+
+
 def predicted_covariance(model, features, cov_err=None):
     """Full 6x6 predicted error covariance per frame: D_i C_i D_i.
 
@@ -338,12 +547,15 @@ def predicted_covariance(model, features, cov_err=None):
     features : DataFrame
     cov_err : ndarray, shape (N, 6, 6), optional
         Propagated PnP error covariance; when given its per-frame correlation is C_i, else
-        the model's training correlation of standardised errors.
+        the model's training correlation of standardised errors. Model (P) ignores it: its
+        covariance is the scaled parameter covariance plus the diagonal floor.
 
     Returns
     -------
     cov : ndarray, shape (N, 6, 6)
     """
+    if model.get("kind") == "P":
+        return _parameter_model_covariance(model, features)
     sigma, _ = predict_error_sigma(model, features)
     if cov_err is None:
         C = np.broadcast_to(np.asarray(model["corr"]), (len(sigma), 6, 6))
