@@ -50,6 +50,7 @@ rule compare:
     input:
         seed="results/{session}/heldout/seed.parquet",
         se3="results/{session}/heldout/se3.parquet",
+        se3_folds="results/{session}/heldout/se3_folds.yaml",
         se3_result="results/{session}/se3/calib/result.yaml",
     output:
         comparison="results/{session}/comparison.yaml",

@@ -21,9 +21,13 @@ with stage_logging(snakemake.log[0], "compare") as log:
                                  block_len=max(1, int(round(ev["boot_block_s"] * fps))),
                                  n_boot=ev["n_boot"], seed=ev["seed"])
     result = read_yaml(snakemake.input.se3_result)
+    # Each fold's own parameter covariance enters the prediction: its calibration error is
+    # shared by every frame it scores, and dominates the PnP corner noise.
+    fits = read_yaml(snakemake.input.se3_folds)["folds"]
     features, cov_err = error_features(se3, board_object_points(snakemake.params.board),
-                              np.array(result["K"]), np.array(result["dist"]),
-                              float(np.median(se3["sigma_px"])), frame=ev["frame"])
+                                       np.array(result["K"]), np.array(result["dist"]),
+                                       float(np.median(se3["sigma_px"])), frame=ev["frame"],
+                                       fits=fits)
     score, sigma, mu = crossfit_error_model(se3, features, cov_err)
     comparison["error_model"] = score
     comparison["error_frame"] = ev["frame"]
