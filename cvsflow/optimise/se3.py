@@ -50,6 +50,7 @@ import pandas as pd
 from scipy.optimize import least_squares
 
 from cvsflow import transforms as tf
+from cvsflow.calibration import board_object_points
 from cvsflow.errors import OptimiseError
 from cvsflow.optimise import OptimiseResult
 
@@ -108,38 +109,7 @@ def project_points(p_C, K, dist):
     return np.stack([K[0, 0] * xd + K[0, 2], K[1, 1] * yd + K[1, 2]], axis=-1)
 
 
-def board_points_B(board):
-    """Inner-corner positions of the board in its own frame B.
-
-    Parameters
-    ----------
-    board : dict
-        ``squares_x``, ``squares_y`` (int, squares along x and y of B), ``square_m`` (m).
-
-    Returns
-    -------
-    p_B : ndarray, shape (P, 3)
-        Corner k at ((k % nx) s, (k // nx) s, 0), nx = squares_x - 1, metres.
-
-    Raises
-    ------
-    OptimiseError
-        Missing keys, fewer than 2 x 2 inner corners or a non-positive square.
-    """
-    try:
-        nx = int(board["squares_x"]) - 1
-        ny = int(board["squares_y"]) - 1
-        s = float(board["square_m"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise OptimiseError(
-            f"se3: board {board!r}: expected squares_x, squares_y (int) and square_m (m)"
-        ) from exc
-    if nx < 2 or ny < 2 or not s > 0.0:
-        raise OptimiseError(
-            f"se3: board has {nx}x{ny} inner corners of {s} m; expected >= 2x2 and square_m > 0"
-        )
-    k = np.arange(nx * ny)
-    return np.stack([(k % nx) * s, (k // nx) * s, np.zeros(k.size)], axis=1)
+board_points_B = board_object_points  # the board's inner corners in B (m)
 
 
 def K_from_intrinsics(fx, fy, cx, cy):

@@ -53,6 +53,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pandas as pd
 
+from cvsflow.calibration import board_object_points
 from cvsflow.errors import OptimiseError
 from cvsflow.optimise import OptimiseResult
 from cvsflow.transforms import R_from_rvec, euler_from_R, rvec_from_R, wrap_angle
@@ -68,40 +69,6 @@ MIN_PAIRS = 10
 
 
 # --------------------------------------------------------------------------- board, corners
-
-
-def board_object_points(board):
-    """Inner-corner positions of the chessboard in the board frame B.
-
-    Parameters
-    ----------
-    board : dict
-        ``squares_x``, ``squares_y`` (squares along x and y), ``square_m`` (metres).
-
-    Returns
-    -------
-    X_B : ndarray, shape (P, 3)
-        Corner k at ((k % nx) * s, (k // nx) * s, 0), nx = squares_x - 1, metres.
-
-    Raises
-    ------
-    OptimiseError
-        A key is missing or the board has fewer than 2 x 2 inner corners.
-    """
-    try:
-        nx = int(board["squares_x"]) - 1
-        ny = int(board["squares_y"]) - 1
-        s = float(board["square_m"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise OptimiseError(
-            f"board: expected squares_x, squares_y (int) and square_m (float), got {board!r}"
-        ) from exc
-    if nx < 2 or ny < 2 or not s > 0:
-        raise OptimiseError(
-            f"board: {nx}x{ny} inner corners of {s} m; expected at least 2x2 and square_m > 0"
-        )
-    k = np.arange(nx * ny)
-    return np.stack([(k % nx) * s, (k // nx) * s, np.zeros(k.size)], axis=1)
 
 
 def corner_array(corners, frames, n_corners):
