@@ -70,8 +70,8 @@ def main() -> None:
 
 
 def run(workdir: Path, cores: int, *targets: str) -> None:
-    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory",
-           str(workdir), "--cores", str(cores), "--quiet", "all", *targets]
+    cmd = [sys.executable, "-m", "snakemake", *targets, "-s", str(REPO / "Snakefile"),
+           "--directory", str(workdir), "--cores", str(cores), "--quiet", "all"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         sys.exit(f"snakemake failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
