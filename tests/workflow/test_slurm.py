@@ -12,6 +12,8 @@ cluster whose node is this machine (cluster/slurm-localhost.sh), not for a remot
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import re
 import shutil
@@ -20,6 +22,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
@@ -40,11 +43,12 @@ def _sinfo_answers() -> bool:
     return proc.returncode == 0 and bool(proc.stdout.strip())
 
 
+OPTED_IN = os.environ.get("CVSFLOW_SLURM") == "1"
+START = "cluster/slurm-localhost.sh start"
 pytestmark = [
-    pytest.mark.skipif(os.environ.get("CVSFLOW_SLURM") != "1",
-                       reason="opt-in: set CVSFLOW_SLURM=1 (and start cluster/slurm-localhost.sh)"),
-    pytest.mark.skipif(os.environ.get("CVSFLOW_SLURM") == "1" and not _sinfo_answers(),
-                       reason="sinfo does not answer: no SLURM cluster (cluster/slurm-localhost.sh start)"),
+    pytest.mark.skipif(not OPTED_IN, reason=f"opt-in: set CVSFLOW_SLURM=1 (and run {START})"),
+    pytest.mark.skipif(OPTED_IN and not _sinfo_answers(),
+                       reason=f"sinfo does not answer: no SLURM cluster (run {START})"),
 ]
 
 
@@ -56,12 +60,18 @@ def slurm_plugin():
         pytest.fail("snakemake-executor-plugin-slurm is not installed (pip install -e '.[slurm]')")
 
 
+# OpenCV's thread pool makes calibrateCamera differ by an ulp from run to run (sums in another
+# order), which the optimisers downstream amplify; with one thread it is reproducible bit for bit.
+# sbatch passes the environment on to the jobs.
+ENV = {**os.environ, "OPENCV_FOR_THREADS_NUM": "1"}
+
+
 def run(workdir: Path, *args: str, snakefile: Path = REPO / "Snakefile",
         timeout: int = 1800) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "snakemake", "-s", str(snakefile), "--directory", str(workdir),
            *args]
     t0 = time.monotonic()
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=ENV)
     proc.seconds = time.monotonic() - t0
     return proc
 
@@ -103,11 +113,35 @@ def test_tiny_workflow_runs_as_slurm_jobs(tmp_path):
     assert b[1:] == ["MinMemoryNode=300M", "NumCPUs=2"], b
 
 
-def compare_trees(local: Path, slurm: Path) -> list[str]:
-    """Same files; tables equal (pandas testing), YAML values equal. Returns the files compared.
+# Wall-clock durations recorded in the results (optimisers' time_s, timings_s): they differ
+# from run to run.
+TIMING_KEYS = {"time_s", "timings_s"}
 
-    Snakemake's own marker files (.snakemake_timestamp) are left out; figures and videos only
-    have to exist and be non-empty.
+
+def assert_values_equal(got, want, where: str) -> None:
+    """Equal YAML/JSON values, timings left out; floats to 1e-9 relative."""
+    if isinstance(want, dict):
+        assert isinstance(got, dict) and got.keys() == want.keys(), where
+        for k in want.keys() - TIMING_KEYS:
+            assert_values_equal(got[k], want[k], f"{where}: {k}")
+    elif isinstance(want, list):
+        assert isinstance(got, list) and len(got) == len(want), where
+        for i, (g, w) in enumerate(zip(got, want, strict=True)):
+            assert_values_equal(g, w, f"{where}[{i}]")
+    elif isinstance(want, float) and not isinstance(got, bool):
+        assert isinstance(got, int | float), where
+        assert math.isclose(got, want, rel_tol=1e-9, abs_tol=1e-12) or (
+            math.isnan(got) and math.isnan(want)), f"{where}: {got} != {want}"
+    else:
+        assert got == want, f"{where}: {got!r} != {want!r}"
+
+
+def compare_trees(local: Path, slurm: Path) -> list[str]:
+    """Same files under results/ and data/, with equal contents. Returns the files compared.
+
+    Tables (Parquet, CSV, TUM) equal by pandas testing / numpy (rtol 1e-5 / 1e-9); YAML and
+    JSON values equal (assert_values_equal); the rendered inputs under data/ byte for byte;
+    figures only non-empty. Snakemake's marker files (.snakemake_timestamp) are left out.
     """
     def files(root: Path) -> set[str]:
         return {str(p.relative_to(root)) for d in ("results", "data")
@@ -117,17 +151,23 @@ def compare_trees(local: Path, slurm: Path) -> list[str]:
     names = files(local)
     assert files(slurm) == names
     for name in sorted(names):
+        got, want = slurm / name, local / name
         if name.endswith(".parquet"):
-            pd.testing.assert_frame_equal(pd.read_parquet(slurm / name),
-                                          pd.read_parquet(local / name), obj=name)
-        elif name.endswith(".csv"):
-            pd.testing.assert_frame_equal(pd.read_csv(slurm / name), pd.read_csv(local / name),
-                                          obj=name)
+            pd.testing.assert_frame_equal(pd.read_parquet(got), pd.read_parquet(want), obj=name)
         elif name.endswith((".yaml", ".yml")):
-            assert yaml.safe_load((slurm / name).read_text()) == \
-                yaml.safe_load((local / name).read_text()), name
+            assert_values_equal(yaml.safe_load(got.read_text()), yaml.safe_load(want.read_text()),
+                                name)
+        elif name.endswith(".json"):
+            assert_values_equal(json.loads(got.read_text()), json.loads(want.read_text()), name)
+        elif name.startswith("data/"):
+            assert got.read_bytes() == want.read_bytes(), name
+        elif name.endswith(".csv"):
+            pd.testing.assert_frame_equal(pd.read_csv(got), pd.read_csv(want), obj=name)
+        elif name.endswith(".tum"):
+            np.testing.assert_allclose(np.loadtxt(got), np.loadtxt(want), rtol=1e-9, atol=1e-12,
+                                       err_msg=name)
         else:
-            assert (slurm / name).stat().st_size > 0, name
+            assert got.stat().st_size > 0, name
     return sorted(names)
 
 
@@ -146,7 +186,7 @@ def test_demo_through_slurm_equals_local_run(tmp_path):
     # everything that does not depend on it is compared.
     loc = run(local, "--cores", "2", "--keep-going")
     produced = sorted(str(p.relative_to(local)) for p in (local / "results").rglob("*")
-                      if p.is_file())
+                      if p.is_file() and not p.name.startswith("."))
     for name in REQUIRED:
         assert name in produced, f"local run did not produce {name}:\n{loc.stderr[-4000:]}"
     targets = [] if loc.returncode == 0 else produced   # [] = the default target, rule all
