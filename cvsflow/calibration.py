@@ -38,6 +38,9 @@ CALIB_FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 
 CALIB_CORNER_COLUMNS = ["image", "corner", "u_px", "v_px", "X_m", "Y_m"]
 
+#: Keys of camera.yaml's ``std`` (the intrinsics' standard deviations; px, then unitless).
+INTRINSIC_STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
 
 def board_pattern(board: dict) -> tuple[int, int]:
     """OpenCV pattern size ``(nx, ny)`` (inner corners per row, rows) of a board dict.
@@ -267,6 +270,8 @@ def calibrate_camera(
     -------
     camera : dict
         camera.yaml content: ``K`` (3x3 list, px), ``dist`` ([k1, k2, p1, p2, k3]),
+        ``std`` (1-sigma of each intrinsic: ``fx, fy, cx, cy`` in px, ``k1, k2, p1, p2, k3``
+        unitless, OpenCV's ``stdDeviationsIntrinsics``),
         ``width``, ``height`` (px), ``rms_px`` (overall reprojection RMS), ``images`` (list of
         ``{name, used, reason, rms_px}``; ``rms_px`` is None for unused stills), ``n_used``,
         ``board``.
@@ -287,6 +292,10 @@ def calibrate_camera(
     and ``calibrateCamera`` with default flags (k1, k2, p1, p2, k3), as the seed describes.
     The overall RMS is ``sqrt(sum of squared point errors / number of points)``, as OpenCV
     reports it; per-image RMS values use the same definition over that still's corners.
+    ``std`` comes from ``calibrateCameraExtended``: the Gauss-Newton covariance
+    ``s^2 (J^T J)^-1`` of the calibration (``s^2`` the residual variance per coordinate), i.e.
+    the data-only uncertainty of the stills; downstream fits that hold some intrinsics fixed
+    (``optimise_se3``) propagate it into their own standard errors.
     """
     if len(images) == 0:
         raise CalibrationError("calibration: no stills given; expected at least one image")
@@ -327,7 +336,10 @@ def calibrate_camera(
         )
 
     try:
-        rms_px, K, dist, rvecs, tvecs = cv2.calibrateCamera(
+        # calibrateCameraExtended is calibrateCamera plus the standard deviations (the same
+        # solver and flags: K, dist and the RMS are identical); std_intr holds fx, fy, cx, cy,
+        # k1, k2, p1, p2, k3, then the terms of richer models (zero here).
+        rms_px, K, dist, rvecs, tvecs, std_intr, _, _ = cv2.calibrateCameraExtended(
             obj_points, img_points, size_wh, None, None
         )
     except cv2.error as exc:
@@ -358,9 +370,11 @@ def calibrate_camera(
         if rec["used"]:
             rec["rms_px"] = rms_by_name[rec["name"]]
 
+    std_intr = np.asarray(std_intr, dtype=float).ravel()
     camera = {
         "K": np.asarray(K, dtype=float).tolist(),
         "dist": np.asarray(dist, dtype=float).ravel()[:5].tolist(),
+        "std": {n: float(v) for n, v in zip(INTRINSIC_STD_NAMES, std_intr[:9], strict=True)},
         "width": int(size_wh[0]),
         "height": int(size_wh[1]),
         "rms_px": float(rms_px),

@@ -99,6 +99,9 @@ def test_real_stills_reproduce_published_intrinsics(real_calibration):
         camera["dist"], [-0.26509044, -0.04674186, 0.00183301, -0.00031469, 0.25231154], atol=2e-3
     )
     assert (camera["width"], camera["height"]) == (640, 480)
+    # OpenCV's standard deviations of the same calibration: about 1 px for fx..cy
+    for name in ("fx", "fy", "cx", "cy"):
+        assert 0.3 < camera["std"][name] < 3.0, (name, camera["std"][name])
 
 
 def test_real_stills_camera_dict_and_corner_table(real_calibration):
@@ -194,13 +197,65 @@ def test_synthetic_stills_recover_known_focal_lengths():
                                  seed=len(stills))
         if (uv.min(axis=0) > 30).all() and (uv.max(axis=0) < [610, 450]).all():
             stills.append((f"still{len(stills):02d}.png", gray))
-    camera, _ = calibrate_camera(stills, board, subpix_window_px=5)
+    n_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # bit-reproducible OpenCV reductions for the comparison below
+    try:
+        camera, calib_corners = calibrate_camera(stills, board, subpix_window_px=5)
+        obj = [g[["X_m", "Y_m"]].assign(Z=0.0).to_numpy(np.float32)
+               for _, g in calib_corners.groupby("image", sort=False)]
+        img = [g[["u_px", "v_px"]].to_numpy(np.float32)
+               for _, g in calib_corners.groupby("image", sort=False)]
+        rms_plain, K_plain, dist_plain, _, _ = cv2.calibrateCamera(obj, img, (640, 480), None, None)
+    finally:
+        cv2.setNumThreads(n_threads)
+    # the std (calibrateCameraExtended) leaves K, dist, RMS bit-identical to calibrateCamera
+    assert camera["K"] == np.asarray(K_plain, float).tolist()
+    assert camera["dist"] == np.asarray(dist_plain, float).ravel()[:5].tolist()
+    assert camera["rms_px"] == float(rms_plain)
     K = np.array(camera["K"])
     assert camera["n_used"] == 12
     assert K[0, 0] == pytest.approx(702.0, rel=0.002)
     assert K[1, 1] == pytest.approx(698.0, rel=0.002)
     assert abs(K[0, 2] - 331.5) < 2.0 and abs(K[1, 2] - 247.0) < 2.0
     assert camera["rms_px"] < 0.15
+    # the reported standard deviations cover the errors (3 sigma) and are not absurdly large
+    std = camera["std"]
+    assert set(std) == {"fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"}
+    for name, true, est in (("fx", 702.0, K[0, 0]), ("fy", 698.0, K[1, 1]),
+                            ("cx", 331.5, K[0, 2]), ("cy", 247.0, K[1, 2])):
+        assert 0.0 < std[name] < 2.0, (name, std[name])
+        assert abs(est - true) < 3.0 * std[name], (name, est - true, std[name])
+    assert all(v > 0.0 for v in std.values())
+
+
+def test_calibration_std_leaves_K_dist_rms_unchanged():
+    """Adding the standard deviations (calibrateCameraExtended) leaves K, dist and the RMS
+    bit-identical to plain cv2.calibrateCamera on the same corners (one OpenCV thread: with
+    several, OpenCV's own reductions differ from run to run in the last bits)."""
+    board = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
+    K_true = np.array([[700.0, 0.0, 322.0], [0.0, 697.0, 243.0], [0.0, 0.0, 1.0]])
+    dist_true = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02])
+    p_B = board_object_points(board)
+    rng = np.random.default_rng(3)
+    obj, img = [], []
+    for _ in range(10):
+        rvec = rng.normal(0, 0.4, 3)
+        tvec = np.array([rng.uniform(-0.3, 0.1), rng.uniform(-0.2, 0.05), rng.uniform(1.0, 1.6)])
+        uv, _ = cv2.projectPoints(p_B, rvec, tvec, K_true, dist_true)
+        obj.append(p_B.astype(np.float32))
+        img.append((uv.reshape(-1, 2) + rng.normal(0, 0.1, (len(p_B), 2))).astype(np.float32))
+    n_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        rms, K, dist, _, _ = cv2.calibrateCamera(obj, img, (640, 480), None, None)
+        rms_e, K_e, dist_e, _, _, std, _, _ = cv2.calibrateCameraExtended(
+            obj, img, (640, 480), None, None
+        )
+    finally:
+        cv2.setNumThreads(n_threads)
+    assert rms_e == rms
+    assert np.array_equal(K_e, K) and np.array_equal(dist_e, dist)
+    assert np.all(std.ravel()[:9] > 0)
 
 
 def test_rendered_stills_give_true_focal_lengths(tmp_path):
