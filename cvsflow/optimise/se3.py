@@ -35,8 +35,11 @@ Uncertainty: the Gauss-Newton covariance of an M-estimator (Huber 1981, sec. 7.6
 ``sigma_eff^2 (J^T J)^-1`` with ``sigma_eff^2 = m/(m-n) mean(psi^2) / mean(psi')^2`` (equal to
 ``sum r^2 / (m - n)`` for a quadratic loss), and a cluster-robust sandwich
 ``H^-1 (sum_c g_c g_c^T) H^-1`` over contiguous time blocks (residuals of one frame share the
-Vicon pose noise and are not independent). Standard errors are the larger of the two per
-parameter; correlations (identifiability) come from ``(J^T J)^-1``.
+Vicon pose noise and are not independent). The data-only standard errors are the larger of
+the two per parameter; correlations (identifiability) come from ``(J^T J)^-1``. The intrinsics
+held fixed are not exact: their calibration uncertainty (camera.yaml ``std``) is carried into
+the free estimates through the sensitivity of the solution to them, and the reported
+``std_errors`` are the total (see :func:`optimise_se3`, Notes).
 """
 
 from __future__ import annotations
@@ -63,6 +66,12 @@ DEFAULT_FREE = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 #: Names of the six pose parameters of each marker transform (m, rad).
 POSE_PARAM_SUFFIXES = ("rx_rad", "ry_rad", "rz_rad", "x_m", "y_m", "z_m")
 LOSSES = ("linear", "soft_l1", "huber")
+#: 1-sigma of each intrinsic held fixed when camera.yaml has no ``std`` (px for fx..cy, then
+#: unitless): a 15-still 640 x 480 calibration at 0.1-0.4 px RMS, rounded up (the demo's stills
+#: give 0.3, 0.3, 0.6, 0.5 px, 0.003, 0.03, 2e-4, 2e-4, 0.08; OpenCV's 13 sample stills 0.9,
+#: 1.0, 1.0, 1.1 px, 0.012, 0.09, 2e-4, 3e-4, 0.2).
+DEFAULT_INTRINSIC_STD = {"fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "k1": 0.01, "k2": 0.05,
+                         "p1": 5e-4, "p2": 5e-4, "k3": 0.1}  # fmt: skip
 #: Fewest frames the solver accepts.
 MIN_FRAMES = 10
 #: Half-width (s) of the time window around t_i + dt0 that must hold valid Vicon samples.
@@ -658,6 +667,21 @@ class _Model:
         _, J = self._evaluate(x, True)
         return J.reshape(-1, J.shape[-1])
 
+    def jacobian_intrinsics(self, x):
+        """d residuals / d [fx, fy, cx, cy, k1, k2, p1, p2, k3] at x, free or not, shape (m, 9).
+
+        The columns of the intrinsics held fixed give the sensitivity of the estimate to them
+        (see :func:`optimise_se3`, Notes).
+        """
+        intr, T_Cm_C, T_Bm_B, dt = self.unpack(x)
+        tq = self.t_video + dt
+        T_Cm_Bm = tf.invert_T(self.cam(tq)) @ self.brd(tq)
+        p_Bm = self.p_B @ T_Bm_B[:3, :3].T + T_Bm_B[:3, 3]
+        p_Cm = np.einsum("fij,pj->fpi", T_Cm_Bm[:, :3, :3], p_Bm) + T_Cm_Bm[:, None, :3, 3]
+        p_C = (p_Cm - T_Cm_C[:3, 3]) @ T_Cm_C[:3, :3]
+        _, _, J_i = project_points_jac(p_C, K_from_intrinsics(*intr[:4]), intr[4:])
+        return -J_i.reshape(-1, len(INTRINSIC_NAMES))
+
     def jacobian_fd(self, x, h=1e-6):
         """Central-difference Jacobian (for tests), shape (m, n)."""
         cols = []
@@ -707,6 +731,35 @@ def _covariances(J, r, loss, f_scale, clusters):
     return cov_gn, cov_cl, JtJ_inv, float(sigma2), G
 
 
+def _fixed_intrinsic_std(camera, names):
+    """1-sigma of the fixed intrinsics ``names``: camera["std"], else DEFAULT_INTRINSIC_STD.
+
+    Returns (std (k,), names taken from the default).
+    """
+    given = camera.get("std") if isinstance(camera, dict) else None
+    given = given if isinstance(given, dict) else {}
+    sd, defaulted = [], []
+    for n in names:
+        v = given.get(n)
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            v = float("nan")
+        if not (np.isfinite(v) and v >= 0.0):
+            v = DEFAULT_INTRINSIC_STD[n]
+            defaulted.append(n)
+        sd.append(v)
+    return np.array(sd, float), defaulted
+
+
+def _fixed_sensitivity(J, J_fixed, r, loss, f_scale):
+    """S = d x_hat / d theta_fixed = -(J^T W J)^-1 J^T W J_fixed, W = diag psi'(r), (n, k)."""
+    dpsi = _loss_weights(r, loss, f_scale)[1]
+    H = _gram(J, dpsi)
+    B = np.einsum("mi,m,mj->ij", J, dpsi, J_fixed, optimize=False)
+    return -np.linalg.pinv(H) @ B
+
+
 def _corr(cov):
     d = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     return cov / np.outer(d, d)
@@ -746,7 +799,9 @@ def optimise_se3(
         bodies.parquet (native rate, long): ``t_s`` (Vicon clock, s), ``body``
         (``camera``/``board``), ``valid``, ``x_m, y_m, z_m, qx, qy, qz, qw`` (T_W_Cm / T_W_Bm).
     camera : dict
-        camera.yaml content: ``K`` (3x3, px) and ``dist`` ([k1, k2, p1, p2, k3]); the start.
+        camera.yaml content: ``K`` (3x3, px) and ``dist`` ([k1, k2, p1, p2, k3]); the start,
+        and the values of the intrinsics held fixed; optional ``std`` (name -> 1-sigma, px or
+        unitless), the uncertainty of the fixed ones (Notes).
     board : dict
         ``squares_x``, ``squares_y``, ``square_m`` (m).
     dt_offset_s : float
@@ -806,14 +861,41 @@ def optimise_se3(
     -----
     ``result`` keys: ``method``; ``K`` (3x3), ``dist`` (5); ``T_Cm_C``, ``T_Bm_B`` (4x4) and their
     ``*_pose6`` [x, y, z, roll, pitch, yaw] (m, rad); ``dt_offset_s``; ``estimates``
-    (name -> value) and ``std_errors`` (name -> 1-sigma) of every free parameter (rotation
-    parameters are the local perturbations about the axes of C and B, so their sigma is the
-    rotation uncertainty in rad about those axes); ``std_errors_gn`` and ``std_errors_cluster``
-    (the two estimates whose maximum is ``std_errors``); ``correlation`` (names, matrix);
-    ``init`` (the closed-form start); ``n_frames``, ``n_residuals``, ``rms_px``,
+    (name -> value) and ``std_errors`` (name -> total 1-sigma) of every free parameter
+    (rotation parameters are the local perturbations about the axes of C and B, so their sigma
+    is the rotation uncertainty in rad about those axes); ``std_errors_data`` (from the video
+    data alone: the larger of ``std_errors_gn`` and ``std_errors_cluster`` per parameter);
+    ``std_errors_fixed`` (the part carried in from the fixed intrinsics), with
+    ``std_errors^2 = std_errors_data^2 + std_errors_fixed^2``; ``fixed_intrinsics`` (``names``,
+    ``values``, ``std`` used, ``std_defaulted``: names whose std came from
+    ``DEFAULT_INTRINSIC_STD``, ``sensitivity``: S, rows in the order of ``correlation.names``,
+    one column per fixed intrinsic); ``correlation`` (names, matrix: data-only, from
+    ``(J^T J)^-1``; the identifiability warnings use it); ``correlation_total`` (of the total
+    covariance); ``init`` (the closed-form start); ``n_frames``, ``n_residuals``, ``rms_px``,
     ``sigma_px`` (robust pixel noise, from the M-estimator scale), ``cost``, ``n_iterations``
     (residual evaluations; scipy's TRF takes one per iteration), ``n_jacobians``, ``time_s``,
     ``status``, ``message``, ``warnings`` (list of str).
+
+    Fixed intrinsics. Parameters the data cannot separate are held at their calibration
+    values: the principal point (cx, cy) correlates at ~1.000 with the rotation of the camera
+    mounting, since a shift of the image by d px is, to first order, a turn of the camera by
+    d / f rad about its y (cx) or x (cy) axis; freeing them only makes the fit trade one for
+    the other. Holding them fixed does not make them exact: an error of 0.5 px in cx (about
+    one calibration sigma) turns T_Cm_C by 0.7 mrad, several times the data-only standard
+    error of a 90 s take, so estimates would sit 6-10 data-only sigma off truth. The estimate
+    is a function of the fixed values theta; linearising the M-estimator's normal equations
+    ``J^T psi(r) = 0`` about the solution gives its sensitivity
+
+        S = d x_hat / d theta = -(J^T W J)^-1 J^T W J_theta,   W = diag(psi'(r)),
+
+    (J_theta the residuals' derivatives w.r.t. the fixed intrinsics, W the robust curvature
+    weights, as in the sandwich covariance), and the calibration's errors, independent of the
+    video's, add ``S Sigma_theta S^T`` to the covariance: ``cov_total = cov_data + S
+    Sigma_theta S^T`` with ``cov_data`` the data-only standard errors and ``(J^T J)^-1``
+    correlations, and ``Sigma_theta`` diagonal from ``camera["std"]`` (OpenCV's
+    ``stdDeviationsIntrinsics``, :func:`cvsflow.calibration.calibrate_camera`), or
+    ``DEFAULT_INTRINSIC_STD`` for a name it lacks (with a warning). A fit that frees every
+    intrinsic has ``std_errors == std_errors_data``.
     """
     t0 = time.perf_counter()
     if loss not in LOSSES:
@@ -929,10 +1011,33 @@ def optimise_se3(
     )
     se_gn = np.sqrt(np.diag(cov_gn))
     se_cl = np.sqrt(np.diag(cov_cl))
-    se = np.maximum(se_gn, se_cl)
+    se_data = np.maximum(se_gn, se_cl)
     corr = _corr(JtJ_inv)
+    cov_data = corr * np.outer(se_data, se_data)
+    # uncertainty of the intrinsics held fixed, carried into the free estimates (Notes)
+    fixed_names = [n for n in INTRINSIC_NAMES if n not in set(free)]
     warnings_out = []
     names = model.names
+    if fixed_names:
+        sd_fixed, defaulted = _fixed_intrinsic_std(camera, fixed_names)
+        J_fixed = model.jacobian_intrinsics(x)[:, ~model.free]
+        S = _fixed_sensitivity(J, J_fixed, r, loss, f_scale_px)
+        cov_fixed = (S * sd_fixed**2) @ S.T
+        if defaulted:
+            msg = (
+                f"se3: camera has no std for the fixed {defaulted}; their uncertainty is taken "
+                f"as {[DEFAULT_INTRINSIC_STD[n] for n in defaulted]} (DEFAULT_INTRINSIC_STD)"
+            )
+            warnings_out.append(msg)
+            log.warning(msg)
+    else:
+        sd_fixed, defaulted = np.zeros(0), []
+        S = np.zeros((len(names), 0))
+        cov_fixed = np.zeros_like(cov_data)
+    se_fixed = np.sqrt(np.clip(np.diag(cov_fixed), 0.0, None))
+    cov_total = cov_data + cov_fixed
+    se = np.sqrt(np.diag(cov_total))
+    corr_total = _corr(cov_total)
     for i in range(len(names)):
         for j in range(i + 1, len(names)):
             if abs(corr[i, j]) > corr_warn:
@@ -977,9 +1082,19 @@ def optimise_se3(
         "fit_dt": bool(fit_dt),
         "estimates": {n: float(v) for n, v in zip(names, x, strict=True)},
         "std_errors": {n: float(v) for n, v in zip(names, se, strict=True)},
+        "std_errors_data": {n: float(v) for n, v in zip(names, se_data, strict=True)},
+        "std_errors_fixed": {n: float(v) for n, v in zip(names, se_fixed, strict=True)},
+        "fixed_intrinsics": {
+            "names": fixed_names,
+            "values": [float(intr0[INTRINSIC_NAMES.index(n)]) for n in fixed_names],
+            "std": [float(v) for v in sd_fixed],
+            "std_defaulted": list(defaulted),
+            "sensitivity": np.asarray(S, float).tolist(),
+        },
         "std_errors_gn": {n: float(v) for n, v in zip(names, se_gn, strict=True)},
         "std_errors_cluster": {n: float(v) for n, v in zip(names, se_cl, strict=True)},
         "correlation": {"names": list(names), "matrix": np.round(corr, 6).tolist()},
+        "correlation_total": {"names": list(names), "matrix": np.round(corr_total, 6).tolist()},
         "init": {
             "K": K0.tolist(),
             "dist": dist0.tolist(),

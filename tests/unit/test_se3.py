@@ -201,6 +201,86 @@ def test_se3_result_is_complete_and_plain(fitted):
     assert {"frame", "t_s", "cvs_x_m", "ref_x_m", "rms_px"} <= set(fitted.errors.columns)
 
 
+def test_se3_carries_the_uncertainty_of_a_fixed_principal_point(session):
+    """cx held fixed 2 px off truth with a stated std of 1.5 px (cy, k3 fixed at truth, std
+    0.3 px and 0.02): a principal-point shift is, to first order, a turn of the camera about
+    its y axis by 2 / fx rad, so the mounting rotation T_Cm_C absorbs ~2.9 mrad (measured as
+    the change from the same fit with cx at truth). The data-only standard errors (~0.01 mrad)
+    miss it by hundreds of sigma; the total ones (which carry the fixed parameters' std through
+    the sensitivity S) cover it and the whole error within 3 sigma, and S predicts the change
+    of each mounting rotation to within 3 data-only sigma.
+
+    (The fit with cx at truth is itself off by ~5 data-only sigma about x: the static camera's
+    mean Vicon pose, one pose for the whole take, carries its marker noise into T_Cm_C as a
+    constant that no per-frame or per-cluster error model sees.)"""
+    tr = session["truth"]
+    std = {"fx": 0.3, "fy": 0.3, "cx": 1.5, "cy": 0.3, "k1": 0.003, "k2": 0.03, "p1": 2e-4,
+           "p2": 2e-4, "k3": 0.02}  # fmt: skip
+    delta_cx = 2.0
+    names = [f"T_Cm_C_r{ax}_rad" for ax in "xyz"]
+    fits, rerrs = [], []
+    for d in (0.0, delta_cx):
+        K0 = tr["K"].copy()
+        K0[0, 2] += d
+        cam = {"K": K0.tolist(), "dist": tr["dist"].tolist(), "std": std}
+        res = se3.optimise_se3(
+            session["corners"], session["bodies"], cam, session["board"], tr["dt_offset_s"],
+            free=["fx", "fy", "k1", "k2", "p1", "p2"],
+        ).result
+        fits.append(res)
+        # the error of the mounting rotation, about the axes of C
+        rerrs.append(tf.rvec_from_R(tr["T_Cm_C"][:3, :3].T @ np.array(res["T_Cm_C"])[:3, :3]))
+    res, rerr = fits[1], rerrs[1]
+    induced = rerrs[1] - rerrs[0]
+    se, se_data = res["std_errors"], res["std_errors_data"]
+    fixed = res["fixed_intrinsics"]
+    assert fixed["names"] == ["cx", "cy", "k3"] and fixed["std_defaulted"] == []
+    assert fixed["std"] == pytest.approx([1.5, 0.3, 0.02])
+    assert not any("no std" in w for w in res["warnings"])
+    assert induced[1] == pytest.approx(delta_cx / tr["K"][0, 0], rel=0.1)
+    z_data = np.array([induced[j] / se_data[n] for j, n in enumerate(names)])
+    z_total = np.array([rerr[j] / se[n] for j, n in enumerate(names)])
+    assert np.max(np.abs(z_data)) > 100.0, z_data
+    assert np.all(np.abs(z_total) < 3.0), z_total
+    assert abs(induced[1]) < 3.0 * se["T_Cm_C_ry_rad"]
+    # total^2 = data^2 + fixed^2, and the fixed part is ~ std_cx / fx about the y axis of C
+    for n in res["std_errors"]:
+        assert se[n] ** 2 == pytest.approx(se_data[n] ** 2 + res["std_errors_fixed"][n] ** 2,
+                                           rel=1e-9)
+    assert res["std_errors_fixed"]["T_Cm_C_ry_rad"] == pytest.approx(1.5 / tr["K"][0, 0], rel=0.2)
+    # the linear sensitivity predicts the change of the mounting rotation caused by the offset
+    S = np.array(fixed["sensitivity"])
+    all_names = res["correlation"]["names"]
+    for j, n in enumerate(names):
+        shift = S[all_names.index(n), 0] * delta_cx
+        assert abs(induced[j] - shift) < 3.0 * se_data[n], (n, induced[j], shift)
+    # correlations: data-only and total, both symmetric with a unit diagonal
+    for key in ("correlation", "correlation_total"):
+        C = np.array(res[key]["matrix"])
+        np.testing.assert_allclose(C, C.T, atol=1e-6)
+        np.testing.assert_allclose(np.diag(C), 1.0, atol=1e-6)
+
+
+def test_se3_without_camera_std_uses_the_documented_default(session):
+    """With no ``std`` in the camera dict, the fixed intrinsics take DEFAULT_INTRINSIC_STD and
+    the result says so; with every intrinsic free, nothing is propagated."""
+    tr = session["truth"]
+    cam = {"K": tr["K"].tolist(), "dist": tr["dist"].tolist()}
+    kw = dict(max_nfev=20, frames=np.arange(0, 600, 3))
+    res = se3.optimise_se3(session["corners"], session["bodies"], cam, session["board"],
+                           tr["dt_offset_s"], free=["fx", "fy"], **kw).result
+    fixed = res["fixed_intrinsics"]
+    assert fixed["std_defaulted"] == fixed["names"] == ["cx", "cy", "k1", "k2", "p1", "p2", "k3"]
+    assert fixed["std"] == [se3.DEFAULT_INTRINSIC_STD[n] for n in fixed["names"]]
+    assert any("DEFAULT_INTRINSIC_STD" in w for w in res["warnings"])
+    assert res["std_errors_fixed"]["T_Cm_C_ry_rad"] > 0.0
+    res_all = se3.optimise_se3(session["corners"], session["bodies"], cam, session["board"],
+                               tr["dt_offset_s"], **kw).result
+    assert res_all["fixed_intrinsics"]["names"] == []
+    assert all(v == 0.0 for v in res_all["std_errors_fixed"].values())
+    assert res_all["std_errors"] == pytest.approx(res_all["std_errors_data"], rel=1e-12)
+
+
 def test_se3_with_moving_camera_and_outliers():
     """A swaying camera (2 cm, 2 deg; not detected as static) and 2 % of corners displaced by
     15 px: the robust fit still recovers fx within 0.2 %, T_Bm_B within 2 mm / 0.2 deg and
