@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: install demo report test test-all clean
+.PHONY: install demo report test test-all slurm-up test-slurm clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,12 @@ test: install
 
 test-all: install
 	$(BIN)/python -m pytest -n $(CORES) --dist loadfile
+
+slurm-up:
+	cluster/slurm-localhost.sh start
+
+test-slurm: install slurm-up
+	CVSFLOW_SLURM=1 $(BIN)/python -m pytest tests/workflow/test_slurm.py
 
 clean:
 	rm -rf results logs benchmarks .snakemake report.html

@@ -1,10 +1,15 @@
 """Calibrate the camera from the stills (rule calibrate)."""
 
+import cv2
+
 from cvsflow.calibration import calibrate_camera
 from cvsflow.io import save_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import list_stills, read_gray
 from cvsflow.plots import camera as plots
+
+# OpenCV's own thread pool would take every core and make results differ in the last bits.
+cv2.setNumThreads(snakemake.threads)
 
 with stage_logging(snakemake.log[0], "calibrate") as log:
     paths = list_stills(snakemake.input[0])

@@ -2,10 +2,15 @@
 
 from functools import partial
 
+import cv2
+
 from cvsflow.corners_fast import extract_corners_parallel
 from cvsflow.io import write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import iter_video_gray, video_info
+
+# One OpenCV thread per worker process: the workers are the parallelism.
+cv2.setNumThreads(1)
 
 with stage_logging(snakemake.log[0], "corners") as log:
     video = snakemake.input[0]

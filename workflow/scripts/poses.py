@@ -1,11 +1,15 @@
 """Board pose per video frame by RANSAC PnP + LM (rule poses)."""
 
+import cv2
 import numpy as np
 
 from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.plots import camera as plots
 from cvsflow.pose import estimate_poses
+
+# OpenCV's own thread pool would take every core and make results differ in the last bits.
+cv2.setNumThreads(snakemake.threads)
 
 with stage_logging(snakemake.log[0], "poses") as log:
     camera = read_yaml(snakemake.input.camera)
