@@ -43,7 +43,8 @@ log = logging.getLogger(__name__)
 def _cvs_rotations(poses_raw):
     """Sorted video times (s), R_C_B (N, 3, 3) (identity where invalid) and validity."""
     p = poses_raw.sort_values("frame", kind="stable")
-    valid = p["valid"].to_numpy(bool) & np.isfinite(p[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)).all(axis=1)
+    rvec = p[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
+    valid = p["valid"].to_numpy(bool) & np.isfinite(rvec).all(axis=1)
     rvec = np.where(valid[:, None], p[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float), 0.0)
     return p["t_s"].to_numpy(float), Rotation.from_rotvec(rvec).as_matrix(), valid
 
@@ -401,7 +402,7 @@ def refine_offset_rotations(
     def scales(r):  # robust standard deviation of each baseline's differences
         s = np.empty(int(max_baseline) + 1)
         for k in range(1, int(max_baseline) + 1):
-            rk = r[K == k]
+            rk = r[k == K]
             s[k] = 1.4826 * np.median(np.abs(rk - np.median(rk))) if rk.size else 1.0
         return np.maximum(s, 1e-9)
 
@@ -460,7 +461,7 @@ def _masked_ncc(c, mc, v, mv, min_overlap):
         cov = Sab - Sa * Sb / N
         var = (Saa - Sa**2 / N) * (Sbb - Sb**2 / N)
         r = cov / np.sqrt(np.clip(var, 0.0, None))
-    r[(N < min_overlap) | ~np.isfinite(r)] = np.nan
+    r[(min_overlap > N) | ~np.isfinite(r)] = np.nan
     return lags, r
 
 
@@ -529,9 +530,9 @@ def sync_angular_speed(
     -----
     Video frames whose rotation jumps faster than 1.5 times the Vicon's 99.9th percentile
     angular speed plus 0.5 rad/s, in runs of at most 5 frames (PnP flips), are left out
-    (``n_jump_frames``). Then three steps: (1) masked normalised cross-correlation (FFT) of both angular speeds on a
-    common grid (frames without a board are masked, never interpolated over); (2) parabolic
-    interpolation of the peak; (3) refinement within one video frame interval of it by
+    (``n_jump_frames``). Then three steps: (1) masked normalised cross-correlation (FFT) of both
+    angular speeds on a common grid (frames without a board are masked, never interpolated
+    over); (2) parabolic interpolation of the peak; (3) refinement within one video frame interval of it by
     :func:`refine_offset_rotations`: the angles of the relative rotations between video frames
     1 to ``max_baseline`` frames apart against the same angles of the (smoothed, SLERPed) Vicon
     rotations at t_video + dt, Huber loss. Step (3) replaces a minimisation of the mismatch of
@@ -585,7 +586,8 @@ def sync_angular_speed(
     if not np.isfinite(r).any():
         raise SyncError(
             f"angular-speed sync: no lag within +-{max_offset_s} s overlaps enough valid samples "
-            f"(video {video_span[0]:.2f}..{video_span[1]:.2f} s, take {take_span[0]:.2f}..{take_span[1]:.2f} s)"
+            f"(video {video_span[0]:.2f}..{video_span[1]:.2f} s, "
+            f"take {take_span[0]:.2f}..{take_span[1]:.2f} s)"
         )
     k = int(np.nanargmax(r))
     r_peak = float(r[k])

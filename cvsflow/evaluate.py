@@ -290,7 +290,9 @@ def bootstrap_error_stats(errors, block_len, n_boot=1000, seed=0, level=0.95):
     n, d = E.shape
     L = int(block_len)
     if n < 2 or not 1 <= L <= n:
-        raise OptimiseError(f"bootstrap: {n} rows and block_len {block_len}; need N >= 2 and 1 <= block_len <= N")
+        raise OptimiseError(
+            f"bootstrap: {n} rows and block_len {block_len}; need N >= 2 and 1 <= block_len <= N"
+        )
     if not 0 < level < 1:
         raise OptimiseError(f"bootstrap: level {level}; expected in (0, 1)")
     rng = np.random.default_rng(seed)
@@ -487,12 +489,15 @@ def crossfit_error_model(heldout, features, cov_err=None):
     n = np.array([s["n"] for s in folds], float)
     w = n / n.sum()
     out = {"n": int(n.sum()), "folds": folds, "model": model.get("kind", "M")}
+
+    def pooled(get):
+        return float(sum(wi * get(s) for wi, s in zip(w, folds, strict=True)))
+
     for band in ("68", "95"):
-        out[f"inside_{band}"] = {d: float(sum(wi * s[f"inside_{band}"][d] for wi, s in zip(w, folds)))
-                                 for d in ERROR_DIMS}
-        out[f"inside_{band}_all"] = float(sum(wi * s[f"inside_{band}_all"] for wi, s in zip(w, folds)))
-    out["nees_mean"] = float(sum(wi * s["nees_mean"] for wi, s in zip(w, folds)))
-    out["nees_inside_95"] = float(sum(wi * s["nees_inside_95"] for wi, s in zip(w, folds)))
+        out[f"inside_{band}"] = {d: pooled(lambda s, b=band, d=d: s[f"inside_{b}"][d]) for d in ERROR_DIMS}
+        out[f"inside_{band}_all"] = pooled(lambda s, b=band: s[f"inside_{b}_all"])
+    out["nees_mean"] = pooled(lambda s: s["nees_mean"])
+    out["nees_inside_95"] = pooled(lambda s: s["nees_inside_95"])
     return out, sigma, mu
 
 

@@ -1127,7 +1127,8 @@ def evaluate_flight(
 def sigma_columns(Sigma):
     """Flatten (N, 6, 6) covariances into a DataFrame of columns ``S00 .. S55`` (SI)."""
     Sigma = np.asarray(Sigma, float)
-    return pd.DataFrame(Sigma.reshape(len(Sigma), 36), columns=[f"S{i}{j}" for i in range(6) for j in range(6)])
+    columns = [f"S{i}{j}" for i in range(6) for j in range(6)]
+    return pd.DataFrame(Sigma.reshape(len(Sigma), 36), columns=columns)
 
 
 def sigma_from_columns(df):

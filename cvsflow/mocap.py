@@ -476,7 +476,8 @@ def fit_bodies(markers, body_specs):
         else:
             n_filled = np.zeros(len(markers), dtype=int)
         parts.append(
-            _body_frame(markers["frame"].to_numpy(), markers["t_s"].to_numpy(float), body, T, rms, n_used, n_filled)
+            _body_frame(markers["frame"].to_numpy(), markers["t_s"].to_numpy(float), body, T, rms,
+                        n_used, n_filled)
         )
     out = pd.concat(parts, ignore_index=True)
     out.attrs["rate_hz"] = _rate_hz(markers)
@@ -584,7 +585,9 @@ def block_average_bodies(bodies, factor):
         rms, n_m, n_f = _body_aux(bodies, body)
         nb = len(t) // factor
         if nb == 0:
-            raise MocapError(f"block_average_bodies: {len(t)} samples of {body!r}, fewer than one block of {factor}")
+            raise MocapError(
+                f"block_average_bodies: {len(t)} samples of {body!r}, fewer than one block of {factor}"
+            )
         sl = slice(0, nb * factor)
         shape = (nb, factor)
         vb = valid[sl].reshape(shape).all(axis=1)

@@ -261,12 +261,12 @@ def parameter_covariance(frames, p_B, fits, frame="C", h=1e-6):
             dt = np.array([p.get(f"{body}_{a}_m", 0.0) for a in "xyz"])
             return tf.make_T(T0[:3, :3] @ tf.R_from_rvec(w), T0[:3, 3] + dt)
 
-        def err(theta):
-            p = dict(zip(names, theta))
-            rt_i = rt + A @ np.array([p[n] for n in kn])
+        def err(theta):  # noqa: B023  (called only within this iteration of the loop)
+            p = dict(zip(names, theta, strict=True))  # noqa: B023
+            rt_i = rt + A @ np.array([p[n] for n in kn])  # noqa: B023
             T_cvs = tf.T_from_rvec_tvec(rt_i[:, :3], rt_i[:, 3:])
-            T_r = (tf.invert_T(mount(T_Cm_C, p, "T_Cm_C"))[None] @ T_Cm_Bm
-                   @ mount(T_Bm_B, p, "T_Bm_B")[None])
+            T_r = (tf.invert_T(mount(T_Cm_C, p, "T_Cm_C"))[None] @ T_Cm_Bm  # noqa: B023
+                   @ mount(T_Bm_B, p, "T_Bm_B")[None])  # noqa: B023
             return pose_errors(T_r, T_cvs, frame=frame)[cols].to_numpy()
 
         G = np.zeros((len(idx), 6, len(names)))
@@ -355,7 +355,8 @@ def error_features(frames, p_B, K, dist, sigma_px, frame="C", fits=None):
         out[f"pnp_var_{d}"] = cov_err[:, j, j]
     if fits is not None:
         iu = np.triu_indices(6)
-        for block, C in zip(PARAM_BLOCKS, parameter_covariance(frames, p_B, fits, frame=frame)):
+        covs = parameter_covariance(frames, p_B, fits, frame=frame)
+        for block, C in zip(PARAM_BLOCKS, covs, strict=True):
             vals = C[:, iu[0], iu[1]]
             for c, name in enumerate(_cov_columns(block)):
                 out[name] = vals[:, c]

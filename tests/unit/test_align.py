@@ -13,7 +13,6 @@ from cvsflow.align import (
     check_take_covers_video,
     refine_offset_rotations,
     sync_angular_speed,
-    sync_gesture,
     synchronise,
 )
 from cvsflow.errors import InputError, SyncError

@@ -172,7 +172,7 @@ def test_parameter_model_bands_calibrated_on_its_own_data():
     feats = pd.DataFrame(index=range(n))
     iu = np.triu_indices(6)
     for block, C in (("parcov", P), ("intrcov", Kc)):
-        for (a, bb) in zip(*iu):
+        for (a, bb) in zip(*iu, strict=True):
             feats[f"{block}_{a}{bb}"] = C[:, a, bb]
     err = pd.DataFrame(e, columns=ev.error_columns())
     model = un.fit_error_model(feats[:2000], err[:2000])

@@ -21,7 +21,7 @@ with stage_logging(snakemake.log[0], "flight") as log:
         T_Q_B = np.array(truth_cfg["T_Q_B"]) if cfg.get("mounting_known", True) else None
     else:
         poses = read_parquet(inp.poses)
-        calib = read_yaml(inp.se3_result) if "se3_result" in inp.keys() else read_yaml(inp.camera)
+        calib = read_yaml(inp.se3_result) if hasattr(inp, "se3_result") else read_yaml(inp.camera)
         sigma_px = float(calib.get("sigma_px", np.nanmedian(poses["reproj_rms_px"])))
         reference = fl.reference_from_poses(poses)
         Sigma_ref = fl.reference_covariance_from_pnp(

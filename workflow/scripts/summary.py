@@ -1,6 +1,7 @@
 """One table over every optimiser run: focal lengths, P̄, error spread, truth where known (rule summary)."""
 
 import json
+from pathlib import Path
 
 import pandas as pd
 
@@ -18,7 +19,7 @@ with stage_logging(snakemake.log[0], "summary") as log:
         rows.append(summary_row(
             session, method, finit,
             read_yaml(inp[f"{key}/result"]),
-            json.loads(open(inp[f"{key}/stats"]).read()),
+            json.loads(Path(inp[f"{key}/stats"]).read_text()),
             truth,
             read_parquet(inp[f"{session}/pairs"]) if truth else None,
             read_parquet(inp[f"{session}/truth_frames"]) if truth else None,
