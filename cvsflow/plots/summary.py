@@ -32,7 +32,8 @@ def plot_sweep(summary):
         if "fx_true_px" in rows and rows["fx_true_px"].notna().any():
             ax_f.axhline(rows["fx_true_px"].iloc[0], color="k", lw=0.8, ls=":", label="true fx")
         ax_f.set(title=session, xlabel="initial focal length (px)", ylabel="final focal length (px)")
-        ax_n.set(xlabel="initial focal length (px)", ylabel="error norm after (mm, RMS)")
+        # log scale: the methods' errors differ by orders of magnitude
+        ax_n.set(xlabel="initial focal length (px)", ylabel="error norm after (mm, RMS)", yscale="log")
         ax_f.legend(fontsize=8)
         ax_n.legend(fontsize=8)
         for ax in (ax_f, ax_n):
