@@ -100,6 +100,24 @@ def T_from_traj(df: pd.DataFrame) -> np.ndarray:
     return make_T(R, p)
 
 
+def trajectory_frame(t_s, p_m, q_xyzw, pos_valid, rot_valid, **extra) -> pd.DataFrame:
+    """The common trajectory form from times (N,), positions (N, 3, metres) and scalar-last
+    quaternions (N, 4) with their validity flags; ``extra`` columns are appended."""
+    p = np.asarray(p_m, dtype=float)
+    q = np.asarray(q_xyzw, dtype=float)
+    n = len(p)
+    return pd.DataFrame(
+        {
+            "t_s": np.asarray(t_s, dtype=float),
+            "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
+            "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
+            "pos_valid": np.broadcast_to(np.asarray(pos_valid, bool), n).copy(),
+            "rot_valid": np.broadcast_to(np.asarray(rot_valid, bool), n).copy(),
+            **extra,
+        }
+    )  # fmt: skip
+
+
 def traj_from_T(t_s, T, pos_valid=None, rot_valid=None, attrs=None) -> pd.DataFrame:
     """Common trajectory form from times (N,) and transforms (N, 4, 4)."""
     T = np.asarray(T, dtype=float)
@@ -109,20 +127,11 @@ def traj_from_T(t_s, T, pos_valid=None, rot_valid=None, attrs=None) -> pd.DataFr
     if ok.any():
         q[ok] = quat_from_R(R[ok])
     p = T[:, :3, 3]
-    df = pd.DataFrame(
-        {
-            "t_s": np.asarray(t_s, dtype=float),
-            "x_m": p[:, 0],
-            "y_m": p[:, 1],
-            "z_m": p[:, 2],
-            "qx": q[:, 0],
-            "qy": q[:, 1],
-            "qz": q[:, 2],
-            "qw": q[:, 3],
-        }
-    )
-    df["pos_valid"] = np.isfinite(p).all(1) if pos_valid is None else np.asarray(pos_valid, bool)
-    df["rot_valid"] = ok if rot_valid is None else np.asarray(rot_valid, bool)
+    df = trajectory_frame(
+        t_s, p, q,
+        np.isfinite(p).all(1) if pos_valid is None else pos_valid,
+        ok if rot_valid is None else rot_valid,
+    )  # fmt: skip
     df.attrs = dict(attrs or {})
     return df
 

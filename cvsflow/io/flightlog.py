@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.errors import InputError
+from cvsflow.flight import trajectory_frame
 from cvsflow.io.files import atomic_output
 from cvsflow.transforms import R_from_euler, quat_from_R
 
@@ -134,20 +135,7 @@ def read_tum(path) -> pd.DataFrame:
         raise InputError(f"{path}: no pose lines (expected 'timestamp tx ty tz qx qy qz qw')")
     a = np.asarray(rows, dtype=float)
     q, ok = _normalise_quats(a[:, 4:8], path, "quaternion")
-    df = pd.DataFrame(
-        {
-            "t_s": a[:, 0],
-            "x_m": a[:, 1],
-            "y_m": a[:, 2],
-            "z_m": a[:, 3],
-            "qx": q[:, 0],
-            "qy": q[:, 1],
-            "qz": q[:, 2],
-            "qw": q[:, 3],
-            "pos_valid": True,
-            "rot_valid": ok,
-        }
-    )
+    df = trajectory_frame(a[:, 0], a[:, 1:4], q, True, ok)
     return _finish(df, {"source": "tum", "path": str(path), "frames": "as in the file"})
 
 
@@ -285,20 +273,7 @@ def read_csv_log(path, spec: dict | None = None) -> pd.DataFrame:
     if spec["rot_valid_col"]:
         ok &= np.nan_to_num(num[spec["rot_valid_col"]]) != 0
     p = np.where(pos_valid[:, None], p, np.nan)
-    df = pd.DataFrame(
-        {
-            "t_s": t_s,
-            "x_m": p[:, 0],
-            "y_m": p[:, 1],
-            "z_m": p[:, 2],
-            "qx": q[:, 0],
-            "qy": q[:, 1],
-            "qz": q[:, 2],
-            "qw": q[:, 3],
-            "pos_valid": pos_valid,
-            "rot_valid": ok,
-        }
-    )
+    df = trajectory_frame(t_s, p, q, pos_valid, ok)
     n_bad = int((~pos_valid).sum())
     if n_bad:
         log.warning("%s: %d of %d rows have no valid position", path, n_bad, len(df))
@@ -448,22 +423,11 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
         x = _interp_valid(t_att, t_pos, xyz[0], xy_valid, max_gap_s)
         y = _interp_valid(t_att, t_pos, xyz[1], xy_valid, max_gap_s)
         z = _interp_valid(t_att, t_pos, xyz[2], z_valid, max_gap_s)
-        df = pd.DataFrame(
-            {
-                "t_s": t_att,
-                "x_m": x,
-                "y_m": y,
-                "z_m": z,
-                "qx": q[:, 0],
-                "qy": q[:, 1],
-                "qz": q[:, 2],
-                "qw": q[:, 3],
-                "pos_valid": np.isfinite(x) & np.isfinite(y) & np.isfinite(z),
-                "rot_valid": rot_ok,
-                "xy_valid": np.isfinite(x) & np.isfinite(y),
-                "z_valid": np.isfinite(z),
-            }
-        )
+        df = trajectory_frame(
+            t_att, np.column_stack([x, y, z]), q,
+            np.isfinite(x) & np.isfinite(y) & np.isfinite(z), rot_ok,
+            xy_valid=np.isfinite(x) & np.isfinite(y), z_valid=np.isfinite(z),
+        )  # fmt: skip
         xy_frac = float(xy_valid.mean()) if len(xy_valid) else 0.0
         z_frac = float(z_valid.mean()) if len(z_valid) else 0.0
         for name, n_bad in (
@@ -495,20 +459,7 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
             frames_logged = sorted({int(v) for v in np.asarray(odo[frame_key])})
             topics["vehicle_odometry"][frame_key] = frames_logged
         pos_ok = np.isfinite(p).all(1)
-        df = pd.DataFrame(
-            {
-                "t_s": t,
-                "x_m": p[:, 0],
-                "y_m": p[:, 1],
-                "z_m": p[:, 2],
-                "qx": q[:, 0],
-                "qy": q[:, 1],
-                "qz": q[:, 2],
-                "qw": q[:, 3],
-                "pos_valid": pos_ok,
-                "rot_valid": rot_ok,
-            }
-        )
+        df = trajectory_frame(t, p, q, pos_ok, rot_ok)
         if (~pos_ok).any():
             n_bad = int((~pos_ok).sum())
             msg = f"{path}: vehicle_odometry position NaN in {n_bad} of {len(t)} samples"
