@@ -585,6 +585,9 @@ def optimise_seed(
             fixed_point = bool(np.all(best[1] == f))
             f, R, t = best[1], best[2], best[3]
             log.debug("seed iteration %d: fx %.3f fy %.3f objective %.6g", j, f[0], f[1], best[0])
+            if (j + 1) % 10 == 0:  # progress for long runs
+                log.info("seed: iteration %d of %d, f (%.1f, %.1f) px, %d PnP solves in %.1f s",
+                         j + 1, int(k_iterations), f[0], f[1], n_solves, t_grid)
     finally:
         if pool is not None:
             pool.shutdown()
