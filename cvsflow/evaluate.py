@@ -538,3 +538,56 @@ def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, lev
             d: out["se3"]["per_dim"][d]["rms"] / out["seed"]["per_dim"][d]["rms"] for d in ERROR_DIMS
         }
     return out
+
+
+def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, frame="C",
+                    boot_block_s=2.0, n_boot=1000, seed=0):
+    """The comparison stage: both methods' held-out statistics and the error model's calibration.
+
+    Parameters
+    ----------
+    seed_heldout : DataFrame
+        :func:`cross_validate_seed` output (``eps_*``, 6-vector errors).
+    se3_heldout : DataFrame
+        :func:`cross_validate_se3` output (``err_*`` composed errors, ``fold``, ``sigma_px``).
+    se3_result : dict
+        The full se3 fit (``K``, ``dist``): the linearisation of the per-frame PnP covariance.
+    fold_fits : list of dict
+        Each fold's se3 result: its parameter covariance is shared by every frame it scores,
+        and dominates the PnP corner noise in the error model.
+    board : dict
+    frame : {"C", "B"}
+        Frame of the composed errors.
+    boot_block_s, n_boot, seed
+        Moving-block bootstrap: block length (s), resamples and seed.
+
+    Returns
+    -------
+    comparison : dict
+        :func:`compare_methods` output plus ``error_model`` (:func:`crossfit_error_model`
+        score) and ``error_frame``.
+    se3_errors : DataFrame
+        The se3 held-out table with ``eps_*`` equal to its composed errors.
+    sigma, mu : ndarray, shape (N, 6)
+        Predicted standard deviation and bias of every se3 held-out frame.
+    """
+    from cvsflow.calibration import board_object_points
+    from cvsflow.uncertainty import error_features
+
+    se3 = se3_heldout.copy()
+    se3["t_s"] = se3["t_s"].astype(float)
+    for d in ERROR_DIMS:
+        se3[f"eps_{d}"] = se3[f"err_{d}"]
+    fps = 1.0 / np.median(np.diff(np.sort(se3["t_s"].to_numpy())))
+    comparison = compare_methods({"seed": seed_heldout, "se3": se3},
+                                 block_len=max(1, int(round(boot_block_s * fps))),
+                                 n_boot=n_boot, seed=seed)
+    features, cov_err = error_features(
+        se3, board_object_points(board), np.asarray(se3_result["K"], float),
+        np.asarray(se3_result["dist"], float), float(np.median(se3["sigma_px"])), frame=frame,
+        fits=fold_fits,
+    )  # fmt: skip
+    score, sigma, mu = crossfit_error_model(se3, features, cov_err)
+    comparison["error_model"] = score
+    comparison["error_frame"] = frame
+    return comparison, se3, sigma, mu
