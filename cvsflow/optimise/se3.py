@@ -26,10 +26,14 @@ and T_Cm_C, T_Bm_B from the robot-world/hand-eye problem A_i X = Z B_i
 (:func:`solve_hand_eye`, Shah 2013) with A_i = T_Cm_Bm,i (Vicon), B_i = T_C_B,i (PnP),
 X = T_Bm_B, Z = T_Cm_C.
 
-Refinement: ``scipy.optimize.least_squares`` (trust-region reflective) with our own Jacobian
-(central differences per shared parameter). Since every residual depends on the same ~22
-shared parameters, the Jacobian is dense but narrow (2 P N x 22); no sparsity pattern is
-needed and each iteration costs ~45 evaluations of (1).
+Refinement: the unknowns are only the ~22 shared parameters (the board's pose per frame comes
+from the Vicon, not from extra unknowns), so every residual depends on all of them and the
+Jacobian is dense but narrow (2 P N x 22): there is no sparsity for ``jac_sparsity`` to
+exploit. The analytic Jacobian (checked against finite differences) feeds either our
+Levenberg-Marquardt on the 22 x 22 normal equations with the robust loss by iterative
+reweighting (default, ``solver="lm"``: one m x n product per iteration) or
+``scipy.optimize.least_squares`` (``solver="scipy"``, TRF; the same optimum: on the 90 s demo
+both give fx to 1e-7 px in about 1.5 s).
 
 Uncertainty: the Gauss-Newton covariance of an M-estimator (Huber 1981, sec. 7.6)
 ``sigma_eff^2 (J^T J)^-1`` with ``sigma_eff^2 = m/(m-n) mean(psi^2) / mean(psi')^2`` (equal to
