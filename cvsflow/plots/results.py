@@ -192,7 +192,8 @@ def plot_covariance(Sigma, corr):
 
 
 def plot_error_maps(maps):
-    """Contour plots of binned mean errors over pairs of pose dimensions (figure 1.9).
+    """Maps of binned mean errors over pairs of pose dimensions (figure 1.9): contours where
+    the bins are well filled, the bins themselves where they are sparse (grey: too few samples).
 
     Parameters
     ----------
@@ -215,12 +216,17 @@ def plot_error_maps(maps):
         nb, ub, kb = DISPLAY[m["pose_dim_b"]]
         ne, ue, ke = DISPLAY[m["error_dim"]]
         z = m["mean"].T * ke  # rows: b, columns: a
-        if np.isfinite(z).sum() >= 4:
-            cs = ax.contourf(m["centres_a"] * ka, m["centres_b"] * kb,
-                             np.ma.masked_invalid(z), levels=12, cmap="viridis")
-        else:
-            cs = ax.pcolormesh(m["edges_a"] * ka, m["edges_b"] * kb,
-                               np.ma.masked_invalid(z), cmap="viridis")
+        finite = np.isfinite(z)
+        # signed errors: a diverging map centred on zero
+        lim = float(np.nanmax(np.abs(z))) if finite.any() else 1.0
+        style = {"cmap": "RdBu_r", "vmin": -lim, "vmax": lim}
+        ax.set_facecolor("0.85")  # empty bins grey, distinct from a zero mean (white)
+        if finite.mean() >= 0.6:  # contours only where the bins are well filled
+            cs = ax.contourf(m["centres_a"] * ka, m["centres_b"] * kb, np.ma.masked_invalid(z),
+                             levels=np.linspace(-lim, lim, 13), **style)
+        else:  # sparse bins: draw the bins themselves rather than contour across holes
+            cs = ax.pcolormesh(m["edges_a"] * ka, m["edges_b"] * kb, np.ma.masked_invalid(z),
+                               **style)
         fig.colorbar(cs, ax=ax, label=f"mean error in {ne} [{ue}]")
         ax.set(xlabel=f"{na} [{ua}]", ylabel=f"{nb} [{ub}]", title=f"error in {ne}")
     return fig
