@@ -391,7 +391,7 @@ def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C"):
 
 
 def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.0, seed=0,
-                        **seed_options):
+                        folds=None, **seed_options):
     """Fit the chapter's method on all folds but one, score the held-out fold; every fold.
 
     The fit gives f and P̄ (eqs. 1.10-1.12) from the training frames only; the held-out
@@ -405,8 +405,11 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
         Calibrated intrinsics (the seed method's start).
     board : dict
     n_folds, block_s, seed
-        As :func:`make_time_blocks` (same folds as :func:`cross_validate_se3` for the same
-        frame times and seed).
+        As :func:`make_time_blocks`, used when ``folds`` is not given.
+    folds : DataFrame, optional
+        ``t_s`` and ``fold`` of another method's held-out frames (e.g. :func:`cross_validate_se3`
+        output): each pair frame takes the fold of the nearest of those frames in time, so that
+        both methods are scored on the same held-out blocks.
     **seed_options
         Passed to :func:`cvsflow.optimise.seed.optimise_seed`.
 
@@ -418,7 +421,16 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
     from cvsflow.optimise.seed import compute_eps, optimise_seed
 
     t_s = pairs["t_s"].to_numpy(float)
-    fold = make_time_blocks(t_s, block_s, n_folds, seed)
+    if folds is None:
+        fold = make_time_blocks(t_s, block_s, n_folds, seed)
+    else:
+        order = np.argsort(folds["t_s"].to_numpy(float))
+        t_other = folds["t_s"].to_numpy(float)[order]
+        f_other = folds["fold"].to_numpy(int)[order]
+        i = np.clip(np.searchsorted(t_other, t_s), 1, len(t_other) - 1)
+        nearer_left = np.abs(t_s - t_other[i - 1]) <= np.abs(t_other[i] - t_s)
+        fold = np.where(nearer_left, f_other[i - 1], f_other[i])
+        n_folds = int(f_other.max()) + 1
     dims = list(ERROR_DIMS)
     parts = []
     for k in range(n_folds):
@@ -522,6 +534,14 @@ def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, lev
     out = {}
     for method, table in heldout_by_method.items():
         E = table[[f"eps_{d}" for d in ERROR_DIMS]].to_numpy(float)
+        finite = np.isfinite(E).all(axis=1)
+        if finite.sum() < 3:
+            raise OptimiseError(f"compare_methods: {method} has {int(finite.sum())} held-out frames "
+                                "with finite errors; at least 3 are needed")
+        if not finite.all():
+            log.warning("compare_methods: %s: %d of %d held-out frames without a finite error left out",
+                        method, int((~finite).sum()), len(E))
+            E = E[finite]
         boot = bootstrap_error_stats(E, min(block_len, len(E)), n_boot=n_boot, seed=seed, level=level)
         per_dim = {}
         for j, d in enumerate(ERROR_DIMS):

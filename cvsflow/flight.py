@@ -1191,6 +1191,13 @@ def check_against_truth(result, onboard, truth, T_L_C, clock, max_gap_s=0.05):
     }
 
 
+def corner_noise_per_axis(reproj_rms_px, n_corners):
+    """Corner noise per image axis (px) from PnP's 2-D reprojection RMS over ``n_corners``:
+    the RMS of the residual length over sqrt(2), corrected for the 6 pose parameters fitted."""
+    n_res = 2 * int(n_corners)
+    return float(reproj_rms_px) / np.sqrt(2.0) * np.sqrt(n_res / max(n_res - 6, 1))
+
+
 def reference_covariance_from_pnp(poses_raw, p_B, K, dist, sigma_px):
     """Reference covariance per frame of a real flight, propagated from the corner noise.
 

@@ -99,3 +99,36 @@ def test_compare_methods_ratio_and_rms_by_hand():
             out["se3"]["per_dim"][d]["rms"] / rms_a)
         lo, hi = out["seed"]["per_dim"][d]["std_lo"], out["seed"]["per_dim"][d]["std_hi"]
         assert lo < out["seed"]["per_dim"][d]["std"] < hi
+
+
+def test_cross_validate_seed_takes_the_given_folds():
+    """With another method's folds, each pair frame is scored in the fold of the nearest frame."""
+    from cvsflow.transforms import pose6_from_T
+
+    s = se3.simulate_session(9, duration_s=9.0, pixel_noise_px=0.2)
+    p6 = pose6_from_T(s["truth"]["T_C_B"])
+    pairs = pd.DataFrame({"frame": s["truth"]["frame"], "t_s": s["truth"]["t_s"]})
+    from scipy.spatial.transform import Rotation
+
+    rv = Rotation.from_matrix(s["truth"]["T_C_B"][:, :3, :3]).as_rotvec()
+    for j, d in enumerate(DIMS):
+        pairs[f"cvs_{d}"] = p6[:, j]
+        pairs[f"vic_{d}"] = p6[:, j]
+    for j in range(3):
+        pairs[f"cvs_rvec_{j}"] = rv[:, j]
+    # the other method saw every other frame only, in 3 folds by thirds of the take
+    other = pairs.iloc[::2][["t_s"]].copy()
+    other["fold"] = np.minimum((other["t_s"] / 3.0).astype(int), 2)
+    held = ev.cross_validate_seed(pairs, s["corners"], s["camera"]["K"], s["camera"]["dist"],
+                                  s["board"], folds=other, k_iterations=0)
+    expected = np.minimum((held["t_s"] / 3.0 + 1e-9).astype(int), 2)
+    assert (held["fold"].to_numpy() == expected.to_numpy()).mean() > 0.97
+
+
+def test_compare_methods_leaves_out_non_finite_rows():
+    """A non-finite error row is left out (and counted), not turned into NaN statistics."""
+    rng = np.random.default_rng(3)
+    a = pd.DataFrame({f"eps_{d}": rng.normal(0, 1.0, 50) for d in DIMS})
+    a.loc[7, "eps_x_m"] = np.nan
+    out = ev.compare_methods({"seed": a}, block_len=5, n_boot=50)
+    assert out["seed"]["n"] == 49 and np.isfinite(out["seed"]["per_dim"]["x_m"]["rms"])

@@ -3,6 +3,7 @@ rule heldout_seed:
         pairs="results/{session}/pairs.parquet",
         corners="results/{session}/corners.parquet",
         camera="results/{session}/camera.yaml",
+        se3_folds="results/{session}/heldout/se3.parquet",
     output:
         "results/{session}/heldout/seed.parquet",
     log:

@@ -22,10 +22,12 @@ with stage_logging(snakemake.log[0], "flight") as log:
     else:
         poses = read_parquet(inp.poses)
         calib = read_yaml(inp.se3_result) if hasattr(inp, "se3_result") else read_yaml(inp.camera)
-        sigma_px = float(calib.get("sigma_px", np.nanmedian(poses["reproj_rms_px"])))
+        p_B = board_object_points(snakemake.params.board)
+        sigma_px = float(calib["sigma_px"]) if "sigma_px" in calib else fl.corner_noise_per_axis(
+            np.nanmedian(poses["reproj_rms_px"]), len(p_B))
         reference = fl.reference_from_poses(poses)
         Sigma_ref = fl.reference_covariance_from_pnp(
-            poses, board_object_points(snakemake.params.board), calib["K"], calib["dist"], sigma_px)
+            poses, p_B, calib["K"], calib["dist"], sigma_px)
         onboard = read_flight_log(inp.onboard, cfg["format"], cfg.get("ulog_source", "local_position"),
                                   cfg.get("csv"))
         T_Q_B = T_from_pose6(cfg["T_Q_B_pose6"]) if "T_Q_B_pose6" in cfg else None

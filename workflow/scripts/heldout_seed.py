@@ -14,7 +14,9 @@ with stage_logging(snakemake.log[0], "heldout_seed") as log:
     heldout = cross_validate_seed(
         read_parquet(snakemake.input.pairs), read_parquet(snakemake.input.corners),
         np.array(camera["K"]), np.array(camera["dist"]), snakemake.params.board,
-        n_folds=ev["n_folds"], block_s=ev["block_s"], seed=ev["seed"], **seed_options,
+        n_folds=ev["n_folds"], block_s=ev["block_s"], seed=ev["seed"],
+        # the se3 held-out blocks, so that both methods are scored on the same frames
+        folds=read_parquet(snakemake.input.se3_folds, columns=["t_s", "fold"]), **seed_options,
     )
     log.info("%d held-out frames", len(heldout))
     write_parquet(heldout, snakemake.output[0])
