@@ -32,3 +32,4 @@ def test_sigma_columns_round_trip():
     A = rng.normal(size=(4, 6, 6))
     Sigma = A @ np.swapaxes(A, 1, 2)
     np.testing.assert_array_equal(sigma_from_columns(sigma_columns(Sigma)), Sigma)
+
