@@ -123,13 +123,19 @@ def plot_qq(qq):
     return fig
 
 
-def plot_vicon_vs_cvs(tracks):
+SEED_LABELS = ("Vicon (P* + P̄)", "CVS original f", "CVS optimised f")
+SE3_LABELS = ("Vicon via the fitted mountings", "CVS, calibrated intrinsics", "CVS, se3 intrinsics")
+
+
+def plot_vicon_vs_cvs(tracks, labels=SEED_LABELS):
     """Vicon against the original and improved CVS estimate over time (figure 1.8).
 
     Parameters
     ----------
     tracks : pandas.DataFrame
         :func:`cvsflow.analyse.vicon_vs_cvs` output (SI).
+    labels : tuple of str
+        Legend of the Vicon, original and improved tracks (``SEED_LABELS``, ``SE3_LABELS``).
 
     Returns
     -------
@@ -140,9 +146,9 @@ def plot_vicon_vs_cvs(tracks):
     t = tracks["t_s"].to_numpy()
     for ax, d in zip(axes, POSE_DIMS, strict=True):
         name, unit, k = DISPLAY[d]
-        ax.plot(t, tracks[f"vicon_{d}"] * k, "k", lw=1.2, label="Vicon (P* + P̄)")
-        ax.plot(t, tracks[f"original_{d}"] * k, lw=0.8, alpha=0.8, label="CVS original f")
-        ax.plot(t, tracks[f"improved_{d}"] * k, lw=0.8, alpha=0.8, label="CVS optimised f")
+        ax.plot(t, tracks[f"vicon_{d}"] * k, "k", lw=1.2, label=labels[0])
+        ax.plot(t, tracks[f"original_{d}"] * k, lw=0.8, alpha=0.8, label=labels[1])
+        ax.plot(t, tracks[f"improved_{d}"] * k, lw=0.8, alpha=0.8, label=labels[2])
         ax.set(xlabel="time [s]", ylabel=f"{name} [{unit}]", title=name)
         ax.legend(fontsize="small")
     return fig

@@ -26,7 +26,8 @@ with stage_logging(snakemake.log[0], "analyse") as log:
         save_figure(plots.plot_convergence(analyse.convergence(iterations)), out.convergence)
     save_figure(plots.plot_error_histograms(errors, tests), out.histograms)
     save_figure(plots.plot_qq(analyse.qq_data(errors)), out.qq)
-    save_figure(plots.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(errors, result)), out.vicon_vs_cvs)
+    labels = plots.SE3_LABELS if snakemake.wildcards.method == "se3" else plots.SEED_LABELS
+    save_figure(plots.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(errors, result), labels), out.vicon_vs_cvs)
     save_figure(plots.plot_covariance(Sigma, corr), out.covariance)
     maps = analyse.error_maps(errors, bins=cfg["contour_bins"], min_count=cfg["contour_min_count"])
     save_figure(plots.plot_error_maps(maps), out.error_maps)
