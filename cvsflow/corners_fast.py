@@ -222,8 +222,15 @@ def extract_corners_parallel(
     context = multiprocessing.get_context("fork" if "fork" in methods else None)
     jobs = [(source, a, b, board, kwargs) for a, b in ranges]
     log.info("corners: %d chunks %s on %d processes", len(ranges), ranges, n_workers)
-    with ProcessPoolExecutor(max_workers=min(n_workers, len(ranges)), mp_context=context) as ex:
-        chunks = list(ex.map(_run_chunk, jobs))
+    # A child forked while OpenCV's thread pool runs in this process hangs when it touches
+    # the pool: shrink the pool to this thread before forking, restore it afterwards.
+    n_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with ProcessPoolExecutor(max_workers=min(n_workers, len(ranges)), mp_context=context) as ex:
+            chunks = list(ex.map(_run_chunk, jobs))
+    finally:
+        cv2.setNumThreads(n_threads)
     corners = merge_corner_chunks(chunks)
     a = corners.attrs
     log.info(
