@@ -182,8 +182,7 @@ def test_synthetic_stills_recover_known_focal_lengths():
     """Twelve rendered stills of the demo board (known K, no distortion, 2 grey levels of
     noise) give fx, fy within 0.2 % and cx, cy within 2 px, RMS below 0.15 px (measured:
     0.02 %, 0.6 px, 0.04 px)."""
-    sys.path.insert(0, str(Path(__file__).parent))
-    from test_pose import _board_centre_pose, _render_board
+    from board_images import board_centre_pose, render_board
 
     K_true = np.array([[702.0, 0.0, 331.5], [0.0, 698.0, 247.0], [0.0, 0.0, 1.0]])
     board = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
@@ -193,7 +192,7 @@ def test_synthetic_stills_recover_known_focal_lengths():
         z = rng.uniform(0.7, 1.3)
         rpy = np.radians([rng.uniform(-35, 35), rng.uniform(-35, 35), rng.uniform(-30, 30)])
         centre = [rng.uniform(-0.2, 0.2) * z, rng.uniform(-0.15, 0.15) * z, z]
-        gray, uv = _render_board(_board_centre_pose(rpy, centre, board), K_true, board, pps=32,
+        gray, uv = render_board(board_centre_pose(rpy, centre, board), K_true, board, pps=32,
                                  seed=len(stills))
         if (uv.min(axis=0) > 30).all() and (uv.max(axis=0) < [610, 450]).all():
             stills.append((f"still{len(stills):02d}.png", gray))

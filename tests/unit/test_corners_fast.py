@@ -9,9 +9,9 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
+from board_images import render_board
 
 from cvsflow import transforms as tf
-from cvsflow.calibration import board_object_points
 from cvsflow.corners_fast import (
     chunk_ranges,
     extract_corners_parallel,
@@ -34,31 +34,8 @@ N_FRAMES = 96
 
 
 def _render(T_C_B, seed, pps=24, margin=1, noise_sigma=2.0):
-    """Grey image of the board (white margin of ``margin`` squares, mid-grey background) seen
-    by a distortion-free camera, and the true corners (N, 2) in board order."""
-    sx, sy, s = BOARD["squares_x"], BOARD["squares_y"], BOARD["square_m"]
-    tex_w, tex_h = (sx + 2 * margin) * pps, (sy + 2 * margin) * pps
-    cols, rows = np.arange(tex_w) // pps - margin, np.arange(tex_h) // pps - margin
-    ii, jj = np.meshgrid(cols, rows)
-    inside = (ii >= 0) & (ii < sx) & (jj >= 0) & (jj < sy)
-    texture = np.where(inside & ((ii + jj) % 2 == 0), 20, 235).astype(np.uint8)
-    A_B_tex = np.array(
-        [
-            [s / pps, 0.0, (0.5 / pps - 1 - margin) * s],
-            [0.0, s / pps, (0.5 / pps - 1 - margin) * s],
-            [0.0, 0.0, 1.0],
-        ]
-    )
-    H_img_tex = K @ np.column_stack([T_C_B[:3, 0], T_C_B[:3, 1], T_C_B[:3, 3]]) @ A_B_tex
-    img = cv2.warpPerspective(
-        texture, H_img_tex, (W, H), flags=cv2.INTER_AREA, borderValue=128
-    ).astype(np.float64)
-    img = cv2.GaussianBlur(img, (0, 0), 0.7)
-    img += np.random.default_rng(seed).normal(0.0, noise_sigma, img.shape)
-    uv, _ = cv2.projectPoints(
-        board_object_points(BOARD), tf.rvec_from_R(T_C_B[:3, :3]), T_C_B[:3, 3], K, None
-    )
-    return np.clip(np.rint(img), 0, 255).astype(np.uint8), uv.reshape(-1, 2)
+    """Grey image of the demo board and its true corners (N, 2) in board order."""
+    return render_board(T_C_B, K, BOARD, pps=pps, margin=margin, noise_sigma=noise_sigma, seed=seed)
 
 
 def _pose(frame):

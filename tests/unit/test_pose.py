@@ -6,6 +6,7 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
+from board_images import board_centre_pose, render_board
 
 from cvsflow import transforms as tf
 from cvsflow.calibration import board_object_points, order_corners
@@ -30,47 +31,6 @@ DIST_DEMO = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02])
 def _T_C_B(rpy, t_C_B):
     """Board pose in the camera from roll/pitch/yaw relative to a fronto-parallel board."""
     return tf.make_T(tf.R_from_euler(rpy), t_C_B)
-
-
-def _board_centre_pose(rpy, centre_C, board=BOARD):
-    """T_C_B such that the board centre lands at ``centre_C`` (m, camera frame)."""
-    nx, ny = board["squares_x"] - 1, board["squares_y"] - 1
-    c_B = np.array([(nx - 1) * board["square_m"] / 2, (ny - 1) * board["square_m"] / 2, 0.0])
-    R = tf.R_from_euler(rpy)
-    return tf.make_T(R, np.asarray(centre_C) - R @ c_B)
-
-
-def _render_board(T_C_B, K, board=BOARD, pps=24, margin=1, noise_sigma=2.0, seed=0):
-    """Grey image of the chessboard seen by a distortion-free camera, and the true corners.
-
-    Square (i, j) is black when i + j is even (square (0, 0) diagonally outside corner 0);
-    a white margin of ``margin`` squares surrounds the squares, the background is mid grey.
-    """
-    sx, sy, s = board["squares_x"], board["squares_y"], board["square_m"]
-    tex_w, tex_h = (sx + 2 * margin) * pps, (sy + 2 * margin) * pps
-    cols, rows = np.arange(tex_w) // pps - margin, np.arange(tex_h) // pps - margin
-    ii, jj = np.meshgrid(cols, rows)
-    inside = (ii >= 0) & (ii < sx) & (jj >= 0) & (jj < sy)
-    texture = np.where(inside & ((ii + jj) % 2 == 0), 20, 235).astype(np.uint8)
-    # Texture pixel centre (c, r) -> board point X = ((c + 0.5) / pps - 1 - margin) * s.
-    A_B_tex = np.array(
-        [
-            [s / pps, 0.0, (0.5 / pps - 1 - margin) * s],
-            [0.0, s / pps, (0.5 / pps - 1 - margin) * s],
-            [0.0, 0.0, 1.0],
-        ]
-    )
-    H_img_B = K @ np.column_stack([T_C_B[:3, 0], T_C_B[:3, 1], T_C_B[:3, 3]])
-    H_img_tex = H_img_B @ A_B_tex
-    img = cv2.warpPerspective(
-        texture, H_img_tex, (W, H), flags=cv2.INTER_AREA, borderValue=128
-    ).astype(np.float64)
-    img = cv2.GaussianBlur(img, (0, 0), 0.7)
-    img += np.random.default_rng(seed).normal(0.0, noise_sigma, img.shape)
-    gray = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-    p_B = board_object_points(board)
-    uv, _ = cv2.projectPoints(p_B, tf.rvec_from_R(T_C_B[:3, :3]), T_C_B[:3, 3], K, None)
-    return gray, uv.reshape(-1, 2)
 
 
 def _corners_table(frames_uv, t0=0.0):
@@ -111,7 +71,7 @@ def _random_poses(n, seed):
         z = rng.uniform(0.8, 2.5)
         centre = np.array([rng.uniform(-0.25, 0.25) * z, rng.uniform(-0.18, 0.18) * z, z])
         rpy = np.radians([rng.uniform(-40, 40), rng.uniform(-40, 40), rng.uniform(-180, 180)])
-        out.append(_board_centre_pose(rpy, centre))
+        out.append(board_centre_pose(rpy, centre))
     return out
 
 
@@ -174,7 +134,7 @@ def test_estimate_poses_exact_projections_give_exact_pose():
 
 def test_estimate_poses_rejects_an_outlier_corner():
     """One corner moved by 30 px is left out by RANSAC (19 inliers), the pose stays accurate."""
-    T_true = _board_centre_pose(np.radians([20, -15, 10]), [0.1, -0.05, 1.4])
+    T_true = board_centre_pose(np.radians([20, -15, 10]), [0.1, -0.05, 1.4])
     uv = _project(T_true, K_DEMO, DIST_DEMO)
     uv[7] += [30.0, -20.0]
     poses = estimate_poses(_corners_table([uv]), K_DEMO, DIST_DEMO, BOARD)
@@ -186,7 +146,7 @@ def test_estimate_poses_rejects_an_outlier_corner():
 
 def test_estimate_poses_keeps_not_found_frames_invalid():
     """Frames without a board stay in the table, one row each, valid=False with NaN pose."""
-    T_true = _board_centre_pose(np.radians([5, 5, 5]), [0.0, 0.0, 1.2])
+    T_true = board_centre_pose(np.radians([5, 5, 5]), [0.0, 0.0, 1.2])
     uv = _project(T_true, K_DEMO, DIST_DEMO)
     poses = estimate_poses(_corners_table([None, uv, None]), K_DEMO, DIST_DEMO, BOARD)
     assert poses["frame"].tolist() == [0, 1, 2]
@@ -211,7 +171,7 @@ def test_estimate_poses_is_reproducible_for_a_seed():
 
 def test_estimate_poses_bad_tables_raise_input_error_naming_the_frame():
     """Missing columns, or a found frame lacking a corner, are InputErrors naming the problem."""
-    uv = _project(_board_centre_pose([0, 0, 0], [0, 0, 1.0]), K_DEMO, DIST_DEMO)
+    uv = _project(board_centre_pose([0, 0, 0], [0, 0, 1.0]), K_DEMO, DIST_DEMO)
     table = _corners_table([uv, uv])
     with pytest.raises(InputError, match="missing columns.*u_px"):
         estimate_poses(table.drop(columns="u_px"), K_DEMO, DIST_DEMO, BOARD)
@@ -233,7 +193,7 @@ def test_detect_corners_on_rendered_image_matches_true_corners(seed):
     """On a rendered board at a random pose, detected corner k is within 0.3 px of true
     corner k (no index flip), and PnP on them is within 1 % of distance and 0.5 degrees."""
     T_true = _random_poses(1, seed=100 + seed)[0]
-    gray, uv_true = _render_board(T_true, K_CENTRED, seed=seed)
+    gray, uv_true = render_board(T_true, K_CENTRED, seed=seed)
     corners, method = detect_corners(gray, BOARD)
     assert corners is not None
     assert method == "colour"
@@ -249,8 +209,8 @@ def test_detect_corners_on_rendered_image_matches_true_corners(seed):
 def test_image_turned_180_degrees_gives_the_same_physical_pose(yaw_deg):
     """Turning the image by 180 degrees (OpenCV then tends to return the grid from the other
     end) yields the pose Rz(pi) T_C_B: the same physical board pose, never a flipped board."""
-    T_true = _board_centre_pose(np.radians([15.0, -10.0, yaw_deg]), [0.05, 0.03, 1.3])
-    gray, uv_true = _render_board(T_true, K_CENTRED, seed=7)
+    T_true = board_centre_pose(np.radians([15.0, -10.0, yaw_deg]), [0.05, 0.03, 1.3])
+    gray, uv_true = render_board(T_true, K_CENTRED, seed=7)
     gray_turned = cv2.rotate(gray, cv2.ROTATE_180)
     T_turn = tf.make_T(tf.R_from_euler([0.0, 0.0, np.pi]), np.zeros(3))
     for img, T_expected, uv_expected in [
@@ -268,8 +228,8 @@ def test_image_turned_180_degrees_gives_the_same_physical_pose(yaw_deg):
 def test_order_corners_undoes_every_reordering_of_the_grid():
     """Whatever order the detector returns (as is, reversed, rows or columns mirrored), the
     ordered corners are the same, corner k at board point (k % nx, k // nx)."""
-    T_true = _board_centre_pose(np.radians([-20.0, 25.0, 35.0]), [-0.1, 0.05, 1.1])
-    gray, uv_true = _render_board(T_true, K_CENTRED, seed=8)
+    T_true = board_centre_pose(np.radians([-20.0, 25.0, 35.0]), [-0.1, 0.05, 1.1])
+    gray, uv_true = render_board(T_true, K_CENTRED, seed=8)
     grid = uv_true.reshape(4, 5, 2)
     variants = {
         "as is": grid,
@@ -287,8 +247,8 @@ def test_order_corners_falls_back_to_continuity_when_ends_look_alike():
     """For a 7x5-square board (both grid ends alike), the order closest to the previous frame
     is kept; with no previous frame the method says the order is unresolved."""
     board = {"squares_x": 7, "squares_y": 5, "square_m": 0.05}
-    T_true = _board_centre_pose(np.radians([10.0, 5.0, 20.0]), [0.0, 0.0, 0.9], board)
-    gray, uv_true = _render_board(T_true, K_CENTRED, board=board, seed=9)
+    T_true = board_centre_pose(np.radians([10.0, 5.0, 20.0]), [0.0, 0.0, 0.9], board)
+    gray, uv_true = render_board(T_true, K_CENTRED, board=board, seed=9)
     previous = uv_true + 1.5  # the board moved a little since the previous frame
     ordered, method = order_corners(uv_true[::-1], gray, board, previous_px=previous)
     assert method == "continuity"
@@ -307,7 +267,7 @@ def test_extract_corners_table_schema_and_not_found_rows():
     frames = []
     truths = []
     for f, T in enumerate(_random_poses(3, seed=20)):
-        gray, uv = _render_board(T, K_CENTRED, seed=f)
+        gray, uv = render_board(T, K_CENTRED, seed=f)
         frames.append((f, f / 30.0, gray))
         truths.append(uv)
     frames.insert(1, (99, 99 / 30.0, np.full((H, W), 128, np.uint8)))

@@ -1,0 +1,56 @@
+"""Rendered chessboard images for the tests: a board seen by a distortion-free camera.
+
+Shared by test_pose, test_corners_fast and test_calibration (not a test module itself).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from cvsflow import transforms as tf
+from cvsflow.calibration import board_object_points
+
+BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}  # the demo board, 5x4 inner corners
+W, H = 640, 480
+
+
+def board_centre_pose(rpy, centre_C, board=BOARD):
+    """T_C_B such that the board centre lands at ``centre_C`` (m, camera frame)."""
+    nx, ny = board["squares_x"] - 1, board["squares_y"] - 1
+    c_B = np.array([(nx - 1) * board["square_m"] / 2, (ny - 1) * board["square_m"] / 2, 0.0])
+    R = tf.R_from_euler(rpy)
+    return tf.make_T(R, np.asarray(centre_C) - R @ c_B)
+
+
+def render_board(T_C_B, K, board=BOARD, pps=24, margin=1, noise_sigma=2.0, seed=0):
+    """Grey image of the chessboard seen by a distortion-free camera, and the true corners.
+
+    Square (i, j) is black when i + j is even (square (0, 0) diagonally outside corner 0);
+    a white margin of ``margin`` squares surrounds the squares, the background is mid grey.
+    """
+    sx, sy, s = board["squares_x"], board["squares_y"], board["square_m"]
+    tex_w, tex_h = (sx + 2 * margin) * pps, (sy + 2 * margin) * pps
+    cols, rows = np.arange(tex_w) // pps - margin, np.arange(tex_h) // pps - margin
+    ii, jj = np.meshgrid(cols, rows)
+    inside = (ii >= 0) & (ii < sx) & (jj >= 0) & (jj < sy)
+    texture = np.where(inside & ((ii + jj) % 2 == 0), 20, 235).astype(np.uint8)
+    # Texture pixel centre (c, r) -> board point X = ((c + 0.5) / pps - 1 - margin) * s.
+    A_B_tex = np.array(
+        [
+            [s / pps, 0.0, (0.5 / pps - 1 - margin) * s],
+            [0.0, s / pps, (0.5 / pps - 1 - margin) * s],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+    H_img_B = K @ np.column_stack([T_C_B[:3, 0], T_C_B[:3, 1], T_C_B[:3, 3]])
+    H_img_tex = H_img_B @ A_B_tex
+    img = cv2.warpPerspective(
+        texture, H_img_tex, (W, H), flags=cv2.INTER_AREA, borderValue=128
+    ).astype(np.float64)
+    img = cv2.GaussianBlur(img, (0, 0), 0.7)
+    img += np.random.default_rng(seed).normal(0.0, noise_sigma, img.shape)
+    gray = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    p_B = board_object_points(board)
+    uv, _ = cv2.projectPoints(p_B, tf.rvec_from_R(T_C_B[:3, :3]), T_C_B[:3, 3], K, None)
+    return gray, uv.reshape(-1, 2)
