@@ -78,6 +78,8 @@ DEFAULT_INTRINSIC_STD = {"fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "k1": 0.01,
                          "p1": 5e-4, "p2": 5e-4, "k3": 0.1}  # fmt: skip
 #: Fewest frames the solver accepts.
 MIN_FRAMES = 10
+# Fewest corners of a frame that enter the fit (a planar pose has 6 dof; PnP needs 4).
+MIN_FRAME_CORNERS = 6
 #: Half-width (s) of the time window around t_i + dt0 that must hold valid Vicon samples.
 DT_MARGIN_S = 0.05
 
@@ -409,8 +411,11 @@ def _project_SO3(M):
 # --------------------------------------------------------------------------- corners, PnP
 
 
-def corner_arrays(corners, n_corners):
-    """Complete found frames of a corners table as arrays.
+def corner_arrays(corners, n_corners, min_corners=MIN_FRAME_CORNERS):
+    """Found frames of a corners table as arrays, missing corners as NaN.
+
+    A frame may hold a subset of the corners (a hand or the image border hides the others,
+    docs/contracts.md corners.parquet); it is kept with at least ``min_corners`` of them.
 
     Parameters
     ----------
@@ -418,6 +423,8 @@ def corner_arrays(corners, n_corners):
         corners.parquet: ``frame, t_s, found, corner, u_px, v_px``.
     n_corners : int
         Inner corners per board (P).
+    min_corners : int
+        Fewest finite corners a frame needs to be kept.
 
     Returns
     -------
@@ -425,12 +432,12 @@ def corner_arrays(corners, n_corners):
     t_s : ndarray, shape (F,)
         Video times, s.
     uv_px : ndarray, shape (F, P, 2)
-        Observed distorted pixels, corner k in row k.
+        Observed distorted pixels, corner k in row k; NaN where corner k was not seen.
 
     Raises
     ------
     OptimiseError
-        Missing columns or no complete frame.
+        Missing columns or no frame with ``min_corners`` corners.
     """
     need = {"frame", "t_s", "found", "corner", "u_px", "v_px"}
     missing = need - set(corners.columns)
@@ -449,13 +456,21 @@ def corner_arrays(corners, n_corners):
     ci = c["corner"].to_numpy(int)
     uv[fi, ci, 0] = c["u_px"].to_numpy(float)
     uv[fi, ci, 1] = c["v_px"].to_numpy(float)
-    complete = np.isfinite(uv).all(axis=(1, 2)) & np.isfinite(t)
-    n_bad = int((~complete).sum())
+    seen = np.isfinite(uv).all(axis=2)
+    uv[~seen] = np.nan
+    n_seen = seen.sum(axis=1)
+    keep = (n_seen >= min_corners) & np.isfinite(t)
+    n_partial = int((keep & (n_seen < n_corners)).sum())
+    if n_partial:
+        log.info("se3: %d found frames with only part of the %d corners used", n_partial, n_corners)
+    n_bad = int((~keep).sum())
     if n_bad:
-        log.warning("se3: %d found frames without all %d corners skipped", n_bad, n_corners)
-    if not complete.any():
-        raise OptimiseError(f"se3: no frame has all {n_corners} corners with finite u_px, v_px")
-    return frames[complete], t[complete], uv[complete]
+        log.warning("se3: %d found frames with fewer than %d corners skipped", n_bad, min_corners)
+    if not keep.any():
+        raise OptimiseError(
+            f"se3: no frame has {min_corners} or more corners with finite u_px, v_px"
+        )
+    return frames[keep], t[keep], uv[keep]
 
 
 def solve_pnp_frames(uv_px, p_B, K, dist):
@@ -464,7 +479,7 @@ def solve_pnp_frames(uv_px, p_B, K, dist):
     Parameters
     ----------
     uv_px : ndarray, shape (F, P, 2)
-        Observed distorted pixels.
+        Observed distorted pixels; NaN rows are corners not seen (left out).
     p_B : ndarray, shape (P, 3)
         Corner positions in the board frame B, metres (planar, z = 0).
     K : ndarray, shape (3, 3)
@@ -475,7 +490,7 @@ def solve_pnp_frames(uv_px, p_B, K, dist):
     Returns
     -------
     T_C_B : ndarray, shape (F, 4, 4)
-        Board in camera, metres; NaN where PnP failed.
+        Board in camera, metres; NaN where PnP failed or fewer than 4 corners were seen.
     ok : ndarray of bool, shape (F,)
     """
     K = np.asarray(K, np.float64)
@@ -484,12 +499,16 @@ def solve_pnp_frames(uv_px, p_B, K, dist):
     T = np.full((len(uv_px), 4, 4), np.nan)
     ok = np.zeros(len(uv_px), bool)
     for i, uv in enumerate(np.asarray(uv_px, np.float64)):
-        img = uv.reshape(-1, 1, 2)
+        seen = np.isfinite(uv).all(axis=1)
+        if seen.sum() < 4:
+            continue
+        img = np.ascontiguousarray(uv[seen]).reshape(-1, 1, 2)
+        obj_i = obj if seen.all() else np.ascontiguousarray(obj[seen])
         try:
-            good, rvec, tvec = cv2.solvePnP(obj, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
+            good, rvec, tvec = cv2.solvePnP(obj_i, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
             if not good:
                 continue
-            rvec, tvec = cv2.solvePnPRefineLM(obj, img, K, dist, rvec, tvec)
+            rvec, tvec = cv2.solvePnPRefineLM(obj_i, img, K, dist, rvec, tvec)
         except cv2.error:
             continue
         if np.isfinite(rvec).all() and np.isfinite(tvec).all() and tvec[2, 0] > 0:
@@ -589,6 +608,8 @@ class _Model:
         self.fit_dt, self.dt0 = fit_dt, float(dt0)
         self.t_video = t_video
         self.uv = uv
+        self.seen = np.isfinite(uv).all(axis=-1)  # (F, P): corners observed
+        self._all_seen = bool(self.seen.all())
         self.p_B = p_B
         self.cam, self.brd = cam, brd
         self.names = [n for n, f in zip(INTRINSIC_NAMES, self.free, strict=True) if f]
@@ -636,7 +657,7 @@ class _Model:
         p_C = (p_Cm - t_Cm_C) @ R_Cm_C  # R_Cm_C^T (p_Cm - t_Cm_C), eq. (1)
         K = K_from_intrinsics(*intr[:4])
         if not want_jac:
-            return self.uv - project_points(p_C, K, intr[4:])
+            return self._observed(self.uv - project_points(p_C, K, intr[4:]))
         uv, J_p, J_i = project_points_jac(p_C, K, intr[4:])
         F, P = p_C.shape[:2]
         _, c, b, _ = self._split(x)
@@ -661,7 +682,7 @@ class _Model:
         J = np.concatenate(
             [J_i[..., self.free], J_p @ (d_pC if self.fit_dt else d_pC[..., :12])], axis=-1
         )
-        return self.uv - uv, -J  # residual = observed - projected
+        return self._observed(self.uv - uv), -self._observed(J)  # residual = observed - projected
 
     def residuals(self, x):
         return self._evaluate(x, False).ravel()
@@ -684,7 +705,17 @@ class _Model:
         p_Cm = np.einsum("fij,pj->fpi", T_Cm_Bm[:, :3, :3], p_Bm) + T_Cm_Bm[:, None, :3, 3]
         p_C = (p_Cm - T_Cm_C[:3, 3]) @ T_Cm_C[:3, :3]
         _, _, J_i = project_points_jac(p_C, K_from_intrinsics(*intr[:4]), intr[4:])
-        return -J_i.reshape(-1, len(INTRINSIC_NAMES))
+        return -self._observed(J_i).reshape(-1, len(INTRINSIC_NAMES))
+
+    def _observed(self, a):
+        """The rows of a per-corner array (F, P, ...) that were observed (no copy if all were)."""
+        return a if self._all_seen else a[self.seen]
+
+    def per_corner(self, values):
+        """Per-residual ``values`` (m,) back on the (F, 2 P) grid of frames, NaN where unseen."""
+        out = np.full(self.seen.shape + (2,), np.nan)
+        out[self.seen] = np.asarray(values).reshape(-1, 2)
+        return out.reshape(len(out), -1)
 
     def jacobian_fd(self, x, h=1e-6):
         """Central-difference Jacobian (for tests), shape (m, n)."""
@@ -1008,7 +1039,7 @@ def optimise_se3(
     x = sol.x
     r = model.residuals(x)
     J = model.jacobian(x)
-    frame_of_row = np.repeat(np.arange(len(frame)), 2 * len(p_B))
+    frame_of_row = np.repeat(np.nonzero(model.seen)[0], 2)
     block = np.floor((t_video - t_video[0]) / max(cluster_s, 1e-9)).astype(int)
     cov_gn, cov_cl, JtJ_inv, sigma2, n_clusters = _covariances(
         J, r, loss, f_scale_px, block[frame_of_row]
@@ -1065,10 +1096,9 @@ def optimise_se3(
          "camera_static_tol": camera_static_tol},
         corners, bodies, board, frames=frame,
     )  # fmt: skip
-    res2 = r.reshape(len(frame), -1)
-    rms_frame = np.sqrt(np.mean(res2**2, axis=1))
+    rms_frame = np.sqrt(np.nanmean(model.per_corner(r**2), axis=1))
     wmin = _loss_weights(r, loss, f_scale_px)[0] / np.where(r == 0, 1.0, r)
-    wmin = np.where(r == 0, 1.0, wmin).reshape(len(frame), -1).min(axis=1)
+    wmin = np.nanmin(model.per_corner(np.where(r == 0, 1.0, wmin)), axis=1)
     per_frame = per_frame.merge(
         pd.DataFrame({"frame": frame, "rms_px": rms_frame, "weight_min": wmin}), on="frame"
     )
@@ -1237,7 +1267,7 @@ def apply_se3(params, corners, bodies, board, frames=None):
     Returns
     -------
     frames : DataFrame
-        One row per frame with all corners, a PnP solution and valid Vicon poses at
+        One row per frame with corners (``corner_arrays``), a PnP solution and valid Vicon poses at
         t + dt: ``frame, t_s, t_vicon_s``; CVS pose T_C_B ``cvs_x_m, cvs_y_m, cvs_z_m,
         cvs_qx, cvs_qy, cvs_qz, cvs_qw, cvs_rvec_0..2, cvs_roll_rad, cvs_pitch_rad,
         cvs_yaw_rad``; reference T_C_B from the Vicon with ``ref_`` prefix, same columns
@@ -1266,7 +1296,8 @@ def apply_se3(params, corners, bodies, board, frames=None):
     keep = ok_vicon & ok_pnp
     T_ref, T_cvs = T_ref[keep], T_cvs[keep]
     p_C = np.einsum("fij,pj->fpi", T_cvs[:, :3, :3], p_B) + T_cvs[:, None, :3, 3]
-    rms = np.sqrt(np.mean(np.sum((project_points(p_C, K, dist) - uv[keep]) ** 2, axis=-1), axis=1))
+    err2 = np.sum((project_points(p_C, K, dist) - uv[keep]) ** 2, axis=-1)  # NaN where unseen
+    rms = np.sqrt(np.nanmean(err2, axis=1))
     out = {"frame": frame[keep], "t_s": t_video[keep], "t_vicon_s": tq[keep]}
     for prefix, T in (("cvs_", T_cvs), ("ref_", T_ref)):
         q = tf.quat_from_R(T[:, :3, :3])

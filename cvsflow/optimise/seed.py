@@ -71,7 +71,7 @@ MIN_PAIRS = 10
 # --------------------------------------------------------------------------- board, corners
 
 
-def corner_array(corners, frames, n_corners):
+def corner_array(corners, frames, n_corners, allow_partial=False):
     """Pixel corners of the given frames as one array.
 
     Parameters
@@ -82,6 +82,8 @@ def corner_array(corners, frames, n_corners):
         Frames wanted, in order.
     n_corners : int
         Inner corners per board (P).
+    allow_partial : bool
+        Accept frames that hold only some of the corners (NaN rows for the others).
 
     Returns
     -------
@@ -91,7 +93,7 @@ def corner_array(corners, frames, n_corners):
     Raises
     ------
     OptimiseError
-        A frame is missing, not found, or lacks a corner.
+        A frame is missing or not found, or (unless ``allow_partial``) lacks a corner.
     """
     missing_cols = {"frame", "corner", "u_px", "v_px"} - set(corners.columns)
     if missing_cols:
@@ -111,11 +113,14 @@ def corner_array(corners, frames, n_corners):
             block = wide[col].reindex(columns=range(n_corners))
             uv[:, :, j] = block.to_numpy(dtype=float)
     bad = ~np.isfinite(uv).all(axis=(1, 2))
+    if allow_partial:
+        bad = ~np.isfinite(uv).all(axis=2).any(axis=1)
     if bad.any():
         first = int(frames[np.argmax(bad)])
         raise OptimiseError(
             f"corners.parquet: frame {first} (and {int(bad.sum()) - 1} more) of pairs.parquet "
-            f"has no complete set of {n_corners} found corners with finite u_px, v_px"
+            + ("has no found corner with finite u_px, v_px" if allow_partial else
+               f"has no complete set of {n_corners} found corners with finite u_px, v_px")
         )
     return uv
 
@@ -502,7 +507,21 @@ def optimise_seed(
     if np.unique(frames).size != frames.size:
         raise OptimiseError("pairs.parquet: duplicate frame numbers")
     X_B = board_object_points(board)
-    uv = corner_array(corners, frames, X_B.shape[0])
+    uv = corner_array(corners, frames, X_B.shape[0], allow_partial=True)
+    # The chapter re-estimates every pose at each candidate f from the whole board; frames
+    # where a hand or the image border hid some corners are left to se3.
+    complete = np.isfinite(uv).all(axis=(1, 2))
+    if not complete.all():
+        log.warning(
+            "seed: %d of %d pairs have only part of the board's corners; left out",
+            int((~complete).sum()), len(frames),
+        )  # fmt: skip
+        pairs, frames, uv = pairs[complete].reset_index(drop=True), frames[complete], uv[complete]
+        if len(pairs) < MIN_PAIRS:
+            raise OptimiseError(
+                f"pairs.parquet: {len(pairs)} pairs with the whole board; the seed optimiser "
+                f"needs at least {MIN_PAIRS}"
+            )
     P_star = pairs[vic_cols].to_numpy(dtype=float)
     if not np.isfinite(P_star).all():
         bad = int(frames[np.argmax(~np.isfinite(P_star).all(axis=1))])

@@ -332,3 +332,41 @@ def test_se3_bad_input_named_errors(session):
     with pytest.raises(OptimiseError, match="free"):
         se3.optimise_se3(*args, free=("fz",))
     assert tr["dt_offset_s"] == 2.37
+
+
+def test_se3_uses_partly_hidden_boards(session):
+    """Frames that hold only part of the corners (a hand or the image border hides the rest)
+    enter the fit with the corners they have: with 40 % of the frames keeping 6 to 14 of their
+    20 corners (the rest dropped from the table), and 30 frames keeping only 5 (fewer than
+    MIN_FRAME_CORNERS, left out), se3 still recovers fx, fy within 0.2 % and both transforms
+    within 2 mm / 0.2 deg, counts the frames it used, and each used frame's residual RMS stays at
+    the corner noise."""
+    tr = session["truth"]
+    rng = np.random.default_rng(21)
+    corners = session["corners"]
+    frames = corners["frame"].unique()
+    partial = rng.choice(frames, int(0.4 * len(frames)), replace=False)
+    few = rng.choice(np.setdiff1d(frames, partial), 30, replace=False)
+    keep_n = {f: int(rng.integers(6, 15)) for f in partial} | {f: 5 for f in few}
+    drop = np.zeros(len(corners), bool)
+    for f, n in keep_n.items():
+        idx = np.flatnonzero(corners["frame"].to_numpy() == f)
+        drop[rng.choice(idx, len(idx) - n, replace=False)] = True
+    cut = corners[~drop].reset_index(drop=True)
+    frame_ids, _, uv = se3.corner_arrays(cut, 20)
+    assert len(frame_ids) == len(frames) - 30 and not np.isin(few, frame_ids).any()
+    n_seen = np.isfinite(uv[..., 0]).sum(axis=1)
+    assert n_seen.min() == 6 and (n_seen < 20).sum() == len(partial)
+    fit = se3.optimise_se3(cut, session["bodies"], session["camera"], session["board"],
+                           tr["dt_offset_s"])
+    res = fit.result
+    assert res["n_frames"] == len(frames) - 30
+    assert res["n_residuals"] == 2 * int(n_seen.sum())
+    for i in (0, 1):
+        assert abs(res["K"][i][i] - tr["K"][i, i]) / tr["K"][i, i] < 0.002
+    for name in ("T_Cm_C", "T_Bm_B"):
+        dt_m, dr_rad = _pose_err(tr[name], np.array(res[name]))
+        assert dt_m < 0.002 and dr_rad < np.radians(0.2), (name, dt_m, dr_rad)
+    errs = fit.errors.set_index("frame")
+    assert np.isfinite(errs.loc[partial, "rms_px"]).all()
+    assert errs.loc[partial, "rms_px"].median() < 0.5

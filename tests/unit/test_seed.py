@@ -189,11 +189,15 @@ def test_too_few_pairs_raises():
 
 
 def test_missing_corners_names_frame():
-    """A pair frame without a full corner set raises OptimiseError naming that frame."""
+    """A pair frame with no corner at all raises OptimiseError naming that frame; one that lacks
+    a single corner (partly hidden board) is left out of the fit."""
     pairs, corners, K, *_ = _session(12, seed=10)
-    corners = corners[~((corners["frame"] == 105) & (corners["corner"] == 3))]
     with pytest.raises(OptimiseError, match="frame 105"):
-        optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=1)
+        optimise_seed(pairs, corners[corners["frame"] != 105], K, DIST, BOARD, k_iterations=1)
+    partial = corners[~((corners["frame"] == 105) & (corners["corner"] == 3))]
+    run = optimise_seed(pairs, partial, K, DIST, BOARD, k_iterations=1)
+    assert run.result["n_pairs"] == len(pairs) - 1
+    assert 105 not in set(run.errors["frame"])
 
 
 def test_missing_columns_and_bad_grid_raise():
@@ -203,3 +207,21 @@ def test_missing_columns_and_bad_grid_raise():
         optimise_seed(pairs.drop(columns="vic_yaw_rad"), corners, K, DIST, BOARD)
     with pytest.raises(OptimiseError, match="grid_points"):
         optimise_seed(pairs, corners, K, DIST, BOARD, grid_points=4)
+
+
+def test_seed_leaves_out_pairs_with_part_of_the_board():
+    """Pairs whose frame holds only some corners (hand or image border) are left out of the
+    chapter's method, which re-estimates each pose from the whole board; a pairs frame with no
+    corner at all is still an error naming it."""
+    from cvsflow.optimise.seed import corner_array
+
+    corners = pd.DataFrame(
+        {"frame": [0] * 4 + [1] * 3, "found": True, "corner": [0, 1, 2, 3, 0, 1, 3],
+         "u_px": np.arange(7.0), "v_px": np.arange(7.0)}
+    )
+    uv = corner_array(corners, [0, 1], 4, allow_partial=True)
+    assert np.isfinite(uv[0]).all() and np.isnan(uv[1, 2]).all() and np.isfinite(uv[1, 3]).all()
+    with pytest.raises(OptimiseError, match="frame 1 .*no complete set of 4"):
+        corner_array(corners, [0, 1], 4)
+    with pytest.raises(OptimiseError, match="frame 2 .*no found corner"):
+        corner_array(corners, [0, 1, 2], 4, allow_partial=True)
