@@ -148,7 +148,7 @@ def test_fit_rms_against_layout_scale_stops_vicon_bodies(tmp_path):
     outs = {"bodies": tmp_path / "bodies.parquet", "fig": tmp_path / "vicon_fit.png"}
     with pytest.raises(UnitsError, match=r"markers_filled\.parquet: body 'board': rigid-body fit RMS "
                        r"\d{3}(\.\d+)? m.*expected at most 0\.04\d* m"):
-        run_stage("vicon_bodies", tmp_path, {"m": src}, outs, {"markers": SPECS, "vicon": VICON_CFG})
+        run_stage("vicon_bodies", tmp_path, {"m": src}, outs, {"markers": SPECS, **VICON_CFG})
     assert not any(p.exists() for p in outs.values())
 
 

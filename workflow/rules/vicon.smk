@@ -66,7 +66,8 @@ rule vicon_bodies:
         runtime=10,
     params:
         markers=lambda wc: session_cfg(wc.session)["markers"],
-        vicon=config["vicon"],
+        max_fit_rms_m=config["vicon"]["max_fit_rms_m"],
+        max_fit_rms_share=config["vicon"]["max_fit_rms_share"],
     script:
         "../scripts/vicon_bodies.py"
 

@@ -10,9 +10,9 @@ with stage_logging(snakemake.log[0], "vicon_bodies") as log:
     markers = read_parquet(snakemake.input[0])
     bodies = fit_bodies(markers, snakemake.params.markers)
     log.info("valid samples: %s", bodies.groupby("body")["valid"].sum().to_dict())
-    vicon = snakemake.params.vicon
-    for warning in check_body_fits(bodies, resolve_layouts(markers, snakemake.params.markers),
-                                   snakemake.input[0], vicon["max_fit_rms_m"], vicon["max_fit_rms_share"]):
+    specs = resolve_layouts(markers, snakemake.params.markers)
+    for warning in check_body_fits(bodies, specs, snakemake.input[0], snakemake.params.max_fit_rms_m,
+                                   snakemake.params.max_fit_rms_share):
         log.warning(warning)
     write_parquet(bodies, snakemake.output.bodies)
     save_figure(plots.plot_fit_residuals(bodies), snakemake.output.fig)
