@@ -23,8 +23,9 @@ from scipy.optimize import minimize_scalar
 from scipy.signal import correlate, correlation_lags
 from scipy.spatial.transform import Rotation
 
-from cvsflow.errors import InputError, SyncError
+from cvsflow.errors import InputError, NoUsableRowsError, SyncError
 from cvsflow.mocap import _interp_T, body_poses
+from cvsflow.plausibility import OVERLAP_FLOOR, check_overlap
 from cvsflow.transforms import (
     invert_T,
     make_T,
@@ -189,8 +190,11 @@ def _spans(poses_raw, bodies):
     return (float(t_video.min()), float(t_video.max())), (float(t_vicon.min()), float(t_vicon.max()))
 
 
-def check_take_covers_video(video_span_s, take_span_s, dt_offset_s=None, tol_s=1e-9):
+def check_take_covers_video(video_span_s, take_span_s, dt_offset_s=None, tol_s=1e-9, min_share=1.0):
     """Raise InputError when the Vicon take is shorter than the video (or misses part of it).
+
+    With ``min_share`` < 1 and no offset, the take need only last ``min_share`` of the video
+    (a partial overlap is used for what it covers: :func:`cvsflow.plausibility.check_overlap`).
 
     Parameters
     ----------
@@ -206,10 +210,11 @@ def check_take_covers_video(video_span_s, take_span_s, dt_offset_s=None, tol_s=1
     v0, v1 = video_span_s
     k0, k1 = take_span_s
     if dt_offset_s is None:
-        if (k1 - k0) + tol_s < (v1 - v0):
+        if (k1 - k0) + tol_s < min_share * (v1 - v0):
             raise InputError(
                 f"Vicon take is shorter than the video: take spans {k0:.3f}..{k1:.3f} s "
-                f"({k1 - k0:.3f} s), video spans {v0:.3f}..{v1:.3f} s ({v1 - v0:.3f} s)"
+                f"({k1 - k0:.3f} s), video spans {v0:.3f}..{v1:.3f} s ({v1 - v0:.3f} s); "
+                f"expected it to last at least {100 * min_share:.0f} % of the video"
             )
         return
     m0, m1 = v0 + dt_offset_s, v1 + dt_offset_s
@@ -544,7 +549,7 @@ def sync_angular_speed(
     outside the main lobe: 1 for a perfect, unique peak; 0 when another lag does as well.
     """
     video_span, take_span = _spans(poses_raw, bodies)
-    check_take_covers_video(video_span, take_span)
+    check_take_covers_video(video_span, take_span, min_share=OVERLAP_FLOOR)
     t_frames = np.sort(poses_raw["t_s"].to_numpy(float))
     h = float(np.median(np.diff(t_frames)))
     step = h / 4.0 if grid_step_s is None else float(grid_step_s)
@@ -734,7 +739,7 @@ def sync_gesture(
     clean gesture has the same shape in both streams, so both crossings agree.
     """
     video_span, take_span = _spans(poses_raw, bodies)
-    check_take_covers_video(video_span, take_span)
+    check_take_covers_video(video_span, take_span, min_share=OVERLAP_FLOOR)
     t_c, R_c, valid_c = _cvs_rotations(poses_raw)
     t_v, T_v, valid_v = _vicon_relative(bodies, camera, board)
     R_v = np.where(valid_v[:, None, None], T_v[:, :3, :3], np.eye(3))
@@ -773,24 +778,39 @@ def sync_gesture(
     return {"dt_offset_s": float(dt_low), "method": "gesture", "quality": quality, "details": details}
 
 
-def synchronise(poses_raw, bodies, method="angular_speed", max_offset_s=30.0, min_quality=0.5, **kwargs):
+def synchronise(poses_raw, bodies, method="angular_speed", max_offset_s=30.0, min_quality=0.5,
+                min_overlap_share=0.8, **kwargs):
     """Time offset between video and Vicon by the configured method (``sync.method``).
 
     Returns
     -------
     sync : dict
-        For sync.yaml: ``dt_offset_s``, ``method``, ``quality``, ``details``.
+        For sync.yaml: ``dt_offset_s``, ``method``, ``quality``, ``details``, ``overlap_share``
+        (share of video frames whose Vicon time lies inside the take) and ``warnings`` (one
+        when the share is below ``min_overlap_share``, ``sync.min_overlap_share``).
 
     Raises
     ------
     SyncError, InputError
         See :func:`sync_angular_speed` and :func:`sync_gesture`; an unknown method.
+    OverlapError
+        Under 20 % (or 30 frames) of the video inside the take.
     """
     if method == "angular_speed":
-        return sync_angular_speed(poses_raw, bodies, max_offset_s, min_quality, **kwargs)
-    if method == "gesture":
-        return sync_gesture(poses_raw, bodies, max_offset_s, min_quality, **kwargs)
-    raise SyncError(f"sync method {method!r} unknown (expected 'angular_speed' or 'gesture')")
+        out = sync_angular_speed(poses_raw, bodies, max_offset_s, min_quality, **kwargs)
+    elif method == "gesture":
+        out = sync_gesture(poses_raw, bodies, max_offset_s, min_quality, **kwargs)
+    else:
+        raise SyncError(f"sync method {method!r} unknown (expected 'angular_speed' or 'gesture')")
+    # partial overlap: the share of video frames inside the take, a warning under the minimum
+    _, take_span = _spans(poses_raw, bodies)
+    share, warnings = check_overlap(poses_raw["t_s"].to_numpy(float), out["dt_offset_s"], take_span,
+                                    min_share=min_overlap_share, source="sync")
+    for w in warnings:
+        log.warning(w)
+    out["overlap_share"] = share
+    out["warnings"] = warnings
+    return out
 
 
 # --------------------------------------------------------------------------- pairs
@@ -809,7 +829,8 @@ def _pose_columns(prefix, T):
     }
 
 
-def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", board="board"):
+def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", board="board",
+                min_overlap_share=0.8):
     """Per video frame, the CVS pose and the Vicon poses side by side (``pairs.parquet``).
 
     Parameters
@@ -836,10 +857,19 @@ def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", b
         T_W_Cm; ``wbm_*`` T_W_Bm (position in metres, scalar-last quaternion). Only frames with
         a valid CVS pose and both Vicon poses valid.
 
+        Only frames inside the take are used (a partial overlap): ``attrs["overlap_share"]``
+        is the share of video frames inside it, ``attrs["warnings"]`` a warning under
+        ``min_overlap_share``.
+
     Raises
     ------
+    OverlapError
+        Under 20 % (or 30 frames) of the video frames' Vicon times inside the take (both spans
+        named).
+    NoUsableRowsError
+        No frame with both a CVS pose and valid Vicon poses (the counts of each named).
     InputError
-        The video frames' Vicon times fall outside the take (both spans named); unknown mode.
+        Unknown mode.
     """
     p = poses_raw.sort_values("frame", kind="stable").reset_index(drop=True)
     t_video = p["t_s"].to_numpy(float)
@@ -848,15 +878,17 @@ def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", b
     _, T_W_Bm_all, v_b = body_poses(bodies, board)
     if mode == "block":
         half = 0.5 * float(np.median(np.diff(t_b))) if len(t_b) > 1 else 0.0
-        check_take_covers_video(
-            (t_video.min(), t_video.max()), (t_b[0] - half, t_b[-1] + half), dt_offset_s
-        )
+        span = (t_b[0] - half, t_b[-1] + half)
+        share, warnings = check_overlap(t_video, dt_offset_s, span, min_share=min_overlap_share,
+                                        source="pairs")
         k = np.clip(np.searchsorted(t_b, t_vic), 1, len(t_b) - 1)
         k = np.where(np.abs(t_vic - t_b[k - 1]) <= np.abs(t_b[k] - t_vic), k - 1, k)
         T_W_Cm, T_W_Bm = T_W_Cm_all[k], T_W_Bm_all[k]
-        ok_v = v_c[k] & v_b[k]
+        inside = (t_vic >= span[0]) & (t_vic <= span[1])
+        ok_v = v_c[k] & v_b[k] & inside
     elif mode == "interp":
-        check_take_covers_video((t_video.min(), t_video.max()), (t_b[0], t_b[-1]), dt_offset_s)
+        share, warnings = check_overlap(t_video, dt_offset_s, (t_b[0], t_b[-1]),
+                                        min_share=min_overlap_share, source="pairs")
         T_W_Cm, ok_c, _ = _interp_T(t_b, T_W_Cm_all, v_c, t_vic)
         T_W_Bm, ok_b, _ = _interp_T(t_b, T_W_Bm_all, v_b, t_vic)
         ok_v = ok_c & ok_b
@@ -866,6 +898,15 @@ def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", b
     tvec_cols = ["x_m", "y_m", "z_m"]
     ok_cvs = p["valid"].to_numpy(bool) & np.isfinite(p[rvec_cols + tvec_cols].to_numpy(float)).all(axis=1)
     keep = ok_cvs & ok_v
+    if not keep.any():
+        raise NoUsableRowsError(
+            f"pairs: 0 of {len(keep)} video frames have both a CVS pose and valid Vicon poses "
+            f"({int(ok_cvs.sum())} frames with a CVS pose in poses_raw, {int(ok_v.sum())} with both "
+            f"Vicon bodies valid at t_video + {dt_offset_s:.4f} s in the bodies table); expected "
+            "at least one frame with both"
+        )
+    for w in warnings:
+        log.warning(w)
     p = p[keep]
     T_W_Cm, T_W_Bm = T_W_Cm[keep], T_W_Bm[keep]
     rvec = p[rvec_cols].to_numpy(float, copy=True)
@@ -896,10 +937,14 @@ def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", b
             n_drop_cvs,
             n_drop_vic,
         )
-    return pd.DataFrame(cols)
+    out = pd.DataFrame(cols)
+    out.attrs["overlap_share"] = share
+    out.attrs["warnings"] = warnings
+    return out
 
 
-def make_pairs(poses_raw, bodies, bodies_30hz, dt_offset_s, resample="block", camera="camera", board="board"):
+def make_pairs(poses_raw, bodies, bodies_30hz, dt_offset_s, resample="block", camera="camera", board="board",
+               min_overlap_share=0.8):
     """The pairs stage: :func:`build_pairs` on the table that ``vicon.resample`` calls for.
 
     Parameters
@@ -922,4 +967,5 @@ def make_pairs(poses_raw, bodies, bodies_30hz, dt_offset_s, resample="block", ca
         ``pairs.parquet`` (see :func:`build_pairs`).
     """
     table = bodies_30hz if resample == "block" else bodies
-    return build_pairs(poses_raw, table, dt_offset_s, mode=resample, camera=camera, board=board)
+    return build_pairs(poses_raw, table, dt_offset_s, mode=resample, camera=camera, board=board,
+                       min_overlap_share=min_overlap_share)

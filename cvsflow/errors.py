@@ -27,3 +27,35 @@ class SyncError(CvsflowError):
 
 class OptimiseError(CvsflowError):
     """An optimiser cannot proceed (no pairs, diverged)."""
+
+
+class ImplausibleError(CvsflowError):
+    """A stage's input or result is outside what the physical set-up allows (plausibility check)."""
+
+
+class UnitsError(ImplausibleError, MocapError):
+    """Marker coordinates do not match the configured layout's scale (a wrong units row)."""
+
+
+class NoUsableRowsError(ImplausibleError, InputError):
+    """A stage would produce zero usable rows; the message names the input that caused it."""
+
+
+class StaticBoardError(ImplausibleError, SyncError):
+    """The board did not move enough for a motion-based synchronisation."""
+
+
+class OverlapError(ImplausibleError, SyncError):
+    """The video and the Vicon take overlap too little in time."""
+
+
+class ScaleMismatchError(ImplausibleError):
+    """Camera-to-board distances from the Vicon and from PnP disagree beyond the mountings."""
+
+
+class ResultRangeError(ImplausibleError, OptimiseError):
+    """An optimiser result is outside its physical range (focal lengths, mountings, offset)."""
+
+
+class BoardNotSeenError(NoUsableRowsError, SyncError):
+    """The board has a pose in (almost) no video frame: nothing to pose or synchronise."""

@@ -248,7 +248,9 @@ def fill_marker_gaps(markers, body_specs, max_gap_s, method="cubic"):
         ``{marker}_filled`` per marker, True on every sample that is not measured.
     summary : dict
         ``{"per_marker": {name: {"measured", "rigid", "interp", "missing"}}, "total": {...},
-        "max_gap_s", "method"}``: sample counts (plain ints, YAML ready).
+        "max_gap_s", "method", "warnings"}``: sample counts (plain ints, YAML ready);
+        ``warnings`` (list of str) when a marker is never measured or over 20 % of the
+        marker samples stay missing (``vicon_repair.yaml``).
 
     Notes
     -----
@@ -306,12 +308,22 @@ def fill_marker_gaps(markers, body_specs, max_gap_s, method="cubic"):
         "max_gap_s": float(max_gap_s),
         "method": method,
     }
+    summary["warnings"] = []
     if total["rigid"] or total["interp"] or total["missing"]:
         log.warning(
             "marker gaps: %d samples filled from rigid bodies, %d interpolated, %d left missing",
             total["rigid"],
             total["interp"],
             total["missing"],
+        )
+    never = [n for n in all_names if counts[n]["measured"] == 0]
+    if never:
+        summary["warnings"].append(f"markers {never} never measured in {len(markers)} samples")
+    n_all = len(markers) * max(len(all_names), 1)
+    if total["missing"] > 0.2 * n_all:
+        summary["warnings"].append(
+            f"{total['missing']} of {n_all} marker samples ({100 * total['missing'] / n_all:.1f} %) "
+            f"stay missing after the repair (gaps longer than max_gap_s {max_gap_s:g} s)"
         )
     return out, summary
 

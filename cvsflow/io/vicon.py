@@ -10,6 +10,7 @@ where the marker was not seen. ``df.attrs["rate_hz"]`` carries the rate and
 from __future__ import annotations
 
 import io
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,8 @@ from cvsflow.errors import InputError
 from cvsflow.io.files import atomic_output
 
 AXES = ("x", "y", "z")
+
+log = logging.getLogger(__name__)
 
 
 def marker_columns(name: str) -> list[str]:
@@ -98,7 +101,9 @@ def read_nexus_csv(path) -> pd.DataFrame:
     path : str or Path
         The CSV file: a ``Trajectories`` line, the rate (Hz) line, the ``Subject:Marker`` row,
         the ``Frame,Sub Frame,X,Y,Z,...`` row, the units row (mm, cm or m), then one row per
-        frame with empty cells where a marker was not seen. CRLF or LF line ends; rows may be
+        frame with empty cells where a marker was not seen (``inf``, ``-inf`` and overflowing
+        numbers such as ``1e999`` are gaps too: NaN, counted in a WARNING naming the first
+        line and column). CRLF or LF line ends; rows may be
         padded with empty cells. Other blocks (``Devices``, ``Model Outputs``) are skipped.
 
     Returns
@@ -231,7 +236,18 @@ def read_nexus_csv(path) -> pd.DataFrame:
             f"{path}, line {first + i + 1}: frame {int(frames[i])} follows frame "
             f"{int(frames[i - 1])} (expected consecutive frames)"
         )
-    xyz_m = (values[:, 2:] * scale).reshape(len(values), n_markers, 3)
+    coords = values[:, 2:]
+    bad = np.isinf(coords)  # 'inf', '-inf', '1e999': not a position, a gap (NaN)
+    if bad.any():
+        i, j = (int(v[0]) for v in np.nonzero(bad))
+        log.warning(
+            "%s: %d non-finite coordinate cells (inf, -inf or overflow such as 1e999) read as "
+            "gaps (NaN); the first at line %d, column %s_%s (%r)",
+            path, int(bad.sum()), first + i + 1, names[j // 3], "XYZ"[j % 3],
+            data_lines[i].split(",")[2 + j].strip(),
+        )
+        coords = np.where(bad, np.nan, coords)
+    xyz_m = (coords * scale).reshape(len(values), n_markers, 3)
     return _marker_table(frames.astype(np.int64) - 1, xyz_m, names, rate_hz)
 
 
@@ -313,6 +329,10 @@ def read_c3d(path) -> pd.DataFrame:
             f"{path}: POINT:LABELS has {len(names)} names for {n_markers} markers"
         )
     xyz = np.transpose(pts[:3], (2, 1, 0)) * _UNIT_TO_M[unit]  # (n_frames, n_markers, 3)
+    if not np.isfinite(xyz).all():
+        log.warning("%s: %d non-finite coordinates read as gaps (NaN)", path,
+                    int((~np.isfinite(xyz)).sum()))
+        xyz[~np.isfinite(xyz)] = np.nan
     residuals = c3d["data"].get("meta_points", {}).get("residuals")
     if residuals is not None and np.size(residuals):
         bad = np.asarray(residuals)[0].T < 0  # Vicon marks an unseen sample by residual -1

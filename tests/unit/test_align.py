@@ -15,7 +15,7 @@ from cvsflow.align import (
     sync_angular_speed,
     synchronise,
 )
-from cvsflow.errors import InputError, SyncError
+from cvsflow.errors import InputError, NoUsableRowsError, OverlapError, SyncError
 from cvsflow.mocap import block_average_bodies, fit_bodies, interpolate_bodies
 from cvsflow.transforms import (
     T_from_pose6,
@@ -258,15 +258,51 @@ def test_sync_peak_at_search_boundary_refused(session):
 
 
 def test_take_shorter_than_video_names_both_spans(session):
-    """A take shorter than the video raises InputError in sync and in pairs, naming both spans."""
+    """A take lasting under 20 % of the video stops sync (InputError naming both spans); a take
+    that overlaps only 14 % of the video at the offset stops pairs (OverlapError, both spans)."""
     poses, bodies, _ = session
-    short = bodies[bodies["t_s"] < 5.0]
-    with pytest.raises(InputError, match=r"take spans 0\.000\.\.4\.997 s.*video spans 0\.000\.\.11\.967 s"):
-        sync_angular_speed(poses, short)
-    with pytest.raises(InputError, match=r"video frames span 0\.000\.\.11\.967 s.*take spans"):
+    tiny = bodies[bodies["t_s"] < 2.0]
+    with pytest.raises(InputError, match=r"take spans 0\.000\.\.1\.997 s.*video spans 0\.000\.\.11\.967 s"):
+        sync_angular_speed(poses, tiny)
+    short = bodies[bodies["t_s"] < 4.0]
+    with pytest.raises(OverlapError, match=r"pairs: only \d+ of 360 video frames \(1\d\.\d %\).*"
+                       r"video frames span 0\.000\.\.11\.967 s.*take spans"):
         build_pairs(poses, short, DT_OFFSET_S, mode="interp")
     with pytest.raises(InputError, match="does not cover the video"):
         check_take_covers_video((0.0, 10.0), (0.0, 11.0), dt_offset_s=2.0)
+
+
+def test_partial_overlap_uses_what_overlaps(session):
+    """A take that stops 1 s before the video ends: sync still finds the offset, reports the
+    overlap share (about 92 %) and a warning under min_overlap_share; pairs keeps exactly the
+    frames inside the take, in both modes, with the share and warning in attrs."""
+    poses, bodies, _ = session
+    t_end = DT_OFFSET_S + float(poses["t_s"].max()) - 1.0
+    cut = bodies[bodies["t_s"] <= t_end]
+    out = synchronise(poses, cut, max_offset_s=10.0, min_quality=0.2, min_overlap_share=0.95)
+    assert abs(out["dt_offset_s"] - DT_OFFSET_S) < 0.002
+    inside = (poses["t_s"] + DT_OFFSET_S <= t_end).mean()
+    assert abs(out["overlap_share"] - inside) < 0.01
+    assert 0.9 < out["overlap_share"] < 0.95
+    assert len(out["warnings"]) == 1 and "min_overlap_share 0.95" in out["warnings"][0]
+    quiet = synchronise(poses, cut, max_offset_s=10.0, min_quality=0.2, min_overlap_share=0.8)
+    assert quiet["warnings"] == []
+    pairs = build_pairs(poses, cut, DT_OFFSET_S, mode="interp", min_overlap_share=0.95)
+    assert pairs["t_vicon_s"].max() <= t_end
+    full = build_pairs(poses, bodies, DT_OFFSET_S, mode="interp")
+    assert abs(len(pairs) - int((full["t_vicon_s"] <= t_end).sum())) <= 1  # the last sample
+    assert pairs.attrs["warnings"] and abs(pairs.attrs["overlap_share"] - inside) < 0.01
+    lo = block_average_bodies(cut, 10)
+    pb = build_pairs(poses, lo, DT_OFFSET_S, mode="block", min_overlap_share=0.8)
+    assert 0.9 * len(pairs) < len(pb) <= len(pairs) + 1 and pb.attrs["warnings"] == []
+
+
+def test_pairs_zero_rows_names_counts(session):
+    """Pairs with no valid CVS pose: NoUsableRowsError naming both counts, not an empty table."""
+    poses, bodies, _ = session
+    none = poses.assign(valid=False)
+    with pytest.raises(NoUsableRowsError, match=r"0 of 360 video frames.*0 frames with a CVS pose"):
+        build_pairs(none, bodies, DT_OFFSET_S, mode="interp")
 
 
 def test_pairs_interp_match_truth(clean_session):

@@ -143,6 +143,25 @@ def test_rigid_fill_is_exact_and_flagged():
     np.testing.assert_array_equal(filled["board:B1_x_m"], truth["board:B1_x_m"])
 
 
+def test_repair_summary_warns_of_markers_never_seen_and_long_gaps():
+    """vicon_repair.yaml's ``warnings``: none on a clean take; a marker never measured (here
+    refilled from its body every sample) is named; over 20 % of the samples missing is counted."""
+    df, _, _ = synthetic_markers(duration_s=2.0)
+    assert fill_marker_gaps(df, _specs(), max_gap_s=0.1)[1]["warnings"] == []
+    bad = df.copy()
+    bad[[f"board:B2_{a}_m" for a in "xyz"]] = np.nan
+    for n in ("camera:C1", "camera:C2"):
+        bad.loc[: len(bad) // 2, [f"{n}_{a}_m" for a in "xyz"]] = np.nan
+    _, summary = fill_marker_gaps(bad, _specs(), max_gap_s=0.1)
+    text = " | ".join(summary["warnings"])
+    assert "markers ['board:B2'] never measured in 600 samples" in text
+    camera_gone = df.copy()
+    for n in ("camera:C1", "camera:C2", "camera:C3"):
+        camera_gone[[f"{n}_{a}_m" for a in "xyz"]] = np.nan
+    text = " | ".join(fill_marker_gaps(camera_gone, _specs(), max_gap_s=0.1)[1]["warnings"])
+    assert "1800 of 4800 marker samples (37.5 %) stay missing" in text
+
+
 def test_interpolation_fill_short_gaps_within_1mm():
     """Where only two markers of a body remain, gaps up to max_gap_s are interpolated in time
     within 1 mm of truth (cubic and linear); longer gaps stay NaN, unflagged, counted missing."""

@@ -42,5 +42,6 @@ rule pairs:
         runtime=10,
     params:
         resample=config["vicon"]["resample"],
+        min_overlap_share=config["sync"]["min_overlap_share"],
     script:
         "../scripts/pairs.py"

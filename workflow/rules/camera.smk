@@ -74,5 +74,6 @@ rule poses:
     params:
         board=lambda wc: session_cfg(wc.session)["board"],
         pnp=config["pnp"],
+        video=video_path,
     script:
         "../scripts/poses.py"

@@ -13,6 +13,7 @@ rule vicon_import:
         runtime=10,
     params:
         markers=lambda wc: session_cfg(wc.session)["markers"],
+        max_scale_ratio=config["vicon"]["max_scale_ratio"],
     script:
         "../scripts/vicon_import.py"
 
@@ -65,6 +66,8 @@ rule vicon_bodies:
         runtime=10,
     params:
         markers=lambda wc: session_cfg(wc.session)["markers"],
+        max_fit_rms_m=config["vicon"]["max_fit_rms_m"],
+        max_fit_rms_share=config["vicon"]["max_fit_rms_share"],
     script:
         "../scripts/vicon_bodies.py"
 

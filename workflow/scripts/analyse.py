@@ -5,11 +5,13 @@ import json
 from cvsflow import analyse
 from cvsflow.io import atomic_output, read_parquet, read_yaml, save_figure
 from cvsflow.io.logs import stage_logging
+from cvsflow.plausibility import check_rows
 from cvsflow.plots import results as plots
 from cvsflow.plots import se3 as plots_se3
 
 with stage_logging(snakemake.log[0], "analyse") as log:
     errors = read_parquet(snakemake.input.errors)
+    check_rows(errors, snakemake.input.errors, "error rows")
     result = read_yaml(snakemake.input.result)
     cfg = snakemake.params.analyse
     stats = analyse.error_statistics(errors)

@@ -5,6 +5,7 @@ import numpy as np
 from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.optimise.seed import optimise_seed
+from cvsflow.plausibility import check_seed_result
 
 with stage_logging(snakemake.log[0], "optimise_seed") as log:
     camera = read_yaml(snakemake.input.camera)
@@ -21,6 +22,7 @@ with stage_logging(snakemake.log[0], "optimise_seed") as log:
     )
     log.info("fx %.2f px, fy %.2f px after %d iterations", out.result["fx_px"], out.result["fy_px"],
              out.result["iterations"])
+    check_seed_result(out.result, camera["K"], f"seed fit from {snakemake.input.pairs}")
     write_parquet(out.iterations, snakemake.output.iterations)
     write_parquet(out.errors, snakemake.output.errors)
     write_yaml(out.result, snakemake.output.result)

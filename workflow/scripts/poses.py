@@ -5,6 +5,7 @@ import numpy as np
 
 from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
+from cvsflow.plausibility import check_poses_found
 from cvsflow.plots import camera as plots
 from cvsflow.pose import estimate_poses
 
@@ -13,13 +14,16 @@ cv2.setNumThreads(snakemake.threads)
 
 with stage_logging(snakemake.log[0], "poses") as log:
     camera = read_yaml(snakemake.input.camera)
+    corners = read_parquet(snakemake.input.corners)
     poses = estimate_poses(
-        read_parquet(snakemake.input.corners),
+        corners,
         np.array(camera["K"]),
         np.array(camera["dist"]),
         snakemake.params.board,
         **snakemake.params.pnp,
     )
     log.info("valid poses: %d of %d frames", int(poses["valid"].sum()), len(poses))
+    for warning in check_poses_found(poses, corners, snakemake.params.video, snakemake.input.corners):
+        log.warning(warning)
     write_parquet(poses, snakemake.output.poses)
     save_figure(plots.plot_pose_timeseries(poses), snakemake.output.fig)
