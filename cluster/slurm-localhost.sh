@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # A single-node SLURM cluster on this machine, to run the workflow through the SLURM executor
-# exactly as on a real cluster (workflow/profiles/slurm).
+# exactly as on a real cluster (profiles/slurm).
 #
 #   cluster/slurm-localhost.sh start    install (apt-get) if missing, configure, start, wait until idle
 #   cluster/slurm-localhost.sh stop     stop the daemons this script started

@@ -246,11 +246,128 @@ def _check_gray(name: str, img) -> np.ndarray:
     return img
 
 
+def _duplicate_of(uv: np.ndarray, kept: list[tuple[str, np.ndarray]], duplicate_px: float):
+    """(name, corner RMS difference px) of the first kept view within duplicate_px, or None."""
+    for name, other in kept:
+        d = float(np.sqrt(np.mean(np.sum((uv - other) ** 2, axis=1))))
+        if d < duplicate_px:
+            return name, d
+    return None
+
+
+def calibration_quality(
+    rvecs: Sequence[np.ndarray],
+    img_points: Sequence[np.ndarray],
+    size_wh: tuple[int, int],
+    K: np.ndarray,
+    std: dict,
+) -> dict:
+    """How well a set of views constrains the intrinsics: coverage, tilt, focal uncertainty.
+
+    Parameters
+    ----------
+    rvecs : sequence of ndarray, shape (3,)
+        ``rvec_C_B`` of each used view (calibrateCamera).
+    img_points : sequence of ndarray, shape (N, 2) or (N, 1, 2)
+        Each view's corners, pixels.
+    size_wh : (int, int)
+        Image width and height, pixels.
+    K : ndarray, shape (3, 3)
+        Calibrated camera matrix, pixels.
+    std : dict
+        ``fx``, ``fy``, ... standard deviations (px for fx, fy).
+
+    Returns
+    -------
+    dict
+        ``coverage_share`` (share of the image inside the union of the views' corner hulls),
+        ``tilt_min_deg``, ``tilt_max_deg`` (angle between the board normal and the optical
+        axis), ``normal_spread_deg`` (largest angle between two views' board normals),
+        ``rel_std_fx``, ``rel_std_fy`` (std of fx, fy over fx, fy).
+
+    Notes
+    -----
+    Zhang's method needs views of the plane in different orientations: with parallel board
+    normals the focal length trades off against distance, which ``normal_spread_deg`` and the
+    relative std of fx reveal. Corners over a small part of the image leave the distortion
+    unconstrained elsewhere (``coverage_share``).
+    """
+    w, h = size_wh
+    scale = 4  # the coverage mask at a quarter of the resolution is plenty for a share
+    mask = np.zeros((max(h // scale, 1), max(w // scale, 1)), np.uint8)
+    for uv in img_points:
+        hull = cv2.convexHull(np.asarray(uv, np.float32).reshape(-1, 2) / scale)
+        cv2.fillConvexPoly(mask, np.rint(hull).astype(np.int32), 1)
+    normals = np.array([cv2.Rodrigues(np.asarray(r, float))[0][:, 2] for r in rvecs])
+    tilt = np.degrees(np.arccos(np.clip(np.abs(normals[:, 2]), 0.0, 1.0)))
+    cosines = np.clip(np.abs(normals @ normals.T), 0.0, 1.0)
+    return {
+        "coverage_share": float(mask.mean()),
+        "tilt_min_deg": float(tilt.min()),
+        "tilt_max_deg": float(tilt.max()),
+        "normal_spread_deg": float(np.degrees(np.arccos(cosines.min()))),
+        "rel_std_fx": float(std["fx"] / K[0, 0]),
+        "rel_std_fy": float(std["fy"] / K[1, 1]),
+    }
+
+
+def quality_warnings(
+    quality: dict,
+    used_names: Sequence[str],
+    min_coverage: float = 0.3,
+    min_normal_spread_deg: float = 10.0,
+    max_rel_std_f: float = 0.01,
+) -> list[str]:
+    """Plain-language warnings for a calibration that ran but may not be trusted.
+
+    Parameters
+    ----------
+    quality : dict
+        `calibration_quality` of the used views.
+    used_names : sequence of str
+        The stills used, named in the warnings.
+    min_coverage, min_normal_spread_deg, max_rel_std_f : float
+        Thresholds: share of the image, degrees, std of fx or fy over its value.
+
+    Returns
+    -------
+    list of str
+    """
+    names = ", ".join(used_names)
+    out = []
+    if quality["coverage_share"] < min_coverage:
+        out.append(
+            f"the board covers {100 * quality['coverage_share']:.0f} % of the image over all "
+            f"stills (expected at least {100 * min_coverage:.0f} %): distortion is "
+            f"extrapolated elsewhere; add stills with the board near the edges and corners"
+        )
+    if quality["normal_spread_deg"] < min_normal_spread_deg:
+        out.append(
+            f"the board normals of the stills ({names}) differ by at most "
+            f"{quality['normal_spread_deg']:.1f} deg (tilt {quality['tilt_min_deg']:.1f} to "
+            f"{quality['tilt_max_deg']:.1f} deg; expected a spread of at least "
+            f"{min_normal_spread_deg:g} deg): the focal length trades off against distance; "
+            f"add stills with the board tilted 20 to 45 deg in different directions"
+        )
+    worst = max(quality["rel_std_fx"], quality["rel_std_fy"])
+    if worst > max_rel_std_f:
+        out.append(
+            f"the focal length is uncertain: std of fx {100 * quality['rel_std_fx']:.2f} %, "
+            f"fy {100 * quality['rel_std_fy']:.2f} % (expected at most "
+            f"{100 * max_rel_std_f:.2f} %)"
+        )
+    return out
+
+
 def calibrate_camera(
     images: Sequence[tuple[str, np.ndarray]],
     board: dict,
     subpix_window_px: int = 11,
     min_images: int = 5,
+    duplicate_px: float = 0.5,
+    min_coverage: float = 0.3,
+    min_normal_spread_deg: float = 10.0,
+    max_rel_std_f: float = 0.01,
 ) -> tuple[dict, pd.DataFrame]:
     """Intrinsics and distortion of a camera from chessboard stills.
 
@@ -264,7 +381,15 @@ def calibrate_camera(
     subpix_window_px : int
         cornerSubPix half window (OpenCV ``winSize``), pixels.
     min_images : int
-        Fewest stills with a detected board needed to calibrate.
+        Fewest *distinct* views (stills with a detected board, near-duplicates removed)
+        needed to calibrate.
+    duplicate_px : float
+        A still whose ordered corners are within this RMS distance (px) of an earlier used
+        still's is a near-duplicate: listed unused with the still it repeats. It would add
+        no information and shrink the reported standard deviations.
+    min_coverage, min_normal_spread_deg, max_rel_std_f : float
+        Thresholds of the warnings (`quality_warnings`): share of the image covered by the
+        board, spread of the board normals (deg), std of fx or fy over its value.
 
     Returns
     -------
@@ -274,7 +399,8 @@ def calibrate_camera(
         unitless, OpenCV's ``stdDeviationsIntrinsics``),
         ``width``, ``height`` (px), ``rms_px`` (overall reprojection RMS), ``images`` (list of
         ``{name, used, reason, rms_px}``; ``rms_px`` is None for unused stills), ``n_used``,
-        ``board``.
+        ``board``, ``quality`` (`calibration_quality`) and ``warnings`` (list of str, empty
+        when the views constrain the intrinsics well).
     calib_corners : DataFrame
         ``image, corner, u_px, v_px, X_m, Y_m``: refined corners in board order (see
         ``order_corners``) with their board-frame positions (m, Z = 0).
@@ -284,7 +410,8 @@ def calibrate_camera(
     InputError
         A still that is not an 8-bit grayscale image, or whose size differs from the first.
     CalibrationError
-        Fewer than ``min_images`` stills with a board, or calibrateCamera failing.
+        Fewer than ``min_images`` distinct stills with a board (the near-duplicates named),
+        or calibrateCamera failing.
 
     Notes
     -----
@@ -304,6 +431,7 @@ def calibrate_camera(
     first_name = None
     records = []
     obj_points, img_points, used_names = [], [], []
+    kept, duplicates = [], []
     for name, img in images:
         gray = _check_gray(name, img)
         h, w = gray.shape
@@ -322,17 +450,38 @@ def calibrate_camera(
             )
             continue
         ordered, _ = order_corners(corners, gray, board)
+        dup = _duplicate_of(ordered, kept, duplicate_px)
+        if dup is not None:
+            log.warning("%s: near-duplicate of %s (corners within %.3f px RMS); skipped",
+                        name, *dup)
+            records.append(
+                {
+                    "name": name,
+                    "used": False,
+                    "reason": f"near-duplicate of {dup[0]} (corners within {dup[1]:.3f} px RMS)",
+                    "rms_px": None,
+                }
+            )
+            duplicates.append(f"{name} (of {dup[0]})")
+            continue
+        kept.append((name, ordered))
         obj_points.append(p_B)
         img_points.append(ordered.astype(np.float32).reshape(-1, 1, 2))
         used_names.append(name)
         records.append({"name": name, "used": True, "reason": "ok", "rms_px": None})
 
     if len(used_names) < min_images:
-        skipped = [r["name"] for r in records if not r["used"]]
+        skipped = [r["name"] for r in records if r["reason"] == "no chessboard found"]
+        dup_text = (
+            f"; near-duplicates removed: {', '.join(duplicates)}, within {duplicate_px:g} px"
+            if duplicates
+            else ""
+        )
         raise CalibrationError(
-            f"calibration: {len(used_names)} of {len(images)} stills have a usable "
-            f"{board_pattern(board)[0]}x{board_pattern(board)[1]} chessboard; at least "
-            f"{min_images} needed (used: {used_names}; no board found in: {skipped})"
+            f"calibration: {len(used_names)} of {len(images)} stills have a usable and "
+            f"distinct {board_pattern(board)[0]}x{board_pattern(board)[1]} chessboard view; "
+            f"at least {min_images} needed (used: {used_names}; no board found in: "
+            f"{skipped}{dup_text})"
         )
 
     try:
@@ -371,10 +520,17 @@ def calibrate_camera(
             rec["rms_px"] = rms_by_name[rec["name"]]
 
     std_intr = np.asarray(std_intr, dtype=float).ravel()
+    std = {n: float(v) for n, v in zip(INTRINSIC_STD_NAMES, std_intr[:9], strict=True)}
+    quality = calibration_quality(rvecs, img_points, size_wh, K, std)
+    warnings = quality_warnings(
+        quality, used_names, min_coverage, min_normal_spread_deg, max_rel_std_f
+    )
+    for text in warnings:
+        log.warning("calibration: %s", text)
     camera = {
         "K": np.asarray(K, dtype=float).tolist(),
         "dist": np.asarray(dist, dtype=float).ravel()[:5].tolist(),
-        "std": {n: float(v) for n, v in zip(INTRINSIC_STD_NAMES, std_intr[:9], strict=True)},
+        "std": std,
         "width": int(size_wh[0]),
         "height": int(size_wh[1]),
         "rms_px": float(rms_px),
@@ -385,6 +541,8 @@ def calibrate_camera(
             "squares_y": int(board["squares_y"]),
             "square_m": float(board["square_m"]),
         },
+        "quality": quality,
+        "warnings": warnings,
     }
     log.info(
         "calibrated on %d of %d stills: rms %.3f px, fx %.2f, fy %.2f px",

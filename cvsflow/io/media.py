@@ -16,6 +16,8 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 def list_stills(folder) -> list[Path]:
     """Image files of a calibration folder, sorted by name."""
     folder = Path(folder)
+    if folder.is_file():
+        raise InputError(f"{folder}: is a file, expected a folder of stills (calib_dir)")
     if not folder.is_dir():
         raise InputError(f"{folder}: calibration folder not found")
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
@@ -32,6 +34,8 @@ def read_gray(path) -> np.ndarray:
 def open_video(path) -> cv2.VideoCapture:
     """Open a video or raise an InputError naming it."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, expected a video file (video)")
     if not path.is_file():
         raise InputError(f"{path}: video file not found")
     cap = cv2.VideoCapture(str(path))

@@ -278,3 +278,89 @@ def test_rendered_stills_give_true_focal_lengths(tmp_path):
     assert K[0, 0] == pytest.approx(K_true[0, 0], rel=0.01)
     assert K[1, 1] == pytest.approx(K_true[1, 1], rel=0.01)
     assert camera["rms_px"] < 0.5
+
+
+# --------------------------------------------------------------------------------------------
+# Degenerate sets of views
+
+
+def _rendered_stills(n, seed, tilt_deg=35.0):
+    """n rendered stills of the demo board (known K, no distortion) and the board."""
+    from board_images import board_centre_pose, render_board
+
+    K_true = np.array([[702.0, 0.0, 331.5], [0.0, 698.0, 247.0], [0.0, 0.0, 1.0]])
+    board = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
+    rng = np.random.default_rng(seed)
+    stills = []
+    while len(stills) < n:
+        z = rng.uniform(0.7, 1.3)
+        rpy = np.radians([rng.uniform(-tilt_deg, tilt_deg), rng.uniform(-tilt_deg, tilt_deg),
+                          rng.uniform(-30, 30)])
+        centre = [rng.uniform(-0.2, 0.2) * z, rng.uniform(-0.15, 0.15) * z, z]
+        gray, uv = render_board(board_centre_pose(rpy, centre, board), K_true, board, pps=32,
+                                 seed=len(stills))
+        if (uv.min(axis=0) > 30).all() and (uv.max(axis=0) < [610, 450]).all():
+            stills.append((f"still{len(stills):02d}.png", gray))
+    return stills, board
+
+
+def test_five_copies_of_one_still_are_a_calibration_error_naming_the_duplicates():
+    """Five copies of one still (the issue's case: fx 645 for a true 702, RMS 0.03 px, no
+    warning) are one distinct view: a CalibrationError naming the copies and the still they
+    repeat."""
+    stills, board = _rendered_stills(1, seed=4)
+    copies = [(f"copy{i}.png", stills[0][1]) for i in range(5)]
+    with pytest.raises(CalibrationError,
+                       match=r"1 of 5 stills .*distinct.*at least 5 needed.*near-duplicates "
+                             r"removed: copy1\.png \(of copy0\.png\).*copy4\.png \(of copy0\.png\)"):
+        calibrate_camera(copies, board, subpix_window_px=5)
+
+
+def test_near_duplicate_still_is_left_out_with_its_reason():
+    """A repeated still among good ones is listed unused, naming the still it repeats; the
+    others calibrate as before (same K as without the copy) and no warning is raised."""
+    stills, board = _rendered_stills(8, seed=12)
+    n_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        base, _ = calibrate_camera(stills, board, subpix_window_px=5)
+        with_copy = stills[:3] + [("again.png", stills[1][1])] + stills[3:]
+        camera, corners = calibrate_camera(with_copy, board, subpix_window_px=5)
+    finally:
+        cv2.setNumThreads(n_threads)
+    again = next(im for im in camera["images"] if im["name"] == "again.png")
+    assert again["used"] is False
+    assert again["reason"].startswith("near-duplicate of still01.png")
+    assert "again.png" not in set(corners["image"])
+    assert camera["n_used"] == 8
+    assert camera["K"] == base["K"]
+    assert camera["warnings"] == []
+    q = camera["quality"]
+    assert q["normal_spread_deg"] > 30 and q["coverage_share"] > 0.3
+    assert q["rel_std_fx"] < 0.005
+
+
+def test_parallel_views_warn_with_the_stills_named():
+    """Stills of a board that is never tilted (normals within 2 deg) calibrate, but
+    camera.yaml's warnings say the normals barely differ and name the stills."""
+    stills, board = _rendered_stills(6, seed=5, tilt_deg=1.0)
+    camera, _ = calibrate_camera(stills, board, subpix_window_px=5)
+    assert camera["quality"]["normal_spread_deg"] < 4.0
+    text = " ".join(camera["warnings"])
+    assert "board normals" in text and "still00.png" in text and "still05.png" in text
+
+
+def test_small_coverage_warns():
+    """Stills all at the image centre at a distance (small board) warn about coverage."""
+    stills, board = _rendered_stills(6, seed=6)
+    small = []
+    for name, gray in stills:
+        canvas = np.full_like(gray, 255)
+        half = cv2.resize(gray, (gray.shape[1] // 3, gray.shape[0] // 3),
+                          interpolation=cv2.INTER_AREA)
+        h, w = half.shape
+        canvas[160:160 + h, 213:213 + w] = half
+        small.append((name, canvas))
+    camera, _ = calibrate_camera(small, board, subpix_window_px=3)
+    assert camera["quality"]["coverage_share"] < 0.1
+    assert any("covers" in w and "% of the image" in w for w in camera["warnings"])

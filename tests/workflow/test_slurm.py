@@ -1,4 +1,4 @@
-"""The workflow through a real SLURM (snakemake-executor-plugin-slurm, workflow/profiles/slurm).
+"""The workflow through a real SLURM (snakemake-executor-plugin-slurm, profiles/slurm).
 
 Opt-in: skipped unless CVSFLOW_SLURM=1 and `sinfo` answers. Start the single-node cluster on
 this machine first:
@@ -29,7 +29,7 @@ import yaml
 
 from .test_workflow import REPO, demo_config, write_config
 
-PROFILE = REPO / "workflow" / "profiles" / "slurm"
+PROFILE = REPO / "profiles" / "slurm"
 
 
 def _sinfo_answers() -> bool:
@@ -78,7 +78,7 @@ def run(workdir: Path, *args: str, snakefile: Path = REPO / "Snakefile",
 
 def slurm_run(workdir: Path, *targets: str, snakefile: Path = REPO / "Snakefile"):
     """Through SLURM with the repository's profile; SLURM's job logs are kept as evidence."""
-    proc = run(workdir, "--profile", str(PROFILE), "--slurm-keep-successful-logs", *targets,
+    proc = run(workdir, "--workflow-profile", str(PROFILE), "--slurm-keep-successful-logs", *targets,
                snakefile=snakefile)
     out = proc.stdout + proc.stderr
     if proc.returncode != 0:

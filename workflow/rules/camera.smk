@@ -54,7 +54,7 @@ rule corners:
 rule poses:
     input:
         corners="results/{session}/corners.parquet",
-        camera="results/{session}/camera.yaml",
+        camera=camera_yaml,
     output:
         poses="results/{session}/poses_raw.parquet",
         fig=report(

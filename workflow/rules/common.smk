@@ -1,12 +1,16 @@
 # Paths, targets and input functions only: nothing numeric lives here.
 import os
 
+from cvsflow.sessions import camera_session, check_sessions
+
 
 wildcard_constraints:
     session="[A-Za-z0-9_-]+",
 
 
 SESSIONS = config["sessions"]
+# What each session runs; a session naming an input it cannot use stops here, before any job.
+SESSION_STAGES = check_sessions(SESSIONS)
 
 
 def session_cfg(session):
@@ -42,29 +46,34 @@ def vicon_path(wildcards):
     return _session_path(wildcards.session, "vicon", "vicon.csv")
 
 
-def has(session, key):
-    return "synth" in SESSIONS[session] or key in SESSIONS[session]
+def camera_yaml(wildcards):
+    """The session's own camera.yaml, or that of the session its `camera` key names."""
+    return f"results/{camera_session(wildcards.session, SESSIONS)}/camera.yaml"
+
+
+def runs_stage(session, stage):
+    return stage in SESSION_STAGES[session]
 
 
 def session_targets(session):
     out = []
-    if has(session, "calib_dir"):
+    if runs_stage(session, "calibrate"):
         out += [
             f"results/{session}/camera.yaml",
             f"results/{session}/figures/calibration_errors.png",
             f"results/{session}/figures/calibration_coverage.png",
         ]
-    if has(session, "video") and has(session, "calib_dir"):
+    if runs_stage(session, "poses"):
         out += [
             f"results/{session}/poses_raw.parquet",
             f"results/{session}/figures/poses_raw.png",
         ]
-    if has(session, "vicon") and "markers" in SESSIONS[session]:
+    if runs_stage(session, "vicon"):
         out += [
             f"results/{session}/bodies_30hz.parquet",
             f"results/{session}/figures/vicon_markers.png",
         ]
-    if has(session, "vicon") and has(session, "video") and has(session, "calib_dir"):
+    if runs_stage(session, "pairs"):
         out += [
             f"results/{session}/sync.yaml",
             f"results/{session}/pairs.parquet",
@@ -125,11 +134,7 @@ def optimiser_runs():
     """(session, method, finit) of every optimiser run the config asks for."""
     runs = []
     for session in SESSIONS:
-        if (
-            has(session, "vicon")
-            and has(session, "video")
-            and has(session, "calib_dir")
-        ):
+        if runs_stage(session, "pairs"):
             for method in config["optimise"]["methods"]:
                 for value in config["optimise"]["f_init"]:
                     runs.append((session, method, finit_label(value)))

@@ -2,7 +2,7 @@ rule heldout_seed:
     input:
         pairs="results/{session}/pairs.parquet",
         corners="results/{session}/corners.parquet",
-        camera="results/{session}/camera.yaml",
+        camera=camera_yaml,
         se3_folds="results/{session}/heldout/se3.parquet",
     output:
         "results/{session}/heldout/seed.parquet",
@@ -26,7 +26,7 @@ rule heldout_se3:
     input:
         corners="results/{session}/corners.parquet",
         bodies="results/{session}/bodies.parquet",
-        camera="results/{session}/camera.yaml",
+        camera=camera_yaml,
         sync="results/{session}/sync.yaml",
     output:
         heldout="results/{session}/heldout/se3.parquet",

@@ -2,7 +2,7 @@ rule optimise_seed:
     input:
         pairs="results/{session}/pairs.parquet",
         corners="results/{session}/corners.parquet",
-        camera="results/{session}/camera.yaml",
+        camera=camera_yaml,
     output:
         iterations="results/{session}/seed/{finit}/iterations.parquet",
         errors="results/{session}/seed/{finit}/errors.parquet",
@@ -27,7 +27,7 @@ rule optimise_se3:
     input:
         corners="results/{session}/corners.parquet",
         bodies="results/{session}/bodies.parquet",
-        camera="results/{session}/camera.yaml",
+        camera=camera_yaml,
         sync="results/{session}/sync.yaml",
         poses="results/{session}/poses_raw.parquet",
     output:

@@ -14,12 +14,7 @@ cv2.setNumThreads(snakemake.threads)
 with stage_logging(snakemake.log[0], "calibrate") as log:
     paths = list_stills(snakemake.input[0])
     images = [(p.name, read_gray(p)) for p in paths]
-    camera, calib_corners = calibrate_camera(
-        images,
-        snakemake.params.board,
-        subpix_window_px=snakemake.params.calibrate["subpix_window_px"],
-        min_images=snakemake.params.calibrate["min_images"],
-    )
+    camera, calib_corners = calibrate_camera(images, snakemake.params.board, **snakemake.params.calibrate)
     log.info("calibrated on %d of %d stills, RMS %.3f px", camera["n_used"], len(paths), camera["rms_px"])
     write_yaml(camera, snakemake.output.camera)
     write_parquet(calib_corners, snakemake.output.corners)

@@ -15,4 +15,6 @@ with stage_logging(snakemake.log[0], "heldout_se3") as log:
     )
     log.info("%d held-out frames over %d folds", len(heldout), len(fits))
     write_parquet(heldout, snakemake.output.heldout)
+    # wall times in the log (and benchmarks/), never in a result: the same inputs give the same file
+    log.info("fold solve times (s): %s", [fit.pop("time_s", None) for fit in fits])
     write_yaml({"folds": fits}, snakemake.output.folds)

@@ -25,4 +25,6 @@ with stage_logging(snakemake.log[0], "optimise_seed") as log:
     check_seed_result(out.result, camera["K"], f"seed fit from {snakemake.input.pairs}")
     write_parquet(out.iterations, snakemake.output.iterations)
     write_parquet(out.errors, snakemake.output.errors)
+    # wall times in the log (and benchmarks/), never in a result: the same inputs give the same file
+    log.info("timings (s): %s", out.result.pop("timings_s", {}))
     write_yaml(out.result, snakemake.output.result)
