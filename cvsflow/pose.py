@@ -79,19 +79,102 @@ MIN_INLIERS = 6
 RESTART_EVERY_FRAMES = 150
 
 
-def _subpix_window(corners_px: np.ndarray, board: dict, max_window_px: int) -> int:
-    """cornerSubPix half window: at most ``max_window_px`` and under half the corner spacing.
+# Every pixel threshold scales with the board's squares as the image shows them (the local
+# spacing of the grid, ``local_spacing``), so the same checks hold at 640x480 and 1920x1080.
+# cornerSubPix half window: this share of the median spacing when that exceeds the configured
+# window (squares of ~33 px and more), never reaching a neighbouring corner.
+SUBPIX_WINDOW_FRAC = 0.15
+# Largest distance of a refined corner from where its grid neighbours put it, as a share of
+# its local spacing (never below MIN_GRID_DEVIATION_PX). The neighbours' homography misses
+# the lens's curvature by an amount that grows with the square size in pixels (k1 ~ -0.3 at
+# the image edge: several px on 60 px squares), and blur spreads a corner; a corner the
+# detector put on the wrong feature is off by a good part of a square.
+MAX_GRID_DEVIATION_FRAC = 0.12
+MIN_GRID_DEVIATION_PX = 1.0
 
-    A search window reaching a neighbouring corner pulls the estimate towards it, which
-    matters for far boards whose squares are only a few pixels wide.
+
+def local_spacing(corners_px: np.ndarray, board: dict) -> np.ndarray:
+    """Local grid spacing at each corner: the mean distance to its grid neighbours (px).
+
+    Parameters
+    ----------
+    corners_px : ndarray, shape (nx * ny, 2)
+        Corners in grid order, pixels (NaN where unknown).
+    board : dict
+
+    Returns
+    -------
+    spacing_px : ndarray, shape (nx * ny,)
+        Mean distance to the up to four neighbours one grid step away, pixels; the median
+        over the grid where a corner has no known neighbour.
     """
     nx, ny = board_pattern(board)
-    grid = corners_px.reshape(ny, nx, 2)
-    spacing = min(
-        np.linalg.norm(np.diff(grid, axis=1), axis=-1).min(),
-        np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(),
-    )
-    return int(max(2, min(max_window_px, np.floor((spacing - 1.0) / 2.0))))
+    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    dx = np.linalg.norm(np.diff(grid, axis=1), axis=-1)  # (ny, nx - 1)
+    dy = np.linalg.norm(np.diff(grid, axis=0), axis=-1)  # (ny - 1, nx)
+    total = np.zeros((ny, nx))
+    count = np.zeros((ny, nx))
+    for d, sl_a, sl_b in (
+        (dx, (slice(None), slice(0, nx - 1)), (slice(None), slice(1, nx))),
+        (dy, (slice(0, ny - 1), slice(None)), (slice(1, ny), slice(None))),
+    ):
+        ok = np.isfinite(d)
+        dd = np.where(ok, d, 0.0)
+        total[sl_a] += dd
+        total[sl_b] += dd
+        count[sl_a] += ok
+        count[sl_b] += ok
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spacing = (total / count).ravel()
+    finite = np.isfinite(spacing)
+    fill = float(np.median(spacing[finite])) if finite.any() else 1.0
+    return np.where(finite, spacing, fill)
+
+
+def _subpix_window(corners_px: np.ndarray, board: dict, max_window_px: int) -> int:
+    """cornerSubPix half window: ``max_window_px`` (more for big squares), under half a square.
+
+    A search window reaching a neighbouring corner pulls the estimate towards it, which
+    matters for far boards whose squares are only a few pixels wide; squares much bigger than
+    the window (large images, near boards) get ``SUBPIX_WINDOW_FRAC`` of their spacing, so
+    blur that spreads a corner over more pixels still fits inside the window.
+    """
+    nx, ny = board_pattern(board)
+    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    d = np.concatenate([
+        np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel(),
+        np.linalg.norm(np.diff(grid, axis=0), axis=-1).ravel(),
+    ])
+    d = d[np.isfinite(d)]
+    if not len(d):
+        return int(max(2, max_window_px))
+    wanted = max(max_window_px, int(round(SUBPIX_WINDOW_FRAC * np.median(d))))
+    return int(max(2, min(wanted, np.floor((d.min() - 1.0) / 2.0))))
+
+
+def deviation_limit_px(corners_px: np.ndarray, board: dict,
+                       max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC) -> np.ndarray:
+    """Per-corner limit of ``grid_deviation``: a share of the local spacing, pixels, shape (N,)."""
+    return np.maximum(MIN_GRID_DEVIATION_PX,
+                      max_grid_deviation * local_spacing(corners_px, board))
+
+
+def _clip_into(points_px: np.ndarray, gray: np.ndarray) -> np.ndarray | None:
+    """Points (N, 2) clipped into the image for cornerSubPix (float32, (N, 1, 2)); None if NaN."""
+    pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
+    if not np.isfinite(pts).all():
+        return None
+    h, w = gray.shape[:2]
+    pts = np.column_stack([np.clip(pts[:, 0], 0.0, w - 1.001), np.clip(pts[:, 1], 0.0, h - 1.001)])
+    return np.ascontiguousarray(pts, dtype=np.float32).reshape(-1, 1, 2)
+
+
+def _subpix(gray: np.ndarray, points_px: np.ndarray, w: int) -> np.ndarray | None:
+    """cornerSubPix from points clipped into the image; (N, 2) float32, or None."""
+    pts = _clip_into(points_px, gray)
+    if pts is None or not len(pts):
+        return None
+    return cv2.cornerSubPix(gray, pts, (w, w), (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2)
 
 
 def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -156,7 +239,7 @@ def detect_corners(
     subpix_window_px: int = 5,
     previous_px: np.ndarray | None = None,
     flags: int = VIDEO_FIND_FLAGS,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
 ) -> tuple[np.ndarray | None, str]:
     """Chessboard corners of one frame, refined and in board order.
 
@@ -171,10 +254,11 @@ def detect_corners(
         Ordered corners of the previous found frame (pixels), for boards whose ends look alike.
     flags : int
         ``findChessboardCorners`` flags.
-    max_grid_deviation_px : float
-        Largest distance (px) of a refined corner from the position its neighbours predict
-        (``grid_deviation``). A corner beyond it is refined once more from the prediction; if
-        it still deviates, the frame counts as not found (``"inconsistent"``).
+    max_grid_deviation : float
+        Largest distance of a refined corner from the position its neighbours predict
+        (``grid_deviation``), as a share of its local grid spacing (``local_spacing``; never
+        below ``MIN_GRID_DEVIATION_PX``). A corner beyond it is refined once more from the
+        prediction; if it still deviates, the frame counts as not found (``"inconsistent"``).
 
     Returns
     -------
@@ -196,7 +280,7 @@ def detect_corners(
     found, corners = cv2.findChessboardCorners(gray, pattern, None, flags)
     if not found:
         return None, "not_found"
-    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation_px)
+    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
     if corners is None:
         return None, "inconsistent"
     return order_corners(corners, gray, board, previous_px)
@@ -207,7 +291,7 @@ def refine_corners(
     corners_px: np.ndarray,
     board: dict,
     subpix_window_px: int = 5,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
 ) -> np.ndarray | None:
     """cornerSubPix from initial corners, then the grid-neighbour check (``detect_corners``).
 
@@ -219,28 +303,31 @@ def refine_corners(
     board : dict
     subpix_window_px : int
         Largest cornerSubPix half window, pixels (see ``_subpix_window``).
-    max_grid_deviation_px : float
-        Largest distance (px) of a refined corner from where its neighbours put it; a corner
-        beyond it is refined once more from that prediction.
+    max_grid_deviation : float
+        Largest distance of a refined corner from where its neighbours put it, as a share of
+        its local grid spacing (``deviation_limit_px``); a corner beyond it is refined once
+        more from that prediction.
 
     Returns
     -------
     corners_px : ndarray, shape (nx * ny, 2), float64, or None
         Refined corners in the order given; None when a corner still deviates.
     """
-    corners = np.ascontiguousarray(corners_px, dtype=np.float32).reshape(-1, 1, 2)
-    w = _subpix_window(corners.reshape(-1, 2), board, subpix_window_px)
-    corners = cv2.cornerSubPix(gray, corners, (w, w), (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2)
+    corners = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+    w = _subpix_window(corners, board, subpix_window_px)
+    corners = _subpix(gray, corners, w)
+    if corners is None:
+        return None
     predicted, deviation = grid_deviation(corners, board)
-    bad = deviation > max_grid_deviation_px
+    limit = deviation_limit_px(corners, board, max_grid_deviation)
+    bad = deviation > limit
     if bad.any():
-        retry = cv2.cornerSubPix(
-            gray, predicted[bad].astype(np.float32).reshape(-1, 1, 2), (w, w), (-1, -1),
-            SUBPIX_CRITERIA,
-        )
-        corners[bad] = retry.reshape(-1, 2)
+        retry = _subpix(gray, predicted[bad], w)
+        if retry is None:
+            return None
+        corners[bad] = retry
         _, deviation = grid_deviation(corners, board)
-        if (deviation > max_grid_deviation_px).any():
+        if (deviation > deviation_limit_px(corners, board, max_grid_deviation)).any():
             return None
     return corners.astype(np.float64)
 
@@ -262,6 +349,35 @@ TRACK_BORDER_PX = 4.0
 # departure from a homography over the demo board is below ~1.5 px; a corner tracked onto the
 # wrong feature is off by a good part of a square.
 MAX_TRACK_HOMOGRAPHY_RMS_PX = 2.5
+# ... and these shares of the median square size in pixels where that is larger: the border
+# margin (a cornerSubPix window cut by the border), the homography RMS (the lens's departure
+# from a homography grows with the board's size in pixels), the LK window. LK's pyramid gets
+# one level more per doubling of the image size over 640 px (motion in px grows with it).
+TRACK_BORDER_FRAC = SUBPIX_WINDOW_FRAC
+TRACK_HOMOGRAPHY_FRAC = 0.25
+LK_WINDOW_FRAC = 0.5
+LK_WINDOW_MAX_PX = 61
+
+
+def _track_scales(corners_px: np.ndarray, board: dict, shape: tuple[int, int]) -> dict:
+    """Pixel thresholds of the tracker for a board of this size in an image of this shape."""
+    nx, ny = board_pattern(board)
+    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    d = np.concatenate([
+        np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel(),
+        np.linalg.norm(np.diff(grid, axis=0), axis=-1).ravel(),
+    ])
+    d = d[np.isfinite(d)]
+    spacing = float(np.median(d)) if len(d) else 0.0
+    lk = int(min(LK_WINDOW_MAX_PX, max(LK_WINDOW_PX, round(LK_WINDOW_FRAC * spacing))))
+    lk += 1 - lk % 2  # odd
+    extra = max(0, int(round(np.log2(max(shape) / 640.0)))) if max(shape) > 640 else 0
+    return {
+        "border": max(TRACK_BORDER_PX, TRACK_BORDER_FRAC * spacing),
+        "homography_rms": max(MAX_TRACK_HOMOGRAPHY_RMS_PX, TRACK_HOMOGRAPHY_FRAC * spacing),
+        "lk_window": lk,
+        "lk_levels": LK_LEVELS + extra,
+    }
 # The checkerboard seen through the tracked corners must have this much contrast (grey levels)
 # between its white and black squares, and every square on the right side of the midpoint.
 MIN_PATTERN_CONTRAST = 20.0
@@ -330,7 +446,7 @@ def track_corners(
     prev_px: np.ndarray,
     board: dict,
     subpix_window_px: int = 5,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
 ) -> tuple[np.ndarray | None, str]:
     """Board corners of a frame from those of an earlier frame (optical flow, then checks).
 
@@ -346,7 +462,7 @@ def track_corners(
     board : dict
     subpix_window_px : int
         Largest cornerSubPix half window, pixels.
-    max_grid_deviation_px : float
+    max_grid_deviation : float
         As in ``detect_corners``.
 
     Returns
@@ -359,9 +475,10 @@ def track_corners(
         ``"tracked"``: every corner inside the image, refined, consistent with its grid
         neighbours, in the order the colours of the squares confirm (``order_corners``), and
         every square of the board of the right colour (``board_squares_pattern_ok``).
-        ``"out_of_view"``: the board is followed but a corner is within ``TRACK_BORDER_PX`` of
-        the border or outside (the frame has no whole board). ``"lost"``: any check failed;
-        the caller falls back to ``detect_corners``.
+        ``"out_of_view"``: the board is followed but a corner is within the border margin
+        (``TRACK_BORDER_PX`` or ``TRACK_BORDER_FRAC`` of the square size) of the border or
+        outside (the frame has no whole board). ``"lost"``: any check failed; the caller
+        falls back to ``detect_corners``.
 
     Notes
     -----
@@ -378,15 +495,17 @@ def track_corners(
     )
     if seen.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
+    sc = _track_scales(prev, board, gray.shape)
     moved, status, _ = cv2.calcOpticalFlowPyrLK(
         prev_gray, gray, prev[seen].reshape(-1, 1, 2), None,
-        winSize=(LK_WINDOW_PX, LK_WINDOW_PX), maxLevel=LK_LEVELS, criteria=LK_CRITERIA,
+        winSize=(sc["lk_window"], sc["lk_window"]), maxLevel=sc["lk_levels"],
+        criteria=LK_CRITERIA,
     )
     ok = status.ravel() == 1
     if ok.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
     H, inliers = cv2.findHomography(
-        grid[seen][ok], moved.reshape(-1, 2)[ok], cv2.RANSAC, MAX_TRACK_HOMOGRAPHY_RMS_PX
+        grid[seen][ok], moved.reshape(-1, 2)[ok], cv2.RANSAC, sc["homography_rms"]
     )
     if H is None or inliers.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
@@ -395,14 +514,14 @@ def track_corners(
     track_ok[np.flatnonzero(seen)[ok][inliers.ravel() == 1]] = True
     p[track_ok] = moved.reshape(-1, 2)[ok][inliers.ravel() == 1]
     if not _inside(p, w, h, 0.0).all():
-        return _follow_partial(gray, p, _inside(p, w, h, TRACK_BORDER_PX), grid, board,
-                               subpix_window_px)
-    corners = refine_corners(gray, p, board, subpix_window_px, max_grid_deviation_px)
+        return _follow_partial(gray, p, _inside(p, w, h, sc["border"]), grid, board,
+                               subpix_window_px, sc)
+    corners = refine_corners(gray, p, board, subpix_window_px, max_grid_deviation)
     if corners is None:
         return None, "lost"
-    inner = _inside(corners, w, h, TRACK_BORDER_PX)
+    inner = _inside(corners, w, h, sc["border"])
     if not inner.all():
-        return _follow_partial(gray, corners, inner, grid, board, subpix_window_px)
+        return _follow_partial(gray, corners, inner, grid, board, subpix_window_px, sc)
     ordered, _ = order_corners(corners, gray, board, corners)
     if not np.array_equal(ordered, corners):
         return None, "lost"
@@ -419,21 +538,20 @@ def _inside(p: np.ndarray, w: int, h: int, margin: float) -> np.ndarray:
     )
 
 
-def _follow_partial(gray, p, inner, grid, board, subpix_window_px):
+def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc):
     """Refine the corners inside the image of a board partly out of view and check them."""
     if inner.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
     w = _subpix_window(p, board, subpix_window_px)
-    refined = cv2.cornerSubPix(
-        gray, np.ascontiguousarray(p[inner], dtype=np.float32).reshape(-1, 1, 2), (w, w),
-        (-1, -1), SUBPIX_CRITERIA,
-    ).reshape(-1, 2)
+    refined = _subpix(gray, p[inner], w)
+    if refined is None:
+        return None, "lost"
     H, _ = cv2.findHomography(grid[inner], refined, 0)
     if H is None:
         return None, "lost"
     fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
     rms = np.sqrt(np.mean(np.sum((fit[inner] - refined) ** 2, axis=1)))
-    if rms > MAX_TRACK_HOMOGRAPHY_RMS_PX or not board_squares_pattern_ok(
+    if rms > sc["homography_rms"] or not board_squares_pattern_ok(
         gray, H, board, MIN_PATTERN_CONTRAST
     ):
         return None, "lost"
@@ -457,7 +575,7 @@ def quick_detect_corners(
     gray: np.ndarray,
     board: dict,
     subpix_window_px: int = 5,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
 ) -> tuple[np.ndarray | None, str]:
     """Corners of a whole board found on the half-size image, refined at full size.
 
@@ -465,7 +583,7 @@ def quick_detect_corners(
     ----------
     gray : ndarray, shape (H, W), uint8
     board : dict
-    subpix_window_px, max_grid_deviation_px
+    subpix_window_px, max_grid_deviation
         As in ``detect_corners``.
 
     Returns
@@ -490,8 +608,10 @@ def quick_detect_corners(
     scale = np.array([w / small.shape[1], h / small.shape[0]])
     # Pixel centres: small pixel i covers full pixels [s i, s (i + 1)), centre s (i + 0.5) - 0.5.
     corners = (corners.reshape(-1, 2) + 0.5) * scale - 0.5
-    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation_px)
-    if corners is None or not _inside(corners, w, h, TRACK_BORDER_PX).all():
+    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
+    if corners is None or not _inside(
+        corners, w, h, _track_scales(corners, board, gray.shape)["border"]
+    ).all():
         return None, "not_found"
     ordered, _ = order_corners(corners, gray, board)
     H, _ = cv2.findHomography(_grid_points(board), ordered.astype(np.float32), 0)
@@ -507,17 +627,28 @@ class _CornerFollower:
     method)`` results that are decided, in frame order; ``finish`` returns the rest.
     """
 
-    def __init__(self, board, subpix_window_px, max_grid_deviation_px, max_gap, flags, track,
+    def __init__(self, board, subpix_window_px, max_grid_deviation, max_gap, flags, track,
                  restart_every):
         self.board = board
         self.subpix = subpix_window_px
-        self.max_dev = max_grid_deviation_px
+        self.max_dev = max_grid_deviation
         self.max_gap = max_gap
         self.flags = flags
         self.track = track
         self.restart_every = restart_every
         self.pending = []  # (frame, t_s, gray) waiting for a board to track back from
+        self.cv_errors = 0  # OpenCV calls that raised (the frame went on without them)
         self._reset()
+
+    def _guard(self, fn, fail_method, frame, *args):
+        """``fn(*args)``; a cv2.error becomes ``(None, fail_method)``, logged and counted."""
+        try:
+            return fn(*args)
+        except cv2.error as exc:
+            self.cv_errors += 1
+            log.warning("corners: frame %d: OpenCV failed in %s (%s); the frame goes on "
+                        "without it", frame, fn.__name__, str(exc).strip().splitlines()[-1])
+            return None, fail_method
 
     def _reset(self):
         self.state = None  # (gray, corners_px, frame) of the last frame the board was followed
@@ -534,7 +665,8 @@ class _CornerFollower:
         if self.state is not None and frame - self.state[2] <= self.max_gap:
             out.append(self._track(frame, t_s, gray, self.state))
             return out
-        corners_px, method = quick_detect_corners(gray, self.board, self.subpix, self.max_dev)
+        corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
+                                         self.board, self.subpix, self.max_dev)
         if corners_px is None:
             self.pending.append((frame, t_s, gray))
             if len(self.pending) >= MAX_PENDING_FRAMES:
@@ -562,8 +694,9 @@ class _CornerFollower:
             self.last_found = (corners_px, frame)
 
     def _track(self, frame, t_s, gray, ref):
-        corners_px, method = track_corners(
-            ref[0], gray, ref[1], self.board, self.subpix, self.max_dev
+        corners_px, method = self._guard(
+            track_corners, "lost", frame, ref[0], gray, ref[1], self.board, self.subpix,
+            self.max_dev
         )
         if method == "lost":
             return self._detect(frame, t_s, gray)
@@ -577,8 +710,8 @@ class _CornerFollower:
         flags = self.flags
         if flags is None:
             flags = VIDEO_FIND_FLAGS if prev is not None else VIDEO_SEARCH_FLAGS
-        corners_px, method = detect_corners(gray, self.board, self.subpix, prev, flags,
-                                            self.max_dev)
+        corners_px, method = self._guard(detect_corners, "cv_error", frame, gray, self.board,
+                                         self.subpix, prev, flags, self.max_dev)
         if corners_px is not None:
             self._keep(gray, corners_px, frame, found=True)
         return frame, t_s, corners_px, method
@@ -591,14 +724,15 @@ class _CornerFollower:
         for f, t_s, g in reversed(pending):
             result = None
             if ref[2] - f <= self.max_gap:
-                px, method = track_corners(ref[0], g, ref[1], self.board, self.subpix,
-                                           self.max_dev)
+                px, method = self._guard(track_corners, "lost", f, ref[0], g, ref[1],
+                                         self.board, self.subpix, self.max_dev)
                 if method != "lost":
                     ref = (g, px, f)
                     result = (f, t_s, px if method == "tracked" else None, method + "_back")
             if result is None:
-                px, method = detect_corners(g, self.board, self.subpix, None,
-                                            self.flags or VIDEO_SEARCH_FLAGS, self.max_dev)
+                px, method = self._guard(detect_corners, "cv_error", f, g, self.board,
+                                         self.subpix, None, self.flags or VIDEO_SEARCH_FLAGS,
+                                         self.max_dev)
                 if px is not None:
                     ref = (g, px, f)
                 result = (f, t_s, px, method)
@@ -614,7 +748,7 @@ def extract_corners(
     log_every: int = 300,
     flags: int | None = None,
     max_continuity_gap: int = 3,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
     track: bool = True,
     restart_every: int | None = RESTART_EVERY_FRAMES,
 ) -> pd.DataFrame:
@@ -640,9 +774,10 @@ def extract_corners(
     max_continuity_gap : int
         For boards whose ends look alike: the previous found frame is used for temporal
         continuity only if at most this many frames back.
-    max_grid_deviation_px : float
-        A frame with a corner farther than this (px) from where its grid neighbours put it,
-        even after a second refinement, counts as not found (see ``detect_corners``).
+    max_grid_deviation : float
+        A frame with a corner farther than this share of its local grid spacing from where
+        its grid neighbours put it, even after a second refinement, counts as not found (see
+        ``detect_corners``).
     track : bool
         Follow the board from the last frame where it was seen (``track_corners``) and run the
         full detector only where that fails; False runs ``detect_corners`` on every frame.
@@ -672,7 +807,7 @@ def extract_corners(
     corner_ids = np.arange(n_corners, dtype=np.int64)
     frame_ids, times, founds, corner_col, uv_blocks = [], [], [], [], []
     methods: dict[str, int] = {}
-    follower = _CornerFollower(board, subpix_window_px, max_grid_deviation_px,
+    follower = _CornerFollower(board, subpix_window_px, max_grid_deviation,
                                max_continuity_gap, flags, track, restart_every)
     t_start = time.perf_counter()
     n_done = n_found = 0
@@ -742,10 +877,10 @@ def extract_corners(
         log.warning("corners: %d frames without a board kept as found=False", n_done - n_found)
     if methods.get("inconsistent"):
         log.warning(
-            "corners: %d frames had a corner off its grid neighbours by more than %.1f px "
-            "after refinement; counted as not found",
+            "corners: %d frames had a corner off its grid neighbours by more than %.2f of "
+            "its local square size after refinement; counted as not found",
             methods["inconsistent"],
-            max_grid_deviation_px,
+            max_grid_deviation,
         )
     if methods.get("unresolved"):
         log.warning(
