@@ -384,3 +384,64 @@ def test_rendered_pnp_pose_errors(rendered_session):
     assert np.median(angle_deg) < 0.5
     assert np.percentile(angle_deg, 95) < 1.0
     assert p["reproj_rms_px"].median() < 0.3
+
+
+# --- scale-aware checks and frames that used to stop the stage (issue 13) -------------------
+
+BOARD_10x7 = {"squares_x": 11, "squares_y": 8, "square_m": 0.055}
+WIDE_DIST = [-0.30, 0.11, 0.0, 0.0, -0.02]  # a wide lens, k1 ~ -0.3
+
+
+@pytest.mark.parametrize(
+    "size, f_px",
+    [((640, 480), 520.0), ((1280, 720), 900.0), ((1920, 1080), 1350.0), ((1080, 1920), 1350.0)],
+)
+def test_detect_corners_keeps_blurred_wide_lens_boards_at_every_resolution(size, f_px):
+    """A blurred board near the camera through a k1 = -0.3 lens is kept at every image size
+    (the grid check is a share of the square size, not 2 px), corner k within 0.3 px of true k."""
+    from board_images import render_board_distorted
+
+    w, h = size
+    K = np.array([[f_px, 0.0, w / 2], [0.0, f_px, h / 2], [0.0, 0.0, 1.0]])
+    for i, (z, cx) in enumerate([(0.9, 0.0), (1.0, 0.1)]):
+        T = board_centre_pose([0.3, -0.25, 0.1], [cx * z, 0.05, z], BOARD_10x7)
+        gray, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7, blur_sigma=1.5,
+                                          seed=10 + i)
+        corners, method = detect_corners(gray, BOARD_10x7)
+        assert corners is not None, (size, z, method)
+        assert np.linalg.norm(corners - uv, axis=1).max() < 0.3
+
+
+def test_refine_corners_from_corners_outside_the_image_does_not_raise():
+    """Initial corners beyond the image border (cornerSubPix used to assert 'initial corner is
+    outside the image') are clipped into it: a result or None, never a cv2.error."""
+    from cvsflow.pose import refine_corners
+
+    T = board_centre_pose([0.0, 0.0, 0.0], [0.0, 0.0, 1.2])
+    gray, uv = render_board(T, K_CENTRED, seed=3)
+    shifted = uv.copy()
+    shifted[0] = [-3.0, -7.5]
+    shifted[-1] = [W + 2.0, H + 0.4]
+    refine_corners(gray, shifted, BOARD)  # must not raise
+    assert refine_corners(gray, uv + 0.8, BOARD) is not None
+
+
+def test_extract_corners_survives_an_opencv_error_on_one_frame(monkeypatch):
+    """An OpenCV error on one frame makes it found=False (counted as cv_error); the other
+    frames keep their boards."""
+    import cvsflow.pose as pose
+
+    T = board_centre_pose([0.1, 0.0, 0.0], [0.0, 0.0, 1.2])
+    frames = [(i, i / 30.0, render_board(T, K_CENTRED, seed=i)[0]) for i in range(4)]
+    real = pose.detect_corners
+
+    def failing(gray, *args, **kwargs):
+        if gray is frames[2][2]:
+            raise cv2.error("cornerSubPix: initial corner is outside the image")
+        return real(gray, *args, **kwargs)
+
+    monkeypatch.setattr(pose, "detect_corners", failing)
+    corners = extract_corners(frames, BOARD, track=False, log_every=0)
+    found = corners.groupby("frame")["found"].first()
+    assert found.tolist() == [True, True, False, True]
+    assert corners.attrs["order_methods"].get("cv_error") == 1
