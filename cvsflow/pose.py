@@ -865,7 +865,11 @@ def extract_corners(
             "v_px": uv[:, 1],
         }
     )[CORNER_COLUMNS]
-    corners.attrs = {"n_frames": n_done, "n_found": n_found, "order_methods": methods}
+    corners.attrs = {"n_frames": n_done, "n_found": n_found, "order_methods": methods,
+                     "n_cv_errors": follower.cv_errors}
+    if follower.cv_errors:
+        log.warning("corners: %d OpenCV calls failed (frames went on without them)",
+                    follower.cv_errors)
     log.info(
         "corners: board found in %d of %d frames (%.1f %%), %.1f frames/s; order decided by %s",
         n_found,
@@ -890,6 +894,53 @@ def extract_corners(
             methods["unresolved"],
         )
     return corners
+
+
+def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict:
+    """The corners stage's summary (corners_summary.yaml): counts, no wall times.
+
+    Parameters
+    ----------
+    corners : DataFrame
+        corners.parquet table with ``extract_corners``' ``attrs``.
+    timing : dict, optional
+        ``cvsflow.io.media.video_timing`` of the video.
+
+    Returns
+    -------
+    summary : dict
+        ``n_frames_decoded``, ``n_found``, ``found_share``, ``frames_by_method`` (method ->
+        frames: how each frame was decided; ``not_found``, ``inconsistent``, ``cv_error``
+        ... are the reasons a frame has no board), ``n_cv_errors``, ``corners_per_found_frame``
+        (min, median, max); with ``timing``: ``n_frames_header``, ``n_frames_demuxed``,
+        ``n_dropped``, ``dropped_gaps`` (``[after_frame, missing]``), ``period_s`` (median),
+        ``period_min_s``, ``period_max_s``.
+    """
+    per_frame = corners.groupby("frame")["found"].first()
+    n_per = corners[corners["found"]].groupby("frame").size()
+    attrs = corners.attrs
+    out = {
+        "n_frames_decoded": int(len(per_frame)),
+        "n_found": int(per_frame.sum()),
+        "found_share": float(per_frame.mean()) if len(per_frame) else 0.0,
+        "frames_by_method": {str(k): int(v) for k, v in
+                             sorted(attrs.get("order_methods", {}).items())},
+        "n_cv_errors": int(attrs.get("n_cv_errors", 0)),
+        "corners_per_found_frame": [int(n_per.min()), float(n_per.median()), int(n_per.max())]
+        if len(n_per) else [0, 0.0, 0],
+    }
+    if timing is not None:
+        dt = np.diff(np.asarray(timing["t_s"], dtype=np.float64))
+        out.update({
+            "n_frames_header": int(timing["n_frames_header"]),
+            "n_frames_demuxed": int(timing["n_frames"]),
+            "n_dropped": int(timing["n_dropped"]),
+            "dropped_gaps": [[int(a), int(b)] for a, b in timing["gaps"]],
+            "period_s": float(timing["period_s"]),
+            "period_min_s": float(dt.min()) if len(dt) else 0.0,
+            "period_max_s": float(dt.max()) if len(dt) else 0.0,
+        })
+    return out
 
 
 def _check_corners_table(corners: pd.DataFrame) -> None:
