@@ -91,7 +91,7 @@ def test_seeking_is_exact_on_a_vfr_video(tmp_path):
         part = list(iter_video_gray(path, start, stop))
         ref = whole[start:stop]
         assert [p[0] for p in part] == [r[0] for r in ref]
-        assert all(p[1] == r[1] and np.array_equal(p[2], r[2]) for p, r in zip(part, ref))
+        assert all(p[1] == r[1] and np.array_equal(p[2], r[2]) for p, r in zip(part, ref, strict=True))
 
 
 def test_header_count_larger_than_decoded_is_reported_and_chunks_equal_one_pass(tmp_path):
