@@ -61,6 +61,7 @@ POSE_COLUMNS = [
     "yaw_rad",
     "reproj_rms_px",
     "n_inliers",
+    "n_corners",
 ]
 
 # IPPE (Collins & Bartoli 2014) is the closed-form solution for a planar target: it returns
@@ -992,15 +993,17 @@ def estimate_poses(
         poses_raw.parquet: one row per frame, ``frame, t_s, valid, rvec_0..2`` (rvec_C_B, rad),
         ``x_m, y_m, z_m`` (tvec_C_B, m: board origin in the camera frame C),
         ``roll_rad, pitch_rad, yaw_rad`` (of R_C_B, R = Rz Ry Rx), ``reproj_rms_px`` (RMS of
-        the inliers' reprojection errors after refinement, px), ``n_inliers``. Frames without
-        a board, or whose PnP fails or keeps fewer than 6 inliers, have ``valid = False`` and
-        NaN pose.
+        the inliers' reprojection errors after refinement, px), ``n_inliers``, ``n_corners``
+        (corners the frame has: a found frame may have a subset, e.g. a hand over the board).
+        Frames without a board, with fewer than ``MIN_INLIERS`` corners or all of them on one
+        grid line, or whose PnP fails or keeps fewer than ``MIN_INLIERS`` inliers, have
+        ``valid = False`` and NaN pose.
 
     Raises
     ------
     InputError
-        Missing columns, or a found frame whose corner indices are not exactly 0..N-1 or
-        whose pixels are not finite.
+        Missing columns, or a found frame whose corner indices are not distinct in 0..N-1
+        or whose pixels are not finite.
 
     Notes
     -----
@@ -1020,39 +1023,53 @@ def estimate_poses(
     for frame, block in ordered.groupby("frame", sort=True):
         frame = int(frame)
         t_s = float(block["t_s"].iloc[0])
-        row = {"frame": frame, "t_s": t_s, "valid": False, "n_inliers": 0}
+        row = {"frame": frame, "t_s": t_s, "valid": False, "n_inliers": 0, "n_corners": 0}
         found = bool(block["found"].iloc[0])
         if found:
-            if not block["found"].all() or not np.array_equal(
-                block["corner"].to_numpy(), np.arange(n_corners)
+            ids = block["corner"].to_numpy()
+            if (
+                not block["found"].all()
+                or len(np.unique(ids)) != len(ids)
+                or ids.min() < 0
+                or ids.max() >= n_corners
             ):
                 raise InputError(
                     f"corners table, frame {frame}: found frame with corners "
                     f"{block['corner'].tolist()} / found {block['found'].unique().tolist()}; "
-                    f"expected corners 0..{n_corners - 1} all found"
+                    f"expected distinct corners in 0..{n_corners - 1}, all found"
                 )
             uv = block[["u_px", "v_px"]].to_numpy(dtype=np.float64)
+            row["n_corners"] = len(ids)
             if not np.isfinite(uv).all():
                 raise InputError(
                     f"corners table, frame {frame}: non-finite u_px/v_px on a found frame; "
                     "expected pixel coordinates"
                 )
-            row.update(
-                _solve_frame(
-                    p_B, uv, K, dist, ransac_reproj_px, ransac_iterations, ransac_confidence, seed
+            if _spread_ok(ids, board):
+                row.update(
+                    _solve_frame(p_B[ids], uv, K, dist, ransac_reproj_px, ransac_iterations,
+                                 ransac_confidence, seed)
                 )
-            )
         rows.append(row)
     poses = pd.DataFrame(rows)
     for col in POSE_COLUMNS:
         if col not in poses.columns:
             poses[col] = np.nan
     poses = poses[POSE_COLUMNS].astype(
-        {"frame": np.int64, "t_s": np.float64, "valid": bool, "n_inliers": np.int64}
+        {"frame": np.int64, "t_s": np.float64, "valid": bool, "n_inliers": np.int64,
+         "n_corners": np.int64}
     )
     n_valid = int(poses["valid"].sum())
     log.info("poses: %d of %d frames valid", n_valid, len(poses))
     return poses
+
+
+def _spread_ok(ids: np.ndarray, board: dict) -> bool:
+    """At least MIN_INLIERS corners spanning two rows and two columns of the grid (not all
+    on one line: a pose needs a non-degenerate planar spread)."""
+    nx, _ = board_pattern(board)
+    return bool(len(ids) >= MIN_INLIERS and len(np.unique(ids % nx)) >= 2
+                and len(np.unique(ids // nx)) >= 2)
 
 
 def _solve_frame(p_B, uv, K, dist, reproj_px, iterations, confidence, seed) -> dict:

@@ -170,18 +170,39 @@ def test_estimate_poses_is_reproducible_for_a_seed():
 
 
 def test_estimate_poses_bad_tables_raise_input_error_naming_the_frame():
-    """Missing columns, or a found frame lacking a corner, are InputErrors naming the problem."""
+    """Missing columns, or a found frame with a repeated corner, are InputErrors naming it."""
     uv = _project(board_centre_pose([0, 0, 0], [0, 0, 1.0]), K_DEMO, DIST_DEMO)
     table = _corners_table([uv, uv])
     with pytest.raises(InputError, match="missing columns.*u_px"):
         estimate_poses(table.drop(columns="u_px"), K_DEMO, DIST_DEMO, BOARD)
-    broken = table.drop(index=table.index[(table["frame"] == 1) & (table["corner"] == 5)])
+    broken = table.copy()
+    broken.loc[(broken["frame"] == 1) & (broken["corner"] == 5), "corner"] = 4
     with pytest.raises(InputError, match="frame 1"):
         estimate_poses(broken, K_DEMO, DIST_DEMO, BOARD)
     nan_table = table.copy()
     nan_table.loc[3, "u_px"] = np.nan
     with pytest.raises(InputError, match="frame 0.*non-finite"):
         estimate_poses(nan_table, K_DEMO, DIST_DEMO, BOARD)
+
+
+def test_estimate_poses_uses_the_corners_a_frame_has():
+    """A found frame with a subset of the corners (a hand over the board) gets its pose from
+    them, close to the truth; a subset on one grid row, or under MIN_INLIERS corners, is
+    invalid; n_corners counts them."""
+    rng = np.random.default_rng(21)
+    T = board_centre_pose([0.2, -0.1, 0.05], [0.05, -0.02, 1.1])
+    uv = _project(T, K_DEMO, DIST_DEMO) + rng.normal(0.0, 0.05, (20, 2))
+    table = _corners_table([uv, uv, uv])
+    keep = {0: np.arange(20), 1: np.array([0, 1, 2, 5, 6, 7, 10, 11, 12, 16, 17]),
+            2: np.arange(5, 10)}  # frame 2: one grid row only
+    table = table[[c in keep[f] for f, c in zip(table["frame"], table["corner"], strict=True)]]
+    poses = estimate_poses(table, K_DEMO, DIST_DEMO, BOARD)
+    assert poses["n_corners"].tolist() == [20, 11, 5]
+    assert poses["valid"].tolist() == [True, True, False]
+    for i in (0, 1):
+        T_est = _T_est(poses.iloc[i])
+        assert np.linalg.norm(T_est[:3, 3] - T[:3, 3]) < 0.004
+        assert _angle_between(T_est, T) < np.deg2rad(0.3)
 
 
 # --------------------------------------------------------------------------------------------
