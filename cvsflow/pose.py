@@ -203,9 +203,14 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     nx, ny = board_pattern(board)
     uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     weights = _neighbour_weights(nx, ny)  # (N, N): 1 where corner j helps predict corner k
+    known = np.isfinite(uv).all(axis=1)  # NaN corners (dropped, hidden) predict nothing
+    if not known.all():
+        weights = weights * known[None, :]
+        uv = np.where(known[:, None], uv, 0.0)
     # Conditioning as in Hartley's normalised DLT: centre and scale the pixels.
-    centre = uv.mean(axis=0)
-    scale = np.sqrt(2.0) / max(np.linalg.norm(uv - centre, axis=1).mean(), 1e-9)
+    centre = uv[known].mean(axis=0) if known.any() else np.zeros(2)
+    scale = np.sqrt(2.0) / max(np.linalg.norm(uv[known] - centre, axis=1).mean(), 1e-9) \
+        if known.any() else 1.0
     u, v = ((uv - centre) * scale).T
     k = np.arange(nx * ny)
     x, y = (k % nx).astype(np.float64), (k // nx).astype(np.float64)
@@ -222,7 +227,41 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     with np.errstate(divide="ignore", invalid="ignore"):
         predicted = p[:, :2] / p[:, 2:3] / scale + centre
     deviation = np.linalg.norm(predicted - uv, axis=1)
-    return predicted, np.where(np.isfinite(deviation), deviation, np.inf)
+    # Fewer than four known neighbours leave the homography undetermined.
+    ok = np.isfinite(deviation) & known & (weights.sum(axis=1) >= 4)
+    return predicted, np.where(ok, deviation, np.inf)
+
+
+def keep_consistent_corners(corners_px: np.ndarray, board: dict,
+                            max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC) -> np.ndarray:
+    """Drop, worst first, the corners off their grid neighbours until the rest agree.
+
+    Parameters
+    ----------
+    corners_px : ndarray, shape (nx * ny, 2)
+        Refined corners in board order, pixels; NaN where unknown.
+    board : dict
+    max_grid_deviation : float
+        As in ``detect_corners`` (share of the local spacing).
+
+    Returns
+    -------
+    corners_px : ndarray, shape (nx * ny, 2)
+        The input with dropped corners set to NaN (a hand over them, a border cutting their
+        window); every kept corner within its limit of its kept neighbours' prediction.
+    """
+    out = np.array(corners_px, dtype=np.float64).reshape(-1, 2)
+    for _ in range(len(out)):
+        known = np.isfinite(out).all(axis=1)
+        if not known.any():
+            break
+        _, dev = grid_deviation(out, board)
+        excess = np.where(known, dev / deviation_limit_px(out, board, max_grid_deviation), 0.0)
+        worst = int(np.argmax(excess))
+        if excess[worst] <= 1.0:
+            break
+        out[worst] = np.nan
+    return out
 
 
 def _neighbour_weights(nx: int, ny: int) -> np.ndarray:
@@ -279,13 +318,32 @@ def detect_corners(
     The neighbour check catches both.
     """
     pattern = board_pattern(board)
-    found, corners = cv2.findChessboardCorners(gray, pattern, None, flags)
+    found, corners = _find_on_pyramid(gray, pattern, flags)
     if not found:
         return None, "not_found"
     corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
     if corners is None:
         return None, "inconsistent"
     return order_corners(corners, gray, board, previous_px)
+
+
+# findChessboardCorners runs first on the image shrunk to this long side (its cost grows with
+# the pixels; 640x480 is left as it is), then at full size with FAST_CHECK where that fails;
+# the corners are refined at full size either way.
+DETECT_LONG_SIDE_PX = 960
+
+
+def _find_on_pyramid(gray: np.ndarray, pattern, flags: int):
+    """findChessboardCorners on a shrunk image (corners in full-size pixels), else full size."""
+    scale = DETECT_LONG_SIDE_PX / max(gray.shape)
+    if scale < 1.0:
+        small = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        found, corners = cv2.findChessboardCorners(small, pattern, None, flags)
+        if found:
+            f = np.array([gray.shape[1] / small.shape[1], gray.shape[0] / small.shape[0]])
+            return True, (corners.reshape(-1, 2) + 0.5) * f - 0.5
+        flags |= cv2.CALIB_CB_FAST_CHECK
+    return cv2.findChessboardCorners(gray, pattern, None, flags)
 
 
 def refine_corners(
@@ -386,7 +444,8 @@ MIN_PATTERN_CONTRAST = 20.0
 
 
 def board_squares_pattern_ok(
-    gray: np.ndarray, H_img_grid: np.ndarray, board: dict, min_contrast: float = 20.0
+    gray: np.ndarray, H_img_grid: np.ndarray, board: dict, min_contrast: float = 20.0,
+    corner_known: np.ndarray | None = None,
 ) -> bool:
     """Whether the board's squares seen through a homography have the chessboard's colours.
 
@@ -405,6 +464,9 @@ def board_squares_pattern_ok(
     board : dict
     min_contrast : float
         Smallest mean white-minus-black difference, grey levels.
+    corner_known : ndarray of bool, shape (nx * ny,), optional
+        Corners seen; only squares all of whose inner corners are seen are sampled (a hand
+        over the others).
 
     Returns
     -------
@@ -422,6 +484,17 @@ def board_squares_pattern_ok(
         u, v = p[0] / p[2], p[1] / p[2]
     h, w = gray.shape
     inside = np.all((u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1) & (p[2] > 0), axis=1)
+    if corner_known is not None:
+        nx, ny = sx - 1, sy - 1
+        seen = np.ones((sy, sx), bool)
+        known = np.asarray(corner_known, bool).reshape(ny, nx)
+        # Square (i, j) has corners (i-1..i, j-1..j) where they exist.
+        for di in (0, 1):
+            for dj in (0, 1):
+                pad = np.ones((sy, sx), bool)
+                pad[dj:dj + ny, di:di + nx] = known
+                seen &= pad
+        inside &= seen.ravel()
     if not inside.any():
         return False
     level = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)].mean(axis=1)
@@ -492,7 +565,7 @@ def track_corners(
     h, w = gray.shape
     grid = _grid_points(board)
     prev = np.asarray(prev_px, dtype=np.float32).reshape(-1, 2)
-    seen = (
+    seen = np.isfinite(prev).all(axis=1) & (
         (prev[:, 0] >= 0) & (prev[:, 0] <= w - 1) & (prev[:, 1] >= 0) & (prev[:, 1] <= h - 1)
     )
     if seen.sum() < MIN_TRACKED_CORNERS:
@@ -517,13 +590,15 @@ def track_corners(
     p[track_ok] = moved.reshape(-1, 2)[ok][inliers.ravel() == 1]
     if not _inside(p, w, h, 0.0).all():
         return _follow_partial(gray, p, _inside(p, w, h, sc["border"]), grid, board,
-                               subpix_window_px, sc)
+                               subpix_window_px, sc, max_grid_deviation)
     corners = refine_corners(gray, p, board, subpix_window_px, max_grid_deviation)
-    if corners is None:
-        return None, "lost"
+    if corners is None:  # a corner off its neighbours: hidden (a hand) or misplaced
+        return _follow_partial(gray, p, np.ones(len(p), bool), grid, board, subpix_window_px,
+                               sc, max_grid_deviation, "partial")
     inner = _inside(corners, w, h, sc["border"])
     if not inner.all():
-        return _follow_partial(gray, corners, inner, grid, board, subpix_window_px, sc)
+        return _follow_partial(gray, corners, inner, grid, board, subpix_window_px, sc,
+                               max_grid_deviation)
     ordered, _ = order_corners(corners, gray, board, corners)
     if not np.array_equal(ordered, corners):
         return None, "lost"
@@ -540,26 +615,36 @@ def _inside(p: np.ndarray, w: int, h: int, margin: float) -> np.ndarray:
     )
 
 
-def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc):
-    """Refine the corners inside the image of a board partly out of view and check them."""
+def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
+                    method="out_of_view"):
+    """Refine the corners ``inner`` of a board partly hidden (image border, a hand), keep those
+    consistent with their neighbours, check the squares they bound; NaN for the others."""
     if inner.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
     w = _subpix_window(p, board, subpix_window_px)
     refined = _subpix(gray, p[inner], w)
     if refined is None:
         return None, "lost"
-    H, _ = cv2.findHomography(grid[inner], refined, 0)
+    out = np.full((len(grid), 2), np.nan)
+    out[inner] = refined
+    out = keep_consistent_corners(out, board, max_grid_deviation)
+    known = np.isfinite(out).all(axis=1)
+    if known.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
     if H is None:
         return None, "lost"
     fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
-    rms = np.sqrt(np.mean(np.sum((fit[inner] - refined) ** 2, axis=1)))
+    rms = np.sqrt(np.mean(np.sum((fit[known] - out[known]) ** 2, axis=1)))
     if rms > sc["homography_rms"] or not board_squares_pattern_ok(
-        gray, H, board, MIN_PATTERN_CONTRAST
+        gray, H, board, MIN_PATTERN_CONTRAST, corner_known=known
     ):
         return None, "lost"
-    out = fit.astype(np.float64)
-    out[inner] = refined
-    return out, "out_of_view"
+    return out, method
+
+
+# Tracked frames with some corners hidden (a hand; the image border) that keep the rest.
+PARTIAL_METHODS = ("partial", "out_of_view")
 
 
 # While no board is followed, a quick detector looks for it: findChessboardCorners without
@@ -630,7 +715,8 @@ class _CornerFollower:
     """
 
     def __init__(self, board, subpix_window_px, max_grid_deviation, max_gap, flags, track,
-                 restart_every):
+                 restart_every, keep_partial=True):
+        self.keep_partial = keep_partial
         self.board = board
         self.subpix = subpix_window_px
         self.max_dev = max_grid_deviation
@@ -703,7 +789,13 @@ class _CornerFollower:
         if method == "lost":
             return self._detect(frame, t_s, gray)
         self._keep(gray, corners_px, frame, found=method == "tracked")
-        return frame, t_s, (corners_px if method == "tracked" else None), method
+        return frame, t_s, self._published(corners_px, method), method
+
+    def _published(self, corners_px, method):
+        """The corners a tracked frame puts in the table (None: not found)."""
+        if method == "tracked" or (self.keep_partial and method in PARTIAL_METHODS):
+            return corners_px
+        return None
 
     def _detect(self, frame, t_s, gray):
         prev = None
@@ -730,7 +822,7 @@ class _CornerFollower:
                                          self.board, self.subpix, self.max_dev)
                 if method != "lost":
                     ref = (g, px, f)
-                    result = (f, t_s, px if method == "tracked" else None, method + "_back")
+                    result = (f, t_s, self._published(px, method), method + "_back")
             if result is None:
                 px, method = self._guard(detect_corners, "cv_error", f, g, self.board,
                                          self.subpix, None, self.flags or VIDEO_SEARCH_FLAGS,
@@ -753,6 +845,7 @@ def extract_corners(
     max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
     track: bool = True,
     restart_every: int | None = RESTART_EVERY_FRAMES,
+    keep_partial: bool = True,
 ) -> pd.DataFrame:
     """Chessboard corners of every video frame, the same physical corner under the same index.
 
@@ -788,13 +881,18 @@ def extract_corners(
         continuity, full detection. A frame's result then depends only on the frames since the
         last such index, so a video cut into chunks at multiples of it
         (``cvsflow.corners_fast``) gives exactly the table of one pass. None: never.
+    keep_partial : bool
+        Frames where the tracked board is partly hidden (a hand over it: ``partial``; the
+        image border: ``out_of_view``) keep the corners that pass their local checks, with
+        their indices; False counts them as not found (the former table).
 
     Returns
     -------
     corners : DataFrame
         ``frame`` (int64), ``t_s`` (float64, s), ``found`` (bool), ``corner`` (int64),
         ``u_px``, ``v_px`` (float64, distorted pixels). A found frame has one row per inner
-        corner, corner k at board point (k % nx, k // nx) * square_m; a frame without a board
+        corner it keeps (all of them, or with ``keep_partial`` those of a partly hidden board),
+        corner k at board point (k % nx, k // nx) * square_m; a frame without a board
         has one row with ``corner = -1`` and NaN pixels. ``attrs`` holds counts:
         ``n_frames``, ``n_found``, ``order_methods`` (dict method -> frames: ``tracked``,
         ``out_of_view`` (followed partly out of the image), and ``detect_corners``' methods
@@ -810,7 +908,7 @@ def extract_corners(
     frame_ids, times, founds, corner_col, uv_blocks = [], [], [], [], []
     methods: dict[str, int] = {}
     follower = _CornerFollower(board, subpix_window_px, max_grid_deviation,
-                               max_continuity_gap, flags, track, restart_every)
+                               max_continuity_gap, flags, track, restart_every, keep_partial)
     t_start = time.perf_counter()
     n_done = n_found = 0
 
@@ -826,11 +924,13 @@ def extract_corners(
                 uv_blocks.append(np.full((1, 2), np.nan))
             else:
                 n_found += 1
-                frame_ids.append(np.full(n_corners, frame, dtype=np.int64))
-                times.append(np.full(n_corners, t_s, dtype=np.float64))
-                founds.append(np.ones(n_corners, dtype=bool))
-                corner_col.append(corner_ids)
-                uv_blocks.append(corners_px)
+                known = np.isfinite(corners_px).all(axis=1)
+                n = int(known.sum())
+                frame_ids.append(np.full(n, frame, dtype=np.int64))
+                times.append(np.full(n, t_s, dtype=np.float64))
+                founds.append(np.ones(n, dtype=bool))
+                corner_col.append(corner_ids[known])
+                uv_blocks.append(corners_px[known])
 
     for frame, t_s, gray in frames:
         gray = np.asarray(gray)
