@@ -615,6 +615,33 @@ def _inside(p: np.ndarray, w: int, h: int, margin: float) -> np.ndarray:
     )
 
 
+# Smallest grey-level step between the light and the dark quadrants around a kept corner.
+MIN_SADDLE_CONTRAST = 10.0
+
+
+def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
+    """(N,) bool: corner k shows dark squares on one diagonal, light on the other (its own
+    colours: square (x+1, y+1) black when x + y is even), sampled 0.3 squares off the corner."""
+    h, w = gray.shape
+    off = np.array([[0.3, 0.3], [-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3]])
+    pts = grid[:, None, :] + off[None]  # (N, 4, 2)
+    ref = cv2.perspectiveTransform(grid.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
+    q = cv2.perspectiveTransform(pts.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
+    q = q.reshape(-1, 4, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
+    ok = np.isfinite(q).all(axis=(1, 2))
+    qi = np.rint(np.nan_to_num(q)).astype(int)
+    ok &= (qi[..., 0] >= 0).all(1) & (qi[..., 0] < w).all(1) & (qi[..., 1] >= 0).all(1) & (
+        qi[..., 1] < h
+    ).all(1)
+    qi[..., 0] = np.clip(qi[..., 0], 0, w - 1)
+    qi[..., 1] = np.clip(qi[..., 1], 0, h - 1)
+    level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, 4)
+    black_first = ((grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0)
+    dark = np.where(black_first[:, None], level[:, :2], level[:, 2:])
+    light = np.where(black_first[:, None], level[:, 2:], level[:, :2])
+    return ok & (light.min(axis=1) - dark.max(axis=1) >= MIN_SADDLE_CONTRAST)
+
+
 def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
                     method="out_of_view"):
     """Refine the corners ``inner`` of a board partly hidden (image border, a hand), keep those
@@ -627,6 +654,16 @@ def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_
         return None, "lost"
     out = np.full((len(grid), 2), np.nan)
     out[inner] = refined
+    out = keep_consistent_corners(out, board, max_grid_deviation)
+    known = np.isfinite(out).all(axis=1)
+    if known.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    # A corner under a hand (a flat region) stays where it was put and agrees with its
+    # neighbours: it must also show the chessboard's saddle (dark-light-dark-light around it).
+    H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
+    if H is None:
+        return None, "lost"
+    out[~_saddle_ok(gray, H, out, grid)] = np.nan
     out = keep_consistent_corners(out, board, max_grid_deviation)
     known = np.isfinite(out).all(axis=1)
     if known.sum() < MIN_TRACKED_CORNERS:

@@ -466,3 +466,34 @@ def test_extract_corners_survives_an_opencv_error_on_one_frame(monkeypatch):
     found = corners.groupby("frame")["found"].first()
     assert found.tolist() == [True, True, False, True]
     assert corners.attrs["order_methods"].get("cv_error") == 1
+
+
+def test_a_hand_over_the_board_keeps_the_visible_corners_with_true_indices():
+    """A tracked board that a hand (a dark polygon) partly covers stays found: the corners the
+    hand leaves are kept with their true indices (within 0.5 px), hidden ones are dropped."""
+    from board_images import render_board_distorted
+
+    size, K = (1280, 720), np.array([[900.0, 0.0, 640.0], [0.0, 900.0, 360.0], [0.0, 0.0, 1.0]])
+    frames, truths, hands = [], [], []
+    for i in range(8):
+        T = board_centre_pose([0.2, -0.15, 0.0], [-0.05 + 0.004 * i, 0.02, 1.2], BOARD_10x7)
+        hand = None
+        if i >= 4:  # a hand over the right third of the board
+            _, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7)
+            x0 = uv[:, 0].min() + 0.66 * np.ptp(uv[:, 0])
+            hand = np.array([[x0, 0], [size[0], 0], [size[0], size[1]], [x0, size[1]]])
+        gray, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7, blur_sigma=1.0,
+                                          occluder=hand, seed=i)
+        frames.append((i, i / 30.0, gray))
+        truths.append(uv)
+        hands.append(hand)
+    corners = extract_corners(frames, BOARD_10x7, log_every=0)
+    found = corners.groupby("frame")["found"].first()
+    assert found.all()
+    for i in range(4, 8):
+        rows = corners[corners["frame"] == i]
+        uv_true = truths[i][rows["corner"].to_numpy()]
+        assert np.linalg.norm(rows[["u_px", "v_px"]].to_numpy() - uv_true, axis=1).max() < 0.5
+        visible = truths[i][:, 0] < hands[i][0, 0] - 20
+        assert 0.8 * visible.sum() <= len(rows) < len(truths[i])
+        assert (uv_true[:, 0] < hands[i][0, 0]).all()
