@@ -120,7 +120,7 @@ def extract_corners_range(
         first = next(frames, None)
         if first is None:  # past the end: the container's frame count was too high
             empty = pd.DataFrame({c: pd.Series(dtype=t) for c, t in _DTYPES.items()})
-            empty.attrs = {"n_frames": 0, "n_found": 0, "order_methods": {}}
+            empty.attrs = {"n_frames": 0, "n_found": 0, "order_methods": {}, "n_cv_errors": 0}
             return empty
         frames = itertools.chain([first], frames)
     return extract_corners(frames, board, **kwargs)
@@ -170,6 +170,7 @@ def merge_corner_chunks(chunks: list[pd.DataFrame]) -> pd.DataFrame:
         "n_frames": sum(int(c.attrs.get("n_frames", c["frame"].nunique())) for c in ordered),
         "n_found": sum(int(c.attrs.get("n_found", 0)) for c in ordered),
         "order_methods": methods,
+        "n_cv_errors": sum(int(c.attrs.get("n_cv_errors", 0)) for c in ordered),
     }
     return merged
 

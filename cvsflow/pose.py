@@ -61,6 +61,7 @@ POSE_COLUMNS = [
     "yaw_rad",
     "reproj_rms_px",
     "n_inliers",
+    "n_corners",
 ]
 
 # IPPE (Collins & Bartoli 2014) is the closed-form solution for a planar target: it returns
@@ -79,19 +80,103 @@ MIN_INLIERS = 6
 RESTART_EVERY_FRAMES = 150
 
 
-def _subpix_window(corners_px: np.ndarray, board: dict, max_window_px: int) -> int:
-    """cornerSubPix half window: at most ``max_window_px`` and under half the corner spacing.
+# Every pixel threshold scales with the board's squares as the image shows them (the local
+# spacing of the grid, ``local_spacing``), so the same checks hold at 640x480 and 1920x1080.
+# cornerSubPix half window: this share of the median spacing when that exceeds the configured
+# window (squares of ~33 px and more), never reaching a neighbouring corner.
+SUBPIX_WINDOW_FRAC = 0.15
+# Largest distance of a refined corner from where its grid neighbours put it, as a share of
+# its local spacing (never below MIN_GRID_DEVIATION_PX). The neighbours' homography misses
+# the lens's curvature by an amount that grows with the square size in pixels (k1 ~ -0.3 at
+# the image edge: up to 0.04 of the spacing, measured at 640x480 to 1080x1920 with blur), and
+# blur spreads a corner; a corner the
+# detector put on the wrong feature is off by a good part of a square.
+MAX_GRID_DEVIATION_FRAC = 0.08
+MIN_GRID_DEVIATION_PX = 1.0
 
-    A search window reaching a neighbouring corner pulls the estimate towards it, which
-    matters for far boards whose squares are only a few pixels wide.
+
+def local_spacing(corners_px: np.ndarray, board: dict) -> np.ndarray:
+    """Local grid spacing at each corner: the mean distance to its grid neighbours (px).
+
+    Parameters
+    ----------
+    corners_px : ndarray, shape (nx * ny, 2)
+        Corners in grid order, pixels (NaN where unknown).
+    board : dict
+
+    Returns
+    -------
+    spacing_px : ndarray, shape (nx * ny,)
+        Mean distance to the up to four neighbours one grid step away, pixels; the median
+        over the grid where a corner has no known neighbour.
     """
     nx, ny = board_pattern(board)
-    grid = corners_px.reshape(ny, nx, 2)
-    spacing = min(
-        np.linalg.norm(np.diff(grid, axis=1), axis=-1).min(),
-        np.linalg.norm(np.diff(grid, axis=0), axis=-1).min(),
-    )
-    return int(max(2, min(max_window_px, np.floor((spacing - 1.0) / 2.0))))
+    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    dx = np.linalg.norm(np.diff(grid, axis=1), axis=-1)  # (ny, nx - 1)
+    dy = np.linalg.norm(np.diff(grid, axis=0), axis=-1)  # (ny - 1, nx)
+    total = np.zeros((ny, nx))
+    count = np.zeros((ny, nx))
+    for d, sl_a, sl_b in (
+        (dx, (slice(None), slice(0, nx - 1)), (slice(None), slice(1, nx))),
+        (dy, (slice(0, ny - 1), slice(None)), (slice(1, ny), slice(None))),
+    ):
+        ok = np.isfinite(d)
+        dd = np.where(ok, d, 0.0)
+        total[sl_a] += dd
+        total[sl_b] += dd
+        count[sl_a] += ok
+        count[sl_b] += ok
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spacing = (total / count).ravel()
+    finite = np.isfinite(spacing)
+    fill = float(np.median(spacing[finite])) if finite.any() else 1.0
+    return np.where(finite, spacing, fill)
+
+
+def _subpix_window(corners_px: np.ndarray, board: dict, max_window_px: int) -> int:
+    """cornerSubPix half window: ``max_window_px`` (more for big squares), under half a square.
+
+    A search window reaching a neighbouring corner pulls the estimate towards it, which
+    matters for far boards whose squares are only a few pixels wide; squares much bigger than
+    the window (large images, near boards) get ``SUBPIX_WINDOW_FRAC`` of their spacing, so
+    blur that spreads a corner over more pixels still fits inside the window.
+    """
+    nx, ny = board_pattern(board)
+    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    d = np.concatenate([
+        np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel(),
+        np.linalg.norm(np.diff(grid, axis=0), axis=-1).ravel(),
+    ])
+    d = d[np.isfinite(d)]
+    if not len(d):
+        return int(max(2, max_window_px))
+    wanted = max(max_window_px, int(round(SUBPIX_WINDOW_FRAC * np.median(d))))
+    return int(max(2, min(wanted, np.floor((d.min() - 1.0) / 2.0))))
+
+
+def deviation_limit_px(corners_px: np.ndarray, board: dict,
+                       max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC) -> np.ndarray:
+    """Per-corner limit of ``grid_deviation``: a share of the local spacing, pixels, shape (N,)."""
+    return np.maximum(MIN_GRID_DEVIATION_PX,
+                      max_grid_deviation * local_spacing(corners_px, board))
+
+
+def _clip_into(points_px: np.ndarray, gray: np.ndarray) -> np.ndarray | None:
+    """Points (N, 2) clipped into the image for cornerSubPix (float32, (N, 1, 2)); None if NaN."""
+    pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
+    if not np.isfinite(pts).all():
+        return None
+    h, w = gray.shape[:2]
+    pts = np.column_stack([np.clip(pts[:, 0], 0.0, w - 1.001), np.clip(pts[:, 1], 0.0, h - 1.001)])
+    return np.ascontiguousarray(pts, dtype=np.float32).reshape(-1, 1, 2)
+
+
+def _subpix(gray: np.ndarray, points_px: np.ndarray, w: int) -> np.ndarray | None:
+    """cornerSubPix from points clipped into the image; (N, 2) float32, or None."""
+    pts = _clip_into(points_px, gray)
+    if pts is None or not len(pts):
+        return None
+    return cv2.cornerSubPix(gray, pts, (w, w), (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2)
 
 
 def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -118,9 +203,14 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     nx, ny = board_pattern(board)
     uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     weights = _neighbour_weights(nx, ny)  # (N, N): 1 where corner j helps predict corner k
+    known = np.isfinite(uv).all(axis=1)  # NaN corners (dropped, hidden) predict nothing
+    if not known.all():
+        weights = weights * known[None, :]
+        uv = np.where(known[:, None], uv, 0.0)
     # Conditioning as in Hartley's normalised DLT: centre and scale the pixels.
-    centre = uv.mean(axis=0)
-    scale = np.sqrt(2.0) / max(np.linalg.norm(uv - centre, axis=1).mean(), 1e-9)
+    centre = uv[known].mean(axis=0) if known.any() else np.zeros(2)
+    scale = np.sqrt(2.0) / max(np.linalg.norm(uv[known] - centre, axis=1).mean(), 1e-9) \
+        if known.any() else 1.0
     u, v = ((uv - centre) * scale).T
     k = np.arange(nx * ny)
     x, y = (k % nx).astype(np.float64), (k // nx).astype(np.float64)
@@ -137,7 +227,41 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     with np.errstate(divide="ignore", invalid="ignore"):
         predicted = p[:, :2] / p[:, 2:3] / scale + centre
     deviation = np.linalg.norm(predicted - uv, axis=1)
-    return predicted, np.where(np.isfinite(deviation), deviation, np.inf)
+    # Fewer than four known neighbours leave the homography undetermined.
+    ok = np.isfinite(deviation) & known & (weights.sum(axis=1) >= 4)
+    return predicted, np.where(ok, deviation, np.inf)
+
+
+def keep_consistent_corners(corners_px: np.ndarray, board: dict,
+                            max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC) -> np.ndarray:
+    """Drop, worst first, the corners off their grid neighbours until the rest agree.
+
+    Parameters
+    ----------
+    corners_px : ndarray, shape (nx * ny, 2)
+        Refined corners in board order, pixels; NaN where unknown.
+    board : dict
+    max_grid_deviation : float
+        As in ``detect_corners`` (share of the local spacing).
+
+    Returns
+    -------
+    corners_px : ndarray, shape (nx * ny, 2)
+        The input with dropped corners set to NaN (a hand over them, a border cutting their
+        window); every kept corner within its limit of its kept neighbours' prediction.
+    """
+    out = np.array(corners_px, dtype=np.float64).reshape(-1, 2)
+    for _ in range(len(out)):
+        known = np.isfinite(out).all(axis=1)
+        if not known.any():
+            break
+        _, dev = grid_deviation(out, board)
+        excess = np.where(known, dev / deviation_limit_px(out, board, max_grid_deviation), 0.0)
+        worst = int(np.argmax(excess))
+        if excess[worst] <= 1.0:
+            break
+        out[worst] = np.nan
+    return out
 
 
 def _neighbour_weights(nx: int, ny: int) -> np.ndarray:
@@ -156,7 +280,7 @@ def detect_corners(
     subpix_window_px: int = 5,
     previous_px: np.ndarray | None = None,
     flags: int = VIDEO_FIND_FLAGS,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
 ) -> tuple[np.ndarray | None, str]:
     """Chessboard corners of one frame, refined and in board order.
 
@@ -171,10 +295,11 @@ def detect_corners(
         Ordered corners of the previous found frame (pixels), for boards whose ends look alike.
     flags : int
         ``findChessboardCorners`` flags.
-    max_grid_deviation_px : float
-        Largest distance (px) of a refined corner from the position its neighbours predict
-        (``grid_deviation``). A corner beyond it is refined once more from the prediction; if
-        it still deviates, the frame counts as not found (``"inconsistent"``).
+    max_grid_deviation : float
+        Largest distance of a refined corner from the position its neighbours predict
+        (``grid_deviation``), as a share of its local grid spacing (``local_spacing``; never
+        below ``MIN_GRID_DEVIATION_PX``). A corner beyond it is refined once more from the
+        prediction; if it still deviates, the frame counts as not found (``"inconsistent"``).
 
     Returns
     -------
@@ -193,13 +318,32 @@ def detect_corners(
     The neighbour check catches both.
     """
     pattern = board_pattern(board)
-    found, corners = cv2.findChessboardCorners(gray, pattern, None, flags)
+    found, corners = _find_on_pyramid(gray, pattern, flags)
     if not found:
         return None, "not_found"
-    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation_px)
+    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
     if corners is None:
         return None, "inconsistent"
     return order_corners(corners, gray, board, previous_px)
+
+
+# findChessboardCorners runs first on the image shrunk to this long side (its cost grows with
+# the pixels; 640x480 is left as it is), then at full size with FAST_CHECK where that fails;
+# the corners are refined at full size either way.
+DETECT_LONG_SIDE_PX = 960
+
+
+def _find_on_pyramid(gray: np.ndarray, pattern, flags: int):
+    """findChessboardCorners on a shrunk image (corners in full-size pixels), else full size."""
+    scale = DETECT_LONG_SIDE_PX / max(gray.shape)
+    if scale < 1.0:
+        small = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
+        found, corners = cv2.findChessboardCorners(small, pattern, None, flags)
+        if found:
+            f = np.array([gray.shape[1] / small.shape[1], gray.shape[0] / small.shape[0]])
+            return True, (corners.reshape(-1, 2) + 0.5) * f - 0.5
+        flags |= cv2.CALIB_CB_FAST_CHECK
+    return cv2.findChessboardCorners(gray, pattern, None, flags)
 
 
 def refine_corners(
@@ -207,7 +351,7 @@ def refine_corners(
     corners_px: np.ndarray,
     board: dict,
     subpix_window_px: int = 5,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
 ) -> np.ndarray | None:
     """cornerSubPix from initial corners, then the grid-neighbour check (``detect_corners``).
 
@@ -219,28 +363,31 @@ def refine_corners(
     board : dict
     subpix_window_px : int
         Largest cornerSubPix half window, pixels (see ``_subpix_window``).
-    max_grid_deviation_px : float
-        Largest distance (px) of a refined corner from where its neighbours put it; a corner
-        beyond it is refined once more from that prediction.
+    max_grid_deviation : float
+        Largest distance of a refined corner from where its neighbours put it, as a share of
+        its local grid spacing (``deviation_limit_px``); a corner beyond it is refined once
+        more from that prediction.
 
     Returns
     -------
     corners_px : ndarray, shape (nx * ny, 2), float64, or None
         Refined corners in the order given; None when a corner still deviates.
     """
-    corners = np.ascontiguousarray(corners_px, dtype=np.float32).reshape(-1, 1, 2)
-    w = _subpix_window(corners.reshape(-1, 2), board, subpix_window_px)
-    corners = cv2.cornerSubPix(gray, corners, (w, w), (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2)
+    corners = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+    w = _subpix_window(corners, board, subpix_window_px)
+    corners = _subpix(gray, corners, w)
+    if corners is None:
+        return None
     predicted, deviation = grid_deviation(corners, board)
-    bad = deviation > max_grid_deviation_px
+    limit = deviation_limit_px(corners, board, max_grid_deviation)
+    bad = deviation > limit
     if bad.any():
-        retry = cv2.cornerSubPix(
-            gray, predicted[bad].astype(np.float32).reshape(-1, 1, 2), (w, w), (-1, -1),
-            SUBPIX_CRITERIA,
-        )
-        corners[bad] = retry.reshape(-1, 2)
+        retry = _subpix(gray, predicted[bad], w)
+        if retry is None:
+            return None
+        corners[bad] = retry
         _, deviation = grid_deviation(corners, board)
-        if (deviation > max_grid_deviation_px).any():
+        if (deviation > deviation_limit_px(corners, board, max_grid_deviation)).any():
             return None
     return corners.astype(np.float64)
 
@@ -262,13 +409,43 @@ TRACK_BORDER_PX = 4.0
 # departure from a homography over the demo board is below ~1.5 px; a corner tracked onto the
 # wrong feature is off by a good part of a square.
 MAX_TRACK_HOMOGRAPHY_RMS_PX = 2.5
+# ... and these shares of the median square size in pixels where that is larger: the border
+# margin (a cornerSubPix window cut by the border), the homography RMS (the lens's departure
+# from a homography grows with the board's size in pixels), the LK window. LK's pyramid gets
+# one level more per doubling of the image size over 640 px (motion in px grows with it).
+TRACK_BORDER_FRAC = SUBPIX_WINDOW_FRAC
+TRACK_HOMOGRAPHY_FRAC = 0.25
+LK_WINDOW_FRAC = 0.5
+LK_WINDOW_MAX_PX = 61
+
+
+def _track_scales(corners_px: np.ndarray, board: dict, shape: tuple[int, int]) -> dict:
+    """Pixel thresholds of the tracker for a board of this size in an image of this shape."""
+    nx, ny = board_pattern(board)
+    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    d = np.concatenate([
+        np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel(),
+        np.linalg.norm(np.diff(grid, axis=0), axis=-1).ravel(),
+    ])
+    d = d[np.isfinite(d)]
+    spacing = float(np.median(d)) if len(d) else 0.0
+    lk = int(min(LK_WINDOW_MAX_PX, max(LK_WINDOW_PX, round(LK_WINDOW_FRAC * spacing))))
+    lk += 1 - lk % 2  # odd
+    extra = max(0, int(round(np.log2(max(shape) / 640.0)))) if max(shape) > 640 else 0
+    return {
+        "border": max(TRACK_BORDER_PX, TRACK_BORDER_FRAC * spacing),
+        "homography_rms": max(MAX_TRACK_HOMOGRAPHY_RMS_PX, TRACK_HOMOGRAPHY_FRAC * spacing),
+        "lk_window": lk,
+        "lk_levels": LK_LEVELS + extra,
+    }
 # The checkerboard seen through the tracked corners must have this much contrast (grey levels)
 # between its white and black squares, and every square on the right side of the midpoint.
 MIN_PATTERN_CONTRAST = 20.0
 
 
 def board_squares_pattern_ok(
-    gray: np.ndarray, H_img_grid: np.ndarray, board: dict, min_contrast: float = 20.0
+    gray: np.ndarray, H_img_grid: np.ndarray, board: dict, min_contrast: float = 20.0,
+    corner_known: np.ndarray | None = None,
 ) -> bool:
     """Whether the board's squares seen through a homography have the chessboard's colours.
 
@@ -287,6 +464,9 @@ def board_squares_pattern_ok(
     board : dict
     min_contrast : float
         Smallest mean white-minus-black difference, grey levels.
+    corner_known : ndarray of bool, shape (nx * ny,), optional
+        Corners seen; only squares all of whose inner corners are seen are sampled (a hand
+        over the others).
 
     Returns
     -------
@@ -304,6 +484,17 @@ def board_squares_pattern_ok(
         u, v = p[0] / p[2], p[1] / p[2]
     h, w = gray.shape
     inside = np.all((u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1) & (p[2] > 0), axis=1)
+    if corner_known is not None:
+        nx, ny = sx - 1, sy - 1
+        seen = np.ones((sy, sx), bool)
+        known = np.asarray(corner_known, bool).reshape(ny, nx)
+        # Square (i, j) has corners (i-1..i, j-1..j) where they exist.
+        for di in (0, 1):
+            for dj in (0, 1):
+                pad = np.ones((sy, sx), bool)
+                pad[dj:dj + ny, di:di + nx] = known
+                seen &= pad
+        inside &= seen.ravel()
     if not inside.any():
         return False
     level = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)].mean(axis=1)
@@ -330,7 +521,7 @@ def track_corners(
     prev_px: np.ndarray,
     board: dict,
     subpix_window_px: int = 5,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
 ) -> tuple[np.ndarray | None, str]:
     """Board corners of a frame from those of an earlier frame (optical flow, then checks).
 
@@ -346,7 +537,7 @@ def track_corners(
     board : dict
     subpix_window_px : int
         Largest cornerSubPix half window, pixels.
-    max_grid_deviation_px : float
+    max_grid_deviation : float
         As in ``detect_corners``.
 
     Returns
@@ -359,9 +550,10 @@ def track_corners(
         ``"tracked"``: every corner inside the image, refined, consistent with its grid
         neighbours, in the order the colours of the squares confirm (``order_corners``), and
         every square of the board of the right colour (``board_squares_pattern_ok``).
-        ``"out_of_view"``: the board is followed but a corner is within ``TRACK_BORDER_PX`` of
-        the border or outside (the frame has no whole board). ``"lost"``: any check failed;
-        the caller falls back to ``detect_corners``.
+        ``"out_of_view"``: the board is followed but a corner is within the border margin
+        (``TRACK_BORDER_PX`` or ``TRACK_BORDER_FRAC`` of the square size) of the border or
+        outside (the frame has no whole board). ``"lost"``: any check failed; the caller
+        falls back to ``detect_corners``.
 
     Notes
     -----
@@ -373,20 +565,22 @@ def track_corners(
     h, w = gray.shape
     grid = _grid_points(board)
     prev = np.asarray(prev_px, dtype=np.float32).reshape(-1, 2)
-    seen = (
+    seen = np.isfinite(prev).all(axis=1) & (
         (prev[:, 0] >= 0) & (prev[:, 0] <= w - 1) & (prev[:, 1] >= 0) & (prev[:, 1] <= h - 1)
     )
     if seen.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
+    sc = _track_scales(prev, board, gray.shape)
     moved, status, _ = cv2.calcOpticalFlowPyrLK(
         prev_gray, gray, prev[seen].reshape(-1, 1, 2), None,
-        winSize=(LK_WINDOW_PX, LK_WINDOW_PX), maxLevel=LK_LEVELS, criteria=LK_CRITERIA,
+        winSize=(sc["lk_window"], sc["lk_window"]), maxLevel=sc["lk_levels"],
+        criteria=LK_CRITERIA,
     )
     ok = status.ravel() == 1
     if ok.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
     H, inliers = cv2.findHomography(
-        grid[seen][ok], moved.reshape(-1, 2)[ok], cv2.RANSAC, MAX_TRACK_HOMOGRAPHY_RMS_PX
+        grid[seen][ok], moved.reshape(-1, 2)[ok], cv2.RANSAC, sc["homography_rms"]
     )
     if H is None or inliers.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
@@ -395,14 +589,16 @@ def track_corners(
     track_ok[np.flatnonzero(seen)[ok][inliers.ravel() == 1]] = True
     p[track_ok] = moved.reshape(-1, 2)[ok][inliers.ravel() == 1]
     if not _inside(p, w, h, 0.0).all():
-        return _follow_partial(gray, p, _inside(p, w, h, TRACK_BORDER_PX), grid, board,
-                               subpix_window_px)
-    corners = refine_corners(gray, p, board, subpix_window_px, max_grid_deviation_px)
-    if corners is None:
-        return None, "lost"
-    inner = _inside(corners, w, h, TRACK_BORDER_PX)
+        return _follow_partial(gray, p, _inside(p, w, h, sc["border"]), grid, board,
+                               subpix_window_px, sc, max_grid_deviation)
+    corners = refine_corners(gray, p, board, subpix_window_px, max_grid_deviation)
+    if corners is None:  # a corner off its neighbours: hidden (a hand) or misplaced
+        return _follow_partial(gray, p, np.ones(len(p), bool), grid, board, subpix_window_px,
+                               sc, max_grid_deviation, "partial")
+    inner = _inside(corners, w, h, sc["border"])
     if not inner.all():
-        return _follow_partial(gray, corners, inner, grid, board, subpix_window_px)
+        return _follow_partial(gray, corners, inner, grid, board, subpix_window_px, sc,
+                               max_grid_deviation)
     ordered, _ = order_corners(corners, gray, board, corners)
     if not np.array_equal(ordered, corners):
         return None, "lost"
@@ -419,27 +615,73 @@ def _inside(p: np.ndarray, w: int, h: int, margin: float) -> np.ndarray:
     )
 
 
-def _follow_partial(gray, p, inner, grid, board, subpix_window_px):
-    """Refine the corners inside the image of a board partly out of view and check them."""
+# Smallest grey-level step between the light and the dark quadrants around a kept corner.
+MIN_SADDLE_CONTRAST = 10.0
+
+
+def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
+    """(N,) bool: corner k shows dark squares on one diagonal, light on the other (its own
+    colours: square (x+1, y+1) black when x + y is even), sampled 0.3 squares off the corner."""
+    h, w = gray.shape
+    off = np.array([[0.3, 0.3], [-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3]])
+    pts = grid[:, None, :] + off[None]  # (N, 4, 2)
+    ref = cv2.perspectiveTransform(grid.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
+    q = cv2.perspectiveTransform(pts.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
+    q = q.reshape(-1, 4, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
+    ok = np.isfinite(q).all(axis=(1, 2))
+    qi = np.rint(np.nan_to_num(q)).astype(int)
+    ok &= (qi[..., 0] >= 0).all(1) & (qi[..., 0] < w).all(1) & (qi[..., 1] >= 0).all(1) & (
+        qi[..., 1] < h
+    ).all(1)
+    qi[..., 0] = np.clip(qi[..., 0], 0, w - 1)
+    qi[..., 1] = np.clip(qi[..., 1], 0, h - 1)
+    level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, 4)
+    black_first = ((grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0)
+    dark = np.where(black_first[:, None], level[:, :2], level[:, 2:])
+    light = np.where(black_first[:, None], level[:, 2:], level[:, :2])
+    return ok & (light.min(axis=1) - dark.max(axis=1) >= MIN_SADDLE_CONTRAST)
+
+
+def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
+                    method="out_of_view"):
+    """Refine the corners ``inner`` of a board partly hidden (image border, a hand), keep those
+    consistent with their neighbours, check the squares they bound; NaN for the others."""
     if inner.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
     w = _subpix_window(p, board, subpix_window_px)
-    refined = cv2.cornerSubPix(
-        gray, np.ascontiguousarray(p[inner], dtype=np.float32).reshape(-1, 1, 2), (w, w),
-        (-1, -1), SUBPIX_CRITERIA,
-    ).reshape(-1, 2)
-    H, _ = cv2.findHomography(grid[inner], refined, 0)
+    refined = _subpix(gray, p[inner], w)
+    if refined is None:
+        return None, "lost"
+    out = np.full((len(grid), 2), np.nan)
+    out[inner] = refined
+    out = keep_consistent_corners(out, board, max_grid_deviation)
+    known = np.isfinite(out).all(axis=1)
+    if known.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    # A corner under a hand (a flat region) stays where it was put and agrees with its
+    # neighbours: it must also show the chessboard's saddle (dark-light-dark-light around it).
+    H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
+    if H is None:
+        return None, "lost"
+    out[~_saddle_ok(gray, H, out, grid)] = np.nan
+    out = keep_consistent_corners(out, board, max_grid_deviation)
+    known = np.isfinite(out).all(axis=1)
+    if known.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
     if H is None:
         return None, "lost"
     fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
-    rms = np.sqrt(np.mean(np.sum((fit[inner] - refined) ** 2, axis=1)))
-    if rms > MAX_TRACK_HOMOGRAPHY_RMS_PX or not board_squares_pattern_ok(
-        gray, H, board, MIN_PATTERN_CONTRAST
+    rms = np.sqrt(np.mean(np.sum((fit[known] - out[known]) ** 2, axis=1)))
+    if rms > sc["homography_rms"] or not board_squares_pattern_ok(
+        gray, H, board, MIN_PATTERN_CONTRAST, corner_known=known
     ):
         return None, "lost"
-    out = fit.astype(np.float64)
-    out[inner] = refined
-    return out, "out_of_view"
+    return out, method
+
+
+# Tracked frames with some corners hidden (a hand; the image border) that keep the rest.
+PARTIAL_METHODS = ("partial", "out_of_view")
 
 
 # While no board is followed, a quick detector looks for it: findChessboardCorners without
@@ -457,7 +699,7 @@ def quick_detect_corners(
     gray: np.ndarray,
     board: dict,
     subpix_window_px: int = 5,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
 ) -> tuple[np.ndarray | None, str]:
     """Corners of a whole board found on the half-size image, refined at full size.
 
@@ -465,7 +707,7 @@ def quick_detect_corners(
     ----------
     gray : ndarray, shape (H, W), uint8
     board : dict
-    subpix_window_px, max_grid_deviation_px
+    subpix_window_px, max_grid_deviation
         As in ``detect_corners``.
 
     Returns
@@ -490,8 +732,10 @@ def quick_detect_corners(
     scale = np.array([w / small.shape[1], h / small.shape[0]])
     # Pixel centres: small pixel i covers full pixels [s i, s (i + 1)), centre s (i + 0.5) - 0.5.
     corners = (corners.reshape(-1, 2) + 0.5) * scale - 0.5
-    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation_px)
-    if corners is None or not _inside(corners, w, h, TRACK_BORDER_PX).all():
+    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
+    if corners is None or not _inside(
+        corners, w, h, _track_scales(corners, board, gray.shape)["border"]
+    ).all():
         return None, "not_found"
     ordered, _ = order_corners(corners, gray, board)
     H, _ = cv2.findHomography(_grid_points(board), ordered.astype(np.float32), 0)
@@ -507,17 +751,29 @@ class _CornerFollower:
     method)`` results that are decided, in frame order; ``finish`` returns the rest.
     """
 
-    def __init__(self, board, subpix_window_px, max_grid_deviation_px, max_gap, flags, track,
-                 restart_every):
+    def __init__(self, board, subpix_window_px, max_grid_deviation, max_gap, flags, track,
+                 restart_every, keep_partial=True):
+        self.keep_partial = keep_partial
         self.board = board
         self.subpix = subpix_window_px
-        self.max_dev = max_grid_deviation_px
+        self.max_dev = max_grid_deviation
         self.max_gap = max_gap
         self.flags = flags
         self.track = track
         self.restart_every = restart_every
         self.pending = []  # (frame, t_s, gray) waiting for a board to track back from
+        self.cv_errors = 0  # OpenCV calls that raised (the frame went on without them)
         self._reset()
+
+    def _guard(self, fn, fail_method, frame, *args):
+        """``fn(*args)``; a cv2.error becomes ``(None, fail_method)``, logged and counted."""
+        try:
+            return fn(*args)
+        except cv2.error as exc:
+            self.cv_errors += 1
+            log.warning("corners: frame %d: OpenCV failed in %s (%s); the frame goes on "
+                        "without it", frame, fn.__name__, str(exc).strip().splitlines()[-1])
+            return None, fail_method
 
     def _reset(self):
         self.state = None  # (gray, corners_px, frame) of the last frame the board was followed
@@ -534,7 +790,8 @@ class _CornerFollower:
         if self.state is not None and frame - self.state[2] <= self.max_gap:
             out.append(self._track(frame, t_s, gray, self.state))
             return out
-        corners_px, method = quick_detect_corners(gray, self.board, self.subpix, self.max_dev)
+        corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
+                                         self.board, self.subpix, self.max_dev)
         if corners_px is None:
             self.pending.append((frame, t_s, gray))
             if len(self.pending) >= MAX_PENDING_FRAMES:
@@ -562,13 +819,20 @@ class _CornerFollower:
             self.last_found = (corners_px, frame)
 
     def _track(self, frame, t_s, gray, ref):
-        corners_px, method = track_corners(
-            ref[0], gray, ref[1], self.board, self.subpix, self.max_dev
+        corners_px, method = self._guard(
+            track_corners, "lost", frame, ref[0], gray, ref[1], self.board, self.subpix,
+            self.max_dev
         )
         if method == "lost":
             return self._detect(frame, t_s, gray)
         self._keep(gray, corners_px, frame, found=method == "tracked")
-        return frame, t_s, (corners_px if method == "tracked" else None), method
+        return frame, t_s, self._published(corners_px, method), method
+
+    def _published(self, corners_px, method):
+        """The corners a tracked frame puts in the table (None: not found)."""
+        if method == "tracked" or (self.keep_partial and method in PARTIAL_METHODS):
+            return corners_px
+        return None
 
     def _detect(self, frame, t_s, gray):
         prev = None
@@ -577,8 +841,8 @@ class _CornerFollower:
         flags = self.flags
         if flags is None:
             flags = VIDEO_FIND_FLAGS if prev is not None else VIDEO_SEARCH_FLAGS
-        corners_px, method = detect_corners(gray, self.board, self.subpix, prev, flags,
-                                            self.max_dev)
+        corners_px, method = self._guard(detect_corners, "cv_error", frame, gray, self.board,
+                                         self.subpix, prev, flags, self.max_dev)
         if corners_px is not None:
             self._keep(gray, corners_px, frame, found=True)
         return frame, t_s, corners_px, method
@@ -591,14 +855,15 @@ class _CornerFollower:
         for f, t_s, g in reversed(pending):
             result = None
             if ref[2] - f <= self.max_gap:
-                px, method = track_corners(ref[0], g, ref[1], self.board, self.subpix,
-                                           self.max_dev)
+                px, method = self._guard(track_corners, "lost", f, ref[0], g, ref[1],
+                                         self.board, self.subpix, self.max_dev)
                 if method != "lost":
                     ref = (g, px, f)
-                    result = (f, t_s, px if method == "tracked" else None, method + "_back")
+                    result = (f, t_s, self._published(px, method), method + "_back")
             if result is None:
-                px, method = detect_corners(g, self.board, self.subpix, None,
-                                            self.flags or VIDEO_SEARCH_FLAGS, self.max_dev)
+                px, method = self._guard(detect_corners, "cv_error", f, g, self.board,
+                                         self.subpix, None, self.flags or VIDEO_SEARCH_FLAGS,
+                                         self.max_dev)
                 if px is not None:
                     ref = (g, px, f)
                 result = (f, t_s, px, method)
@@ -614,9 +879,10 @@ def extract_corners(
     log_every: int = 300,
     flags: int | None = None,
     max_continuity_gap: int = 3,
-    max_grid_deviation_px: float = 2.0,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
     track: bool = True,
     restart_every: int | None = RESTART_EVERY_FRAMES,
+    keep_partial: bool = True,
 ) -> pd.DataFrame:
     """Chessboard corners of every video frame, the same physical corner under the same index.
 
@@ -640,9 +906,10 @@ def extract_corners(
     max_continuity_gap : int
         For boards whose ends look alike: the previous found frame is used for temporal
         continuity only if at most this many frames back.
-    max_grid_deviation_px : float
-        A frame with a corner farther than this (px) from where its grid neighbours put it,
-        even after a second refinement, counts as not found (see ``detect_corners``).
+    max_grid_deviation : float
+        A frame with a corner farther than this share of its local grid spacing from where
+        its grid neighbours put it, even after a second refinement, counts as not found (see
+        ``detect_corners``).
     track : bool
         Follow the board from the last frame where it was seen (``track_corners``) and run the
         full detector only where that fails; False runs ``detect_corners`` on every frame.
@@ -651,13 +918,18 @@ def extract_corners(
         continuity, full detection. A frame's result then depends only on the frames since the
         last such index, so a video cut into chunks at multiples of it
         (``cvsflow.corners_fast``) gives exactly the table of one pass. None: never.
+    keep_partial : bool
+        Frames where the tracked board is partly hidden (a hand over it: ``partial``; the
+        image border: ``out_of_view``) keep the corners that pass their local checks, with
+        their indices; False counts them as not found (the former table).
 
     Returns
     -------
     corners : DataFrame
         ``frame`` (int64), ``t_s`` (float64, s), ``found`` (bool), ``corner`` (int64),
         ``u_px``, ``v_px`` (float64, distorted pixels). A found frame has one row per inner
-        corner, corner k at board point (k % nx, k // nx) * square_m; a frame without a board
+        corner it keeps (all of them, or with ``keep_partial`` those of a partly hidden board),
+        corner k at board point (k % nx, k // nx) * square_m; a frame without a board
         has one row with ``corner = -1`` and NaN pixels. ``attrs`` holds counts:
         ``n_frames``, ``n_found``, ``order_methods`` (dict method -> frames: ``tracked``,
         ``out_of_view`` (followed partly out of the image), and ``detect_corners``' methods
@@ -672,8 +944,8 @@ def extract_corners(
     corner_ids = np.arange(n_corners, dtype=np.int64)
     frame_ids, times, founds, corner_col, uv_blocks = [], [], [], [], []
     methods: dict[str, int] = {}
-    follower = _CornerFollower(board, subpix_window_px, max_grid_deviation_px,
-                               max_continuity_gap, flags, track, restart_every)
+    follower = _CornerFollower(board, subpix_window_px, max_grid_deviation,
+                               max_continuity_gap, flags, track, restart_every, keep_partial)
     t_start = time.perf_counter()
     n_done = n_found = 0
 
@@ -689,11 +961,13 @@ def extract_corners(
                 uv_blocks.append(np.full((1, 2), np.nan))
             else:
                 n_found += 1
-                frame_ids.append(np.full(n_corners, frame, dtype=np.int64))
-                times.append(np.full(n_corners, t_s, dtype=np.float64))
-                founds.append(np.ones(n_corners, dtype=bool))
-                corner_col.append(corner_ids)
-                uv_blocks.append(corners_px)
+                known = np.isfinite(corners_px).all(axis=1)
+                n = int(known.sum())
+                frame_ids.append(np.full(n, frame, dtype=np.int64))
+                times.append(np.full(n, t_s, dtype=np.float64))
+                founds.append(np.ones(n, dtype=bool))
+                corner_col.append(corner_ids[known])
+                uv_blocks.append(corners_px[known])
 
     for frame, t_s, gray in frames:
         gray = np.asarray(gray)
@@ -729,7 +1003,11 @@ def extract_corners(
             "v_px": uv[:, 1],
         }
     )[CORNER_COLUMNS]
-    corners.attrs = {"n_frames": n_done, "n_found": n_found, "order_methods": methods}
+    corners.attrs = {"n_frames": n_done, "n_found": n_found, "order_methods": methods,
+                     "n_cv_errors": follower.cv_errors}
+    if follower.cv_errors:
+        log.warning("corners: %d OpenCV calls failed (frames went on without them)",
+                    follower.cv_errors)
     log.info(
         "corners: board found in %d of %d frames (%.1f %%), %.1f frames/s; order decided by %s",
         n_found,
@@ -742,10 +1020,10 @@ def extract_corners(
         log.warning("corners: %d frames without a board kept as found=False", n_done - n_found)
     if methods.get("inconsistent"):
         log.warning(
-            "corners: %d frames had a corner off its grid neighbours by more than %.1f px "
-            "after refinement; counted as not found",
+            "corners: %d frames had a corner off its grid neighbours by more than %.2f of "
+            "its local square size after refinement; counted as not found",
             methods["inconsistent"],
-            max_grid_deviation_px,
+            max_grid_deviation,
         )
     if methods.get("unresolved"):
         log.warning(
@@ -754,6 +1032,53 @@ def extract_corners(
             methods["unresolved"],
         )
     return corners
+
+
+def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict:
+    """The corners stage's summary (corners_summary.yaml): counts, no wall times.
+
+    Parameters
+    ----------
+    corners : DataFrame
+        corners.parquet table with ``extract_corners``' ``attrs``.
+    timing : dict, optional
+        ``cvsflow.io.media.video_timing`` of the video.
+
+    Returns
+    -------
+    summary : dict
+        ``n_frames_decoded``, ``n_found``, ``found_share``, ``frames_by_method`` (method ->
+        frames: how each frame was decided; ``not_found``, ``inconsistent``, ``cv_error``
+        ... are the reasons a frame has no board), ``n_cv_errors``, ``corners_per_found_frame``
+        (min, median, max); with ``timing``: ``n_frames_header``, ``n_frames_demuxed``,
+        ``n_dropped``, ``dropped_gaps`` (``[after_frame, missing]``), ``period_s`` (median),
+        ``period_min_s``, ``period_max_s``.
+    """
+    per_frame = corners.groupby("frame")["found"].first()
+    n_per = corners[corners["found"]].groupby("frame").size()
+    attrs = corners.attrs
+    out = {
+        "n_frames_decoded": int(len(per_frame)),
+        "n_found": int(per_frame.sum()),
+        "found_share": float(per_frame.mean()) if len(per_frame) else 0.0,
+        "frames_by_method": {str(k): int(v) for k, v in
+                             sorted(attrs.get("order_methods", {}).items())},
+        "n_cv_errors": int(attrs.get("n_cv_errors", 0)),
+        "corners_per_found_frame": [int(n_per.min()), float(n_per.median()), int(n_per.max())]
+        if len(n_per) else [0, 0.0, 0],
+    }
+    if timing is not None:
+        dt = np.diff(np.asarray(timing["t_s"], dtype=np.float64))
+        out.update({
+            "n_frames_header": int(timing["n_frames_header"]),
+            "n_frames_demuxed": int(timing["n_frames"]),
+            "n_dropped": int(timing["n_dropped"]),
+            "dropped_gaps": [[int(a), int(b)] for a, b in timing["gaps"]],
+            "period_s": float(timing["period_s"]),
+            "period_min_s": float(dt.min()) if len(dt) else 0.0,
+            "period_max_s": float(dt.max()) if len(dt) else 0.0,
+        })
+    return out
 
 
 def _check_corners_table(corners: pd.DataFrame) -> None:
@@ -805,15 +1130,17 @@ def estimate_poses(
         poses_raw.parquet: one row per frame, ``frame, t_s, valid, rvec_0..2`` (rvec_C_B, rad),
         ``x_m, y_m, z_m`` (tvec_C_B, m: board origin in the camera frame C),
         ``roll_rad, pitch_rad, yaw_rad`` (of R_C_B, R = Rz Ry Rx), ``reproj_rms_px`` (RMS of
-        the inliers' reprojection errors after refinement, px), ``n_inliers``. Frames without
-        a board, or whose PnP fails or keeps fewer than 6 inliers, have ``valid = False`` and
-        NaN pose.
+        the inliers' reprojection errors after refinement, px), ``n_inliers``, ``n_corners``
+        (corners the frame has: a found frame may have a subset, e.g. a hand over the board).
+        Frames without a board, with fewer than ``MIN_INLIERS`` corners or all of them on one
+        grid line, or whose PnP fails or keeps fewer than ``MIN_INLIERS`` inliers, have
+        ``valid = False`` and NaN pose.
 
     Raises
     ------
     InputError
-        Missing columns, or a found frame whose corner indices are not exactly 0..N-1 or
-        whose pixels are not finite.
+        Missing columns, or a found frame whose corner indices are not distinct in 0..N-1
+        or whose pixels are not finite.
 
     Notes
     -----
@@ -833,39 +1160,53 @@ def estimate_poses(
     for frame, block in ordered.groupby("frame", sort=True):
         frame = int(frame)
         t_s = float(block["t_s"].iloc[0])
-        row = {"frame": frame, "t_s": t_s, "valid": False, "n_inliers": 0}
+        row = {"frame": frame, "t_s": t_s, "valid": False, "n_inliers": 0, "n_corners": 0}
         found = bool(block["found"].iloc[0])
         if found:
-            if not block["found"].all() or not np.array_equal(
-                block["corner"].to_numpy(), np.arange(n_corners)
+            ids = block["corner"].to_numpy()
+            if (
+                not block["found"].all()
+                or len(np.unique(ids)) != len(ids)
+                or ids.min() < 0
+                or ids.max() >= n_corners
             ):
                 raise InputError(
                     f"corners table, frame {frame}: found frame with corners "
                     f"{block['corner'].tolist()} / found {block['found'].unique().tolist()}; "
-                    f"expected corners 0..{n_corners - 1} all found"
+                    f"expected distinct corners in 0..{n_corners - 1}, all found"
                 )
             uv = block[["u_px", "v_px"]].to_numpy(dtype=np.float64)
+            row["n_corners"] = len(ids)
             if not np.isfinite(uv).all():
                 raise InputError(
                     f"corners table, frame {frame}: non-finite u_px/v_px on a found frame; "
                     "expected pixel coordinates"
                 )
-            row.update(
-                _solve_frame(
-                    p_B, uv, K, dist, ransac_reproj_px, ransac_iterations, ransac_confidence, seed
+            if _spread_ok(ids, board):
+                row.update(
+                    _solve_frame(p_B[ids], uv, K, dist, ransac_reproj_px, ransac_iterations,
+                                 ransac_confidence, seed)
                 )
-            )
         rows.append(row)
     poses = pd.DataFrame(rows)
     for col in POSE_COLUMNS:
         if col not in poses.columns:
             poses[col] = np.nan
     poses = poses[POSE_COLUMNS].astype(
-        {"frame": np.int64, "t_s": np.float64, "valid": bool, "n_inliers": np.int64}
+        {"frame": np.int64, "t_s": np.float64, "valid": bool, "n_inliers": np.int64,
+         "n_corners": np.int64}
     )
     n_valid = int(poses["valid"].sum())
     log.info("poses: %d of %d frames valid", n_valid, len(poses))
     return poses
+
+
+def _spread_ok(ids: np.ndarray, board: dict) -> bool:
+    """At least MIN_INLIERS corners spanning two rows and two columns of the grid (not all
+    on one line: a pose needs a non-degenerate planar spread)."""
+    nx, _ = board_pattern(board)
+    return bool(len(ids) >= MIN_INLIERS and len(np.unique(ids % nx)) >= 2
+                and len(np.unique(ids // nx)) >= 2)
 
 
 def _solve_frame(p_B, uv, K, dist, reproj_px, iterations, confidence, seed) -> dict:

@@ -125,3 +125,89 @@ def write_session_tables(folder, vicon_df, vicon_rate_hz, truth, truth_frames, t
     write_parquet(truth_frames, folder / "truth_frames.parquet")
     write_parquet(truth_corners, folder / "truth_corners.parquet")
 
+
+
+class PyAvVideoSink:
+    """Video writer through PyAV (FFmpeg): H.264, HEVC, MPEG-4 part 2 or Motion JPEG in MP4.
+
+    Every frame carries its own presentation timestamp in units of ``1 / pts_rate_hz`` s, so
+    variable frame rates (jittered timestamps, dropped frames) are stored exactly. No B-frames,
+    so the decoded order is the presentation order and the first frame is at its own pts.
+
+    Parameters
+    ----------
+    path : str or Path
+    codec : {"h264", "hevc", "mp4v", "mjpeg"}
+    size : tuple of int
+        (width, height), px.
+    fps : float
+        Nominal rate, Hz (the container's average-rate hint).
+    crf : int
+        Constant rate factor of h264/hevc (0 lossless .. 51 worst).
+    quality : int
+        1..100 for mp4v and mjpeg (mapped to the FFmpeg quantiser 31..2).
+    pts_rate_hz : int
+        Ticks per second of the stream time base.
+    """
+
+    _ENCODERS = {"h264": "libx264", "hevc": "libx265", "mp4v": "mpeg4", "mjpeg": "mjpeg"}
+
+    def __init__(self, path, codec, size, fps, crf=23, quality=75, pts_rate_hz=30000):
+        from fractions import Fraction
+
+        import av  # PyAV: the only writer here that does H.264/HEVC and per-frame timestamps
+
+        self.path = Path(path)
+        self.n_frames = 0
+        self._av = av
+        try:
+            self._container = av.open(str(self.path), mode="w", format="mp4")
+            stream = self._container.add_stream(self._ENCODERS[codec], rate=Fraction(fps).limit_denominator(1001))
+        except (av.FFmpegError, KeyError, ValueError) as exc:
+            raise InputError(f"{self.path}: cannot open a {codec} video writer ({exc})") from exc
+        stream.width, stream.height = int(size[0]), int(size[1])
+        stream.time_base = Fraction(1, int(pts_rate_hz))
+        stream.codec_context.time_base = Fraction(1, int(pts_rate_hz))
+        q = str(int(round(2 + (100 - int(quality)) / 99 * 29)))
+        if codec == "h264":
+            stream.pix_fmt = "yuv420p"
+            stream.options = {"crf": str(int(crf)), "preset": "veryfast", "bf": "0"}
+        elif codec == "hevc":
+            stream.pix_fmt = "yuv420p"
+            stream.options = {"crf": str(int(crf)), "preset": "veryfast",
+                              "x265-params": "bframes=0:log-level=error"}
+        elif codec == "mjpeg":
+            stream.pix_fmt = "yuvj420p"
+            stream.options = {"qmin": q, "qmax": q}
+        else:
+            stream.pix_fmt = "yuv420p"
+            stream.options = {"qmin": q, "qmax": q, "bf": "0"}
+        self._stream = stream
+        self._last_pts = None
+
+    def write(self, image, pts):
+        """Append one frame (uint8 (H, W) grey or (H, W, 3) BGR) at integer timestamp ``pts``."""
+        pts = int(pts)
+        if self._last_pts is not None and pts <= self._last_pts:
+            raise InputError(
+                f"{self.path}: frame {self.n_frames} has pts {pts}, expected > {self._last_pts}"
+            )
+        fmt = "gray" if image.ndim == 2 else "bgr24"
+        frame = self._av.VideoFrame.from_ndarray(image, format=fmt)
+        frame.pts = pts
+        frame.time_base = self._stream.time_base
+        for packet in self._stream.encode(frame):
+            self._container.mux(packet)
+        self._last_pts = pts
+        self.n_frames += 1
+
+    def close(self):
+        for packet in self._stream.encode(None):
+            self._container.mux(packet)
+        self._container.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

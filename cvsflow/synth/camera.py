@@ -308,6 +308,13 @@ def render_board(T_C_B, texture: BoardTexture, xy_n, K, dist, roi=None):
     if roi is None:
         return layer
     x0, y0, x1, y1 = roi
+    layer[y0:y1, x0:x1] = render_board_region(T_C_B, texture, xy_n, K, roi)
+    return layer
+
+
+def render_board_region(T_C_B, texture: BoardTexture, xy_n, K, roi):
+    """``render_board`` inside the pixel box ``roi`` = (x0, y0, x1, y1) only: shape (y1-y0, x1-x0, 2)."""
+    x0, y0, x1, y1 = roi
     level = choose_level(T_C_B, K, texture)
     G = _texel_from_ray(T_C_B, texture, level)
     rays = xy_n[y0:y1, x0:x1]
@@ -319,7 +326,7 @@ def render_board(T_C_B, texture: BoardTexture, xy_n, K, dist, roi=None):
     hits = _rays_hit_front(T_C_B, rays) > 0
     map_c = np.where(hits, map_c, -10.0).astype(np.float32)
     map_r = np.where(hits, map_r, -10.0).astype(np.float32)
-    layer[y0:y1, x0:x1] = cv2.remap(
+    return cv2.remap(
         texture.levels[level],
         map_c,
         map_r,
@@ -327,7 +334,6 @@ def render_board(T_C_B, texture: BoardTexture, xy_n, K, dist, roi=None):
         borderMode=cv2.BORDER_CONSTANT,
         borderValue=0,
     )
-    return layer
 
 
 def _rays_hit_front(T_C_B, rays):
@@ -388,7 +394,7 @@ def vignetting(size, K, strength=0.25):
     return (1.0 - strength * r2).astype(np.float32)
 
 
-def expose(radiance, gain, offset, defocus_sigma_px, noise_sigma, rng):
+def expose(radiance, gain, offset, defocus_sigma_px, noise_sigma, rng, shot_gain=0.02, analog_gain=1.0):
     """Sensor model: grey = gain * radiance + offset, defocus blur, noise; uint8.
 
     Parameters
@@ -402,15 +408,22 @@ def expose(radiance, gain, offset, defocus_sigma_px, noise_sigma, rng):
     noise_sigma : float
         Read-noise standard deviation, grey levels; shot noise is added on top.
     rng : numpy.random.Generator
+    shot_gain : float
+        Shot-noise variance per grey level (at unit analog gain).
+    analog_gain : float
+        Sensor gain relative to the reference; read noise and shot noise scale with it.
+        ``radiance`` may also be (H, W, 3) with ``gain`` per channel (colour).
 
     Returns
     -------
-    image : ndarray, shape (H, W), uint8
+    image : ndarray, shape (H, W) or (H, W, 3), uint8
     """
     grey = radiance * np.float32(gain) + np.float32(offset)
     if defocus_sigma_px > 0.05:
         grey = cv2.GaussianBlur(grey, (0, 0), float(defocus_sigma_px))
     noise = rng.standard_normal(grey.shape, dtype=np.float32)
-    sigma = np.sqrt(np.float32(noise_sigma) ** 2 + np.float32(0.02) * np.clip(grey, 0, None))
+    if analog_gain != 1.0:
+        noise_sigma, shot_gain = noise_sigma * analog_gain, shot_gain * analog_gain
+    sigma = np.sqrt(np.float32(noise_sigma) ** 2 + np.float32(shot_gain) * np.clip(grey, 0, None))
     grey = grey + sigma * noise
     return np.clip(np.rint(grey), 0, 255).astype(np.uint8)

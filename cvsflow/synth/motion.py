@@ -71,9 +71,11 @@ class HandMotion:
     hold: np.ndarray  # (6,) the channels while the board is held still
     tan_half_fov: tuple[float, float]  # (x, y)
     center_B: np.ndarray  # (3,) the point of the board the hand moves (centre of the corners)
+    depth_center_m: float = 2.0  # geometric centre of the depth range, m
+    depth_half_log: float = 0.7  # half width of the log-depth range (depth = centre exp(+-this))
 
 
-def make_hand_motion(rng, K, size, center_B) -> HandMotion:
+def make_hand_motion(rng, K, size, center_B, distance_m=None) -> HandMotion:
     """Draw a hand motion for a camera ``K`` (3x3, px) and image ``size`` (width, height) px.
 
     Parameters
@@ -86,6 +88,8 @@ def make_hand_motion(rng, K, size, center_B) -> HandMotion:
     center_B : ndarray, shape (3,)
         Point of the board (frame B, metres) that the motion channels place; the board
         turns about it.
+    distance_m : tuple of float, optional
+        (min, max) depth of the board centre, m; by default the demo's 1.0 .. 4.0 m.
 
     Returns
     -------
@@ -109,7 +113,13 @@ def make_hand_motion(rng, K, size, center_B) -> HandMotion:
             np.deg2rad(rng.uniform(-5, 5)),
         ]
     )
-    return HandMotion(free, tremor, hold, tan_half_fov, np.asarray(center_B, dtype=float))
+    if distance_m is None:
+        return HandMotion(free, tremor, hold, tan_half_fov, np.asarray(center_B, dtype=float))
+    d_min, d_max = distance_m
+    return HandMotion(
+        free, tremor, hold, tan_half_fov, np.asarray(center_B, dtype=float),
+        depth_center_m=float(np.sqrt(d_min * d_max)), depth_half_log=float(0.5 * np.log(d_max / d_min)),
+    )
 
 
 def _smoothstep(u):
@@ -129,7 +139,7 @@ def motion_channels(motion: HandMotion, t_s):
     squashed = np.empty_like(free)
     squashed[:, 0] = 1.1 * np.tanh(free[:, 0])
     squashed[:, 1] = 1.0 * np.tanh(free[:, 1])
-    squashed[:, 2] = 0.7 * np.tanh(free[:, 2])  # log-depth about 2 m: 1.0 .. 4.0 m
+    squashed[:, 2] = motion.depth_half_log * np.tanh(free[:, 2])  # log-depth: 1.0 .. 4.0 m (demo)
     squashed[:, 3] = np.deg2rad(40.0) * np.tanh(free[:, 3])
     squashed[:, 4] = np.deg2rad(45.0) * np.tanh(free[:, 4])
     squashed[:, 5] = np.deg2rad(45.0) * np.tanh(free[:, 5])
@@ -156,7 +166,7 @@ def board_poses(motion: HandMotion, t_s):
     """
     ch = motion_channels(motion, t_s)
     tremor = motion.tremor(t_s)
-    z_m = 2.0 * np.exp(ch[:, 2])
+    z_m = motion.depth_center_m * np.exp(ch[:, 2])
     center_C = np.stack(
         [
             ch[:, 0] * motion.tan_half_fov[0] * z_m,

@@ -16,6 +16,7 @@ from cvsflow.errors import ConfigError
 from cvsflow.synth.camera import (
     Board,
     BoardTexture,
+    board_roi,
     camera_from_config,
     expose,
     make_background,
@@ -23,9 +24,11 @@ from cvsflow.synth.camera import (
     project_points,
     rectangle_outline_B,
     render_board,
+    render_board_region,
     undistortion_grid,
     vignetting,
 )
+from cvsflow.synth.effects import SKIN_BGR, Effects, parse_effects
 from cvsflow.synth.markers import add_dropouts, marker_table, true_mounting
 from cvsflow.synth.motion import HandMotion, board_poses, random_sine_sum
 from cvsflow.transforms import (
@@ -45,7 +48,10 @@ VICON_TAIL_S = 1.5  # the Vicon keeps recording this long after the video ends
 IN_VIEW_MARGIN_PX = 3.0
 FOCUS_DEPTH_M = 2.2  # defocus blur grows away from this depth
 # Order of the independent random streams; appending keeps earlier streams unchanged.
-_STREAMS = ("mounting", "stills", "motion", "lighting", "images", "vicon", "background")
+_STREAMS = (
+    "mounting", "stills", "motion", "lighting", "images", "vicon", "background",
+    "timestamps", "hand", "exposure", "colour",
+)
 
 
 @dataclass(frozen=True)
@@ -71,6 +77,17 @@ class SynthSpec:
     vicon_lead_s: float
     image_noise_sigma: float
     video_quality: int
+    effects: Effects
+
+    @property
+    def realistic(self) -> bool:
+        """True unless the fast preset runs with no effect key: the original demo path."""
+        return self.effects.preset != "fast" or bool(self.effects.explicit)
+
+    @property
+    def image_size(self):
+        """(width, height) of stills and video, px."""
+        return self.effects.image_size
 
 
 def _require(mapping, key, where):
@@ -120,6 +137,8 @@ def parse_session_config(session_cfg) -> SynthSpec:
     if not duration_s > 0.0:
         raise ConfigError(f"session config, synth.duration_s: expected > 0 s, got {duration_s}")
     n_stills = int(synth.get("n_stills", 15))
+    image_noise_sigma = float(synth.get("image_noise_sigma", 2.0))
+    video_quality = int(synth.get("video_quality", 75))
     if n_stills < 1:
         raise ConfigError(f"session config, synth.n_stills: expected >= 1, got {n_stills}")
     return SynthSpec(
@@ -140,8 +159,9 @@ def parse_session_config(session_cfg) -> SynthSpec:
         dropout_rate_hz=float(synth.get("dropout_rate_hz", 0.5)),
         dropout_max_s=float(synth.get("dropout_max_s", 0.08)),
         vicon_lead_s=float(synth.get("vicon_lead_s", 2.37)),
-        image_noise_sigma=float(synth.get("image_noise_sigma", 2.0)),
-        video_quality=int(synth.get("video_quality", 75)),
+        image_noise_sigma=image_noise_sigma,
+        video_quality=video_quality,
+        effects=parse_effects(synth, image_noise_sigma, video_quality),
     )
 
 
@@ -211,6 +231,16 @@ class VideoTruth:
     corners_px: np.ndarray  # (N, nx*ny, 2) distorted pixels, NaN where not projectable
     in_view: np.ndarray  # (N,) bool
     blur_px: np.ndarray  # (N,) largest corner travel during the exposure, px
+    # Realistic renders only (None on the demo's fast path):
+    capture_index: np.ndarray | None = None  # (N,) index in the regular capture sequence
+    t_line_s: np.ndarray | None = None  # (N, M) capture time of each corner's image row, s
+    in_image: np.ndarray | None = None  # (N, M) bool, corner inside the image
+    occluded: np.ndarray | None = None  # (N, M) bool, corner hidden by the hand
+    grip: np.ndarray | None = None  # (N,) int, hand grip index (-1: no hand)
+    gain: np.ndarray | None = None  # (N,) total sensor gain relative to the reference exposure
+    analog_gain: np.ndarray | None = None  # (N,)
+    light: np.ndarray | None = None  # (N,) relative scene light
+    wb_gains: np.ndarray | None = None  # (N, 3) white-balance gains B, G, R
 
 
 def exposure_times(rng, t_s):
@@ -219,14 +249,23 @@ def exposure_times(rng, t_s):
     return np.clip(0.014 + 0.006 * drift, 0.008, 0.020)
 
 
-def video_truth(spec: SynthSpec, motion: HandMotion, exposure_s) -> VideoTruth:
-    """True board poses, corners, visibility and motion blur of every video frame."""
-    n = int(round(spec.duration_s * FPS))
-    t_s = np.arange(n) / FPS
+def video_truth(spec: SynthSpec, motion: HandMotion, exposure_s, t_s=None) -> VideoTruth:
+    """True board poses, corners, visibility and motion blur of every video frame.
+
+    ``t_s`` (N,) are the frames' container times (default: regular at ``FPS``). Under a
+    rolling shutter (``spec.effects.line_delay_s`` > 0) ``corners_px`` are the corners at
+    their own row's capture time (``corners_at_line_times``); ``T_C_B`` stays at ``t_s``.
+    """
+    if t_s is None:
+        n = int(round(spec.duration_s * FPS))
+        t_s = np.arange(n) / FPS
     T_C_B = board_poses(motion, t_s)
     corners_B = spec.board.corners_B()
     corners_px = project_points(T_C_B, corners_B, spec.K, spec.dist)
-    width, height = IMAGE_SIZE
+    if spec.effects.line_delay_s > 0.0:
+        corners_px, _ = corners_at_line_times(motion, t_s, corners_B, spec.K, spec.dist,
+                                              spec.effects.line_delay_s, corners_px)
+    width, height = spec.image_size
     m = IN_VIEW_MARGIN_PX
     with np.errstate(invalid="ignore"):
         inside = (
@@ -244,6 +283,43 @@ def video_truth(spec: SynthSpec, motion: HandMotion, exposure_s) -> VideoTruth:
             np.any(np.isfinite(travel), axis=1), np.nanmax(np.nan_to_num(travel, nan=-1), 1), 0.0
         )
     return VideoTruth(t_s, T_C_B, exposure_s, corners_px, in_view, np.clip(blur_px, 0, None))
+
+
+def corners_at_line_times(motion, t_s, corners_B, K, dist, line_delay_s, guess_px, n_iter=4):
+    """Rolling shutter: corner pixels where each corner is seen at its own row's capture time.
+
+    Row v is captured at t_s + v * line_delay_s; the fixed point v = v(t_s + v * line_delay_s)
+    is found by iteration (a contraction: the board moves far less than one row per row time).
+
+    Returns
+    -------
+    uv_px : ndarray, shape (N, M, 2)
+    t_line_s : ndarray, shape (N, M)
+    """
+    t_s = np.asarray(t_s, float)
+    uv = guess_px
+    n, m = uv.shape[:2]
+    for _ in range(n_iter):
+        v = np.nan_to_num(uv[..., 1], nan=0.0)
+        t_line = t_s[:, None] + np.clip(v, 0, None) * line_delay_s
+        T = board_poses(motion, t_line.ravel()).reshape(n, m, 4, 4)
+        p_C = np.einsum("nmij,mj->nmi", T[..., :3, :3], corners_B) + T[..., :3, 3]
+        uv = project_points(np.eye(4), p_C.reshape(-1, 3), K, dist).reshape(n, m, 2)
+    v = np.nan_to_num(uv[..., 1], nan=0.0)
+    return uv, t_s[:, None] + np.clip(v, 0, None) * line_delay_s
+
+
+@dataclass(frozen=True)
+class FrameEffects:
+    """Per-frame state of the realistic effects."""
+
+    hand: BoardTexture | None  # hand texture of the current grip, None without a hand
+    gain: float  # scene light x exposure x analog gain, relative to the reference
+    analog_gain: float
+    wb_gains: np.ndarray  # (3,) B, G, R
+
+
+ILLUMINANT_BGR = np.array([0.92, 1.0, 1.06])  # slightly warm indoor light, per channel
 
 
 @dataclass(frozen=True)
@@ -272,12 +348,13 @@ class Renderer:
 
     def __init__(self, spec: SynthSpec, rng_background, markers_B=None):
         self.spec = spec
-        self.xy_n = undistortion_grid(spec.K, spec.dist, IMAGE_SIZE)
+        size = spec.image_size
+        self.xy_n = undistortion_grid(spec.K, spec.dist, size)
         self.texture: BoardTexture = make_board_texture(spec.board, markers_B=markers_B)
-        self.background = make_background(rng_background, IMAGE_SIZE)
-        self.background_still = make_background(rng_background, IMAGE_SIZE, n_rects=8, light=True)
-        self.shading = vignetting(IMAGE_SIZE, spec.K)
-        width, height = IMAGE_SIZE
+        self.background = make_background(rng_background, size)
+        self.background_still = make_background(rng_background, size, n_rects=8, light=True)
+        self.shading = vignetting(size, spec.K)
+        width, height = size
         u, v = np.meshgrid(
             np.linspace(-0.5, 0.5, width, dtype=np.float32),
             np.linspace(-0.5, 0.5, height, dtype=np.float32),
@@ -306,6 +383,67 @@ class Renderer:
         layer = self.board_layer(T_C_B[None])
         return self.compose(
             layer, self.background_still, 220.0, 10.0, 0.05, -0.05, T_C_B[2, 3], rng
+        )
+
+    def realistic_frame(self, motion, t_s, exposure_s, blur_px, lighting: Lighting, rng, fx):
+        """A video frame with the realistic effects (``fx``: ``FrameEffects``), uint8 (H, W[, 3]).
+
+        Under a rolling shutter the image is rendered in bands of ``band_rows`` rows, each
+        with the board (and the hand) at the band's own capture time t_s + row * line_delay_s,
+        and motion blur sampled per band over the exposure.
+        """
+        e = self.spec.effects
+        width, height = e.image_size
+        n_sub = int(np.clip(np.ceil(blur_px / 1.5) + 1, 1, 10))
+        offsets = exposure_s * ((np.arange(n_sub) + 0.5) / n_sub - 0.5)
+        if e.line_delay_s > 0.0:
+            starts = np.arange(0, height, e.band_rows)
+            stops = np.minimum(starts + e.band_rows, height)
+            t_band = t_s + 0.5 * (starts + stops - 1) * e.line_delay_s
+        else:
+            starts, stops, t_band = np.array([0]), np.array([height]), np.array([t_s])
+        T_all = board_poses(motion, (t_band[:, None] + offsets[None]).ravel()).reshape(
+            len(t_band), n_sub, 4, 4
+        )
+        layers = [(self.texture, np.zeros((height, width, 2), np.float32))]
+        if fx.hand is not None:
+            layers.append((fx.hand, np.zeros((height, width, 2), np.float32)))
+        K, dist = self.spec.K, self.spec.dist
+        for b in range(len(t_band)):
+            for j in range(n_sub):
+                T = T_all[b, j]
+                for texture, acc in layers:
+                    roi = board_roi(T, texture, K, dist, (width, height))
+                    if roi is None:
+                        continue
+                    x0, y0, x1, y1 = roi
+                    y0, y1 = max(y0, int(starts[b])), min(y1, int(stops[b]))
+                    if y1 <= y0:
+                        continue
+                    acc[y0:y1, x0:x1] += render_board_region(T, texture, self.xy_n, K, (x0, y0, x1, y1))
+        board = layers[0][1] / np.float32(n_sub)
+        grey = board[..., 0] + (1.0 - board[..., 1]) * self.background
+        hand_alpha = layers[1][1][..., 1] / np.float32(n_sub) if fx.hand is not None else None
+        gain, offset, grad_u, grad_v = lighting.at(t_s)
+        shading = self.shading * (1.0 + grad_u * self.ramp_u + grad_v * self.ramp_v)
+        if e.colour:
+            refl = np.repeat(grey[..., None], 3, axis=2)
+            if hand_alpha is not None:
+                a = hand_alpha[..., None]
+                refl = a * SKIN_BGR + (1.0 - a) * refl
+            radiance = refl * shading[..., None]
+            channel_gain = (gain * fx.gain * fx.wb_gains * ILLUMINANT_BGR).astype(np.float32)
+        else:
+            if hand_alpha is not None:
+                hand = layers[1][1][..., 0] / np.float32(n_sub)
+                grey = hand + (1.0 - hand_alpha) * grey
+            radiance = grey * shading
+            channel_gain = gain * fx.gain
+        depth_m = float(T_all[len(t_band) // 2, n_sub // 2, 2, 3])
+        defocus_px = e.defocus_base_px + e.defocus_px_m * abs(1.0 / max(depth_m, 0.3) - 1.0 / e.focus_m)
+        return expose(
+            radiance.astype(np.float32), channel_gain, offset, defocus_px, e.read_sigma, rng,
+            shot_gain=e.shot_gain, analog_gain=fx.analog_gain,
         )
 
     def video_frame(self, motion, t_s, exposure_s, blur_px, lighting: Lighting, rng):
@@ -389,19 +527,36 @@ def truth_tables(spec: SynthSpec, truth: VideoTruth):
             "v_px": truth.corners_px[..., 1].ravel(),
         }
     )
+    if truth.capture_index is not None:
+        frames["capture_index"] = truth.capture_index.astype(np.int64)
+        frames["line_delay_s"] = float(spec.effects.line_delay_s)
+        frames["n_visible"] = np.sum(truth.in_image & ~truth.occluded, axis=1).astype(np.int64)
+        frames["n_occluded"] = np.sum(truth.in_image & truth.occluded, axis=1).astype(np.int64)
+        frames["grip"] = truth.grip.astype(np.int64)
+        frames["gain"] = truth.gain
+        frames["analog_gain"] = truth.analog_gain
+        frames["light"] = truth.light
+        for c, name in enumerate("bgr"):
+            frames[f"wb_{name}"] = truth.wb_gains[:, c]
+        corners["occluded"] = truth.occluded.ravel()
+        corners["in_image"] = truth.in_image.ravel()
+        corners["t_line_s"] = truth.t_line_s.ravel()
     return frames, corners
 
 
-def truth_document(spec: SynthSpec, rig: Rig, n_frames, stills):
-    """The ``truth.yaml`` mapping (docs/contracts.md), plus the designed mountings and stills."""
-    width, height = IMAGE_SIZE
-    return {
+def truth_document(spec: SynthSpec, rig: Rig, n_frames, stills, extra=None):
+    """The ``truth.yaml`` mapping (docs/contracts.md), plus the designed mountings and stills.
+
+    ``extra`` (realistic renders): more keys, e.g. the effects and the dropped capture indices.
+    """
+    width, height = spec.image_size
+    doc = {
         "camera": {"K": spec.K, "dist": spec.dist, "width": width, "height": height},
         "T_Cm_C": rig.T_Cm_C,
         "T_Bm_B": rig.T_Bm_B,
         "T_W_Cm": rig.T_W_Cm,
         "dt_offset_s": rig.dt_offset_s,
-        "fps": FPS,
+        "fps": float(spec.effects.fps),
         "vicon_rate_hz": VICON_RATE_HZ,
         "markers_Cm_m": dict(zip(spec.camera_names, rig.markers_Cm_m, strict=True)),
         "markers_Bm_m": dict(zip(spec.board_names, rig.markers_Bm_m, strict=True)),
@@ -417,6 +572,9 @@ def truth_document(spec: SynthSpec, rig: Rig, n_frames, stills):
         "T_Bm_B_design": spec.T_Bm_B_design,
         "stills": stills,
     }
+    if extra:
+        doc.update(extra)
+    return doc
 
 
 def still_outline_B(board: Board):

@@ -54,3 +54,40 @@ def render_board(T_C_B, K, board=BOARD, pps=24, margin=1, noise_sigma=2.0, seed=
     p_B = board_object_points(board)
     uv, _ = cv2.projectPoints(p_B, tf.rvec_from_R(T_C_B[:3, :3]), T_C_B[:3, 3], K, None)
     return gray, uv.reshape(-1, 2)
+
+
+def render_board_distorted(T_C_B, K, dist, size, board=BOARD, pps=32, blur_sigma=0.7,
+                           noise_sigma=2.0, occluder=None, seed=0):
+    """As ``render_board`` at any ``size`` (w, h), through a lens with distortion ``dist``.
+
+    The distortion-free image is rendered first, then resampled at each distorted pixel's
+    undistorted position (``cv2.undistortPoints``); ``occluder`` (polygon, (M, 2) px) is filled
+    mid-dark grey after distortion (a hand). Returns the image and the true distorted corners.
+    """
+    w, h = size
+    sx, sy, s = board["squares_x"], board["squares_y"], board["square_m"]
+    margin = 1
+    tex_w, tex_h = (sx + 2 * margin) * pps, (sy + 2 * margin) * pps
+    cols, rows = np.arange(tex_w) // pps - margin, np.arange(tex_h) // pps - margin
+    ii, jj = np.meshgrid(cols, rows)
+    inside = (ii >= 0) & (ii < sx) & (jj >= 0) & (jj < sy)
+    texture = np.where(inside & ((ii + jj) % 2 == 0), 20, 235).astype(np.uint8)
+    A_B_tex = np.array([[s / pps, 0.0, (0.5 / pps - 1 - margin) * s],
+                        [0.0, s / pps, (0.5 / pps - 1 - margin) * s], [0.0, 0.0, 1.0]])
+    H_img_tex = K @ np.column_stack([T_C_B[:3, 0], T_C_B[:3, 1], T_C_B[:3, 3]]) @ A_B_tex
+    flat = cv2.warpPerspective(texture, H_img_tex, (w, h), flags=cv2.INTER_AREA,
+                               borderValue=128)
+    uu, vv = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
+    und = cv2.undistortPoints(np.stack([uu.ravel(), vv.ravel()], 1).reshape(-1, 1, 2), K,
+                              np.asarray(dist, float), P=K).reshape(h, w, 2).astype(np.float32)
+    img = cv2.remap(flat, und[..., 0], und[..., 1], cv2.INTER_LINEAR,
+                    borderValue=128).astype(np.float64)
+    if occluder is not None:
+        cv2.fillPoly(img, [np.round(np.asarray(occluder)).astype(np.int32)], 90.0)
+    img = cv2.GaussianBlur(img, (0, 0), blur_sigma)
+    img += np.random.default_rng(seed).normal(0.0, noise_sigma, img.shape)
+    gray = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+    p_B = board_object_points(board)
+    uv, _ = cv2.projectPoints(p_B, tf.rvec_from_R(T_C_B[:3, :3]), T_C_B[:3, 3], K,
+                              np.asarray(dist, float))
+    return gray, uv.reshape(-1, 2)

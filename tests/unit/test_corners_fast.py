@@ -82,16 +82,22 @@ def test_sequence_leaves_and_reenters_the_view(sequence):
 
 def test_tracking_against_truth_and_full_detection(sequence):
     """With tracking, the board is found in every frame where full detection finds it (and
-    maybe more), never where a corner is out of view, corner k within 0.3 px of true corner k;
-    most frames are tracked, and frames partly out of view are followed, not detected."""
+    maybe more); where the board is partly out of view only corners inside the image are kept
+    (keep_partial), with their true indices; corner k within 0.3 px of true corner k; most
+    frames are tracked, and frames partly out of view are followed, not detected; without
+    keep_partial those frames are not found."""
     frames, truth, in_view = sequence
     full = extract_corners(iter(frames), BOARD, track=False, restart_every=None)
     fast = extract_corners(iter(frames), BOARD)
     found_full, found_fast = _found(full), _found(fast)
     assert found_full[in_view].mean() > 0.9
     assert (found_fast >= found_full).all()
-    assert not found_fast[~in_view].any()
+    assert found_fast[~in_view].any()
     uv = fast[fast["found"]]
+    true_uv = truth[uv["frame"], uv["corner"]]
+    assert ((true_uv >= 0) & (true_uv <= np.array([W - 1, H - 1]))).all()
+    whole_only = extract_corners(iter(frames), BOARD, keep_partial=False, log_every=0)
+    assert not _found(whole_only)[~in_view].any()
     err = np.linalg.norm(uv[["u_px", "v_px"]].to_numpy() - truth[uv["frame"], uv["corner"]], axis=1)
     assert err.max() < 0.3
     methods = fast.attrs["order_methods"]

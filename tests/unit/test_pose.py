@@ -170,18 +170,39 @@ def test_estimate_poses_is_reproducible_for_a_seed():
 
 
 def test_estimate_poses_bad_tables_raise_input_error_naming_the_frame():
-    """Missing columns, or a found frame lacking a corner, are InputErrors naming the problem."""
+    """Missing columns, or a found frame with a repeated corner, are InputErrors naming it."""
     uv = _project(board_centre_pose([0, 0, 0], [0, 0, 1.0]), K_DEMO, DIST_DEMO)
     table = _corners_table([uv, uv])
     with pytest.raises(InputError, match="missing columns.*u_px"):
         estimate_poses(table.drop(columns="u_px"), K_DEMO, DIST_DEMO, BOARD)
-    broken = table.drop(index=table.index[(table["frame"] == 1) & (table["corner"] == 5)])
+    broken = table.copy()
+    broken.loc[(broken["frame"] == 1) & (broken["corner"] == 5), "corner"] = 4
     with pytest.raises(InputError, match="frame 1"):
         estimate_poses(broken, K_DEMO, DIST_DEMO, BOARD)
     nan_table = table.copy()
     nan_table.loc[3, "u_px"] = np.nan
     with pytest.raises(InputError, match="frame 0.*non-finite"):
         estimate_poses(nan_table, K_DEMO, DIST_DEMO, BOARD)
+
+
+def test_estimate_poses_uses_the_corners_a_frame_has():
+    """A found frame with a subset of the corners (a hand over the board) gets its pose from
+    them, close to the truth; a subset on one grid row, or under MIN_INLIERS corners, is
+    invalid; n_corners counts them."""
+    rng = np.random.default_rng(21)
+    T = board_centre_pose([0.2, -0.1, 0.05], [0.05, -0.02, 1.1])
+    uv = _project(T, K_DEMO, DIST_DEMO) + rng.normal(0.0, 0.05, (20, 2))
+    table = _corners_table([uv, uv, uv])
+    keep = {0: np.arange(20), 1: np.array([0, 1, 2, 5, 6, 7, 10, 11, 12, 16, 17]),
+            2: np.arange(5, 10)}  # frame 2: one grid row only
+    table = table[[c in keep[f] for f, c in zip(table["frame"], table["corner"], strict=True)]]
+    poses = estimate_poses(table, K_DEMO, DIST_DEMO, BOARD)
+    assert poses["n_corners"].tolist() == [20, 11, 5]
+    assert poses["valid"].tolist() == [True, True, False]
+    for i in (0, 1):
+        T_est = _T_est(poses.iloc[i])
+        assert np.linalg.norm(T_est[:3, 3] - T[:3, 3]) < 0.004
+        assert _angle_between(T_est, T) < np.deg2rad(0.3)
 
 
 # --------------------------------------------------------------------------------------------
@@ -384,3 +405,95 @@ def test_rendered_pnp_pose_errors(rendered_session):
     assert np.median(angle_deg) < 0.5
     assert np.percentile(angle_deg, 95) < 1.0
     assert p["reproj_rms_px"].median() < 0.3
+
+
+# --- scale-aware checks and frames that used to stop the stage (issue 13) -------------------
+
+BOARD_10x7 = {"squares_x": 11, "squares_y": 8, "square_m": 0.055}
+WIDE_DIST = [-0.30, 0.11, 0.0, 0.0, -0.02]  # a wide lens, k1 ~ -0.3
+
+
+@pytest.mark.parametrize(
+    "size, f_px",
+    [((640, 480), 520.0), ((1280, 720), 900.0), ((1920, 1080), 1350.0), ((1080, 1920), 1350.0)],
+)
+def test_detect_corners_keeps_blurred_wide_lens_boards_at_every_resolution(size, f_px):
+    """A blurred board near the camera through a k1 = -0.3 lens is kept at every image size
+    (the grid check is a share of the square size, not 2 px), corner k within 0.3 px of true k."""
+    from board_images import render_board_distorted
+
+    w, h = size
+    K = np.array([[f_px, 0.0, w / 2], [0.0, f_px, h / 2], [0.0, 0.0, 1.0]])
+    for i, (z, cx) in enumerate([(0.9, 0.0), (1.0, 0.1)]):
+        T = board_centre_pose([0.3, -0.25, 0.1], [cx * z, 0.05, z], BOARD_10x7)
+        gray, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7, blur_sigma=1.5,
+                                          seed=10 + i)
+        corners, method = detect_corners(gray, BOARD_10x7)
+        assert corners is not None, (size, z, method)
+        assert np.linalg.norm(corners - uv, axis=1).max() < 0.3
+
+
+def test_refine_corners_from_corners_outside_the_image_does_not_raise():
+    """Initial corners beyond the image border (cornerSubPix used to assert 'initial corner is
+    outside the image') are clipped into it: a result or None, never a cv2.error."""
+    from cvsflow.pose import refine_corners
+
+    T = board_centre_pose([0.0, 0.0, 0.0], [0.0, 0.0, 1.2])
+    gray, uv = render_board(T, K_CENTRED, seed=3)
+    shifted = uv.copy()
+    shifted[0] = [-3.0, -7.5]
+    shifted[-1] = [W + 2.0, H + 0.4]
+    refine_corners(gray, shifted, BOARD)  # must not raise
+    assert refine_corners(gray, uv + 0.8, BOARD) is not None
+
+
+def test_extract_corners_survives_an_opencv_error_on_one_frame(monkeypatch):
+    """An OpenCV error on one frame makes it found=False (counted as cv_error); the other
+    frames keep their boards."""
+    import cvsflow.pose as pose
+
+    T = board_centre_pose([0.1, 0.0, 0.0], [0.0, 0.0, 1.2])
+    frames = [(i, i / 30.0, render_board(T, K_CENTRED, seed=i)[0]) for i in range(4)]
+    real = pose.detect_corners
+
+    def failing(gray, *args, **kwargs):
+        if gray is frames[2][2]:
+            raise cv2.error("cornerSubPix: initial corner is outside the image")
+        return real(gray, *args, **kwargs)
+
+    monkeypatch.setattr(pose, "detect_corners", failing)
+    corners = extract_corners(frames, BOARD, track=False, log_every=0)
+    found = corners.groupby("frame")["found"].first()
+    assert found.tolist() == [True, True, False, True]
+    assert corners.attrs["order_methods"].get("cv_error") == 1
+
+
+def test_a_hand_over_the_board_keeps_the_visible_corners_with_true_indices():
+    """A tracked board that a hand (a dark polygon) partly covers stays found: the corners the
+    hand leaves are kept with their true indices (within 0.5 px), hidden ones are dropped."""
+    from board_images import render_board_distorted
+
+    size, K = (1280, 720), np.array([[900.0, 0.0, 640.0], [0.0, 900.0, 360.0], [0.0, 0.0, 1.0]])
+    frames, truths, hands = [], [], []
+    for i in range(8):
+        T = board_centre_pose([0.2, -0.15, 0.0], [-0.05 + 0.004 * i, 0.02, 1.2], BOARD_10x7)
+        hand = None
+        if i >= 4:  # a hand over the right third of the board
+            _, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7)
+            x0 = uv[:, 0].min() + 0.66 * np.ptp(uv[:, 0])
+            hand = np.array([[x0, 0], [size[0], 0], [size[0], size[1]], [x0, size[1]]])
+        gray, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7, blur_sigma=1.0,
+                                          occluder=hand, seed=i)
+        frames.append((i, i / 30.0, gray))
+        truths.append(uv)
+        hands.append(hand)
+    corners = extract_corners(frames, BOARD_10x7, log_every=0)
+    found = corners.groupby("frame")["found"].first()
+    assert found.all()
+    for i in range(4, 8):
+        rows = corners[corners["frame"] == i]
+        uv_true = truths[i][rows["corner"].to_numpy()]
+        assert np.linalg.norm(rows[["u_px", "v_px"]].to_numpy() - uv_true, axis=1).max() < 0.5
+        visible = truths[i][:, 0] < hands[i][0, 0] - 20
+        assert 0.8 * visible.sum() <= len(rows) < len(truths[i])
+        assert (uv_true[:, 0] < hands[i][0, 0]).all()

@@ -35,7 +35,8 @@ rule corners:
     input:
         video_path,
     output:
-        "results/{session}/corners.parquet",
+        corners="results/{session}/corners.parquet",
+        summary="results/{session}/corners_summary.yaml",
     log:
         "logs/{session}/corners.log",
     benchmark:

@@ -5,16 +5,17 @@ from functools import partial
 import cv2
 
 from cvsflow.corners_fast import extract_corners_parallel
-from cvsflow.io import write_parquet
+from cvsflow.io import write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.io.media import iter_video_gray, video_info
+from cvsflow.io.media import iter_video_gray, video_info, video_timing
+from cvsflow.pose import summarise_corners
 
 # One OpenCV thread per worker process: the workers are the parallelism.
 cv2.setNumThreads(1)
 
 with stage_logging(snakemake.log[0], "corners") as log:
     video = snakemake.input[0]
-    info = video_info(video)
+    info, timing = video_info(video), video_timing(video)
     log.info("video %s: %s; %d processes", video, info, snakemake.threads)
     corners = extract_corners_parallel(
         partial(iter_video_gray, video),
@@ -22,6 +23,8 @@ with stage_logging(snakemake.log[0], "corners") as log:
         snakemake.params.board,
         n_workers=snakemake.threads,
         subpix_window_px=snakemake.params.corners["subpix_window_px"],
+        max_grid_deviation=snakemake.params.corners["max_grid_deviation"],
         restart_every=snakemake.params.corners["restart_every_frames"],
     )
-    write_parquet(corners, snakemake.output[0])
+    write_parquet(corners, snakemake.output.corners)
+    write_yaml(summarise_corners(corners, timing), snakemake.output.summary)

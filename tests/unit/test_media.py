@@ -1,0 +1,128 @@
+"""Tests of cvsflow.io.media: PyAV decoding, container timestamps, frame counts, bad files."""
+
+from __future__ import annotations
+
+import functools
+from fractions import Fraction
+
+import av
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+from board_images import BOARD, board_centre_pose, render_board
+
+from cvsflow.corners_fast import extract_corners_parallel
+from cvsflow.errors import InputError
+from cvsflow.io.media import iter_video_gray, video_info, video_timing
+from cvsflow.pose import extract_corners, summarise_corners
+
+K = np.array([[700.0, 0.0, 319.5], [0.0, 700.0, 239.5], [0.0, 0.0, 1.0]])
+
+
+def _board_frame(i: int) -> np.ndarray:
+    """Frame i of a board drifting right (grey, 640x480)."""
+    T = board_centre_pose([0.1, 0.05, 0.0], [-0.2 + 0.004 * i, 0.0, 1.3])
+    return render_board(T, K, seed=i)[0]
+
+
+def _write_vfr_mp4(path, pts_s, time_base=Fraction(1, 90000)):
+    """H.264 (or MPEG-4) mp4 whose frame k has presentation time pts_s[k] (s)."""
+    container = av.open(str(path), "w")
+    try:
+        stream = container.add_stream("libx264", rate=30)
+    except Exception:  # noqa: BLE001 - an FFmpeg build without x264
+        stream = container.add_stream("mpeg4", rate=30)
+    stream.width, stream.height, stream.pix_fmt = 640, 480, "yuv420p"
+    stream.time_base = time_base
+    stream.codec_context.time_base = time_base
+    for k, t in enumerate(pts_s):
+        frame = av.VideoFrame.from_ndarray(cv2.cvtColor(_board_frame(k), cv2.COLOR_GRAY2BGR),
+                                           format="bgr24").reformat(format="yuv420p")
+        frame.pts = int(round(t / time_base))
+        frame.time_base = time_base
+        for packet in stream.encode(frame):
+            container.mux(packet)
+    for packet in stream.encode():
+        container.mux(packet)
+    container.close()
+
+
+def _truncated_avi(path, n_written=300, size=(320, 240)):
+    """MJPEG AVI whose header states n_written frames, cut to about half its bytes."""
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, size)
+    for i in range(n_written):
+        writer.write(cv2.cvtColor(cv2.resize(_board_frame(i % 60), size), cv2.COLOR_GRAY2BGR))
+    writer.release()
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
+def test_vfr_times_come_from_the_container_and_drops_are_counted(tmp_path):
+    """Jittered presentation times on a fine time base come back to the tick, frames keep
+    consecutive indices, and a gap of three periods counts two dropped frames."""
+    rng = np.random.default_rng(5)
+    n = 40
+    t = np.arange(n + 2) / 30.0 + rng.uniform(-0.004, 0.004, n + 2)
+    t[0] = 0.0
+    t = np.delete(t, [21, 22])  # two frames dropped after frame 20
+    path = tmp_path / "vfr.mp4"
+    _write_vfr_mp4(path, t)
+    frames = list(iter_video_gray(path))
+    assert [f[0] for f in frames] == list(range(n))
+    got = np.array([f[1] for f in frames])
+    assert np.abs(got - (t - t[0])).max() < 1.5e-5
+    timing = video_timing(path)
+    assert timing["n_frames"] == n
+    assert timing["n_dropped"] == 2 and timing["gaps"] == [[20, 2]]
+    assert video_info(path)["n_frames"] == n
+    assert frames[3][2].shape == (480, 640) and frames[3][2].dtype == np.uint8
+
+
+def test_seeking_is_exact_on_a_vfr_video(tmp_path):
+    """iter_video_gray(path, start, stop) gives exactly the frames, times and pixels of a full
+    read, also starting between key frames."""
+    t = np.arange(30) / 30.0 + np.random.default_rng(6).uniform(-0.003, 0.003, 30)
+    t[0] = 0.0
+    path = tmp_path / "vfr.mp4"
+    _write_vfr_mp4(path, t)
+    whole = list(iter_video_gray(path))
+    for start, stop in [(0, 5), (7, 19), (13, None), (29, None), (30, None)]:
+        part = list(iter_video_gray(path, start, stop))
+        ref = whole[start:stop]
+        assert [p[0] for p in part] == [r[0] for r in ref]
+        assert all(p[1] == r[1] and np.array_equal(p[2], r[2]) for p, r in zip(part, ref, strict=True))
+
+
+def test_header_count_larger_than_decoded_is_reported_and_chunks_equal_one_pass(tmp_path):
+    """A cut file whose header states 300 frames: both counts reported, and the chunked
+    two-process extraction gives the single-pass table (chunks cut on the demuxed count)."""
+    path = tmp_path / "cut.avi"
+    _truncated_avi(path)
+    info, timing = video_info(path), video_timing(path)
+    decoded = sum(1 for _ in iter_video_gray(path))
+    assert info["n_frames_header"] == 300
+    assert info["n_frames"] == timing["n_frames"] == decoded
+    assert 100 < decoded < 200
+    source = functools.partial(iter_video_gray, path)
+    single = extract_corners(source(0, None), BOARD, restart_every=40, log_every=0)
+    parallel = extract_corners_parallel(source, info["n_frames"], BOARD, n_workers=2,
+                                        restart_every=40, log_every=0)
+    pd.testing.assert_frame_equal(single, parallel)
+    summary = summarise_corners(parallel, timing)
+    assert summary["n_frames_header"] == 300
+    assert summary["n_frames_decoded"] == summary["n_frames_demuxed"] == decoded
+    assert summary["n_found"] > 0
+
+
+@pytest.mark.parametrize("kind", ["folder", "text", "missing"])
+def test_bad_video_files_raise_input_error_naming_the_file(tmp_path, kind):
+    """A folder, a file that is not a video and a missing file are InputErrors naming it."""
+    path = tmp_path / "board.mp4"
+    if kind == "folder":
+        path.mkdir()
+    elif kind == "text":
+        path.write_text("not a video\n")
+    for call in (video_info, video_timing, lambda p: list(iter_video_gray(p))):
+        with pytest.raises(InputError, match="board.mp4"):
+            call(path)
