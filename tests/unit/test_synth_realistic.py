@@ -68,12 +68,12 @@ def small_realistic_cfg(**synth):
     """A tiny realistic session: 320x240 wide lens, 2 s, 3 stills, a hand always there."""
     keys = dict(
         preset="realistic",
-        duration_s=2.0,
+        duration_s=1.0,
         n_stills=3,
         seed=5,
-        image_size=[320, 240],
+        image_size=[640, 480],
         distance_m=[0.9, 2.0],
-        camera={"fx_px": 260.0, "fy_px": 259.0, "cx_px": 159.0, "cy_px": 118.0,
+        camera={"fx_px": 520.0, "fy_px": 518.0, "cx_px": 318.0, "cy_px": 236.0,
                 "dist": [-0.3, 0.11, 0.0004, 0.0011, -0.02]},
         occlusion={"hand_share": 1.0, "reach_squares": [0.6, 1.4]},
         timestamps={"jitter_s": 0.002, "drop_rate": 0.1},
