@@ -4,6 +4,9 @@ rule calibrate:
     output:
         camera="results/{session}/camera.yaml",
         corners="results/{session}/calib_corners.parquet",
+        opencv="results/{session}/camera_opencv.yaml",
+        kalibr="results/{session}/camchain.yaml",
+        ros="results/{session}/camera_info.yaml",
         fig_errors=report(
             "results/{session}/figures/calibration_errors.png",
             caption="../report/calibration_errors.rst",
