@@ -203,3 +203,30 @@ def test_missing_columns_and_bad_grid_raise():
         optimise_seed(pairs.drop(columns="vic_yaw_rad"), corners, K, DIST, BOARD)
     with pytest.raises(OptimiseError, match="grid_points"):
         optimise_seed(pairs, corners, K, DIST, BOARD, grid_points=4)
+
+
+def test_divergence_flags_by_hand():
+    """Bound, focal ratio and translation-std criteria each give their own reason."""
+    from cvsflow.optimise.seed import seed_divergence
+
+    ok = seed_divergence((705, 698), (700, 700), (100, 5000), 16.0, (0.01, 0.02, 0.03))
+    assert ok is None
+    at_bound = seed_divergence((285.7, 4985.8), (701.7, 697.8), (100, 5000), 16.0, (0.1, 0.1, 0.1))
+    assert "fy = 4985.8 px within a grid step" in at_bound and "fx" not in at_bound.split(";")[0]
+    assert "7.15 x the calibrated" in at_bound
+    small = seed_divergence((150, 700), (700, 700), (100, 5000), 16.0, (0.1, 0.1, 0.1))
+    assert "0.21 x the calibrated" in small and "bound" not in small
+    wide = seed_divergence((700, 700), (700, 700), (100, 5000), 16.0, (0.1, 1.8, 0.1))
+    assert "exceeds 1 m" in wide
+
+
+def test_run_stopped_by_the_grid_bound_is_marked_diverged():
+    """Truth f = 700 px, grid capped at 680 px: f ends on the bound and the result says so;
+    an unconstrained run on the same data is not flagged."""
+    pairs, corners, K, *_ = _session(120, seed=4)
+    kw = dict(k_iterations=4, f_init_px=(665, 670), grid_half_width_px=32, grid_points=3, grid_levels=4)
+    capped = optimise_seed(pairs, corners, K, DIST, BOARD, f_bounds_px=(100.0, 680.0), **kw).result
+    assert capped["diverged"] is True
+    assert "bound" in capped["diverged_reason"]
+    free = optimise_seed(pairs, corners, K, DIST, BOARD, **kw).result
+    assert free["diverged"] is False and free["diverged_reason"] is None
