@@ -666,6 +666,7 @@ def optimise_seed(
         "norm_normalised_init_m": float(iterations["norm_normalised"].iloc[0]),
         "norm_normalised_final_m": float(last["norm_normalised"]),
         "n_pnp_solves": int(n_solves),
+        "f_bounds_px": [float(f_bounds_px[0]), float(f_bounds_px[1])],
         "diverged": reason is not None,
         "diverged_reason": reason,
         "timings_s": {"total": time.perf_counter() - t_start, "grid_search": t_grid},

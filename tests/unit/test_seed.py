@@ -230,3 +230,16 @@ def test_run_stopped_by_the_grid_bound_is_marked_diverged():
     assert "bound" in capped["diverged_reason"]
     free = optimise_seed(pairs, corners, K, DIST, BOARD, **kw).result
     assert free["diverged"] is False and free["diverged_reason"] is None
+
+
+def test_convergence_figure_marks_the_grid_bound_it_reached():
+    """The seed convergence figure draws the bound f reached, and not the one far away."""
+    from cvsflow.analyse import convergence
+    from cvsflow.plots.results import plot_convergence
+
+    pairs, corners, K, *_ = _session(60, seed=4)
+    res = optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=3, f_init_px=(665, 670),
+                        grid_points=3, grid_levels=3, f_bounds_px=(100.0, 680.0))
+    fig = plot_convergence(convergence(res.iterations), res.result["f_bounds_px"])
+    labels = [t.get_text() for t in fig.axes[6].get_legend().get_texts()]
+    assert "grid bound 680 px" in labels and "grid bound 100 px" not in labels
