@@ -10,13 +10,15 @@ rule calibrate:
         fig_errors=report(
             "results/{session}/figures/calibration_errors.png",
             caption="../report/calibration_errors.rst",
-            category="Camera",
+            category="{session}",
+            subcategory="camera",
             labels={"session": "{session}", "figure": "calibration errors"},
         ),
         fig_coverage=report(
             "results/{session}/figures/calibration_coverage.png",
             caption="../report/calibration_coverage.rst",
-            category="Camera",
+            category="{session}",
+            subcategory="camera",
             labels={"session": "{session}", "figure": "calibration coverage"},
         ),
     log:
@@ -63,7 +65,8 @@ rule poses:
         fig=report(
             "results/{session}/figures/poses_raw.png",
             caption="../report/poses_raw.rst",
-            category="Camera",
+            category="{session}",
+            subcategory="camera",
             labels={"session": "{session}", "figure": "raw poses"},
         ),
     log:
