@@ -319,7 +319,10 @@ def summary_row(session, method, finit, result, stats, truth=None, pairs=None, t
 
     row = {"session": session, "method": method, "f_init": finit,
            "n_pairs": int(result.get("n_pairs", stats.get("n", 0))),
-           "fx_px": float(result["fx_px"]), "fy_px": float(result["fy_px"])}
+           "fx_px": float(result["fx_px"]), "fy_px": float(result["fy_px"]),
+           # A diverged run (seed's own check) is listed but its numbers are not measurements.
+           "diverged": bool(result.get("diverged", False)),
+           "diverged_reason": result.get("diverged_reason") or ""}
     f_init = result.get("f_init_px", [np.nan, np.nan])
     row["fx_init_px"], row["fy_init_px"] = float(f_init[0]), float(f_init[1])
     if truth is not None:

@@ -416,7 +416,8 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
     Returns
     -------
     heldout : DataFrame
-        ``frame, t_s, fold, fx_px, fy_px`` and ``eps_{dim}`` (6-vector errors, m and rad).
+        ``frame, t_s, fold, fx_px, fy_px``, ``eps_{dim}`` (6-vector errors, m and rad), and
+        ``diverged``, ``diverged_reason`` of the fold's fit (:func:`optimise_seed`).
     """
     from cvsflow.optimise.seed import compute_eps, optimise_seed
 
@@ -446,6 +447,8 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
         eps = compute_eps(F, P_star, np.asarray(fit.result["P_bar"], float))  # eq. 1.11
         part = pd.DataFrame({"frame": scored["frame"].to_numpy(), "t_s": scored["t_s"].to_numpy()})
         part["fold"], part["fx_px"], part["fy_px"] = k, f[0], f[1]
+        part["diverged"] = bool(fit.result.get("diverged", False))
+        part["diverged_reason"] = fit.result.get("diverged_reason") or ""
         for j, d in enumerate(dims):
             part[f"eps_{d}"] = eps[:, j]
         parts.append(part)
@@ -610,4 +613,42 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     score, sigma, mu = crossfit_error_model(se3, features, cov_err)
     comparison["error_model"] = score
     comparison["error_frame"] = frame
+    mark_seed_divergence(comparison, seed_heldout)
     return comparison, se3, sigma, mu
+
+
+def mark_seed_divergence(comparison, seed_heldout):
+    """Move a diverged seed's statistics under a key that says they are not measurements.
+
+    The seed section becomes ``{diverged: true, diverged_reason, n,
+    statistics_not_measurements: {per_dim}}`` and ``rms_ratio_se3_to_seed`` moves to
+    ``rms_ratio_se3_to_seed_not_measurements`` (the top-level key is None), when any fold's fit
+    diverged (``diverged`` column of :func:`cross_validate_seed`) or a held-out translation
+    error std exceeds ``cvsflow.optimise.seed.DIVERGED_EPS_STD_M``. Otherwise the section gets
+    ``diverged: false``. Edits ``comparison`` in place and returns it.
+    """
+    from cvsflow.optimise.seed import DIVERGED_EPS_STD_M
+
+    sec = comparison["seed"]
+    reasons = []
+    if "diverged" in seed_heldout and seed_heldout["diverged"].astype(bool).any():
+        bad = seed_heldout[seed_heldout["diverged"].astype(bool)]
+        for k, g in bad.groupby("fold"):
+            reasons.append(f"fold {int(k)}: {g['diverged_reason'].iloc[0]}")
+    for d in ("x_m", "y_m", "z_m"):
+        std = sec["per_dim"][d]["std"]
+        if not std <= DIVERGED_EPS_STD_M:
+            reasons.append(f"held-out {d} std {std:.3f} m exceeds {DIVERGED_EPS_STD_M:g} m")
+    if not reasons:
+        sec["diverged"] = False
+        return comparison
+    log.warning("seed diverged (%s); its held-out statistics are not measurements", "; ".join(reasons))
+    comparison["seed"] = {
+        "diverged": True,
+        "diverged_reason": "; ".join(reasons),
+        "n": sec["n"],
+        "statistics_not_measurements": {"per_dim": sec["per_dim"]},
+    }
+    comparison["rms_ratio_se3_to_seed_not_measurements"] = comparison.get("rms_ratio_se3_to_seed")
+    comparison["rms_ratio_se3_to_seed"] = None
+    return comparison

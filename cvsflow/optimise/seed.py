@@ -386,6 +386,50 @@ def _eps_stats(eps):
     return eps.mean(axis=0), eps.std(axis=0), np.sqrt(np.mean(eps * eps, axis=0))
 
 
+#: A seed result is flagged ``diverged`` beyond these (module docstring of :func:`seed_divergence`).
+DIVERGED_EPS_STD_M = 1.0
+DIVERGED_F_RATIO = (0.25, 4.0)
+
+
+def seed_divergence(f_px, f_calibrated_px, f_bounds_px, step_px, eps_std_xyz_m):
+    """Why a seed result is not a measurement, or None when it stays in physical range.
+
+    Parameters
+    ----------
+    f_px, f_calibrated_px : array_like, shape (2,)
+        Final and calibrated (fx, fy), px.
+    f_bounds_px : (float, float)
+        The grid search's bounds, px.
+    step_px : float
+        The largest grid step (first level), px: a focal length within one step of a bound
+        has been stopped by the bound, not by the data.
+    eps_std_xyz_m : array_like, shape (3,)
+        Standard deviation of the translation errors eps_x, eps_y, eps_z, m.
+
+    Returns
+    -------
+    str or None
+        All reasons, joined by "; " (each with its numbers), or None.
+    """
+    f = np.asarray(f_px, float)
+    f_cal = np.asarray(f_calibrated_px, float)
+    lo, hi = float(f_bounds_px[0]), float(f_bounds_px[1])
+    reasons = []
+    for name, v, c in zip(("fx", "fy"), f, f_cal, strict=True):
+        if v <= lo + step_px or v >= hi - step_px:
+            reasons.append(f"{name} = {v:.1f} px within a grid step ({step_px:g} px) of the bound "
+                           f"[{lo:g}, {hi:g}] px")
+        r = v / c
+        if not DIVERGED_F_RATIO[0] <= r <= DIVERGED_F_RATIO[1]:
+            reasons.append(f"{name} = {v:.1f} px is {r:.2f} x the calibrated {c:.1f} px "
+                           f"(expected {DIVERGED_F_RATIO[0]:g} to {DIVERGED_F_RATIO[1]:g} x)")
+    std = np.asarray(eps_std_xyz_m, float)
+    if not np.all(np.isfinite(std)) or np.any(std > DIVERGED_EPS_STD_M):
+        reasons.append(f"translation error std {np.round(std, 3).tolist()} m exceeds "
+                       f"{DIVERGED_EPS_STD_M:g} m")
+    return "; ".join(reasons) if reasons else None
+
+
 def optimise_seed(
     pairs,
     corners,
@@ -450,7 +494,8 @@ def optimise_seed(
         ``errors``: per frame ``frame, t_s``, ``vic_*`` (P*), ``cvs_orig_*`` (F(f_init)),
         ``cvs_*`` (F(f_final)), ``eps_orig_*`` (with P_bar at f_init), ``eps_*`` (final).
         ``result``: fx_px, fy_px, P_bar, n_pairs, iterations, objective, initial and
-        final normalised error norms, timings (seconds).
+        final normalised error norms, timings (seconds); ``diverged`` (bool) and
+        ``diverged_reason`` (str or None, :func:`seed_divergence`).
 
     Raises
     ------
@@ -619,6 +664,11 @@ def optimise_seed(
         for i, d in enumerate(POSE_DIMS):
             errors[f"{prefix}_{d}"] = arr[:, i]
     last = iterations.iloc[-1]
+    reason = seed_divergence(f, (K[0, 0], K[1, 1]), f_bounds_px,
+                             2.0 * float(grid_half_width_px) / (int(grid_points) - 1),
+                             np.std(eps[:, :3], axis=0))
+    if reason is not None:
+        log.warning("seed diverged: %s; its statistics are not measurements", reason)
     result = {
         "method": "seed",
         "objective_kind": objective,
@@ -635,6 +685,9 @@ def optimise_seed(
         "norm_normalised_init_m": float(iterations["norm_normalised"].iloc[0]),
         "norm_normalised_final_m": float(last["norm_normalised"]),
         "n_pnp_solves": int(n_solves),
+        "f_bounds_px": [float(f_bounds_px[0]), float(f_bounds_px[1])],
+        "diverged": reason is not None,
+        "diverged_reason": reason,
         "timings_s": {"total": time.perf_counter() - t_start, "grid_search": t_grid},
     }
     log.info("seed: %d pairs, %d iterations, f (%.2f, %.2f) -> (%.2f, %.2f) px, "

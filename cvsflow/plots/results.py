@@ -27,13 +27,16 @@ def _six_axes(title, figsize=(13.0, 7.0)):
     return fig, axes
 
 
-def plot_convergence(conv):
+def plot_convergence(conv, f_bounds_px=None):
     """Per-dimension RMS error of eps against iteration, plus fx, fy (seed figure 1.6).
 
     Parameters
     ----------
     conv : pandas.DataFrame
         :func:`cvsflow.analyse.convergence` output (SI).
+    f_bounds_px : (float, float), optional
+        The grid search's bounds (px, result.yaml ``f_bounds_px``): drawn on the focal-length
+        panel when the focal lengths come within 10 % of the range of one of them.
 
     Returns
     -------
@@ -53,6 +56,12 @@ def plot_convergence(conv):
     axes[6].plot(it, conv["fx_px"], label="fx")
     axes[6].plot(it, conv["fy_px"], label="fy")
     axes[6].set(xlabel="iteration [-]", ylabel="focal length [px]", title="focal lengths")
+    if f_bounds_px is not None:
+        f_all = np.r_[conv["fx_px"].to_numpy(float), conv["fy_px"].to_numpy(float)]
+        span = max(float(np.ptp(f_all)), 1.0)
+        for b in f_bounds_px:
+            if np.min(np.abs(f_all - b)) <= 0.1 * span + 16.0:
+                axes[6].axhline(b, color="tab:red", ls=":", lw=1.0, label=f"grid bound {b:g} px")
     axes[6].legend(fontsize="small")
     axes[7].plot(it, conv["norm_normalised"] * 1e3)
     axes[7].set(xlabel="iteration [-]", ylabel="RMS translation error norm [mm]",

@@ -132,3 +132,23 @@ def test_compare_methods_leaves_out_non_finite_rows():
     a.loc[7, "eps_x_m"] = np.nan
     out = ev.compare_methods({"seed": a}, block_len=5, n_boot=50)
     assert out["seed"]["n"] == 49 and np.isfinite(out["seed"]["per_dim"]["x_m"]["rms"])
+
+
+def test_diverged_seed_statistics_are_moved_and_marked():
+    """A seed fold that diverged (or a held-out std over 1 m) moves seed's statistics under
+    statistics_not_measurements and voids the se3/seed ratio; a sane seed is marked false."""
+    rng = np.random.default_rng(3)
+    sane = pd.DataFrame({f"eps_{d}": rng.normal(0, 0.01, 100) for d in DIMS})
+    sane["fold"], sane["diverged"], sane["diverged_reason"] = 0, False, ""
+    se3 = pd.DataFrame({f"eps_{d}": rng.normal(0, 0.001, 100) for d in DIMS})
+    out = ev.mark_seed_divergence(ev.compare_methods({"seed": sane, "se3": se3}, n_boot=50), sane)
+    assert out["seed"]["diverged"] is False and out["rms_ratio_se3_to_seed"] is not None
+    bad = sane.copy()
+    bad.loc[bad.index[:50], ["fold", "diverged", "diverged_reason"]] = [1, True, "fy at the bound"]
+    out = ev.mark_seed_divergence(ev.compare_methods({"seed": bad, "se3": se3}, n_boot=50), bad)
+    assert out["seed"]["diverged"] is True and "fold 1: fy at the bound" in out["seed"]["diverged_reason"]
+    assert "per_dim" not in out["seed"] and "per_dim" in out["seed"]["statistics_not_measurements"]
+    assert out["rms_ratio_se3_to_seed"] is None and out["rms_ratio_se3_to_seed_not_measurements"]
+    wide = pd.DataFrame({f"eps_{d}": rng.normal(0, 1.8, 100) for d in DIMS})
+    out = ev.mark_seed_divergence(ev.compare_methods({"seed": wide, "se3": se3}, n_boot=50), wide)
+    assert out["seed"]["diverged"] is True and "std" in out["seed"]["diverged_reason"]

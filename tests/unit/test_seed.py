@@ -225,3 +225,43 @@ def test_seed_leaves_out_pairs_with_part_of_the_board():
         corner_array(corners, [0, 1], 4)
     with pytest.raises(OptimiseError, match="frame 2 .*no found corner"):
         corner_array(corners, [0, 1, 2], 4, allow_partial=True)
+
+
+def test_divergence_flags_by_hand():
+    """Bound, focal ratio and translation-std criteria each give their own reason."""
+    from cvsflow.optimise.seed import seed_divergence
+
+    ok = seed_divergence((705, 698), (700, 700), (100, 5000), 16.0, (0.01, 0.02, 0.03))
+    assert ok is None
+    at_bound = seed_divergence((285.7, 4985.8), (701.7, 697.8), (100, 5000), 16.0, (0.1, 0.1, 0.1))
+    assert "fy = 4985.8 px within a grid step" in at_bound and "fx" not in at_bound.split(";")[0]
+    assert "7.15 x the calibrated" in at_bound
+    small = seed_divergence((150, 700), (700, 700), (100, 5000), 16.0, (0.1, 0.1, 0.1))
+    assert "0.21 x the calibrated" in small and "bound" not in small
+    wide = seed_divergence((700, 700), (700, 700), (100, 5000), 16.0, (0.1, 1.8, 0.1))
+    assert "exceeds 1 m" in wide
+
+
+def test_run_stopped_by_the_grid_bound_is_marked_diverged():
+    """Truth f = 700 px, grid capped at 680 px: f ends on the bound and the result says so;
+    an unconstrained run on the same data is not flagged."""
+    pairs, corners, K, *_ = _session(120, seed=4)
+    kw = dict(k_iterations=4, f_init_px=(665, 670), grid_half_width_px=32, grid_points=3, grid_levels=4)
+    capped = optimise_seed(pairs, corners, K, DIST, BOARD, f_bounds_px=(100.0, 680.0), **kw).result
+    assert capped["diverged"] is True
+    assert "bound" in capped["diverged_reason"]
+    free = optimise_seed(pairs, corners, K, DIST, BOARD, **kw).result
+    assert free["diverged"] is False and free["diverged_reason"] is None
+
+
+def test_convergence_figure_marks_the_grid_bound_it_reached():
+    """The seed convergence figure draws the bound f reached, and not the one far away."""
+    from cvsflow.analyse import convergence
+    from cvsflow.plots.results import plot_convergence
+
+    pairs, corners, K, *_ = _session(60, seed=4)
+    res = optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=3, f_init_px=(665, 670),
+                        grid_points=3, grid_levels=3, f_bounds_px=(100.0, 680.0))
+    fig = plot_convergence(convergence(res.iterations), res.result["f_bounds_px"])
+    labels = [t.get_text() for t in fig.axes[6].get_legend().get_texts()]
+    assert "grid bound 680 px" in labels and "grid bound 100 px" not in labels

@@ -7,7 +7,8 @@ rule sync:
         fig=report(
             "results/{session}/figures/sync.png",
             caption="../report/sync.rst",
-            category="Synchronisation",
+            category="{session}",
+            subcategory="synchronisation",
             labels={"session": "{session}", "figure": "sync"},
         ),
     log:

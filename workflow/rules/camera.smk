@@ -4,16 +4,21 @@ rule calibrate:
     output:
         camera="results/{session}/camera.yaml",
         corners="results/{session}/calib_corners.parquet",
+        opencv="results/{session}/camera_opencv.yaml",
+        kalibr="results/{session}/camchain.yaml",
+        ros="results/{session}/camera_info.yaml",
         fig_errors=report(
             "results/{session}/figures/calibration_errors.png",
             caption="../report/calibration_errors.rst",
-            category="Camera",
+            category="{session}",
+            subcategory="camera",
             labels={"session": "{session}", "figure": "calibration errors"},
         ),
         fig_coverage=report(
             "results/{session}/figures/calibration_coverage.png",
             caption="../report/calibration_coverage.rst",
-            category="Camera",
+            category="{session}",
+            subcategory="camera",
             labels={"session": "{session}", "figure": "calibration coverage"},
         ),
     log:
@@ -61,7 +66,8 @@ rule poses:
         fig=report(
             "results/{session}/figures/poses_raw.png",
             caption="../report/poses_raw.rst",
-            category="Camera",
+            category="{session}",
+            subcategory="camera",
             labels={"session": "{session}", "figure": "raw poses"},
         ),
     log:

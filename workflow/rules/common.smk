@@ -110,8 +110,8 @@ def analysis_figure(name):
     return report(
         f"results/{{session}}/{{method}}/{{finit}}/figures/{name}.png",
         caption=f"../report/{name}.rst",
-        category="Errors",
-        subcategory="{method}, f_init {finit}",
+        category="{session}",
+        subcategory="errors: {method}, f_init {finit}",
         labels={
             "session": "{session}",
             "method": "{method}",

@@ -58,19 +58,22 @@ rule compare:
         heldout=report(
             "results/{session}/figures/heldout_errors.png",
             caption="../report/heldout_errors.rst",
-            category="Errors done right",
+            category="{session}",
+            subcategory="held-out comparison (seed vs se3)",
             labels={"session": "{session}", "figure": "held-out errors"},
         ),
         bands=report(
             "results/{session}/figures/error_bands.png",
             caption="../report/error_bands.rst",
-            category="Errors done right",
+            category="{session}",
+            subcategory="held-out comparison (seed vs se3)",
             labels={"session": "{session}", "figure": "predicted error bands"},
         ),
         correlation=report(
             "results/{session}/figures/se3_correlation.png",
             caption="../report/se3_correlation.rst",
-            category="Errors done right",
+            category="{session}",
+            subcategory="held-out comparison (seed vs se3)",
             labels={"session": "{session}", "figure": "se3 estimate correlations"},
         ),
     log:

@@ -30,19 +30,22 @@ rule flight:
         fig_errors=report(
             "results/flights/{flight}/figures/errors.png",
             caption="../report/flight_errors.rst",
-            category="Flights",
+            category="flight {flight}",
+            subcategory="on-board vs camera reference",
             labels={"flight": "{flight}", "figure": "on-board error"},
         ),
         fig_trajectories=report(
             "results/flights/{flight}/figures/trajectories.png",
             caption="../report/flight_trajectories.rst",
-            category="Flights",
+            category="flight {flight}",
+            subcategory="on-board vs camera reference",
             labels={"flight": "{flight}", "figure": "trajectories"},
         ),
         fig_ape=report(
             "results/flights/{flight}/figures/ape.png",
             caption="../report/flight_ape.rst",
-            category="Flights",
+            category="flight {flight}",
+            subcategory="on-board vs camera reference",
             labels={"flight": "{flight}", "figure": "absolute pose error"},
         ),
     log:

@@ -6,18 +6,21 @@ rule summary:
             "results/summary.csv",
             caption="../report/summary.rst",
             category="Summary",
+            subcategory="all sessions",
             labels={"figure": "optimiser runs (table)"},
         ),
         sweep=report(
             "results/figures/sweep.png",
             caption="../report/sweep.rst",
             category="Summary",
+            subcategory="all sessions",
             labels={"figure": "focal initialisation sweep"},
         ),
         sessions=report(
             "results/figures/sessions.png",
             caption="../report/sessions.rst",
             category="Summary",
+            subcategory="all sessions",
             labels={"figure": "sessions compared"},
         ),
     log:

@@ -27,7 +27,8 @@ rule vicon_repair:
         fig=report(
             "results/{session}/figures/vicon_markers.png",
             caption="../report/vicon_markers.rst",
-            category="Vicon",
+            category="{session}",
+            subcategory="Vicon",
             labels={"session": "{session}", "figure": "marker gaps"},
         ),
     log:
@@ -53,7 +54,8 @@ rule vicon_bodies:
         fig=report(
             "results/{session}/figures/vicon_fit.png",
             caption="../report/vicon_fit.rst",
-            category="Vicon",
+            category="{session}",
+            subcategory="Vicon",
             labels={"session": "{session}", "figure": "rigid-body fit"},
         ),
     log:

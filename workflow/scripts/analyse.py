@@ -25,7 +25,8 @@ with stage_logging(snakemake.log[0], "analyse") as log:
     if snakemake.wildcards.method == "se3":
         save_figure(plots_se3.plot_solver_convergence(iterations), out.convergence)
     else:
-        save_figure(plots.plot_convergence(analyse.convergence(iterations)), out.convergence)
+        conv = analyse.convergence(iterations)
+        save_figure(plots.plot_convergence(conv, result.get("f_bounds_px")), out.convergence)
     save_figure(plots.plot_error_histograms(errors, tests), out.histograms)
     save_figure(plots.plot_qq(analyse.qq_data(errors)), out.qq)
     labels = plots.SE3_LABELS if snakemake.wildcards.method == "se3" else plots.SEED_LABELS

@@ -4,6 +4,7 @@ import cv2
 
 from cvsflow.calibration import calibrate_camera
 from cvsflow.io import save_figure, write_parquet, write_yaml
+from cvsflow.io.camera_formats import write_camera_format
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import list_stills, read_gray
 from cvsflow.plots import camera as plots
@@ -18,5 +19,8 @@ with stage_logging(snakemake.log[0], "calibrate") as log:
     log.info("calibrated on %d of %d stills, RMS %.3f px", camera["n_used"], len(paths), camera["rms_px"])
     write_yaml(camera, snakemake.output.camera)
     write_parquet(calib_corners, snakemake.output.corners)
+    # Interchange copies beside camera.yaml (OpenCV FileStorage, Kalibr camchain, ROS camera_info).
+    for fmt in ("opencv", "kalibr", "ros"):
+        write_camera_format(camera, fmt, snakemake.output[fmt])
     save_figure(plots.plot_calibration_errors(camera), snakemake.output.fig_errors)
     save_figure(plots.plot_calibration_coverage(calib_corners, camera), snakemake.output.fig_coverage)

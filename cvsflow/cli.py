@@ -1,0 +1,387 @@
+"""The ``cvsflow`` command: calibrate stills, export results, run the workflow, start a session.
+
+Exit codes: 0 success; 1 a cvsflow error (one line on stderr naming the file); 2 a usage error
+(argparse); any other code from ``cvsflow run`` is snakemake's own.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from cvsflow.errors import CvsflowError, InputError
+
+log = logging.getLogger(__name__)
+
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v")
+MOCAP_SUFFIXES = (".csv", ".c3d")
+#: Inner-corner sizes ``cvsflow init`` tries (OpenCV sample, common printed boards, the demo's).
+COMMON_INNER = ((9, 6), (8, 6), (7, 5), (7, 6), (10, 7), (6, 4), (5, 4), (11, 8), (8, 5))
+
+EPILOG = """\
+board convention: cvsflow's config counts SQUARES (board.squares_x, squares_y); OpenCV and
+Kalibr count INNER CORNERS (one fewer each way). `--inner 9x6` is 10x7 squares.
+
+exit codes: 0 ok, 1 cvsflow error (one line naming the file), 2 usage error;
+`cvsflow run` returns snakemake's exit code.
+"""
+
+
+def _parse_inner(text: str) -> tuple[int, int]:
+    try:
+        nx, ny = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"--inner {text!r}: expected NXxNY, e.g. 9x6") from exc
+    if nx < 2 or ny < 2:
+        raise argparse.ArgumentTypeError(f"--inner {text!r}: expected at least 2x2 inner corners")
+    return nx, ny
+
+
+# ------------------------------------------------------------------------------------------
+# calibrate
+# ------------------------------------------------------------------------------------------
+
+
+def cmd_calibrate(args) -> int:
+    import cv2
+
+    from cvsflow.calibration import calibrate_camera
+    from cvsflow.io import write_parquet, write_yaml
+    from cvsflow.io.camera_formats import write_all_formats
+    from cvsflow.io.media import list_stills, read_gray
+
+    nx, ny = args.inner
+    board = {"squares_x": nx + 1, "squares_y": ny + 1, "square_m": float(args.square_m)}
+    cv2.setNumThreads(1)
+    paths = list_stills(args.dir)
+    if not paths:
+        raise InputError(f"{args.dir}: no images (png, jpg, ...) in the stills folder")
+    images = [(p.name, read_gray(p)) for p in paths]
+    camera, corners = calibrate_camera(
+        images, board, subpix_window_px=args.subpix_window_px, min_images=args.min_images
+    )
+    out = Path(args.out)
+    write_yaml(camera, out / "camera.yaml")
+    write_parquet(corners, out / "calib_corners.parquet")
+    files = write_all_formats(camera, out)
+    K = np.asarray(camera["K"])
+    print(
+        f"calibrated on {camera['n_used']} of {len(paths)} stills: fx {K[0, 0]:.5f} fy {K[1, 1]:.5f} "
+        f"cx {K[0, 2]:.5f} cy {K[1, 2]:.5f} px, RMS {camera['rms_px']:.6f} px"
+    )
+    print(f"wrote {out / 'camera.yaml'}, " + ", ".join(str(p) for p in files.values()))
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+# export
+# ------------------------------------------------------------------------------------------
+
+
+def _camera_yaml_path(src) -> Path:
+    src = Path(src)
+    path = src / "camera.yaml" if src.is_dir() else src
+    if not path.is_file():
+        raise InputError(f"{path}: camera.yaml not found (give a results/<session> folder or the file)")
+    return path
+
+
+def cmd_export_camera(args) -> int:
+    from cvsflow.io import read_yaml
+    from cvsflow.io.camera_formats import write_camera_format
+
+    path = _camera_yaml_path(args.src)
+    write_camera_format(read_yaml(path), args.format, args.out)
+    print(f"wrote {args.out} ({args.format}) from {path}")
+    return 0
+
+
+def _pairs_trajectory(pairs, prefix_pos, quat_cols):
+    import pandas as pd
+
+    d = pd.DataFrame({"t_s": pairs["t_s"].to_numpy(float)})
+    for a in "xyz":
+        d[f"{a}_m"] = pairs[f"{prefix_pos}{a}_m"].to_numpy(float)
+    for name, col in zip(("qx", "qy", "qz", "qw"), quat_cols, strict=True):
+        d[name] = col
+    return d
+
+
+def cmd_export_trajectory(args) -> int:
+    from cvsflow.io import read_parquet
+    from cvsflow.io.flightlog import write_tum
+    from cvsflow.transforms import R_from_rvec, quat_from_R
+
+    src = Path(args.results)
+    path = src / "pairs.parquet" if src.is_dir() else src
+    if not path.is_file():
+        raise InputError(f"{path}: pairs.parquet not found (give a finished results/<session> folder)")
+    pairs = read_parquet(path)
+    need = {"t_s", "cvs_rvec_0", "cvs_x_m", "cmbm_x_m", "cmbm_qw"}
+    if not need <= set(pairs.columns):
+        raise InputError(f"{path}: expected columns {sorted(need)} (docs/contracts.md, pairs.parquet)")
+    rvec = pairs[["cvs_rvec_0", "cvs_rvec_1", "cvs_rvec_2"]].to_numpy(float)
+    q_cvs = np.array([quat_from_R(R_from_rvec(r)) for r in rvec]).reshape(-1, 4)
+    cvs = _pairs_trajectory(pairs, "cvs_", q_cvs.T)
+    vic = _pairs_trajectory(pairs, "cmbm_", [pairs[f"cmbm_q{a}"].to_numpy(float) for a in "xyzw"])
+    out = Path(args.out_dir)
+    write_tum(cvs, out / "cvs_T_C_B.tum")
+    write_tum(vic, out / "vicon_T_Cm_Bm.tum")
+    print(
+        f"wrote {out / 'cvs_T_C_B.tum'} and {out / 'vicon_T_Cm_Bm.tum'} ({len(pairs)} poses each, "
+        "video clock, unaligned: the frames differ by T_Cm_C and T_Bm_B)"
+    )
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+# run
+# ------------------------------------------------------------------------------------------
+
+
+def profile_dir(root: Path) -> Path:
+    """``profiles/default`` at the repository root if present, else ``workflow/profiles/default``."""
+    top = root / "profiles" / "default"
+    return top if top.is_dir() else root / "workflow" / "profiles" / "default"
+
+
+def cmd_run(args, extra) -> int:
+    root = Path.cwd()
+    if not (root / "Snakefile").is_file() and not (root / "workflow" / "Snakefile").is_file():
+        raise InputError(f"{root}: no Snakefile here (run `cvsflow run` from the cvsflow repository)")
+    cmd = [sys.executable, "-m", "snakemake"]
+    if "--profile" not in extra and "--workflow-profile" not in extra:
+        cmd += ["--profile", str(profile_dir(root).relative_to(root))]
+    cmd += list(extra)
+    log.info("running %s", " ".join(cmd))
+    return subprocess.call(cmd)
+
+
+# ------------------------------------------------------------------------------------------
+# init
+# ------------------------------------------------------------------------------------------
+
+
+def _find_stills(folder: Path):
+    from cvsflow.io.media import IMAGE_SUFFIXES
+
+    best = None
+    for d in sorted([folder, *[p for p in folder.rglob("*") if p.is_dir()]]):
+        n = sum(1 for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if n >= 3 and (best is None or n > best[1]):
+            best = (d, n)
+    return best
+
+
+def _try_inner_sizes(still: Path):
+    import cv2
+
+    from cvsflow.io.media import read_gray
+
+    gray = read_gray(still)
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    for nx, ny in COMMON_INNER:
+        found, _ = cv2.findChessboardCorners(gray, (nx, ny), flags=flags)
+        if found:
+            return nx, ny
+    return None
+
+
+def build_session_config(folder) -> tuple[dict, list[str]]:
+    """Session config guessed from a recording folder, and notes for the user to check.
+
+    Returns
+    -------
+    session : dict
+        ``calib_dir``, ``video``, ``vicon``, ``board``, ``markers`` (entries marked TODO where
+        nothing was found).
+    notes : list of str
+        What was found and what the user must check.
+    """
+    from cvsflow.io.vicon import marker_names, read_vicon
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: recording folder not found")
+    notes = []
+    session: dict = {}
+    stills = _find_stills(folder)
+    inner = None
+    if stills is None:
+        session["calib_dir"] = "TODO"
+        notes.append("no folder with 3 or more stills found: set calib_dir")
+    else:
+        session["calib_dir"] = str(stills[0])
+        notes.append(f"stills: {stills[0]} ({stills[1]} images)")
+        from cvsflow.io.media import list_stills
+
+        inner = _try_inner_sizes(list_stills(stills[0])[0])
+    videos = sorted(p for p in folder.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES)
+    session["video"] = str(videos[0]) if videos else "TODO"
+    notes.append(f"video: {videos[0]}" if videos else "no video found: set video")
+    if len(videos) > 1:
+        notes.append(f"{len(videos)} videos found; took the first, check")
+    mocap = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MOCAP_SUFFIXES)
+    names: list[str] = []
+    session["vicon"] = "TODO"
+    for p in mocap:
+        try:
+            names = marker_names(read_vicon(p))
+        except CvsflowError as exc:
+            notes.append(f"{p}: not a motion-capture export ({exc})")
+            continue
+        session["vicon"] = str(p)
+        notes.append(f"motion capture: {p}, markers {', '.join(names)}")
+        break
+    if session["vicon"] == "TODO":
+        notes.append("no Nexus CSV or C3D export found: set vicon")
+    if inner is None:
+        session["board"] = {"squares_x": "TODO", "squares_y": "TODO", "square_m": "TODO"}
+        notes.append(f"no chessboard of the sizes {COMMON_INNER} (inner corners) found: set board")
+    else:
+        session["board"] = {"squares_x": inner[0] + 1, "squares_y": inner[1] + 1, "square_m": "TODO"}
+        notes.append(
+            f"board: {inner[0]}x{inner[1]} inner corners found = {inner[0] + 1}x{inner[1] + 1} squares "
+            "(cvsflow counts squares); measure square_m in metres"
+        )
+    subjects: dict[str, list[str]] = {}
+    for n in names:
+        subjects.setdefault(n.split(":")[0], []).append(n)
+    cam = next((v for k, v in subjects.items() if "cam" in k.lower()), ["TODO"])
+    brd = next((v for k, v in subjects.items() if "board" in k.lower()), ["TODO"])
+    session["markers"] = {
+        "camera": {"names": cam, "layout_m": "TODO: one [x, y, z] per marker, m, body frame"},
+        "board": {"names": brd, "layout_m": "TODO: one [x, y, z] per marker, m, body frame"},
+    }
+    return session, notes
+
+
+def cmd_init(args) -> int:
+    import yaml
+
+    from cvsflow.io import atomic_output
+
+    folder = Path(args.dir)
+    out = Path(args.out) if args.out else folder / "cvsflow_session.yaml"
+    if out.exists():
+        raise InputError(f"{out}: exists; cvsflow init never overwrites a file (give --out)")
+    session, notes = build_session_config(folder)
+    name = args.name or folder.resolve().name
+    text = "# Session config written by `cvsflow init`: check every line, fill every TODO.\n"
+    text += "# Use: snakemake --configfile " + str(out) + " (merges with config/config.yaml)\n"
+    text += "".join(f"# {n}\n" for n in notes)
+    text += yaml.safe_dump({"sessions": {name: session}}, sort_keys=False, default_flow_style=None)
+    with atomic_output(out) as tmp:
+        Path(tmp).write_text(text)
+    for n in notes:
+        print(n)
+    print(f"wrote {out}")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="cvsflow",
+        description="Webcam + chessboard pose accuracy against Vicon: calibrate, export, run, init.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress (INFO) on stderr")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    c = sub.add_parser(
+        "calibrate",
+        help="calibrate a camera from a folder of chessboard stills",
+        description="Calibrate from stills alone (the workflow's calibrate stage); writes "
+        "camera.yaml, calib_corners.parquet and the OpenCV, Kalibr and ROS files into OUT.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    c.add_argument("dir", help="folder of stills (png, jpg, ...)")
+    c.add_argument("--inner", type=_parse_inner, required=True, help="inner corners NXxNY, e.g. 9x6")
+    c.add_argument("--square-m", type=float, required=True, help="square side, metres")
+    c.add_argument("--out", required=True, help="output folder")
+    c.add_argument("--subpix-window-px", type=int, default=11, help="cornerSubPix half window (px)")
+    c.add_argument("--min-images", type=int, default=5, help="fewest stills with a board")
+    c.set_defaults(func=cmd_calibrate)
+
+    e = sub.add_parser("export", help="export a finished run's camera or trajectories")
+    esub = e.add_subparsers(dest="what", required=True, metavar="WHAT")
+    ec = esub.add_parser(
+        "camera",
+        help="camera.yaml as OpenCV FileStorage, Kalibr camchain or ROS camera_info",
+        description="Kalibr's radtan model has no k3: it is dropped; the largest pixel shift "
+        "that causes is written in the file and warned about above 0.1 px.",
+    )
+    ec.add_argument("src", help="results/<session> folder or a camera.yaml")
+    ec.add_argument("--format", choices=("opencv", "kalibr", "ros"), required=True)
+    ec.add_argument("--out", required=True, help="output file")
+    ec.set_defaults(func=cmd_export_camera)
+    et = esub.add_parser(
+        "trajectory",
+        help="CVS (T_C_B) and Vicon (T_Cm_Bm) trajectories as TUM files, unaligned, for evo",
+        description="Writes cvs_T_C_B.tum and vicon_T_Cm_Bm.tum (video clock, s, m, quaternion "
+        "xyzw) from pairs.parquet. They are unaligned: apply evo's own -a/-s; note the frames "
+        "differ on both sides (T_Cm_C and T_Bm_B), which a one-sided alignment does not remove.",
+    )
+    et.add_argument("results", help="results/<session> folder or its pairs.parquet")
+    et.add_argument("--out-dir", required=True, help="output folder")
+    et.set_defaults(func=cmd_export_trajectory)
+
+    r = sub.add_parser(
+        "run",
+        help="run the workflow (snakemake with the workstation profile); other options pass through",
+        description="Runs `python -m snakemake --profile profiles/default [ARGS]` (or "
+        "workflow/profiles/default if the former is absent) in the current folder; every "
+        "argument goes to snakemake unchanged, e.g. `cvsflow run --configfile my.yaml -n`.",
+    )
+    r.set_defaults(func=None)
+
+    i = sub.add_parser(
+        "init",
+        help="write a session config from a recording folder, for you to check",
+        description="Finds the stills folder, the video and the Nexus CSV / C3D export; lists "
+        "the marker names; tries common inner-corner sizes on one still. Never overwrites.",
+    )
+    i.add_argument("dir", help="recording folder")
+    i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml)")
+    i.add_argument("--name", help="session name (default: the folder's name)")
+    i.set_defaults(func=cmd_init)
+    return p
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``cvsflow`` command; returns the exit code."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # `run` passes everything after it to snakemake, unparsed.
+    if "run" in argv and all(a.startswith("-") for a in argv[: argv.index("run")]):
+        k = argv.index("run")
+        extra = argv[k + 1 :]
+        if extra in (["-h"], ["--help"]):
+            build_parser().parse_args(["run", "--help"])
+        args = build_parser().parse_args(argv[: k + 1])
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+        try:
+            return cmd_run(args, extra)
+        except CvsflowError as exc:
+            print(f"cvsflow: error: {exc}", file=sys.stderr)
+            return 1
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    try:
+        return args.func(args)
+    except CvsflowError as exc:
+        print(f"cvsflow: error: {exc}", file=sys.stderr)
+        return 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

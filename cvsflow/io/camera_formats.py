@@ -1,0 +1,203 @@
+"""Interchange files for a calibrated camera: OpenCV FileStorage, Kalibr camchain, ROS camera_info.
+
+Each writer takes camera.yaml's content (``K`` 3x3 in px, ``dist`` = [k1, k2, p1, p2, k3],
+``width``, ``height`` in px, ``board`` with ``squares_x``, ``squares_y``, ``square_m``) and writes
+one file atomically (through ``cvsflow.io.atomic_output``).
+
+Board convention: cvsflow's config counts *squares* (``squares_x``, ``squares_y``); OpenCV's
+``findChessboardCorners`` and Kalibr's target files count *inner corners* (one fewer each way).
+Every exported file says so in its header comment.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+
+from cvsflow.errors import InputError
+from cvsflow.io.files import atomic_output
+
+log = logging.getLogger(__name__)
+
+#: Format name -> file name written beside camera.yaml.
+FORMAT_FILES = {
+    "opencv": "camera_opencv.yaml",
+    "kalibr": "camchain.yaml",
+    "ros": "camera_info.yaml",
+}
+
+#: A k3 whose omission moves some pixel more than this (px) is warned about (Kalibr radtan).
+K3_WARN_PX = 0.1
+
+
+def _camera_arrays(camera: dict, source="camera.yaml") -> tuple[np.ndarray, np.ndarray, int, int]:
+    """``K`` (3, 3) px, ``dist`` (5,), width and height (px) of a camera.yaml mapping, checked."""
+    try:
+        K = np.asarray(camera["K"], dtype=np.float64)
+        dist = np.asarray(camera["dist"], dtype=np.float64).ravel()
+        width, height = int(camera["width"]), int(camera["height"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{source}: expected keys K (3x3), dist (5 values), width, height ({exc})") from exc
+    if K.shape != (3, 3) or dist.shape != (5,):
+        raise InputError(
+            f"{source}: K has shape {K.shape}, dist {dist.shape}; expected (3, 3) and (5,) "
+            "(k1 k2 p1 p2 k3)"
+        )
+    return K, dist, width, height
+
+
+def _board_comment(camera: dict) -> str:
+    board = camera.get("board") or {}
+    if "squares_x" in board:
+        sx, sy = int(board["squares_x"]), int(board["squares_y"])
+        size = f"{sx}x{sy} squares = {sx - 1}x{sy - 1} inner corners, square {board['square_m']} m"
+    else:
+        size = "board size not recorded"
+    return (
+        "Board convention: cvsflow's config counts squares (squares_x, squares_y); OpenCV and "
+        f"Kalibr count inner corners (one fewer each way). Calibration board: {size}."
+    )
+
+
+def k3_drop_shift_px(camera: dict, step_px: float = 8.0) -> float:
+    """Largest pixel displacement caused by setting k3 = 0, over the whole image.
+
+    Parameters
+    ----------
+    camera : dict
+        camera.yaml content.
+    step_px : float
+        Spacing of the pixel grid tested (px); the image border is always included.
+
+    Returns
+    -------
+    float
+        max over the grid of ``|project(undistort(u; dist); dist with k3=0) - u|``, px.
+    """
+    K, dist, width, height = _camera_arrays(camera)
+    us = np.unique(np.r_[np.arange(0.0, width, step_px), width - 1.0])
+    vs = np.unique(np.r_[np.arange(0.0, height, step_px), height - 1.0])
+    uu, vv = np.meshgrid(us, vs)
+    px = np.stack([uu.ravel(), vv.ravel()], axis=1).reshape(-1, 1, 2)
+    norm = cv2.undistortPointsIter(
+        px, K, dist, None, None, (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+    ).reshape(-1, 2)
+    pts = np.c_[norm, np.ones(len(norm))]
+    dist0 = dist.copy()
+    dist0[4] = 0.0
+    reproj, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K, dist0)
+    return float(np.max(np.linalg.norm(reproj.reshape(-1, 2) - px.reshape(-1, 2), axis=1)))
+
+
+def write_opencv_yaml(camera: dict, path) -> None:
+    """OpenCV FileStorage YAML as OpenCV's calibration sample writes it.
+
+    Keys ``image_width``, ``image_height`` (px), ``camera_matrix`` (3x3 ``!!opencv-matrix``, px),
+    ``distortion_coefficients`` (5x1: k1 k2 p1 p2 k3), ``avg_reprojection_error`` (px) when known.
+    Written with ``cv2.FileStorage`` itself; read back with ``cv2.FileStorage(path, READ)``.
+    """
+    K, dist, width, height = _camera_arrays(camera)
+    path = Path(path)
+    with atomic_output(path, suffix=".yaml") as tmp:
+        fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
+        try:
+            fs.writeComment("Written by cvsflow from camera.yaml. " + _board_comment(camera))
+            fs.write("image_width", width)
+            fs.write("image_height", height)
+            fs.write("camera_matrix", K)
+            fs.write("distortion_coefficients", dist.reshape(5, 1))
+            if camera.get("rms_px") is not None:
+                fs.write("avg_reprojection_error", float(camera["rms_px"]))
+        finally:
+            fs.release()
+
+
+def _dump_with_header(data: dict, header: str, path) -> None:
+    text = "".join(f"# {line}\n" for line in header.splitlines())
+    text += yaml.safe_dump(data, sort_keys=False, default_flow_style=None)
+    with atomic_output(path) as tmp:
+        Path(tmp).write_text(text)
+
+
+def write_kalibr_camchain(camera: dict, path, topic: str = "/camera/image_raw") -> float:
+    """Kalibr camchain YAML (one camera ``cam0``, ``pinhole`` + ``radtan``).
+
+    Kalibr's radtan model has four coefficients (k1 k2 p1 p2): k3 is dropped. The largest pixel
+    shift that causes over the image is computed (``k3_drop_shift_px``), written in the file's
+    comment, logged, and warned about when above ``K3_WARN_PX``.
+
+    Returns
+    -------
+    float
+        That largest shift, px.
+    """
+    K, dist, width, height = _camera_arrays(camera)
+    shift = k3_drop_shift_px(camera)
+    note = (
+        f"Kalibr radtan has no k3: k3 = {dist[4]:.6g} of camera.yaml was dropped; that moves "
+        f"pixels by up to {shift:.3f} px over the {width}x{height} image."
+    )
+    if shift > K3_WARN_PX:
+        log.warning(
+            "%s: %s (over %.1f px: use the OpenCV or ROS file where k3 matters)", path, note, K3_WARN_PX
+        )
+    else:
+        log.info("%s: %s", path, note)
+    data = {
+        "cam0": {
+            "camera_model": "pinhole",
+            "intrinsics": [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])],
+            "distortion_model": "radtan",
+            "distortion_coeffs": [float(v) for v in dist[:4]],
+            "resolution": [width, height],
+            "rostopic": topic,
+        }
+    }
+    header = "Kalibr camchain written by cvsflow from camera.yaml.\n" + note + "\n" + _board_comment(camera)
+    _dump_with_header(data, header, path)
+    return shift
+
+
+def write_ros_camera_info(camera: dict, path, camera_name: str = "camera") -> None:
+    """ROS camera_info YAML as camera_calibration_parsers reads it (plumb_bob, 5 coefficients).
+
+    ``projection_matrix`` is ``[K | 0]`` (monocular, unrectified); ``rectification_matrix`` identity.
+    """
+    K, dist, width, height = _camera_arrays(camera)
+    P = np.c_[K, np.zeros(3)]
+    data = {
+        "image_width": width,
+        "image_height": height,
+        "camera_name": str(camera_name),
+        "camera_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in K.ravel()]},
+        "distortion_model": "plumb_bob",
+        "distortion_coefficients": {"rows": 1, "cols": 5, "data": [float(v) for v in dist]},
+        "rectification_matrix": {"rows": 3, "cols": 3, "data": [float(v) for v in np.eye(3).ravel()]},
+        "projection_matrix": {"rows": 3, "cols": 4, "data": [float(v) for v in P.ravel()]},
+    }
+    header = "ROS camera_info written by cvsflow from camera.yaml.\n" + _board_comment(camera)
+    _dump_with_header(data, header, path)
+
+
+WRITERS = {"opencv": write_opencv_yaml, "kalibr": write_kalibr_camchain, "ros": write_ros_camera_info}
+
+
+def write_camera_format(camera: dict, fmt: str, path) -> None:
+    """Write ``camera`` in format ``fmt`` (``opencv``, ``kalibr`` or ``ros``) to ``path``."""
+    if fmt not in WRITERS:
+        raise InputError(f"camera export format {fmt!r}: expected one of {sorted(WRITERS)}")
+    WRITERS[fmt](camera, path)
+
+
+def write_all_formats(camera: dict, folder) -> dict[str, Path]:
+    """Write every interchange file into ``folder`` (names in ``FORMAT_FILES``); return the paths."""
+    folder = Path(folder)
+    out = {}
+    for fmt, name in FORMAT_FILES.items():
+        write_camera_format(camera, fmt, folder / name)
+        out[fmt] = folder / name
+    return out

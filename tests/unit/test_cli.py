@@ -1,0 +1,131 @@
+"""The `cvsflow` command: real stills, exports, init, run, exit codes and one-line errors."""
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from cvsflow import cli
+from cvsflow.io import write_parquet, write_yaml
+
+REAL = Path("/work/shared/data/real/opencv-chessboard")
+
+CAMERA = {
+    "K": [[702.1, 0.0, 331.4], [0.0, 698.3, 247.2], [0.0, 0.0, 1.0]],
+    "dist": [-0.12, 0.09, 0.0009, -0.0007, -0.002],
+    "width": 640,
+    "height": 480,
+    "rms_px": 0.21,
+    "board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
+}
+
+
+def test_help_lists_every_subcommand(capsys):
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out.lower()
+    for name in ("calibrate", "export", "run", "init", "inner corners", "exit codes"):
+        assert name in out
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="OpenCV sample stills not on this machine")
+def test_calibrate_real_opencv_stills(tmp_path, capsys):
+    rc = cli.main(["calibrate", str(REAL), "--inner", "9x6", "--square-m", "0.025", "--out", str(tmp_path)])
+    assert rc == 0
+    cam = yaml.safe_load((tmp_path / "camera.yaml").read_text())
+    K = np.asarray(cam["K"])
+    np.testing.assert_allclose(
+        [K[0, 0], K[1, 1], K[0, 2], K[1, 2]], [536.07345, 536.01636, 342.37047, 235.53687], atol=1e-3
+    )
+    assert cam["rms_px"] == pytest.approx(0.408695, abs=1e-5)
+    fs = cv2.FileStorage(str(tmp_path / "camera_opencv.yaml"), cv2.FILE_STORAGE_READ)
+    np.testing.assert_allclose(fs.getNode("camera_matrix").mat(), K)
+    fs.release()
+    assert (tmp_path / "camchain.yaml").is_file() and (tmp_path / "camera_info.yaml").is_file()
+
+
+def test_export_camera_and_missing_file_is_one_line(tmp_path, capsys):
+    write_yaml(CAMERA, tmp_path / "camera.yaml")
+    assert cli.main(["export", "camera", str(tmp_path), "--format", "ros", "--out", str(tmp_path / "ci.yaml")]) == 0
+    data = yaml.safe_load((tmp_path / "ci.yaml").read_text())
+    np.testing.assert_allclose(data["distortion_coefficients"]["data"], CAMERA["dist"])
+    rc = cli.main(["export", "camera", str(tmp_path / "nope"), "--format", "kalibr", "--out", str(tmp_path / "k")])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert err.count("\n") == 1 and "nope" in err and "Traceback" not in err
+
+
+def test_export_trajectory_writes_unaligned_tum(tmp_path):
+    import pandas as pd
+
+    from cvsflow.transforms import quat_from_R
+
+    rng = np.random.default_rng(0)
+    n = 5
+    rvec = rng.normal(scale=0.3, size=(n, 3))
+    q = np.array([quat_from_R(cv2.Rodrigues(r)[0]) for r in rvec])
+    pairs = pd.DataFrame({"frame": np.arange(n), "t_s": np.arange(n) / 30.0})
+    for i in range(3):
+        pairs[f"cvs_rvec_{i}"] = rvec[:, i]
+    for a in "xyz":
+        pairs[f"cvs_{a}_m"] = rng.normal(size=n)
+        pairs[f"cmbm_{a}_m"] = rng.normal(size=n)
+    for a in "xyzw":
+        pairs[f"cmbm_q{a}"] = q[:, "xyzw".index(a)]
+    write_parquet(pairs, tmp_path / "pairs.parquet")
+    assert cli.main(["export", "trajectory", str(tmp_path), "--out-dir", str(tmp_path / "t")]) == 0
+    cvs = np.loadtxt(tmp_path / "t" / "cvs_T_C_B.tum")
+    vic = np.loadtxt(tmp_path / "t" / "vicon_T_Cm_Bm.tum")
+    np.testing.assert_allclose(cvs[:, 1:4], pairs[["cvs_x_m", "cvs_y_m", "cvs_z_m"]], atol=1e-8)
+    # Same rotation, quaternion sign free.
+    np.testing.assert_allclose(np.abs(np.sum(cvs[:, 4:] * vic[:, 4:], axis=1)), 1.0, atol=1e-7)
+
+
+def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
+    from cvsflow.io.vicon import _marker_table, write_nexus_csv
+    from tests.unit.board_images import board_centre_pose, render_board
+
+    K = np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]])
+    rec = tmp_path / "rec"
+    (rec / "stills").mkdir(parents=True)
+    for i in range(3):
+        gray, _ = render_board(board_centre_pose([0.1 * i, -0.1, 0.0], [0.0, 0.0, 1.2]), K, seed=i)
+        cv2.imwrite(str(rec / "stills" / f"s{i}.png"), gray)
+    (rec / "take.mp4").write_bytes(b"")
+    names = ["cam:C1", "cam:C2", "board:B1"]
+    xyz = np.random.default_rng(1).normal(size=(4, 3, 3))
+    write_nexus_csv(_marker_table(np.arange(4), xyz, names, 100.0), rec / "take.csv", 100.0)
+    out = tmp_path / "session.yaml"
+    assert cli.main(["init", str(rec), "--out", str(out), "--name", "s1"]) == 0
+    cfg = yaml.safe_load(out.read_text())["sessions"]["s1"]
+    assert cfg["calib_dir"].endswith("stills") and cfg["video"].endswith("take.mp4")
+    assert cfg["vicon"].endswith("take.csv")
+    assert cfg["board"]["squares_x"] == 6 and cfg["board"]["squares_y"] == 5  # 5x4 inner corners
+    assert cfg["markers"]["camera"]["names"] == ["cam:C1", "cam:C2"]
+    assert cfg["markers"]["board"]["names"] == ["board:B1"]
+    before = out.read_text()
+    assert cli.main(["init", str(rec), "--out", str(out)]) == 1
+    assert out.read_text() == before
+    assert "never overwrites" in capsys.readouterr().err
+
+
+def test_run_passes_arguments_and_picks_profile(tmp_path, monkeypatch):
+    calls = []
+    monkeypatch.setattr(cli.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    (tmp_path / "Snakefile").write_text("")
+    (tmp_path / "workflow" / "profiles" / "default").mkdir(parents=True)
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["run", "-n", "--cores", "2"]) == 0
+    assert calls[-1][-5:] == ["--profile", "workflow/profiles/default", "-n", "--cores", "2"]
+    (tmp_path / "profiles" / "default").mkdir(parents=True)
+    assert cli.main(["run", "--configfile", "x.yaml"]) == 0
+    assert calls[-1][-4:] == ["--profile", "profiles/default", "--configfile", "x.yaml"]
+
+
+def test_bad_inner_is_usage_error():
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["calibrate", "d", "--inner", "9by6", "--square-m", "0.02", "--out", "o"])
+    assert exc.value.code == 2
