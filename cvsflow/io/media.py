@@ -34,17 +34,14 @@ def read_gray(path) -> np.ndarray:
     return img
 
 
-def open_video(path) -> cv2.VideoCapture:
-    """Open a video or raise an InputError naming it."""
+def _check_video_path(path) -> Path:
+    """``path`` as a Path, or an InputError when it is a folder or does not exist."""
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{path}: is a folder, expected a video file (video)")
     if not path.is_file():
         raise InputError(f"{path}: video file not found")
-    cap = cv2.VideoCapture(str(path))
-    if not cap.isOpened():
-        raise InputError(f"{path}: cannot be opened as a video")
-    return cap
+    return path
 
 
 # A PTS gap longer than this many median frame periods counts as dropped frames.
@@ -55,9 +52,7 @@ def _open_av(path):
     """``av.open`` of a video file, or an InputError naming it."""
     import av
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: video file not found")
+    path = _check_video_path(path)
     try:
         container = av.open(str(path))
     except (av.error.FFmpegError, OSError, ValueError) as exc:
