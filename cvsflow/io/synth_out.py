@@ -162,7 +162,8 @@ class PyAvVideoSink:
         self._av = av
         try:
             self._container = av.open(str(self.path), mode="w", format="mp4")
-            stream = self._container.add_stream(self._ENCODERS[codec], rate=Fraction(fps).limit_denominator(1001))
+            rate = Fraction(fps).limit_denominator(1001)
+            stream = self._container.add_stream(self._ENCODERS[codec], rate=rate)
         except (av.FFmpegError, KeyError, ValueError) as exc:
             raise InputError(f"{self.path}: cannot open a {codec} video writer ({exc})") from exc
         stream.width, stream.height = int(size[0]), int(size[1])

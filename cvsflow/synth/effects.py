@@ -128,7 +128,9 @@ def _merged(preset_value, cfg_value):
 def _pair(value, key, positive=True):
     v = np.asarray(value, dtype=float)
     if v.shape != (2,) or not v[0] <= v[1] or (positive and v[0] <= 0):
-        raise ConfigError(f"session config, synth.{key}: expected [min, max] with 0 < min <= max, got {value}")
+        raise ConfigError(
+            f"session config, synth.{key}: expected [min, max] with 0 < min <= max, got {value}"
+        )
     return (float(v[0]), float(v[1]))
 
 
@@ -161,12 +163,15 @@ def parse_effects(synth_cfg, image_noise_sigma, video_quality) -> Effects:
         )
     codec = r["codec"]
     if codec["name"] not in CODECS:
-        raise ConfigError(f"session config, synth.codec.name: expected one of {CODECS}, got {codec['name']!r}")
+        raise ConfigError(
+            f"session config, synth.codec.name: expected one of {CODECS}, got {codec['name']!r}"
+        )
     ts = r["timestamps"]
     jitter, drop = float(ts["jitter_s"]), float(ts["drop_rate"])
     if jitter < 0 or jitter > 0.2 / fps:
         raise ConfigError(
-            f"session config, synth.timestamps.jitter_s: expected 0 .. 0.2 / fps = {0.2 / fps:.3g} s, got {jitter}"
+            f"session config, synth.timestamps.jitter_s: expected 0 .. 0.2 / fps = {0.2 / fps:.3g} s, "
+            f"got {jitter}"
         )
     if not 0.0 <= drop <= 0.5:
         raise ConfigError(f"session config, synth.timestamps.drop_rate: expected 0 .. 0.5, got {drop}")
@@ -299,11 +304,13 @@ def hand_polygons_B(grip: Grip, board: Board, n_arc=12):
     if grip.edge == 0:
         origin, inward, side, edge_to_line = np.array([sx0, cy_max * grip.along]), [1, 0], [0, 1], 0 - sx0
     elif grip.edge == 1:
-        origin, inward, side, edge_to_line = np.array([sx1, cy_max * grip.along]), [-1, 0], [0, 1], sx1 - cx_max
+        origin, edge_to_line = np.array([sx1, cy_max * grip.along]), sx1 - cx_max
+        inward, side = [-1, 0], [0, 1]
     elif grip.edge == 2:
         origin, inward, side, edge_to_line = np.array([cx_max * grip.along, sy0]), [0, 1], [1, 0], 0 - sy0
     else:
-        origin, inward, side, edge_to_line = np.array([cx_max * grip.along, sy1]), [0, -1], [1, 0], sy1 - cy_max
+        origin, edge_to_line = np.array([cx_max * grip.along, sy1]), sy1 - cy_max
+        inward, side = [0, -1], [1, 0]
     inward, side = np.asarray(inward, float), np.asarray(side, float)
     tip_depth = edge_to_line + grip.reach_m  # from the sheet edge, m
     finger_len = 0.085
@@ -325,7 +332,10 @@ def hand_polygons_B(grip: Grip, board: Board, n_arc=12):
         length = finger_len * (0.8 if i in (0, 3) else 1.0)
         width = 0.0085
         half = np.linspace(-np.pi / 2, np.pi / 2, n_arc)
-        tip = base + d * (length - width) + np.outer(np.sin(half), n * width) + np.outer(np.cos(half), d * width)
+        tip = (
+            base + d * (length - width)
+            + np.outer(np.sin(half), n * width) + np.outer(np.cos(half), d * width)
+        )
         poly = np.vstack([base - n * width, tip[::-1] if False else tip, base + n * width])
         polys.append(poly)
     return polys
@@ -397,7 +407,7 @@ def auto_exposure(rng, t_s, effects: Effects):
     want = e_ref / seen  # exposure x gain the AE wants, s
     exposure = np.clip(want, e_min, e_max)
     gain = np.clip(want / exposure, 1.0, 8.0)
-    return light, exposure, gain * exposure / e_ref  # last: total sensor gain vs reference
+    return light, exposure, gain
 
 
 def white_balance(rng, t_s, effects: Effects):
