@@ -1,6 +1,6 @@
 """Workflow-side failures: each asks for something the run cannot give, and the run says so.
 
-One test per row of docs/failures_workflow.md: the message, and that the failed stage leaves no
+One test per row of docs/failures.md (workflow side): the message, and that the failed stage leaves no
 result behind. The workstation profile is checked to apply to a plain `snakemake`.
 """
 
