@@ -308,3 +308,16 @@ def test_zero_rows_is_an_error():
     with pytest.raises(NoUsableRowsError, match=r"se3/calib/errors\.parquet: 0 error rows"):
         check_rows(pd.DataFrame({"a": []}), "se3/calib/errors.parquet", "error rows")
     assert check_rows(pd.DataFrame({"a": [1]}), "x") == []
+
+
+def test_diverged_seed_is_reported_not_stopped():
+    """A seed run that drifted to its grid bound is flagged diverged by the optimiser and goes
+    on as such (the report says so); without the flag the same focal length stops the stage,
+    and a non-finite one stops it either way."""
+    K = [[700.0, 0, 320], [0, 700.0, 240], [0, 0, 1]]
+    flagged = {"fx_px": 285.7, "fy_px": 4985.8, "P_bar": [0.1] * 6, "diverged": True}
+    assert check_seed_result(flagged, K) == []
+    with pytest.raises(ResultRangeError, match="fy_px = 4985.8 px"):
+        check_seed_result({**flagged, "diverged": False}, K)
+    with pytest.raises(ResultRangeError, match="fx_px"):
+        check_seed_result({**flagged, "fx_px": float("nan")}, K)
