@@ -227,6 +227,11 @@ def make_board_texture(board: Board, ppm=1200.0, n_levels=5, markers_B=None) -> 
     if markers_B is not None:
         reflectance = _draw_markers(reflectance, markers_B, x0, y0, ppm, board.sheet_B())
     level = np.dstack([reflectance * alpha, alpha]).astype(np.float32)
+    return texture_pyramid(level, ppm, n_levels, x0, y0)
+
+
+def texture_pyramid(level, ppm, n_levels, x0, y0) -> BoardTexture:
+    """A BoardTexture of ``n_levels`` halvings (area-averaged) of a (rows, cols, 2) level."""
     levels, ppms = [level], [ppm]
     for _ in range(n_levels - 1):
         level = cv2.resize(level, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)

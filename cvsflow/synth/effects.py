@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from cvsflow.errors import ConfigError
-from cvsflow.synth.camera import Board, BoardTexture
+from cvsflow.synth.camera import Board, BoardTexture, texture_pyramid
 
 log = logging.getLogger(__name__)
 
@@ -358,12 +358,7 @@ def make_hand_texture(grip: Grip, board: Board, ppm=600.0, n_levels=5) -> BoardT
         pts = np.rint(((poly - [x0, y0]) * ppm - 0.5) * 16).astype(np.int32)
         cv2.fillPoly(alpha, [pts], 1.0, cv2.LINE_AA, shift)
     level = np.dstack([alpha * np.float32(SKIN_GREY), alpha]).astype(np.float32)
-    levels, ppms = [level], [ppm]
-    for _ in range(n_levels - 1):
-        level = cv2.resize(level, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-        levels.append(level)
-        ppms.append(ppms[-1] / 2)
-    return BoardTexture(tuple(levels), tuple(ppms), float(x0), float(y0))
+    return texture_pyramid(level, ppm, n_levels, x0, y0)
 
 
 def occluded_corners(texture: BoardTexture, corners_B, radius_m):
