@@ -313,7 +313,7 @@ def write_motive_csv(path, markers, bodies=None, rate_hz=None, units="Meters", t
     body_list = list(pd.unique(bodies["body"])) if bodies is not None else []
     for body in body_list:
         sub = bodies[bodies["body"] == body].set_index("frame").reindex(frame)
-        cols = sub[["qx", "qy", "qz", "qw", "x_m", "y_m", "z_m", "fit_rms_m"]].to_numpy(float)
+        cols = sub[["qx", "qy", "qz", "qw", "x_m", "y_m", "z_m", "fit_rms_m"]].to_numpy(float, copy=True)
         cols[:, 4:] *= k
         cols[~sub["valid"].fillna(False).to_numpy(bool)] = np.nan
         types += ["Rigid Body"] * 8

@@ -335,7 +335,7 @@ def write_qtm_tsv(path, markers=None, bodies=None, rate_hz=None, layout="current
         for name in names:
             sub = bodies[bodies["body"] == name].set_index("frame").reindex(frame)
             valid = sub["valid"].fillna(False).to_numpy(bool)
-            q = sub[["qx", "qy", "qz", "qw"]].to_numpy(float)
+            q = sub[["qx", "qy", "qz", "qw"]].to_numpy(float, copy=True)
             q[~valid] = [0, 0, 0, 1]
             R = Rotation.from_quat(q).as_matrix()
             rpy = np.degrees(sub[["roll_rad", "pitch_rad", "yaw_rad"]].to_numpy(float))
