@@ -329,3 +329,82 @@ def system_bodies_table(frame, t_s, body, R_W_body, t_W_body_m, residual_m, n_ma
 
     T = make_T(np.asarray(R_W_body, float), np.asarray(t_W_body_m, float))
     return bodies_from_poses(frame, t_s, body, T, residual_m, n_markers)
+
+
+def read_system_bodies(path, names, format: str = "auto") -> pd.DataFrame:
+    """The camera and board poses as the mocap system solved them, renamed to the pipeline's bodies.
+
+    Parameters
+    ----------
+    path : str or Path
+        A Motive CSV with Rigid Body columns or a QTM 6D TSV.
+    names : dict
+        ``{"camera": <system body name>, "board": <system body name>}``.
+    format : str
+        ``auto`` or a key of :data:`FORMATS`.
+
+    Returns
+    -------
+    bodies : DataFrame
+        ``bodies.parquet`` table (``body`` = ``camera`` / ``board``), ``fit_rms_m`` the system's
+        residual in metres, ``attrs["rate_hz"]`` and ``attrs["residual"]`` (what the residual is).
+
+    Raises
+    ------
+    InputError
+        The export holds no rigid-body poses (a Vicon CSV or C3D, a Motive markers-only export,
+        a QTM 3D export), or the reader's errors.
+    MocapError
+        A named body absent from the export (the message lists the export's bodies) or never
+        tracked.
+    """
+    from cvsflow.mocap import select_system_bodies
+
+    export = read_mocap(path, format)
+    if export.bodies is None:
+        n = len(export.markers.attrs.get("markers", []))
+        raise InputError(
+            f"{path}: a {FORMATS[export.format]} with {n} markers and no rigid-body poses; "
+            "bodies_from: system needs the system's own bodies (Motive: export Rigid Bodies; "
+            "QTM: export 6DOF data as TSV). Use bodies_from: markers to fit the markers instead"
+        )
+    out = select_system_bodies(export.bodies, names, source=str(path))
+    out.attrs["rate_hz"] = export.rate_hz
+    return out
+
+
+def mocap_settings(session: str, cfg: dict) -> dict:
+    """A session's ``mocap`` block with its defaults, checked against its ``markers`` block.
+
+    Parameters
+    ----------
+    session : str
+        Session key, for messages.
+    cfg : dict
+        ``config["sessions"][session]``.
+
+    Returns
+    -------
+    settings : dict
+        ``{"format": str, "bodies_from": "markers" | "system"}``.
+
+    Raises
+    ------
+    ConfigError
+        ``bodies_from: system`` with a body lacking ``system_body``, or ``bodies_from: markers``
+        with a body lacking ``names``.
+    """
+    from cvsflow.errors import ConfigError
+
+    out = {"format": "auto", "bodies_from": "markers", **(cfg.get("mocap") or {})}
+    need = "system_body" if out["bodies_from"] == "system" else "names"
+    for body in ("camera", "board"):
+        spec = (cfg.get("markers") or {}).get(body, {})
+        if need not in spec:
+            hint = ("the rigid body's name in the Motive / QTM export" if need == "system_body"
+                    else "the body's marker names in the export")
+            raise ConfigError(
+                f"config: sessions.{session}.markers.{body}: mocap.bodies_from is "
+                f"{out['bodies_from']}, so {need} is needed ({hint})"
+            )
+    return out
