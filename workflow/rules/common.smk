@@ -15,7 +15,9 @@ SESSION_STAGES = check_sessions(SESSIONS)
 
 
 # How each session's motion-capture export is read (format, bodies_from); checked here, at parse time.
-MOCAP = {s: mocap_settings(s, SESSIONS[s]) for s in SESSIONS if "vicon" in SESSION_STAGES[s]}
+MOCAP = {
+    s: mocap_settings(s, SESSIONS[s]) for s in SESSIONS if "vicon" in SESSION_STAGES[s]
+}
 
 
 def session_cfg(session):

@@ -1,4 +1,4 @@
-"""Camera and board rigid-body poses: fitted to their markers, or as the mocap system solved them (rule vicon_bodies)."""
+"""Camera and board poses: fitted to their markers, or as the mocap system solved them (rule vicon_bodies)."""
 
 from cvsflow.io import read_parquet, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
@@ -9,7 +9,7 @@ from cvsflow.plots import mocap as plots
 
 with stage_logging(snakemake.log[0], "vicon_bodies") as log:
     specs = snakemake.params.markers
-    if "export" in snakemake.input.keys():  # mocap.bodies_from: system
+    if hasattr(snakemake.input, "export"):  # mocap.bodies_from: system
         source = snakemake.input.export
         bodies = read_system_bodies(source, {b: s["system_body"] for b, s in specs.items()},
                                     snakemake.params.mocap["format"])
