@@ -240,3 +240,33 @@ def test_non_consecutive_frames(tmp_path):
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError, match=r"line 13: frame 6 follows frame 4"):
         read_motive_csv(path)
+
+
+def test_read_system_bodies_real_and_markers_only():
+    """The real rigid body as the pipeline's camera; the markers-only export is refused with the fix."""
+    from cvsflow.errors import MocapError
+    from cvsflow.io.mocap_formats import read_system_bodies
+
+    bodies = read_system_bodies(_need(RIGID), {"camera": "ernesto_body"})
+    assert set(bodies["body"]) == {"camera"}
+    assert bodies["valid"].sum() == 498
+    assert bodies.attrs["rate_hz"] == 120.0
+    with pytest.raises(MocapError, match=r"no rigid body 'board_rb' for the board \(the export has 1 bodies: 'ernesto_body'\)"):
+        read_system_bodies(RIGID, {"camera": "ernesto_body", "board": "board_rb"})
+    with pytest.raises(InputError, match=r"OptiTrack Motive CSV with 18 markers and no rigid-body poses.*bodies_from: markers"):
+        read_system_bodies(_need(UNLAB), {"camera": "x"})
+
+
+def test_mocap_settings_checks_the_bodies():
+    """mocap_settings fills the defaults and names the body key a bodies_from choice needs."""
+    from cvsflow.errors import ConfigError
+    from cvsflow.io.mocap_formats import mocap_settings
+
+    cfg = {"markers": {"camera": {"names": ["a", "b", "c"]}, "board": {"names": ["d", "e", "f"]}}}
+    assert mocap_settings("s", cfg) == {"format": "auto", "bodies_from": "markers"}
+    cfg["mocap"] = {"bodies_from": "system"}
+    with pytest.raises(ConfigError, match=r"sessions.s.markers.camera: mocap.bodies_from is system, so system_body"):
+        mocap_settings("s", cfg)
+    cfg = {"mocap": {"bodies_from": "markers"}, "markers": {"camera": {"system_body": "x"}, "board": {"names": []}}}
+    with pytest.raises(ConfigError, match=r"markers.camera: mocap.bodies_from is markers, so names is needed"):
+        mocap_settings("s", cfg)
