@@ -270,3 +270,41 @@ def test_mocap_settings_checks_the_bodies():
     cfg = {"mocap": {"bodies_from": "markers"}, "markers": {"camera": {"system_body": "x"}, "board": {"names": []}}}
     with pytest.raises(ConfigError, match=r"markers.camera: mocap.bodies_from is markers, so names is needed"):
         mocap_settings("s", cfg)
+
+
+def test_rigid_body_markers_stand_in_for_missing_markers(tmp_path, caplog):
+    """An export with only Rigid Body Marker columns gives those to read_vicon, with a warning."""
+    from cvsflow.io.vicon import read_vicon
+
+    rng = np.random.default_rng(8)
+    m = _table(rng)
+    path = tmp_path / "take.csv"
+    write_motive_csv(path, m)
+    lines = path.read_text().splitlines()
+    lines[2] = lines[2].replace(",Marker", ",Rigid Body Marker")
+    path.write_text("\n".join(lines) + "\n")
+    e = read_motive_csv(path)
+    assert marker_names(e.markers) == []
+    with caplog.at_level("WARNING"):
+        got = read_vicon(path, names=["cam:C2"])
+    assert "Rigid Body Marker (solved) positions" in caplog.text
+    np.testing.assert_allclose(got["cam:C2_x_m"], m["cam:C2_x_m"], atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "rel, fmt",
+    [
+        ("mocap/optitrack-motive/grvc_rigidbody_test/test.csv", "motive_csv"),
+        ("mocap/optitrack-motive/ha5dzs_unlabeled_markers_360hz/test_markers_enabled.csv", "motive_csv"),
+        ("mocap/qualisys-qtm/imusim_swing_3D/swing_3D.tsv", "qtm_tsv"),
+        ("mocap/qualisys-qtm/imusim_swing_6D/swing_6D.tsv", "qtm_tsv"),
+        ("mocap/qualisys-qtm/imusim_stand_6D/stand_6D.tsv", "qtm_tsv"),
+        ("vicon/markers.csv", "vicon_csv"),
+        ("vicon/markers_analogs.c3d", "c3d"),
+    ],
+)
+def test_detect_format_on_every_real_export(rel, fmt):
+    """Each real export is recognised from its content."""
+    if ROOT is None or not (ROOT / rel).exists():
+        pytest.skip(f"{rel} not available")
+    assert detect_format(ROOT / rel) == fmt
