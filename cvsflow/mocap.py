@@ -751,8 +751,7 @@ def bodies_from_poses(frame, t_s, body, T_W_body, residual_m, n_markers):
     ------
     MocapError
         A valid rotation far from orthonormal (``|R^T R - I| > 1e-2``): not a rotation matrix
-        (for example a QTM matrix read in the wrong order would still be orthonormal, but a
-        scaled or mis-parsed one would not).
+        (a mis-parsed or mis-scaled export).
     """
     T = np.array(T_W_body, dtype=float, copy=True)
     valid = np.isfinite(T).all(axis=(1, 2))

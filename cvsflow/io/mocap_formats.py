@@ -123,7 +123,9 @@ def detect_format(path) -> str:
     if b"\x00" in head:
         raise InputError(f"{path}: a binary file that is not C3D (no 0x50 key in byte 2), {EXPECTED}")
     text = head.decode("utf-8-sig", errors="replace")
-    lines = [ln for ln in text.splitlines()[:-1] or text.splitlines()]
+    lines = text.splitlines()
+    if len(head) == 65536 and len(lines) > 1:
+        lines = lines[:-1]  # the last line of a partial read may be cut
     first = lines[0].strip()
     if first.startswith("Format Version,") or first.startswith('"Format Version",'):
         return "motive_csv"

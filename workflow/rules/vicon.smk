@@ -13,7 +13,7 @@ rule vicon_import:
         runtime=10,
     params:
         markers=lambda wc: session_cfg(wc.session)["markers"],
-        mocap=lambda wc: mocap_cfg(wc.session),
+        mocap_format=lambda wc: mocap_cfg(wc.session)["format"],
         max_scale_ratio=config["vicon"]["max_scale_ratio"],
     script:
         "../scripts/vicon_import.py"

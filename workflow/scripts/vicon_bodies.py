@@ -16,13 +16,14 @@ with stage_logging(snakemake.log[0], "vicon_bodies") as log:
         log.info("bodies from the system (%s as fit_rms_m)", bodies.attrs.get("residual"))
         specs = {}
     else:
-        source = snakemake.input.markers
+        source = snakemake.input[0]  # the repaired markers
         markers = read_parquet(source)
         bodies = fit_bodies(markers, specs)
         specs = resolve_layouts(markers, specs)
     log.info("valid samples: %s", bodies.groupby("body")["valid"].sum().to_dict())
-    for warning in check_body_fits(bodies, specs, source, snakemake.params.max_fit_rms_m,
-                                   snakemake.params.max_fit_rms_share):
-        log.warning(warning)
+    if bodies["fit_rms_m"].notna().any():  # an export may carry no residual at all
+        for warning in check_body_fits(bodies, specs, source, snakemake.params.max_fit_rms_m,
+                                       snakemake.params.max_fit_rms_share):
+            log.warning(warning)
     write_parquet(bodies, snakemake.output.bodies)
     save_figure(plots.plot_fit_residuals(bodies), snakemake.output.fig)
