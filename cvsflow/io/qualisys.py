@@ -18,6 +18,11 @@ column order (``Rot[0..2]`` the first column), so R = reshape(Rot, 3, 3).T. The 
 not read: their convention is a QTM setting, the matrix is not. Gaps: empty, ``NaN`` or ``NULL``
 cells, a marker at exactly (0, 0, 0) (QTM's "not seen" in 3D exports), a body with residual -1
 or an all-zero row (QTM's "not tracked" in 6D exports).
+
+The old layouts are checked against real QTM exports (tests/unit/test_io_qualisys.py); the
+current ones follow QTM's documented header and are located by their column labels (``<name>
+X``, ``Rot[0]``), so extra columns are ignored; no public real export of the current 6D layout
+was found to test against.
 """
 
 from __future__ import annotations
