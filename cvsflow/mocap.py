@@ -717,3 +717,101 @@ def downsample_bodies(bodies, fps, mode="block", rate_hz=None):
         tq = t0 + np.arange(int(np.floor((t1 - t0) * fps + 1e-9)) + 1) / fps
         return interpolate_bodies(bodies, tq)
     raise MocapError(f"downsample_bodies: mode {mode!r}, expected 'block' or 'interp'")
+
+
+# --------------------------------------------------------------------------- system bodies
+
+
+def bodies_from_poses(frame, t_s, body, T_W_body, residual_m, n_markers):
+    """A bodies table (``bodies.parquet`` columns) from poses a motion-capture system solved itself.
+
+    Parameters
+    ----------
+    frame : ndarray of int, shape (N,)
+    t_s : ndarray, shape (N,)
+        Sample times, seconds.
+    body : str
+        Body name.
+    T_W_body : ndarray, shape (N, 4, 4)
+        The system's pose of the body in its world W, metres; rows with any NaN are invalid
+        (the system lost the body).
+    residual_m : ndarray, shape (N,)
+        The system's own residual (Motive Mean Marker Error, QTM 6DOF residual), metres; it goes
+        into ``fit_rms_m`` so the plausibility checks and figures treat it as the fit residual.
+    n_markers : ndarray of int, shape (N,)
+        Markers the system used per sample, -1 where the export does not say.
+
+    Returns
+    -------
+    bodies : DataFrame
+        Schema :data:`BODY_COLUMNS`; ``n_filled`` is 0 (the system does its own gap handling).
+        Rotations are re-orthonormalised (exports round them to 5 or 6 decimals).
+
+    Raises
+    ------
+    MocapError
+        A valid rotation far from orthonormal (``|R^T R - I| > 1e-2``): not a rotation matrix
+        (a mis-parsed or mis-scaled export).
+    """
+    T = np.array(T_W_body, dtype=float, copy=True)
+    valid = np.isfinite(T).all(axis=(1, 2))
+    R = T[valid, :3, :3]
+    if len(R):
+        err = np.abs(np.einsum("nji,njk->nik", R, R) - np.eye(3)).max(axis=(1, 2))
+        if np.any(err > 1e-2):
+            i = int(np.flatnonzero(err > 1e-2)[0])
+            raise MocapError(
+                f"body {body!r}, frame {int(np.asarray(frame)[valid][i])}: rotation is not "
+                f"orthonormal (|R^T R - I| = {err[i]:.3g}, expected below 1e-2)"
+            )
+        # nearest rotation (polar decomposition), so rounding in the export does not bias
+        U, _, Vt = np.linalg.svd(R)
+        T[valid, :3, :3] = U @ Vt
+    T[~valid] = np.nan
+    residual = np.where(valid, np.asarray(residual_m, dtype=float), np.nan)
+    out = _body_frame(frame, t_s, body, T, residual, np.asarray(n_markers, dtype=np.int64),
+                      np.zeros(len(T), dtype=np.int64))
+    return out
+
+
+def select_system_bodies(bodies, names, source="export"):
+    """The system's bodies renamed to the pipeline's bodies (``camera``, ``board``).
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        System bodies table (``body`` as named in the export), ``attrs["rate_hz"]`` optional.
+    names : dict
+        ``{"camera": <system body name>, "board": <system body name>}``.
+    source : str
+        The export, for messages.
+
+    Returns
+    -------
+    bodies : DataFrame
+        ``bodies.parquet`` table with ``body`` in ``names``' keys, in that order.
+
+    Raises
+    ------
+    MocapError
+        A named body absent from the export (lists what it has) or never tracked.
+    """
+    have = list(pd.unique(bodies["body"])) if bodies is not None else []
+    parts = []
+    for ours, theirs in names.items():
+        if theirs not in have:
+            raise MocapError(
+                f"{source}: no rigid body {theirs!r} for the {ours} (the export has "
+                f"{len(have)} bodies: {', '.join(map(repr, have)) or 'none'})"
+            )
+        sub = bodies[bodies["body"] == theirs].copy()
+        if not sub["valid"].any():
+            raise MocapError(
+                f"{source}: rigid body {theirs!r} ({ours}) is not tracked in any of its "
+                f"{len(sub)} frames; expected it tracked in at least one"
+            )
+        sub["body"] = ours
+        parts.append(sub)
+    out = pd.concat(parts, ignore_index=True)
+    out.attrs = dict(bodies.attrs)
+    return out

@@ -1,5 +1,8 @@
 """Vicon exports: Nexus/Tracker 'Trajectories' CSV (read and write) and C3D (read).
 
+:func:`read_vicon` is the entry point for any motion-capture export: it dispatches on the
+file's content to these readers or to :mod:`cvsflow.io.optitrack` and :mod:`cvsflow.io.qualisys`.
+
 The in-memory form of a marker recording is a wide DataFrame at the native rate:
 columns ``frame`` (int, 0-based), ``t_s`` (float, frame / rate), then for every marker
 ``{name}_x_m``, ``{name}_y_m``, ``{name}_z_m`` in metres in the Vicon world frame W, with NaN
@@ -342,36 +345,55 @@ def read_c3d(path) -> pd.DataFrame:
     return _marker_table(frame0, xyz, names, rate_hz)
 
 
-def read_vicon(path, names=None) -> pd.DataFrame:
-    """Read a Vicon export (``.csv`` Nexus trajectories or ``.c3d``), optionally selecting markers.
+def read_vicon(path, names=None, format="auto") -> pd.DataFrame:
+    """Read the markers of a motion-capture export (Vicon, OptiTrack, Qualisys), optionally selecting some.
 
     Parameters
     ----------
     path : str or Path
-        The export; the suffix chooses the reader.
+        The export: Vicon Nexus Trajectories CSV, C3D, OptiTrack Motive CSV or Qualisys QTM
+        3D TSV. The format is found from the content (:func:`cvsflow.io.mocap_formats.detect_format`),
+        not the suffix.
     names : sequence of str, optional
-        Marker names to keep (``Subject:Marker`` as in the export), in this order. Each must
-        be present and seen in at least one frame.
+        Marker names to keep (as in the export, e.g. ``Subject:Marker``), in this order. Each
+        must be present and seen in at least one frame.
+    format : str
+        ``auto`` or a format of :data:`cvsflow.io.mocap_formats.FORMATS` (``mocap.format``);
+        a named format the content contradicts is an error.
 
     Returns
     -------
     markers : DataFrame
-        Wide marker table, metres in W (module docstring).
+        Wide marker table, metres in W (module docstring). A Motive export without plain
+        ``Marker`` columns gives its ``Rigid Body Marker`` positions instead (with a warning).
 
     Raises
     ------
     InputError
-        Unknown suffix; the reader's errors; a configured marker missing from the file (the
-        message lists the file's markers) or never seen during the whole take.
+        File missing or of another kind (a Nexus Devices-only export, a TUM pose list: the
+        message says what it is and what was expected); the reader's errors; an export
+        without markers (a QTM 6D file: use ``mocap.bodies_from: system``); a configured
+        marker missing from the file (the message lists the file's markers) or never seen.
     """
+    from cvsflow.io.mocap_formats import FORMATS, read_mocap
+
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".csv":
-        df = read_nexus_csv(path)
-    elif suffix == ".c3d":
-        df = read_c3d(path)
-    else:
-        raise InputError(f"{path}: unknown Vicon export type {suffix!r} (expected .csv or .c3d)")
+    if not path.exists():
+        raise InputError(f"{path}: file not found")
+    export = read_mocap(path, format)
+    df = export.markers
+    if not marker_names(df):
+        solved = export.meta.get("body_markers")
+        if solved is not None and marker_names(solved):
+            log.warning("%s: no Marker columns; using the Rigid Body Marker (solved) positions", path)
+            df = solved
+        else:
+            have = ", ".join(map(repr, export.body_names)) or "none"
+            raise InputError(
+                f"{path}: a {FORMATS[export.format]} without marker positions (its rigid bodies: "
+                f"{have}); expected marker columns, or set the session's mocap.bodies_from: "
+                "system to use the system's own body poses"
+            )
     if names is not None:
         df = select_markers(df, names, source=path)
     return df

@@ -7,6 +7,7 @@ import pandas as pd
 import pytest
 
 from cvsflow.errors import InputError
+from cvsflow.io.mocap_formats import detect_format
 from cvsflow.io.vicon import (
     marker_columns,
     marker_names,
@@ -17,8 +18,19 @@ from cvsflow.io.vicon import (
     write_nexus_csv,
 )
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real" / "vicon"
+# shared/data/real beside the repository, or beside a folder above it (a worktree)
+REAL = next((up / "shared" / "data" / "real" / "vicon" for up in Path(__file__).resolve().parents[2].parents
+             if (up / "shared" / "data" / "real").is_dir()), Path("shared/data/real/vicon"))
 REAL_CSV = REAL / "markers.csv"
+
+
+@pytest.fixture(scope="module")
+def real_root():
+    """shared/data/real beside the repository or beside a folder above it (worktrees); else skip."""
+    for up in Path(__file__).resolve().parents[2].parents:
+        if (up / "shared" / "data" / "real").is_dir():
+            return up / "shared" / "data" / "real"
+    pytest.skip("shared/data/real not found")
 REAL_C3D = REAL / "markers_analogs.c3d"
 
 # SOURCES.md section 3: gap frames per marker and the longest contiguous run
@@ -264,14 +276,71 @@ def test_non_consecutive_frames(tmp_path):
         read_vicon(path)
 
 
-def test_unknown_suffix_and_missing_file(tmp_path):
-    """An unknown suffix or a missing file raises InputError naming the path."""
-    with pytest.raises(InputError, match=r"x\.txt.*expected \.csv or \.c3d"):
-        read_vicon(tmp_path / "x.txt")
+def test_unknown_content_and_missing_file(tmp_path):
+    """Unrecognised content or a missing file raises InputError naming the path and what was expected."""
+    path = tmp_path / "x.txt"
+    path.write_text("hello,world\n1,2\n")
+    with pytest.raises(InputError, match=r"x\.txt, line 1: unrecognised content 'hello,world'.*expected a motion-capture export"):
+        read_vicon(path)
     with pytest.raises(InputError, match=r"nope\.csv: file not found"):
         read_vicon(tmp_path / "nope.csv")
     with pytest.raises(InputError, match=r"nope\.c3d: file not found"):
         read_c3d(tmp_path / "nope.c3d")
+
+
+def test_content_not_suffix_chooses_the_reader(tmp_path):
+    """A Nexus CSV saved as .txt is read; the format named in the config must agree with the content."""
+    path = _write_small(tmp_path, np.random.default_rng(20))
+    renamed = tmp_path / "take.txt"
+    renamed.write_bytes(path.read_bytes())
+    assert detect_format(renamed) == "vicon_csv"
+    np.testing.assert_array_equal(read_vicon(renamed).to_numpy(), read_vicon(path).to_numpy())
+    with pytest.raises(InputError, match=r"config says OptiTrack Motive CSV \(motive_csv\) but the file is a Vicon Nexus"):
+        read_vicon(path, format="motive_csv")
+    with pytest.raises(InputError, match=r"unknown format 'optitrak'"):
+        read_vicon(path, format="optitrak")
+
+
+def test_real_nexus_devices_export_is_named(real_root):
+    """The real Devices-only Nexus export: 'no Trajectories block', with the block and its rate."""
+    path = real_root / "mocap" / "vicon-nexus-devices" / "analogs.csv"
+    if not path.exists():
+        pytest.skip(f"{path} not available")
+    with pytest.raises(InputError, match=r"analogs\.csv: a Vicon Nexus CSV with only the block\(s\) Devices "
+                                         r"\(Devices at 2000 Hz.*no Trajectories block.*Expected the Trajectories"):
+        read_vicon(path)
+
+
+def test_real_tum_file_is_named(real_root):
+    """A real TUM trajectory given as a motion-capture export: named a TUM pose list."""
+    path = real_root / "tum-fr2-desk" / "fr2_desk_groundtruth.txt"
+    if not path.exists():
+        pytest.skip(f"{path} not available")
+    with pytest.raises(InputError, match=r"a TUM pose list .*not a motion-capture export"):
+        read_vicon(path)
+
+
+def test_other_wrong_files(tmp_path):
+    """Empty files, TRC files, binary non-C3D files and 6D-only exports are named as what they are."""
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    with pytest.raises(InputError, match="empty.csv: empty file"):
+        read_vicon(empty)
+    trc = tmp_path / "walk.trc"
+    trc.write_text("PathFileType\t4\t(X/Y/Z)\twalk.trc\n")
+    with pytest.raises(InputError, match="a TRC marker file"):
+        read_vicon(trc)
+    blob = tmp_path / "x.bin"
+    blob.write_bytes(bytes(range(256)) * 4)
+    with pytest.raises(InputError, match="binary file that is not C3D"):
+        read_vicon(blob)
+    six = tmp_path / "take_6d.tsv"
+    six.write_text("NO_OF_FRAMES\t1\nNO_OF_BODIES\t1\nFREQUENCY\t100\nDATA_INCLUDED\t6D\nBODY_NAMES\tcam\n"
+                   "Frame\tTime\tcam X\tcam Y\tcam Z\tRoll\tPitch\tYaw\tResidual\t"
+                   + "\t".join(f"Rot[{k}]" for k in range(9)) + "\n"
+                   "1\t0\t1\t2\t3\t0\t0\t0\t0.5\t1\t0\t0\t0\t1\t0\t0\t0\t1\n")
+    with pytest.raises(InputError, match=r"without marker positions \(its rigid bodies: 'cam'\).*bodies_from: system"):
+        read_vicon(six)
 
 
 def test_select_markers_keeps_order_and_attrs():

@@ -359,3 +359,59 @@ def test_repair_markers_follows_config():
     smooth, summary = repair_markers(df, _specs(), cfg)
     assert summary["filter"] == {"cutoff_hz": 12.0, "order": 2, "zero_lag": True}
     assert np.std(np.diff(smooth["board:B1_x_m"])) < 0.5 * np.std(np.diff(df["board:B1_x_m"]))
+
+
+# --------------------------------------------------------------------------- system bodies
+
+
+def test_bodies_from_poses_round_trip_and_gaps():
+    """System poses become a bodies table: same poses back, NaN rows invalid, residual carried."""
+    from cvsflow.mocap import bodies_from_poses
+
+    rng = np.random.default_rng(31)
+    n = 50
+    R = Rotation.from_rotvec(rng.normal(0, 1, (n, 3))).as_matrix()
+    T = make_T(R, rng.uniform(-2, 2, (n, 3)))
+    T[[3, 4, 20]] = np.nan
+    residual = rng.uniform(1e-4, 1e-3, n)
+    # an export rounds its rotations (here to 5 decimals); the table re-orthonormalises them
+    T_file = T.copy()
+    T_file[:, :3, :3] = np.round(T_file[:, :3, :3], 5)
+    out = bodies_from_poses(np.arange(n), np.arange(n) / 100.0, "cam", T_file, residual, np.full(n, -1))
+    assert list(out.columns) == BODY_COLUMNS
+    _, T_back, valid = body_poses(out, "cam")
+    assert valid.tolist() == [i not in (3, 4, 20) for i in range(n)]
+    assert rotation_angle(np.einsum("nji,njk->nik", T[valid, :3, :3], T_back[valid, :3, :3])).max() < 2e-5
+    np.testing.assert_allclose(T_back[valid, :3, 3], T[valid, :3, 3])
+    np.testing.assert_allclose(out["fit_rms_m"].to_numpy()[valid], residual[valid])
+    assert out["fit_rms_m"].isna().sum() == 3
+    assert (out["n_filled"] == 0).all()
+
+
+def test_bodies_from_poses_refuses_non_rotations():
+    """A 'rotation' that is not orthonormal (a mis-parsed export) is an error naming the frame."""
+    from cvsflow.mocap import bodies_from_poses
+
+    T = np.tile(np.eye(4), (5, 1, 1))
+    T[2, :3, :3] *= 1.5
+    with pytest.raises(MocapError, match=r"body 'cam', frame 12: rotation is not orthonormal"):
+        bodies_from_poses(np.arange(10, 15), np.arange(5) / 100.0, "cam", T, np.zeros(5), np.zeros(5))
+
+
+def test_select_system_bodies_renames_and_names_what_is_missing():
+    """System bodies are renamed to camera / board; an absent or never-tracked body is named."""
+    from cvsflow.mocap import bodies_from_poses, select_system_bodies
+
+    n = 10
+    T = np.tile(np.eye(4), (n, 1, 1))
+    lost = np.full((n, 4, 4), np.nan)
+    parts = [bodies_from_poses(np.arange(n), np.arange(n) / 100.0, name, T_, np.zeros(n), np.full(n, 4))
+             for name, T_ in (("rb_cam", T), ("rb_board", T), ("rb_lost", lost))]
+    table = pd.concat(parts, ignore_index=True)
+    out = select_system_bodies(table, {"camera": "rb_cam", "board": "rb_board"}, source="take.csv")
+    assert list(pd.unique(out["body"])) == ["camera", "board"]
+    assert len(out) == 2 * n
+    with pytest.raises(MocapError, match=r"take.csv: no rigid body 'rb_x' for the board \(the export has 3 bodies"):
+        select_system_bodies(table, {"camera": "rb_cam", "board": "rb_x"}, source="take.csv")
+    with pytest.raises(MocapError, match=r"'rb_lost' \(board\) is not tracked in any of its 10 frames"):
+        select_system_bodies(table, {"camera": "rb_cam", "board": "rb_lost"}, source="take.csv")

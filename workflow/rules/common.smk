@@ -1,6 +1,7 @@
 # Paths, targets and input functions only: nothing numeric lives here.
 import os
 
+from cvsflow.io.mocap_formats import mocap_settings
 from cvsflow.sessions import camera_session, check_sessions
 
 
@@ -13,8 +14,25 @@ SESSIONS = config["sessions"]
 SESSION_STAGES = check_sessions(SESSIONS)
 
 
+# How each session's motion-capture export is read (format, bodies_from); checked here, at parse time.
+MOCAP = {
+    s: mocap_settings(s, SESSIONS[s]) for s in SESSIONS if "vicon" in SESSION_STAGES[s]
+}
+
+
 def session_cfg(session):
     return SESSIONS[session]
+
+
+def mocap_cfg(session):
+    return MOCAP[session]
+
+
+def vicon_bodies_input(wildcards):
+    """The repaired markers, or the export itself when the system's own body poses are used."""
+    if MOCAP[wildcards.session]["bodies_from"] == "system":
+        return {"export": vicon_path(wildcards)}
+    return {"markers": f"results/{wildcards.session}/markers_filled.parquet"}
 
 
 def is_synth(session):
@@ -69,10 +87,9 @@ def session_targets(session):
             f"results/{session}/figures/poses_raw.png",
         ]
     if runs_stage(session, "vicon"):
-        out += [
-            f"results/{session}/bodies_30hz.parquet",
-            f"results/{session}/figures/vicon_markers.png",
-        ]
+        out.append(f"results/{session}/bodies_30hz.parquet")
+        if MOCAP[session]["bodies_from"] == "markers":
+            out.append(f"results/{session}/figures/vicon_markers.png")
     if runs_stage(session, "pairs"):
         out += [
             f"results/{session}/sync.yaml",

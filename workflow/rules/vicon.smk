@@ -13,6 +13,7 @@ rule vicon_import:
         runtime=10,
     params:
         markers=lambda wc: session_cfg(wc.session)["markers"],
+        mocap_format=lambda wc: mocap_cfg(wc.session)["format"],
         max_scale_ratio=config["vicon"]["max_scale_ratio"],
     script:
         "../scripts/vicon_import.py"
@@ -48,7 +49,7 @@ rule vicon_repair:
 
 rule vicon_bodies:
     input:
-        "results/{session}/markers_filled.parquet",
+        unpack(vicon_bodies_input),
     output:
         bodies="results/{session}/bodies.parquet",
         fig=report(
@@ -68,6 +69,7 @@ rule vicon_bodies:
         runtime=10,
     params:
         markers=lambda wc: session_cfg(wc.session)["markers"],
+        mocap=lambda wc: mocap_cfg(wc.session),
         max_fit_rms_m=config["vicon"]["max_fit_rms_m"],
         max_fit_rms_share=config["vicon"]["max_fit_rms_share"],
     script:

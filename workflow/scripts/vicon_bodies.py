@@ -1,18 +1,29 @@
-"""Camera and board rigid-body poses from their markers (rule vicon_bodies)."""
+"""Camera and board poses: fitted to their markers, or as the mocap system solved them (rule vicon_bodies)."""
 
 from cvsflow.io import read_parquet, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
+from cvsflow.io.mocap_formats import read_system_bodies
 from cvsflow.mocap import fit_bodies, resolve_layouts
 from cvsflow.plausibility import check_body_fits
 from cvsflow.plots import mocap as plots
 
 with stage_logging(snakemake.log[0], "vicon_bodies") as log:
-    markers = read_parquet(snakemake.input[0])
-    bodies = fit_bodies(markers, snakemake.params.markers)
+    specs = snakemake.params.markers
+    if hasattr(snakemake.input, "export"):  # mocap.bodies_from: system
+        source = snakemake.input.export
+        bodies = read_system_bodies(source, {b: s["system_body"] for b, s in specs.items()},
+                                    snakemake.params.mocap["format"])
+        log.info("bodies from the system (%s as fit_rms_m)", bodies.attrs.get("residual"))
+        specs = {}
+    else:
+        source = snakemake.input[0]  # the repaired markers
+        markers = read_parquet(source)
+        bodies = fit_bodies(markers, specs)
+        specs = resolve_layouts(markers, specs)
     log.info("valid samples: %s", bodies.groupby("body")["valid"].sum().to_dict())
-    specs = resolve_layouts(markers, snakemake.params.markers)
-    for warning in check_body_fits(bodies, specs, snakemake.input[0], snakemake.params.max_fit_rms_m,
-                                   snakemake.params.max_fit_rms_share):
-        log.warning(warning)
+    if bodies["fit_rms_m"].notna().any():  # an export may carry no residual at all
+        for warning in check_body_fits(bodies, specs, source, snakemake.params.max_fit_rms_m,
+                                       snakemake.params.max_fit_rms_share):
+            log.warning(warning)
     write_parquet(bodies, snakemake.output.bodies)
     save_figure(plots.plot_fit_residuals(bodies), snakemake.output.fig)
