@@ -147,7 +147,7 @@ def read_visp_pose_vector(path) -> np.ndarray:
     if len(data.value) != rows:
         raise InputError(
             f"{path}, line {data.start_mark.line + 1}: data has {len(data.value)} rows; "
-            f"rows: {rows} says {rows}"
+            f"expected {rows} (rows: {rows})"
         )
     cells = []
     for row in data.value:
