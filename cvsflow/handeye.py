@@ -675,8 +675,12 @@ def calibrate_hand_eye(
         records[i]["rms_px"] = float(rms[worst])
         log.warning("hand-eye: still %s rejected (%s)", records[i]["name"], records[i]["reason"])
         keep[list(idx).index(i)] = False
+    d_X = fit["carrier_residuals"]
     for k, i in enumerate(sel):
         records[i].update(used=True, reason="ok", rms_px=float(rms[k]))
+        if pose_noise:  # the carrier pose's estimated own error at this still
+            records[i]["carrier_error_mm"] = float(1e3 * np.linalg.norm(d_X[k, 3:]))
+            records[i]["carrier_error_deg"] = float(np.degrees(np.linalg.norm(d_X[k, :3])))
         if flipped[list(idx).index(i)]:
             records[i]["reason"] = "ok (corner order reversed to match the carrier's motion)"
     jk = jackknife_std(uv[keep], p_B, T_W_X[sel], cam, fit, mode, free_intrinsics, **opts)

@@ -312,3 +312,56 @@ def test_cli_handeye_on_franka(tmp_path):
     assert [r["name"] for r in res["stills"]] == [f"franka_image-{i}.png" for i in range(1, 9)]
     assert [r["pose"].endswith(f"franka_pose_rPe_{i}.yaml") for i, r in
             enumerate(res["stills"], start=1)] == [True] * 8  # fmt: skip
+
+
+def test_board_with_alike_ends_gets_one_corner_order():
+    """A 9x7-square board (both ends alike, OpenCV may start at either) seen at any roll: the
+    corner order of each still is set from the carrier's motion and the truth is recovered."""
+    board = {"squares_x": 9, "squares_y": 7, "square_m": 0.025}
+    rng = np.random.default_rng(21)
+    p_B = board_object_points(board)
+    T_C_B = []
+    while len(T_C_B) < 8:
+        rpy = [rng.uniform(-0.5, 0.5), rng.uniform(-0.5, 0.5), rng.uniform(-np.pi, np.pi)]
+        T = board_centre_pose(rpy, [0.0, 0.0, rng.uniform(0.4, 0.5)], board)
+        uv = project_points(tf.transform_points(T, p_B), K, np.zeros(5))
+        if uv.min() > 40 and uv[:, 0].max() < 600 and uv[:, 1].max() < 440:
+            T_C_B.append(T)
+    T_C_B = np.stack(T_C_B)
+    T_W_X = T_W_B_TRUE @ tf.invert_T(T_C_B) @ tf.invert_T(T_CM_C_TRUE)
+    images = [(f"s{i}.png", render_board(T, K, board, pps=40, seed=i)[0]) for i, T in enumerate(T_C_B)]
+    res = he.calibrate_hand_eye(images, T_W_X, board, CAMERA, pose_noise=False)
+    e = _errors(T_CM_C_TRUE, np.array(res["T_Cm_C"]))
+    assert np.degrees(np.linalg.norm(e[:3])) < 0.1 and np.linalg.norm(e[3:]) < 1e-3
+    assert res["n_used"] == 8 and res["rms_px"] < 0.3
+
+
+def test_cli_eye_to_hand_with_tum_poses_and_camera_yaml(tmp_path):
+    """`cvsflow handeye --eye-to-hand --pose-format tum` on rendered stills: poses paired by
+    position, T_W_C recovered, every still listed with its RMS."""
+    import cv2
+
+    from cvsflow.cli import main
+    from cvsflow.io.files import write_yaml
+
+    s = simulate("eye_to_hand", n=8, seed=31)
+    stills = tmp_path / "stills"
+    stills.mkdir()
+    for i, T in enumerate(s["T_C_B"]):
+        cv2.imwrite(str(stills / f"view{i + 1}.png"), render_board(T, K, BOARD, pps=40, seed=i)[0])
+    q = tf.quat_from_R(s["T_W_X"][:, :3, :3])
+    lines = [f"{i} " + " ".join(f"{v:.12f}" for v in (*s["T_W_X"][i, :3, 3], *q[i]))
+             for i in range(len(q))]  # fmt: skip
+    (tmp_path / "robot.txt").write_text("# t x y z qx qy qz qw\n" + "\n".join(lines) + "\n")
+    write_yaml({"K": K, "dist": np.zeros(5), "width": 640, "height": 480}, tmp_path / "camera.yaml")
+    rc = main(["handeye", "--stills", str(stills), "--poses", str(tmp_path / "robot.txt"),
+               "--pose-format", "tum", "--inner", "9x6", "--square-m", "0.0236", "--camera",
+               str(tmp_path / "camera.yaml"), "--eye-to-hand", "--out", str(tmp_path / "out")])  # fmt: skip
+    assert rc == 0
+    res = yaml.safe_load((tmp_path / "out" / "handeye.yaml").read_text())
+    assert res["mode"] == "eye_to_hand" and res["pairing"] == "by position"
+    e = _errors(T_W_C_TRUE, np.array(res["T_W_C"]))
+    assert np.degrees(np.linalg.norm(e[:3])) < 0.1 and np.linalg.norm(e[3:]) < 1e-3
+    assert [r["name"] for r in res["stills"]] == [f"view{i}.png" for i in range(1, 9)]
+    assert all(r["rms_px"] < 0.5 for r in res["stills"])
+    assert "T_Bm_B" in res["std"]
