@@ -450,6 +450,24 @@ def refine_hand_eye(uv_px, p_B, T_W_X, camera, T0_H, T0_G, mode="eye_in_hand",
     }  # fmt: skip
 
 
+def leave_one_out_rms(uv_px, p_B, T_W_X, camera, fit, mode, free_intrinsics=()):
+    """Each still's reprojection RMS (px) under the fit of the other stills, poses as exact.
+
+    A still with a grossly wrong carrier pose pulls an all-stills fit towards itself and
+    spreads its error over the others; fitted without it, it stands out.
+    """
+    n = len(uv_px)
+    out = np.empty(n)
+    for i in range(n):
+        keep = np.arange(n) != i
+        f = refine_hand_eye(uv_px[keep], p_B, T_W_X[keep], camera, fit["T_H"], fit["T_G"], mode,
+                            free_intrinsics, pose_noise=False)  # fmt: skip
+        intr = f["intrinsics"]
+        m = _Model(T_W_X[i : i + 1], mode, uv_px[i : i + 1], p_B, f["T_H"], f["T_G"], intr, ())
+        out[i] = m.still_rms(m.x0())[0]
+    return out
+
+
 def _inverse(N):
     """Inverse of a normal matrix: LU (the priors make it positive definite), SVD if singular.
 
@@ -563,7 +581,7 @@ def calibrate_hand_eye(
     pose_sigma_m: float | None = None,
     pose_sigma_rad: float | None = None,
     subpix_window_px: int = 11,
-    reject_factor: float = 3.0,
+    reject_factor: float = 4.0,
     reject_min_px: float = 1.0,
     pose_names: Sequence[str] | None = None,
 ) -> dict:
@@ -593,8 +611,9 @@ def calibrate_hand_eye(
     subpix_window_px : int
         cornerSubPix half window, px.
     reject_factor, reject_min_px : float
-        After refinement, the worst still is rejected and the fit redone while its RMS exceeds
-        both ``reject_factor`` times the median still RMS and ``reject_min_px``.
+        With the carrier poses taken as exact, each still's RMS under the fit of the others
+        (:func:`leave_one_out_rms`); the worst still is rejected and the screen redone while
+        it exceeds both ``reject_factor`` times the median and ``reject_min_px``.
     pose_names : sequence of str, optional
         Where each pose came from (named in the result).
 
@@ -660,21 +679,29 @@ def calibrate_hand_eye(
         T0_H, T0_G = closed_form_hand_eye(T_W_X[sel], T_C_B[keep], mode, method)
         start = _Model(T_W_X[sel], mode, uv[keep], p_B, T0_H, T0_G, _intrinsics_vector(cam), ())
         cf_rms = start.still_rms(start.x0())
-        fit = refine_hand_eye(uv[keep], p_B, T_W_X[sel], cam, T0_H, T0_G, mode,
-                              free_intrinsics, **opts)  # fmt: skip
-        rms = fit["still_rms_px"]
+        # Screen with the carrier poses taken as exact: the pose-error model would absorb a
+        # grossly wrong pose into that still's own error (and inflate the estimated sigma).
+        screen = refine_hand_eye(uv[keep], p_B, T_W_X[sel], cam, T0_H, T0_G, mode,
+                                 free_intrinsics, pose_noise=False)  # fmt: skip
+        rms = leave_one_out_rms(uv[keep], p_B, T_W_X[sel], cam, screen, mode, free_intrinsics)
         worst = int(np.argmax(rms))
         limit = max(reject_factor * float(np.median(rms)), reject_min_px)
         if rms[worst] <= limit or len(sel) <= MIN_STILLS:
             break
         i = sel[worst]
         records[i]["reason"] = (
-            f"outlier: reprojection RMS {rms[worst]:.2f} px > {limit:.2f} px "
-            f"({reject_factor:g} x median {np.median(rms):.2f} px)"
+            f"outlier: reprojection RMS {rms[worst]:.2f} px > {limit:.2f} px when fitted "
+            f"without it ({reject_factor:g} x the median {np.median(rms):.2f} px; carrier poses "
+            "taken as exact)"
         )
         records[i]["rms_px"] = float(rms[worst])
         log.warning("hand-eye: still %s rejected (%s)", records[i]["name"], records[i]["reason"])
         keep[list(idx).index(i)] = False
+    fit = screen
+    if pose_noise:
+        fit = refine_hand_eye(uv[keep], p_B, T_W_X[sel], cam, T0_H, T0_G, mode,
+                              free_intrinsics, **opts)  # fmt: skip
+    rms = fit["still_rms_px"]
     d_X = fit["carrier_residuals"]
     for k, i in enumerate(sel):
         records[i].update(used=True, reason="ok", rms_px=float(rms[k]))
