@@ -338,9 +338,11 @@ def test_board_with_alike_ends_gets_one_corner_order():
     assert res["n_used"] == 8 and res["rms_px"] < 0.3
 
 
-def test_cli_eye_to_hand_with_tum_poses_and_camera_yaml(tmp_path):
-    """`cvsflow handeye --eye-to-hand --pose-format tum` on rendered stills: poses paired by
-    position, T_W_C recovered, every still listed with its RMS."""
+@pytest.mark.parametrize("fmt", ["tum", "csv"])
+def test_cli_eye_to_hand_with_pose_list_and_camera_yaml(tmp_path, fmt):
+    """`cvsflow handeye --eye-to-hand` on rendered stills with a TUM file (paired by position)
+    or a CSV in mm and degrees, rows shuffled, naming each still (paired by name): T_W_C
+    recovered, every still listed with its RMS."""
     import cv2
 
     from cvsflow.cli import main
@@ -351,19 +353,53 @@ def test_cli_eye_to_hand_with_tum_poses_and_camera_yaml(tmp_path):
     stills.mkdir()
     for i, T in enumerate(s["T_C_B"]):
         cv2.imwrite(str(stills / f"view{i + 1}.png"), render_board(T, K, BOARD, pps=40, seed=i)[0])
-    q = tf.quat_from_R(s["T_W_X"][:, :3, :3])
-    lines = [f"{i} " + " ".join(f"{v:.12f}" for v in (*s["T_W_X"][i, :3, 3], *q[i]))
-             for i in range(len(q))]  # fmt: skip
-    (tmp_path / "robot.txt").write_text("# t x y z qx qy qz qw\n" + "\n".join(lines) + "\n")
+    T_W_X = s["T_W_X"]
+    extra = []
+    if fmt == "tum":
+        q = tf.quat_from_R(T_W_X[:, :3, :3])
+        lines = [f"{i} " + " ".join(f"{v:.12f}" for v in (*T_W_X[i, :3, 3], *q[i]))
+                 for i in range(len(q))]  # fmt: skip
+        (tmp_path / "robot.txt").write_text("# t x y z qx qy qz qw\n" + "\n".join(lines) + "\n")
+    else:
+        rpy = np.degrees(tf.euler_from_R(T_W_X[:, :3, :3]))
+        rows = [f"view{i + 1}.png,{i},"
+                + ",".join(f"{v:.10f}" for v in (*1e3 * T_W_X[i, :3, 3], *rpy[i]))
+                for i in (3, 0, 7, 1, 6, 2, 5, 4)]  # fmt: skip
+        (tmp_path / "robot.txt").write_text("still,t,x,y,z,r,p,yw\n" + "\n".join(rows) + "\n")
+        write_yaml({"time_col": "t", "pos_cols": ["x", "y", "z"], "pos_unit": "mm",
+                    "rot": "euler_rpy", "rot_cols": ["r", "p", "yw"], "angle_unit": "deg",
+                    "name_col": "still"}, tmp_path / "spec.yaml")  # fmt: skip
+        extra = ["--csv-spec", str(tmp_path / "spec.yaml")]
     write_yaml({"K": K, "dist": np.zeros(5), "width": 640, "height": 480}, tmp_path / "camera.yaml")
     rc = main(["handeye", "--stills", str(stills), "--poses", str(tmp_path / "robot.txt"),
-               "--pose-format", "tum", "--inner", "9x6", "--square-m", "0.0236", "--camera",
-               str(tmp_path / "camera.yaml"), "--eye-to-hand", "--out", str(tmp_path / "out")])  # fmt: skip
+               "--pose-format", fmt, "--inner", "9x6", "--square-m", "0.0236", "--camera",
+               str(tmp_path / "camera.yaml"), "--eye-to-hand", "--out", str(tmp_path / "out"),
+               *extra])  # fmt: skip
     assert rc == 0
     res = yaml.safe_load((tmp_path / "out" / "handeye.yaml").read_text())
-    assert res["mode"] == "eye_to_hand" and res["pairing"] == "by position"
+    assert res["mode"] == "eye_to_hand"
+    assert res["pairing"] == ("by position" if fmt == "tum" else "by name")
     e = _errors(T_W_C_TRUE, np.array(res["T_W_C"]))
     assert np.degrees(np.linalg.norm(e[:3])) < 0.1 and np.linalg.norm(e[3:]) < 1e-3
     assert [r["name"] for r in res["stills"]] == [f"view{i}.png" for i in range(1, 9)]
     assert all(r["rms_px"] < 0.5 for r in res["stills"])
     assert "T_Bm_B" in res["std"]
+
+
+def test_cli_bad_poses_fail_cleanly(tmp_path, capsys):
+    """No pose file matching: exit 1, one line naming the pattern, no handeye.yaml."""
+    import cv2
+
+    from cvsflow.cli import main
+
+    (tmp_path / "stills").mkdir()
+    cv2.imwrite(str(tmp_path / "stills" / "a.png"), np.zeros((48, 64), np.uint8))
+    (tmp_path / "cam.yaml").write_text("K: [[600, 0, 320], [0, 600, 240], [0, 0, 1]]\n"
+                                       "dist: [0, 0, 0, 0, 0]\nwidth: 640\nheight: 480\n")  # fmt: skip
+    rc = main(["handeye", "--stills", str(tmp_path / "stills"), "--poses",
+               str(tmp_path / "pose_*.yaml"), "--pose-format", "visp", "--inner", "9x6",
+               "--square-m", "0.0236", "--camera", str(tmp_path / "cam.yaml"), "--out",
+               str(tmp_path / "out")])  # fmt: skip
+    assert rc == 1
+    assert "pose_*.yaml: no pose file matches" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
