@@ -313,6 +313,15 @@ class _Model:
             J = np.vstack([J, prior])
         return J
 
+    def jacobian_fixed(self, x):
+        """Whitened derivatives of the residuals w.r.t. the fixed intrinsics, (m, 9 - k)."""
+        T_H, T_G, intr = self.unpack(x)
+        A = carrier_chain(self.carrier(x), self.mode)
+        J_i = self._project(A, T_H, T_G, intr, want_jac=True)[3][..., ~self.free]
+        J = J_i.reshape(-1, int((~self.free).sum())) / self.sigma_px
+        n_prior = 6 * len(self.uv) if self.pose_noise else 0
+        return np.vstack([J, np.zeros((n_prior, J.shape[1]))])
+
     def still_rms(self, x):
         e = self.project(x) - self.uv
         return np.sqrt(np.mean(np.sum(e**2, axis=-1), axis=1))
@@ -365,8 +374,10 @@ def refine_hand_eye(uv_px, p_B, T_W_X, camera, T0_H, T0_G, mode="eye_in_hand",
     dict
         ``T_H``, ``T_G`` (4, 4), ``intrinsics`` (9,), ``cov`` (n, n) of ``param_names``
         (rotations as local errors about the solution's child axes, rad; translations m),
-        ``sigma_px``, ``sigma_pos_m``, ``sigma_rot_rad`` (estimated or given; None without
-        pose noise), ``carrier_residuals`` ((N, 6) estimated pose errors, rad and m),
+        including the fixed intrinsics' uncertainty when ``camera["std"]`` gives it (names in
+        ``intrinsic_std_propagated``), ``sigma_px``, ``sigma_pos_m``, ``sigma_rot_rad``
+        (estimated or given; None without pose noise), ``carrier_residuals`` ((N, 6)
+        estimated carrier-pose errors, rad and m),
         ``still_rms_px`` (N,), ``rms_px``, ``param_names``, ``nfev``, ``vce_iterations``.
 
     Notes
@@ -434,8 +445,20 @@ def refine_hand_eye(uv_px, p_B, T_W_X, camera, T0_H, T0_G, mode="eye_in_hand",
         clusters = np.repeat(np.arange(len(uv)), uv.shape[1] * 2)
         cov, _, _, sigma2, _ = _covariances(J * sig["corners"], r, "linear", 1.0, clusters)
         sigma_px = float(np.sqrt(sigma2))
+    # The fixed intrinsics are not exact: their calibration std (camera["std"], e.g. from
+    # `cvsflow calibrate`) enters through the solution's sensitivity to them,
+    # S = -(J^T J)^-1 J^T J_fixed (as cvsflow.optimise.se3._fixed_sensitivity, linear loss).
+    fixed_names = [nm for nm in INTRINSIC_NAMES if nm not in free]
+    given = camera.get("std") if isinstance(camera.get("std"), dict) else {}
+    sd_fixed = np.array([float(given.get(nm) or 0.0) for nm in fixed_names])
+    propagated = [nm for nm, v in zip(fixed_names, sd_fixed, strict=True) if v > 0]
+    if propagated:
+        J_fixed = at.jacobian_fixed(x_hat)
+        S = -(_inverse(J.T @ J) @ (J.T @ J_fixed))[: at.k]
+        cov = cov + (S * sd_fixed**2) @ S.T
     rms = at.still_rms(x_hat)
     return {
+        "intrinsic_std_propagated": propagated,
         "T_H": T_H, "T_G": T_G, "intrinsics": intr, "cov": cov,
         "sigma_px": float(sigma_px),
         "sigma_pos_m": float(sig["pos"]) if pose_noise else None,
@@ -644,7 +667,7 @@ def calibrate_hand_eye(
     p_B = board_object_points(board)
     K = np.asarray(camera["K"], float)
     dist = np.asarray(camera.get("dist", np.zeros(5)), float).ravel()
-    cam = {"K": K, "dist": dist}
+    cam = {"K": K, "dist": dist, "std": camera.get("std")}
     det = detect_still_corners(images, board, subpix_window_px)
     records = [{"name": d["name"], "pose": pn, "used": False, "reason": d["reason"],
                 "rms_px": None} for d, pn in zip(det, pose_names, strict=True)]  # fmt: skip
@@ -737,6 +760,7 @@ def calibrate_hand_eye(
             "dist": fit["intrinsics"][4:].tolist(),
             "free": list(fit["param_names"][12:]),
             "std": intr_free if n_free else {},
+            "fixed_std_propagated": fit["intrinsic_std_propagated"],
         },
         "carrier_pose_noise": {
             "modelled": bool(pose_noise),

@@ -403,3 +403,24 @@ def test_cli_bad_poses_fail_cleanly(tmp_path, capsys):
     assert rc == 1
     assert "pose_*.yaml: no pose file matches" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_fixed_intrinsic_std_propagates_as_the_refit_shift():
+    """camera["std"] of a fixed fx adds S sd^2 S^T: the added variance of each parameter equals
+    the square of its shift when fx is moved by one sd and the fit redone (linearity)."""
+    s = simulate("eye_in_hand", n=10, seed=41, sigma_px=0.2)
+    T0_H, T0_G = he.closed_form_hand_eye(s["T_W_X"], s["T_C_B"], "eye_in_hand", "park")
+    args = (s["uv"], s["p_B"], s["T_W_X"])
+    base = he.refine_hand_eye(*args, {"K": K, "dist": np.zeros(5)}, T0_H, T0_G, pose_noise=False)
+    with_sd = he.refine_hand_eye(*args, {"K": K, "dist": np.zeros(5), "std": {"fx": 3.0}},
+                                 T0_H, T0_G, pose_noise=False)  # fmt: skip
+    K_moved = K.copy()
+    K_moved[0, 0] += 3.0
+    moved = he.refine_hand_eye(*args, {"K": K_moved, "dist": np.zeros(5)}, T0_H, T0_G,
+                               pose_noise=False)  # fmt: skip
+    assert with_sd["intrinsic_std_propagated"] == ["fx"]
+    added = np.diag(with_sd["cov"]) - np.diag(base["cov"])
+    shift = np.concatenate([he._deviation(base["T_H"], moved["T_H"]),
+                            he._deviation(base["T_G"], moved["T_G"])])  # fmt: skip
+    big = shift**2 > 0.05 * added.max()
+    np.testing.assert_allclose(added[big], shift[big] ** 2, rtol=0.1)
