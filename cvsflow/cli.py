@@ -352,9 +352,9 @@ def _add_handeye_parser(sub) -> None:
     )
     h.add_argument("--stills", required=True, help="folder of stills (png, jpg, ...)")
     h.add_argument("--poses", required=True, help="pose file(s), a quoted glob for one file per still")
-    h.add_argument("--pose-format", choices=("visp", "tum", "csv"), required=True,
+    h.add_argument("--pose-format", choices=("visp", "tum", "csv", "auto"), default="auto",
                    help="visp: vpPoseVector YAML (m, theta-u rad); tum: t tx ty tz qx qy qz qw; "
-                   "csv: columns and units declared in --csv-spec")  # fmt: skip
+                   "csv: columns and units in --csv-spec; auto (default): from the file")  # fmt: skip
     h.add_argument("--csv-spec", help="YAML of the CSV's columns and units (time_col, pos_cols, "
                    "pos_unit, rot, rot_cols, angle_unit, name_col)")  # fmt: skip
     h.add_argument("--inner", type=_parse_inner, required=True, help="inner corners NXxNY, e.g. 9x6")

@@ -278,18 +278,61 @@ def expand_pose_glob(pattern) -> list[Path]:
     return paths
 
 
-def read_pose_list(pattern, fmt: str, csv_spec: dict | None = None) -> pd.DataFrame:
-    """Pose table of the files matching ``pattern`` in format ``fmt`` (visp, tum, csv).
+def sniff_pose_format(path) -> str | None:
+    """``visp``, ``tum`` or ``csv`` when the start of a file looks like one, else None."""
+    try:
+        with open(path, errors="replace") as fh:
+            head = [ln.strip() for ln in fh.read(4096).splitlines() if ln.strip()]
+    except OSError:
+        return None
+    body = [ln for ln in head if not ln.startswith("#")]
+    if not body:
+        return None
+    keys = {ln.split(":")[0].strip() for ln in body if ":" in ln}
+    if {"rows", "cols", "data"} <= keys:
+        return "visp"
 
-    Several files are read in natural order of their names and concatenated.
+    def numbers(ln):
+        try:
+            return len([float(v) for v in ln.replace(",", " ").split()])
+        except ValueError:
+            return 0
+
+    if all(numbers(ln) == 8 for ln in body[:5]):
+        return "tum"
+    if "," in body[0] and numbers(body[0]) == 0 and len(body) > 1 and "," in body[1]:
+        return "csv"
+    return None
+
+
+def read_pose_list(pattern, fmt: str, csv_spec: dict | None = None) -> pd.DataFrame:
+    """Pose table of the files matching ``pattern`` in format ``fmt`` (visp, tum, csv, auto).
+
+    Several files are read in natural order of their names and concatenated. ``auto`` takes
+    the format from the first file (:func:`sniff_pose_format`). A file that fails to read in
+    the named format but looks like another says so in the error.
     """
-    if fmt not in POSE_FORMATS:
-        raise InputError(f"pose format {fmt!r}; expected one of {list(POSE_FORMATS)}")
+    if fmt not in (*POSE_FORMATS, "auto"):
+        raise InputError(f"pose format {fmt!r}; expected one of {list(POSE_FORMATS)} or auto")
     paths = expand_pose_glob(pattern)
-    if fmt == "visp":
-        return read_visp_poses(paths)
-    if fmt == "tum":
-        return pd.concat([read_tum_poses(p) for p in paths], ignore_index=True)
-    if csv_spec is None:
-        raise InputError(f"{pattern}: pose format csv needs a spec declaring the columns and units")
-    return pd.concat([read_csv_poses(p, csv_spec) for p in paths], ignore_index=True)
+    if fmt == "auto":
+        fmt = sniff_pose_format(paths[0])
+        if fmt is None:
+            raise InputError(
+                f"{paths[0]}: pose format not recognised; expected a ViSP vpPoseVector YAML "
+                "(rows, cols, data), TUM lines (t tx ty tz qx qy qz qw) or a CSV with a header"
+            )
+    try:
+        if fmt == "visp":
+            return read_visp_poses(paths)
+        if fmt == "tum":
+            return pd.concat([read_tum_poses(p) for p in paths], ignore_index=True)
+        if csv_spec is None:
+            raise InputError(f"{pattern}: pose format csv needs a spec declaring the columns and units")
+        return pd.concat([read_csv_poses(p, csv_spec) for p in paths], ignore_index=True)
+    except InputError as exc:
+        looks = next((k for k in map(sniff_pose_format, paths) if k not in (None, fmt)), None)
+        if looks is None:
+            raise
+        raise InputError(f"{exc} (the file looks like a {looks} pose list, not {fmt}: "
+                         f"give the pose format {looks})") from exc  # fmt: skip

@@ -255,3 +255,26 @@ def test_known_camera_from_camera_yaml_and_opencv_storage(tmp_path):
     (tmp_path / "bad.yaml").write_text("K: [[1, 0], [0, 1]]\ndist: [0]\nwidth: 1\nheight: 1\n")
     with pytest.raises(InputError, match="expected"):
         read_known_camera(tmp_path / "bad.yaml")
+
+
+def test_pose_format_detected_and_wrong_kind_named(tmp_path):
+    """auto finds visp, tum and csv; a file read as the wrong kind says what it looks like."""
+    from cvsflow.io.poses import sniff_pose_format
+
+    visp = tmp_path / "p.yaml"
+    visp.write_text("rows: 6\ncols: 1\ndata:\n" + "".join(f"  - [{v}]\n" for v in range(6)))
+    tum = tmp_path / "p.txt"
+    tum.write_text("# t x y z qx qy qz qw\n1 0 0 0 0 0 0 1\n2 1 0 0 0 0 0 1\n")
+    csv = tmp_path / "p.csv"
+    csv.write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n")
+    assert [sniff_pose_format(p) for p in (visp, tum, csv)] == ["visp", "tum", "csv"]
+    assert len(read_pose_list(tum, "auto")) == 2
+    np.testing.assert_allclose(read_pose_list(visp, "auto")[["x_m", "y_m", "z_m"]].iloc[0], [0, 1, 2])
+    with pytest.raises(InputError, match="looks like a visp pose list, not tum"):
+        read_pose_list(visp, "tum")
+    with pytest.raises(InputError, match="looks like a tum pose list, not visp"):
+        read_pose_list(tum, "visp")
+    nexus = tmp_path / "analogs.csv"
+    nexus.write_text("Devices\n2000\n,,,\n")
+    with pytest.raises(InputError, match="pose format not recognised"):
+        read_pose_list(nexus, "auto")
