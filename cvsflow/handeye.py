@@ -752,8 +752,11 @@ def calibrate_hand_eye(
         name_H: fit["T_H"].tolist(),
         name_G: fit["T_G"].tolist(),
         "std": {name_H: _pose_std(std[:6]), name_G: _pose_std(std[6:12])},
-        "std_method": "larger of Gauss-Newton s^2 (J^T J)^-1 and the delete-one-still jackknife"
-        if jk is not None else "Gauss-Newton s^2 (J^T J)^-1 (too few stills for a jackknife)",
+        "std_method": ("larger of " if jk is not None else "") + (
+            "the Gauss-Newton covariance with the carrier-pose errors modelled (variance "
+            "components)" if pose_noise else "Gauss-Newton s^2 (J^T J)^-1 (poses as exact)")
+        + (" and the delete-one-still jackknife" if jk is not None else
+           " (too few stills for a jackknife)"),
         "std_gauss_newton": {name_H: _pose_std(std_gn[:6]), name_G: _pose_std(std_gn[6:12])},
         "std_jackknife": None if jk is None else {name_H: _pose_std(jk[:6]),
                                                   name_G: _pose_std(jk[6:12])},
