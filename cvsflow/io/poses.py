@@ -1,0 +1,338 @@
+"""Pose lists: one pose of a carrier (robot end-effector, marker body) per still.
+
+Formats
+-------
+- ``visp``: ViSP's ``vpPoseVector`` YAML (``vpPoseVector::saveYAML``)::
+
+      rows: 6
+      cols: 1
+      data:
+        - [tx]
+        ...
+        - [tuz]
+
+  translation in metres then the theta-u rotation vector (axis times angle, radians; the same
+  as a Rodrigues vector). One file per pose, or ``rows: N`` / ``cols: 6`` for N poses.
+- ``tum``: ``timestamp tx ty tz qx qy qz qw`` per line (metres, scalar-last quaternion), read
+  by :func:`cvsflow.io.flightlog.read_tum`.
+- ``csv``: a CSV with a header whose columns and units are declared (time/position/quaternion
+  or Euler roll-pitch-yaw with R = Rz(yaw) Ry(pitch) Rx(roll), m/cm/mm, deg/rad), read by
+  :func:`cvsflow.io.flightlog.read_csv_log`; the spec may add ``name_col``, a column naming
+  the still of each row.
+
+Every reader returns a *pose table*: one row per pose, columns ``name`` (what pairs the pose
+with a still: the file stem for ``visp``, the ``name_col`` cell for ``csv``, else empty),
+``t_s`` (NaN when the format has no time), ``x_m y_m z_m`` (metres), ``qx qy qz qw``
+(scalar-last unit quaternion), ``pos_valid``, ``rot_valid`` and ``origin`` ("file, line n"),
+in file order. The pose is the carrier X in the pose source's world W, ``T_W_X``.
+"""
+
+from __future__ import annotations
+
+import glob
+import logging
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from cvsflow import transforms as tf
+from cvsflow.errors import InputError
+
+log = logging.getLogger(__name__)
+
+POSE_FORMATS = ("visp", "tum", "csv")
+POSE_TABLE_COLUMNS = ["name", "t_s", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw",
+                      "pos_valid", "rot_valid", "origin"]  # fmt: skip
+
+
+def _table(names, t_s, p_m, q_xyzw, origins, pos_valid=True, rot_valid=True) -> pd.DataFrame:
+    p = np.asarray(p_m, float).reshape(-1, 3)
+    q = np.asarray(q_xyzw, float).reshape(-1, 4)
+    n = len(p)
+    return pd.DataFrame(
+        {
+            "name": list(names), "t_s": np.broadcast_to(np.asarray(t_s, float), n).copy(),
+            "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
+            "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
+            "pos_valid": np.broadcast_to(np.asarray(pos_valid, bool), n).copy(),
+            "rot_valid": np.broadcast_to(np.asarray(rot_valid, bool), n).copy(),
+            "origin": list(origins),
+        }
+    )[POSE_TABLE_COLUMNS]  # fmt: skip
+
+
+def pose_table_T(table: pd.DataFrame) -> np.ndarray:
+    """The poses of a pose table as transforms ``T_W_X``, shape (N, 4, 4); NaN where invalid."""
+    q = table[["qx", "qy", "qz", "qw"]].to_numpy(float)
+    p = table[["x_m", "y_m", "z_m"]].to_numpy(float)
+    ok = table["pos_valid"].to_numpy(bool) & table["rot_valid"].to_numpy(bool)
+    T = np.full((len(table), 4, 4), np.nan)
+    if ok.any():
+        T[ok] = tf.make_T(tf.R_from_quat(q[ok]), p[ok])
+    return T
+
+
+# --------------------------------------------------------------------------------------------
+# ViSP vpPoseVector
+# --------------------------------------------------------------------------------------------
+
+
+def T_from_pose_vector(pose6) -> np.ndarray:
+    """Transforms from ViSP pose vectors ``[tx, ty, tz, tux, tuy, tuz]`` (m, rad), (..., 6)."""
+    pose6 = np.asarray(pose6, float)
+    return tf.make_T(tf.R_from_rvec(pose6[..., 3:6]), pose6[..., :3])
+
+
+def _yaml_value(node, key):
+    """The value node of ``key`` in a YAML mapping node, or None."""
+    for k, v in node.value:
+        if isinstance(k, yaml.ScalarNode) and k.value == key:
+            return v
+    return None
+
+
+def _yaml_int(path, node, key):
+    v = _yaml_value(node, key)
+    if v is None:
+        raise InputError(f"{path}: key {key!r} missing; expected a vpPoseVector (rows, cols, data)")
+    try:
+        return int(v.value)
+    except (TypeError, ValueError):
+        raise InputError(
+            f"{path}, line {v.start_mark.line + 1}: {key} = {v.value!r}; expected an integer"
+        ) from None
+
+
+def read_visp_pose_vector(path) -> np.ndarray:
+    """The pose vector(s) of a ViSP ``vpPoseVector`` YAML file.
+
+    Parameters
+    ----------
+    path : str or Path
+        ``rows: 6, cols: 1`` (one pose, ViSP's own layout) or ``rows: N, cols: 6`` (N poses),
+        ``data`` a list of rows.
+
+    Returns
+    -------
+    pose6 : ndarray, shape (N, 6)
+        ``[tx, ty, tz, tux, tuy, tuz]``: metres, then theta-u radians.
+
+    Raises
+    ------
+    InputError
+        A missing or malformed file, a shape other than 6x1 or Nx6, rows and data disagreeing,
+        or a cell that is not a number (the message names the line).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found (expected a ViSP vpPoseVector YAML file)")
+    try:
+        root = yaml.compose(path.read_text())
+    except yaml.YAMLError as exc:
+        raise InputError(f"{path}: not valid YAML ({exc})") from exc
+    if not isinstance(root, yaml.MappingNode):
+        raise InputError(f"{path}: expected a YAML mapping with rows, cols and data (vpPoseVector)")
+    rows, cols = _yaml_int(path, root, "rows"), _yaml_int(path, root, "cols")
+    if (rows, cols) != (6, 1) and cols != 6:
+        raise InputError(
+            f"{path}: rows: {rows}, cols: {cols}; expected a vpPoseVector, rows: 6 and cols: 1 "
+            "(tx ty tz tux tuy tuz), or N rows of 6"
+        )
+    data = _yaml_value(root, "data")
+    if not isinstance(data, yaml.SequenceNode):
+        raise InputError(f"{path}: 'data' missing or not a list; expected {rows} rows of {cols}")
+    if len(data.value) != rows:
+        raise InputError(
+            f"{path}, line {data.start_mark.line + 1}: data has {len(data.value)} rows; "
+            f"expected {rows} (rows: {rows})"
+        )
+    cells = []
+    for row in data.value:
+        line = row.start_mark.line + 1
+        items = row.value if isinstance(row, yaml.SequenceNode) else [row]
+        if len(items) != cols or not all(isinstance(c, yaml.ScalarNode) for c in items):
+            raise InputError(f"{path}, line {line}: row has {len(items)} values; expected {cols}")
+        for c in items:
+            try:
+                v = float(c.value)
+            except ValueError:
+                raise InputError(
+                    f"{path}, line {c.start_mark.line + 1}: {c.value!r} is not a number "
+                    "(expected tx ty tz in m, tux tuy tuz in rad)"
+                ) from None
+            if not np.isfinite(v):
+                raise InputError(f"{path}, line {c.start_mark.line + 1}: {c.value!r} is not finite")
+            cells.append(v)
+    return np.asarray(cells, float).reshape(-1, 6) if cols == 6 else np.asarray(cells).reshape(1, 6)
+
+
+def read_visp_poses(paths) -> pd.DataFrame:
+    """Pose table of ViSP pose-vector files (each may hold one or more poses), in the given order.
+
+    The ``name`` of a pose is its file's stem (with ``#k`` appended when a file holds several).
+    """
+    frames = []
+    for path in map(Path, paths):
+        pose6 = read_visp_pose_vector(path)
+        T = T_from_pose_vector(pose6)
+        names = [path.stem] if len(pose6) == 1 else [f"{path.stem}#{k}" for k in range(len(pose6))]
+        frames.append(
+            _table(names, np.nan, T[:, :3, 3], tf.quat_from_R(T[:, :3, :3]),
+                   [f"{path}" if len(pose6) == 1 else f"{path}, pose {k}" for k in range(len(pose6))])
+        )  # fmt: skip
+    if not frames:
+        raise InputError("ViSP poses: no files given")
+    return pd.concat(frames, ignore_index=True)
+
+
+# --------------------------------------------------------------------------------------------
+# TUM and declared CSV (the flight-log readers, re-expressed as pose tables)
+# --------------------------------------------------------------------------------------------
+
+
+def _file_order(t_file_s: np.ndarray) -> np.ndarray:
+    """Indices that put rows sorted stably by time back into file order."""
+    order = np.argsort(t_file_s, kind="stable")
+    back = np.empty_like(order)
+    back[order] = np.arange(len(order))
+    return back
+
+
+def read_tum_poses(path) -> pd.DataFrame:
+    """Pose table of a TUM file (``timestamp tx ty tz qx qy qz qw``), in file order.
+
+    Raises
+    ------
+    InputError
+        As :func:`cvsflow.io.flightlog.read_tum` (the bad line named).
+    """
+    from cvsflow.io.flightlog import read_tum
+
+    path = Path(path)
+    traj = read_tum(path)  # checks every line; sorted by time (stable)
+    lines, t_file = [], []
+    with open(path) as fh:
+        for lineno, s in enumerate(fh, start=1):
+            if s.strip() and not s.lstrip().startswith("#"):
+                lines.append(lineno)
+                t_file.append(float(s.replace(",", " ").split()[0]))
+    traj = traj.iloc[_file_order(np.asarray(t_file))]
+    return _table([""] * len(traj), traj["t_s"], traj[["x_m", "y_m", "z_m"]],
+                  traj[["qx", "qy", "qz", "qw"]], [f"{path}, line {n}" for n in lines],
+                  traj["pos_valid"], traj["rot_valid"])  # fmt: skip
+
+
+def read_csv_poses(path, spec: dict) -> pd.DataFrame:
+    """Pose table of a CSV with declared columns and units, in file order.
+
+    Parameters
+    ----------
+    path : str or Path
+    spec : dict
+        The keys of :func:`cvsflow.io.flightlog.read_csv_log` (``time_col``, ``time_unit``,
+        ``pos_cols``, ``pos_unit``, ``rot`` = quat_xyzw / quat_wxyz / euler_rpy, ``rot_cols``,
+        ``angle_unit``, ...) plus optional ``name_col``: the column naming each row's still.
+
+    Raises
+    ------
+    InputError
+        As ``read_csv_log`` (row and column of a bad cell named), or ``name_col`` absent.
+    """
+    from cvsflow.io.flightlog import read_csv_log
+
+    path = Path(path)
+    spec = dict(spec or {})
+    name_col = spec.pop("name_col", None)
+    traj = read_csv_log(path, spec)  # sorted by time (stable); file order is restored below
+    raw = pd.read_csv(path, skipinitialspace=True)
+    raw.columns = [str(c).strip() for c in raw.columns]
+    t_col = spec.get("time_col", "t")
+    t_file = pd.to_numeric(raw[t_col]).to_numpy(float)
+    traj = traj.iloc[_file_order(t_file)]
+    if name_col is not None and name_col not in raw.columns:
+        raise InputError(f"{path}: name_col {name_col!r} not in the header {list(raw.columns)}")
+    names = raw[name_col].astype(str).str.strip().tolist() if name_col else [""] * len(raw)
+    return _table(names, traj["t_s"], traj[["x_m", "y_m", "z_m"]], traj[["qx", "qy", "qz", "qw"]],
+                  [f"{path}, line {i + 2}" for i in range(len(raw))], traj["pos_valid"],
+                  traj["rot_valid"])  # fmt: skip
+
+
+# --------------------------------------------------------------------------------------------
+# one entry point
+# --------------------------------------------------------------------------------------------
+
+
+def natural_key(text: str):
+    """Sort key that orders embedded integers by value (image-2 before image-10)."""
+    return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", str(text))]
+
+
+def expand_pose_glob(pattern) -> list[Path]:
+    """Files matching ``pattern`` (a glob, or one path), in natural order; an error if none."""
+    paths = sorted((Path(p) for p in glob.glob(str(pattern))), key=lambda p: natural_key(p.name))
+    if not paths:
+        raise InputError(f"{pattern}: no pose file matches")
+    return paths
+
+
+def sniff_pose_format(path) -> str | None:
+    """``visp``, ``tum`` or ``csv`` when the start of a file looks like one, else None."""
+    try:
+        with open(path, errors="replace") as fh:
+            head = [ln.strip() for ln in fh.read(4096).splitlines() if ln.strip()]
+    except OSError:
+        return None
+    body = [ln for ln in head if not ln.startswith("#")]
+    if not body:
+        return None
+    keys = {ln.split(":")[0].strip() for ln in body if ":" in ln}
+    if {"rows", "cols", "data"} <= keys:
+        return "visp"
+
+    def numbers(ln):
+        try:
+            return len([float(v) for v in ln.replace(",", " ").split()])
+        except ValueError:
+            return 0
+
+    if all(numbers(ln) == 8 for ln in body[:5]):
+        return "tum"
+    if "," in body[0] and numbers(body[0]) == 0 and len(body) > 1 and "," in body[1]:
+        return "csv"
+    return None
+
+
+def read_pose_list(pattern, fmt: str, csv_spec: dict | None = None) -> pd.DataFrame:
+    """Pose table of the files matching ``pattern`` in format ``fmt`` (visp, tum, csv, auto).
+
+    Several files are read in natural order of their names and concatenated. ``auto`` takes
+    the format from the first file (:func:`sniff_pose_format`). A file that fails to read in
+    the named format but looks like another says so in the error.
+    """
+    if fmt not in (*POSE_FORMATS, "auto"):
+        raise InputError(f"pose format {fmt!r}; expected one of {list(POSE_FORMATS)} or auto")
+    paths = expand_pose_glob(pattern)
+    if fmt == "auto":
+        fmt = sniff_pose_format(paths[0])
+        if fmt is None:
+            raise InputError(
+                f"{paths[0]}: pose format not recognised; expected a ViSP vpPoseVector YAML "
+                "(rows, cols, data), TUM lines (t tx ty tz qx qy qz qw) or a CSV with a header"
+            )
+    try:
+        if fmt == "visp":
+            return read_visp_poses(paths)
+        if fmt == "tum":
+            return pd.concat([read_tum_poses(p) for p in paths], ignore_index=True)
+        if csv_spec is None:
+            raise InputError(f"{pattern}: pose format csv needs a spec declaring the columns and units")
+        return pd.concat([read_csv_poses(p, csv_spec) for p in paths], ignore_index=True)
+    except InputError as exc:
+        looks = next((k for k in map(sniff_pose_format, paths) if k not in (None, fmt)), None)
+        if looks is None:
+            raise
+        raise InputError(f"{exc} (the file looks like a {looks} pose list, not {fmt}: "
+                         f"give the pose format {looks})") from exc  # fmt: skip
