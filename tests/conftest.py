@@ -1,11 +1,25 @@
 """Shared test fixtures: where the repository and the shared real data are."""
 
+import os
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-REAL_DATA = REPO.parent / "shared" / "data" / "real"
+
+
+def _find_real_data() -> Path:
+    """$CVSFLOW_REAL_DATA, else shared/data/real beside the repository or beside any folder above it
+    (a git worktree sits deeper than the clone); the path beside the repository when none exists."""
+    if os.environ.get("CVSFLOW_REAL_DATA"):
+        return Path(os.environ["CVSFLOW_REAL_DATA"])
+    for up in REPO.parents:
+        if (up / "shared" / "data" / "real").is_dir():
+            return up / "shared" / "data" / "real"
+    return REPO.parent / "shared" / "data" / "real"
+
+
+REAL_DATA = _find_real_data()
 
 
 @pytest.fixture(scope="session")

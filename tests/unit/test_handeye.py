@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 import sys
 from pathlib import Path
 
@@ -243,7 +242,7 @@ def test_bad_inputs():
 def _visp_dir() -> Path:
     from conftest import REAL_DATA
 
-    root = Path(os.environ.get("CVSFLOW_REAL_DATA", REAL_DATA))
+    root = REAL_DATA
     d = root / "visp" / "eye-in-hand"
     if not (d / "franka_camera.xml").is_file():
         pytest.skip(f"ViSP eye-in-hand data not found at {d}")

@@ -1,6 +1,5 @@
 """OptiTrack Motive CSV reader: the two real exports (SOURCES.md section 6), round trips, bad input."""
 
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -14,12 +13,9 @@ from cvsflow.mocap import body_poses, fit_bodies
 
 
 def _real_root():
-    """shared/data/real next to the repository or next to any folder above it (worktrees)."""
-    for up in Path(__file__).resolve().parents[2].parents:
-        cand = up / "shared" / "data" / "real"
-        if cand.is_dir():
-            return cand
-    return None
+    from conftest import REAL_DATA
+
+    return REAL_DATA if REAL_DATA.is_dir() else None
 
 
 ROOT = _real_root()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +26,7 @@ from cvsflow.io.visp import read_known_camera, read_visp_camera
 def _real() -> Path:
     from conftest import REAL_DATA
 
-    root = Path(os.environ.get("CVSFLOW_REAL_DATA", REAL_DATA))
+    root = REAL_DATA
     if not root.is_dir():
         pytest.skip(f"real data not found at {root}")
     return root

@@ -1,10 +1,10 @@
 """Vicon readers: the real Nexus CSV / C3D pair, round trips through the writer, bad input."""
 
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import REAL_DATA
 
 from cvsflow.errors import InputError
 from cvsflow.io.mocap_formats import detect_format
@@ -18,19 +18,16 @@ from cvsflow.io.vicon import (
     write_nexus_csv,
 )
 
-# shared/data/real beside the repository, or beside a folder above it (a worktree)
-REAL = next((up / "shared" / "data" / "real" / "vicon" for up in Path(__file__).resolve().parents[2].parents
-             if (up / "shared" / "data" / "real").is_dir()), Path("shared/data/real/vicon"))
+REAL = REAL_DATA / "vicon"
 REAL_CSV = REAL / "markers.csv"
 
 
 @pytest.fixture(scope="module")
 def real_root():
-    """shared/data/real beside the repository or beside a folder above it (worktrees); else skip."""
-    for up in Path(__file__).resolve().parents[2].parents:
-        if (up / "shared" / "data" / "real").is_dir():
-            return up / "shared" / "data" / "real"
-    pytest.skip("shared/data/real not found")
+    """shared/data/real (conftest.REAL_DATA); else skip."""
+    if not REAL_DATA.is_dir():
+        pytest.skip(f"real data not found at {REAL_DATA}")
+    return REAL_DATA
 REAL_C3D = REAL / "markers_analogs.c3d"
 
 # SOURCES.md section 3: gap frames per marker and the longest contiguous run
