@@ -356,3 +356,32 @@ def test_alternative_methods_run_end_to_end(tmp_path):
     assert comparison["error_frame"] == "B"
     repair = yaml.safe_load((tmp_path / "results/demo/vicon_repair.yaml").read_text())
     assert repair["filter"] is not None
+
+
+def test_demo_report_opens_on_the_headline_table(demo_run):
+    """The report's landing page holds each session's headline numbers, read from the result files."""
+    import json
+
+    table = pd.read_csv(demo_run / "results" / "headline.csv")
+    rows = table.set_index(["session", "group", "quantity"])
+    camera = yaml.safe_load((demo_run / "results/demo/camera.yaml").read_text())
+    comparison = yaml.safe_load((demo_run / "results/demo/comparison.yaml").read_text())
+    se3 = yaml.safe_load((demo_run / "results/demo/se3/calib/result.yaml").read_text())
+    assert rows.loc[("demo", "calibration", "fx"), "value"] == pytest.approx(camera["K"][0][0], rel=1e-7)
+    assert rows.loc[("demo", "se3", "fy"), "std"] == pytest.approx(se3["std_errors"]["fy"], rel=1e-7)
+    held = rows.loc[("demo", "held-out RMS (se3, frame C)", "z"), "value"]
+    assert held == pytest.approx(1e3 * comparison["se3"]["per_dim"]["z_m"]["rms"], rel=1e-7)
+    nees = rows.loc[("demo", "error model (se3, held-out)", "mean NEES (6 if consistent)"), "value"]
+    assert nees == pytest.approx(comparison["error_model"]["nees_mean"], rel=1e-7)
+    assert set(table["session"]) == {"demo", "stills", "flight flight_demo"}
+    snakemake(demo_run, "--report", "report_headline.html")
+    html = (demo_run / "report_headline.html").read_text(errors="replace")
+    start = html.index("var workflow_desc = ") + len("var workflow_desc = ")
+    desc = json.JSONDecoder().raw_decode(html[start:])[0]
+    assert "No headline table" not in desc
+    for session in ("Session demo", "Session stills", "Flight flight_demo"):
+        assert session in desc
+    for key in (("demo", "calibration", "fx"), ("demo", "se3", "fx"),
+                ("demo", "held-out RMS (se3, frame C)", "z"),
+                ("demo", "error model (se3, held-out)", "inside the 95 % band")):
+        assert rows.loc[key, "text"] in desc

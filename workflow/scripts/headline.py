@@ -1,4 +1,4 @@
-"""The headline numbers of every session and flight: headline.csv and the landing page's table (rule headline)."""
+"""Headline numbers of every session and flight: headline.csv and the landing page (rule headline)."""
 
 from pathlib import Path
 
