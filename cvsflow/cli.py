@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -265,7 +266,12 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
         notes.append(f"stills: {stills[0]} ({stills[1]} images)")
         from cvsflow.io.media import list_stills
 
-        inner = _try_inner_sizes(list_stills(stills[0])[0])
+        # The first stills may not show the whole board: try a few before giving up.
+        tried = list_stills(stills[0])[:5]
+        found = [size for size in map(_try_inner_sizes, tried) if size is not None]
+        if found:
+            inner = max(set(found), key=found.count)
+            notes.append(f"board found on {found.count(inner)} of the first {len(tried)} stills")
     videos = sorted(p for p in folder.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES)
     session["video"] = str(videos[0]) if videos else "TODO"
     notes.append(f"video: {videos[0]}" if videos else "no video found: set video")
@@ -296,13 +302,23 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
         )
     subjects: dict[str, list[str]] = {}
     for n in names:
-        subjects.setdefault(n.split(":")[0], []).append(n)
+        subjects.setdefault(n.split(":")[0] if ":" in n else "(no subject)", []).append(n)
+    if subjects:
+        notes.append("subjects in the export: " + "; ".join(
+            f"{k} ({len(v)} markers)" for k, v in subjects.items()))
     cam = next((v for k, v in subjects.items() if "cam" in k.lower()), ["TODO"])
-    brd = next((v for k, v in subjects.items() if "board" in k.lower()), ["TODO"])
-    session["markers"] = {
-        "camera": {"names": cam, "layout_m": "TODO: one [x, y, z] per marker, m, body frame"},
-        "board": {"names": brd, "layout_m": "TODO: one [x, y, z] per marker, m, body frame"},
-    }
+    brd = next((v for k, v in subjects.items() if "board" in k.lower() or "chess" in k.lower()),
+               ["TODO"])
+    for body, chosen in (("camera", cam), ("board", brd)):
+        if chosen == ["TODO"] and names:
+            notes.append(f"no subject named like the {body}: pick its markers from the list above")
+        elif 0 < len(chosen) < 3:
+            notes.append(f"{body}: {len(chosen)} markers; a rigid body needs at least 3")
+    # No layout_m: the vicon stage learns it from the first still second of the take; a
+    # measured layout (one [x, y, z] per name, metres, body frame) can be added.
+    notes.append("markers.*.layout_m left out: learned from the first still second of the take "
+                 "(add your measured layout, m, to use it instead)")
+    session["markers"] = {"camera": {"names": cam}, "board": {"names": brd}}
     return session, notes
 
 
@@ -316,9 +332,12 @@ def cmd_init(args) -> int:
     if out.exists():
         raise InputError(f"{out}: exists; cvsflow init never overwrites a file (give --out)")
     session, notes = build_session_config(folder)
-    name = args.name or folder.resolve().name
+    # A session name is a wildcard value: letters, digits, _ and - only (workflow/rules/common.smk).
+    name = re.sub(r"[^A-Za-z0-9_-]", "_", args.name or folder.resolve().name)
     text = "# Session config written by `cvsflow init`: check every line, fill every TODO.\n"
-    text += "# Use: snakemake --configfile " + str(out) + " (merges with config/config.yaml)\n"
+    text += "# Use: cvsflow run --configfile " + str(out) + "\n"
+    text += ("# It MERGES with config/config.yaml: the demo session and flight run too unless you\n"
+             "# name your targets (results/" + name + "/comparison.yaml); see the README.\n")
     text += "".join(f"# {n}\n" for n in notes)
     text += yaml.safe_dump({"sessions": {name: session}}, sort_keys=False, default_flow_style=None)
     with atomic_output(out) as tmp:

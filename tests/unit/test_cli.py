@@ -151,6 +151,9 @@ def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
     assert cfg["board"]["squares_x"] == 6 and cfg["board"]["squares_y"] == 5  # 5x4 inner corners
     assert cfg["markers"]["camera"]["names"] == ["cam:C1", "cam:C2"]
     assert cfg["markers"]["board"]["names"] == ["board:B1"]
+    assert "layout_m" not in cfg["markers"]["camera"]  # learned from the take unless measured
+    text = out.read_text()
+    assert "MERGES with config/config.yaml" in text and "a rigid body needs at least 3" in text
     before = out.read_text()
     assert cli.main(["init", str(rec), "--out", str(out)]) == 1
     assert out.read_text() == before
@@ -174,3 +177,15 @@ def test_bad_inner_is_usage_error():
     with pytest.raises(SystemExit) as exc:
         cli.main(["calibrate", "d", "--inner", "9by6", "--square-m", "0.02", "--out", "o"])
     assert exc.value.code == 2
+
+
+def test_init_names_a_session_as_a_wildcard_and_reports_what_is_missing(tmp_path, capsys):
+    rec = tmp_path / "lab 1 (May)"
+    rec.mkdir()
+    assert cli.main(["init", str(rec), "--out", str(tmp_path / "s.yaml")]) == 0
+    cfg = yaml.safe_load((tmp_path / "s.yaml").read_text())
+    (name, session), = cfg["sessions"].items()
+    assert name == "lab_1__May_"
+    assert session["calib_dir"] == session["video"] == session["vicon"] == "TODO"
+    out = capsys.readouterr().out
+    assert "set calib_dir" in out and "set video" in out and "set vicon" in out

@@ -385,3 +385,28 @@ def test_demo_report_opens_on_the_headline_table(demo_run):
                 ("demo", "held-out RMS (se3, frame C)", "z"),
                 ("demo", "error model (se3, held-out)", "inside the 95 % band")):
         assert rows.loc[key, "text"] in desc
+
+
+def test_init_on_the_rendered_recording_gives_a_config_the_workflow_accepts(demo_run):
+    """`cvsflow init` on the rendered session's folder finds its files, board and markers; with
+    square_m filled in, the workflow validates the config and plans the new session."""
+    out = demo_run / "init_session.yaml"
+    out.unlink(missing_ok=True)
+    proc = subprocess.run([sys.executable, "-m", "cvsflow.cli", "init", "data/demo", "--out", out.name,
+                           "--name", "again"], cwd=demo_run, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    session = yaml.safe_load(out.read_text())["sessions"]["again"]
+    truth = yaml.safe_load((demo_run / "data/demo/truth.yaml").read_text())
+    config = yaml.safe_load((demo_run / "config/config.yaml").read_text())["sessions"]["demo"]
+    assert session["calib_dir"] == "data/demo/calib"
+    assert session["video"] == "data/demo/video.mp4" and session["vicon"] == "data/demo/vicon.csv"
+    assert session["board"]["squares_x"] == truth["board"]["squares_x"]
+    assert session["board"]["squares_y"] == truth["board"]["squares_y"]
+    assert session["markers"]["camera"]["names"] == config["markers"]["camera"]["names"]
+    assert session["markers"]["board"]["names"] == config["markers"]["board"]["names"]
+    assert session["board"]["square_m"] == "TODO"
+    session["board"]["square_m"] = truth["board"]["square_m"]
+    out.write_text(yaml.safe_dump({"sessions": {"again": session}}))
+    proc = snakemake(demo_run, "-n", "results/again/comparison.yaml", "--configfile", out.name)
+    assert "calibrate" in jobs_in(proc.stdout + proc.stderr)
+    out.unlink()
