@@ -189,3 +189,30 @@ def test_init_names_a_session_as_a_wildcard_and_reports_what_is_missing(tmp_path
     assert session["calib_dir"] == session["video"] == session["vicon"] == "TODO"
     out = capsys.readouterr().out
     assert "set calib_dir" in out and "set video" in out and "set vicon" in out
+
+
+def _readme_session_block():
+    """The YAML block of the README's 'Your own session' section."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = readme.split("## Your own session", 1)[1]
+    return yaml.safe_load(section.split("```yaml", 1)[1].split("```", 1)[0])
+
+
+def test_readme_session_config_validates_merged_with_the_demo_config():
+    """The README's copyable session, merged as --configfile merges it, passes the schema and
+    runs every stage; the demo session stays in (the merge the README warns about)."""
+    import copy
+
+    from snakemake.utils import update_config, validate
+
+    from cvsflow.sessions import check_sessions
+
+    root = Path(__file__).resolve().parents[2]
+    config = yaml.safe_load((root / "config" / "config.yaml").read_text())
+    update_config(config, copy.deepcopy(_readme_session_block()))
+    validate(config, str(root / "workflow" / "schemas" / "config.schema.yaml"))
+    assert set(config["sessions"]) == {"demo", "lab1"}
+    stages = check_sessions(config["sessions"])
+    assert {"calibrate", "poses", "vicon", "pairs"} <= set(stages["lab1"])
+    lab1 = config["sessions"]["lab1"]
+    assert lab1["board"]["squares_x"] == 6 and len(lab1["markers"]["camera"]["layout_m"]) == 4
