@@ -25,6 +25,14 @@ MOCAP_SUFFIXES = (".csv", ".c3d")
 COMMON_INNER = ((9, 6), (8, 6), (7, 5), (7, 6), (10, 7), (6, 4), (5, 4), (11, 8), (8, 5))
 
 EPILOG = """\
+examples:
+  cvsflow calibrate stills/ --inner 9x6 --square-m 0.025 --out calib/
+  cvsflow export camera results/demo --format kalibr --out camchain.yaml
+  cvsflow export trajectory results/demo --out-dir traj/
+  cvsflow init recordings/lab1 --out my_session.yaml
+  cvsflow run --cores 2 --configfile my_session.yaml results/lab1/comparison.yaml
+`cvsflow COMMAND --help` explains each command's options.
+
 board convention: cvsflow's config counts SQUARES (board.squares_x, squares_y); OpenCV and
 Kalibr count INNER CORNERS (one fewer each way). `--inner 9x6` is 10x7 squares.
 
@@ -418,7 +426,10 @@ def build_parser() -> argparse.ArgumentParser:
         "init",
         help="write a session config from a recording folder, for you to check",
         description="Finds the stills folder, the video and the Nexus CSV / C3D export; lists "
-        "the marker names; tries common inner-corner sizes on one still. Never overwrites.",
+        "the subjects and marker names in the export; tries common inner-corner sizes on the "
+        "first stills; leaves TODO where it cannot know (square_m always) and layout_m out "
+        "(learned from the take). Never overwrites. The file merges with config/config.yaml "
+        "when given to --configfile.",
     )
     i.add_argument("dir", help="recording folder")
     i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml)")
