@@ -149,6 +149,15 @@ def _short(text, n=110):
     return text if len(text) <= n else text[: n - 3] + "..."
 
 
+def mark_diverged(fig, reason):
+    """Add "DIVERGED: reason" in red under a figure's title (a diverged seed run); returns fig."""
+    if reason:
+        title = fig.get_suptitle()
+        fig.suptitle((title + "\n" if title else "") + "DIVERGED: " + _short(reason),
+                     color="tab:red")
+    return fig
+
+
 def break_gaps(t, *columns, factor=1.5):
     """Insert a NaN row wherever the time step exceeds ``factor`` times the median step.
 

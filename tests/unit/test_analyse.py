@@ -294,3 +294,16 @@ def test_convergence_states_the_grid_bounds_and_divergence():
     assert fig.get_suptitle().splitlines()[1].startswith("DIVERGED: fy = 4985.8 px")
     assert fig.axes[6].get_title() == "focal lengths (grid bounds 100 to 5000 px)"
     assert "DIVERGED" not in pr.plot_convergence(analyse.convergence(_iterations())).get_suptitle()
+
+
+def test_mark_diverged_appends_the_reason_in_red_and_leaves_converged_runs_alone():
+    from cvsflow.plots import results as pr
+
+    df, _, _ = _errors(100)
+    fig = pr.mark_diverged(pr.plot_qq(analyse.qq_data(df)), "fy = 4985.8 px at the bound")
+    title = fig.get_suptitle()
+    assert title.startswith("Normal Q-Q plots") and title.endswith("DIVERGED: fy = 4985.8 px at the bound")
+    assert fig._suptitle.get_color() == "tab:red"
+    Sigma, corr = analyse.error_covariance(df)
+    assert pr.mark_diverged(pr.plot_covariance(Sigma, corr), "x").get_suptitle() == "DIVERGED: x"
+    assert pr.mark_diverged(pr.plot_qq(analyse.qq_data(df)), None).get_suptitle() == "Normal Q-Q plots of the errors"
