@@ -407,6 +407,6 @@ def test_init_on_the_rendered_recording_gives_a_config_the_workflow_accepts(demo
     assert session["board"]["square_m"] == "TODO"
     session["board"]["square_m"] = truth["board"]["square_m"]
     out.write_text(yaml.safe_dump({"sessions": {"again": session}}))
-    proc = snakemake(demo_run, "-n", "results/again/comparison.yaml", "--configfile", out.name)
+    proc = snakemake(demo_run, "-n", "results/again/comparison.yaml", "--configfile", str(out))
     assert "calibrate" in jobs_in(proc.stdout + proc.stderr)
     out.unlink()
