@@ -4,7 +4,7 @@ One row per quantity, in report units (px, mm, deg, ms, %), with its standard er
 source gives one, the truth of a rendered session, and the file and key it was read from, so
 a reader can check every number. Inputs are the stage outputs as loaded dicts (SI units):
 ``camera.yaml``, ``sync.yaml``, the se3 and seed ``result.yaml``, ``comparison.yaml``,
-``truth.yaml`` and a flight's ``stats.yaml``; any of them may be missing (a session that only
+``truth.yaml``, ``corners_summary.yaml``, ``vicon_repair.yaml`` and a flight's ``stats.yaml``; any of them may be missing (a session that only
 calibrates, a config without the seed method).
 """
 
@@ -74,7 +74,7 @@ def _pose6(T):
 
 
 def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=None, seed=None,
-                     comparison=None, truth=None):
+                     comparison=None, truth=None, corners=None, vicon_repair=None):
     """The headline rows of one session (see the module docstring for the inputs).
 
     Parameters
@@ -106,6 +106,26 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
         r.add("calibration", "stills used", camera.get("n_used"), "", f"{src}: n_used",
               text=str(camera.get("n_used", "n/a")))
         warnings += [("calibration", w, f"{src}: warnings") for w in camera.get("warnings") or []]
+
+    if corners is not None:
+        src = f"{base}/corners_summary.yaml"
+        n, found = corners.get("n_frames_decoded"), corners.get("n_found")
+        r.add("data", "video frames with a board", 100 * _num(found) / max(_num(n), 1), "%",
+              f"{src}: n_found, n_frames_decoded", text=f"{found} of {n}")
+        r.add("data", "video frames dropped (timestamp gaps)", corners.get("n_dropped"), "",
+              f"{src}: n_dropped", text=str(corners.get("n_dropped", "n/a")))
+        warnings += [("corners", w, f"{src}: warnings") for w in corners.get("warnings") or []]
+    if vicon_repair is not None:
+        src = f"{base}/vicon_repair.yaml"
+        tot = vicon_repair.get("total") or {}
+        n = sum(_num(tot.get(k, 0)) for k in ("measured", "rigid", "interp", "missing"))
+        filled = _num(tot.get("rigid", 0)) + _num(tot.get("interp", 0))
+        if n > 0:
+            r.add("data", "Vicon marker samples filled", 100 * filled / n, "%",
+                  f"{src}: total", digits=3,
+                  text=f"{_fmt(100 * filled / n, 3)} (rigid {tot.get('rigid', 0)}, interpolated "
+                       f"{tot.get('interp', 0)}, left missing {tot.get('missing', 0)})")
+        warnings += [("vicon", w, f"{src}: warnings") for w in vicon_repair.get("warnings") or []]
 
     if sync is not None:
         src = f"{base}/sync.yaml"

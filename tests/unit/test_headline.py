@@ -33,9 +33,14 @@ TRUTH = {"camera": {"K": [[702.0, 0, 331.5], [0, 698.0, 247.0], [0, 0, 1]]}, "dt
          "T_Cm_C": T_from_pose6(np.array(POSE_CM_C)).tolist()}
 
 
+CORNERS = {"n_frames_decoded": 600, "n_found": 570, "n_dropped": 2, "warnings": []}
+REPAIR = {"total": {"measured": 900, "rigid": 60, "interp": 40, "missing": 0},
+          "warnings": ["board:B3 missing for 0.4 s"]}
+
+
 def full_rows(**over):
     kw = {"camera": CAMERA, "sync": SYNC, "se3": SE3, "seed": SEED, "comparison": COMPARISON,
-          "truth": TRUTH}
+          "truth": TRUTH, "corners": CORNERS, "vicon_repair": REPAIR}
     kw.update(over)
     return headline.session_headline("lab1", **kw)
 
@@ -111,3 +116,12 @@ def test_rst_is_valid_and_escapes_markup():
     assert "52.60" in html and "Flight f1" in html
     table = headline.headline_table(rows)
     assert list(table.columns) == headline.COLUMNS
+
+
+def test_data_quality_rows_from_corners_and_vicon_repair():
+    rows = by_key(full_rows())
+    assert rows[("data", "video frames with a board")]["value"] == pytest.approx(95.0)
+    assert rows[("data", "video frames with a board")]["text"] == "570 of 600"
+    assert rows[("data", "Vicon marker samples filled")]["value"] == pytest.approx(10.0)
+    assert rows[("warnings", "vicon")]["text"] == "board:B3 missing for 0.4 s"
+    assert rows[("warnings", "vicon")]["source"] == "results/lab1/vicon_repair.yaml: warnings"

@@ -47,6 +47,10 @@ def headline_inputs(wildcards):
             files[f"{session}/camera"] = f"results/{cam}/camera.yaml"
         if is_synth(session):
             files[f"{session}/truth"] = f"data/{session}/truth.yaml"
+        if runs_stage(session, "poses"):
+            files[f"{session}/corners"] = f"results/{session}/corners_summary.yaml"
+        if runs_stage(session, "vicon"):
+            files[f"{session}/vicon_repair"] = f"results/{session}/vicon_repair.yaml"
         if runs_stage(session, "pairs"):
             files[f"{session}/sync"] = f"results/{session}/sync.yaml"
             for method in methods:
