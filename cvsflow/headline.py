@@ -1,11 +1,11 @@
 """The headline numbers of every session, for the report's landing page and headline.csv.
 
-One row per quantity, in report units (px, mm, deg, ms, %), with its standard error where the
+One row per quantity, in report units (px, mm, deg, s, %), with its standard error where the
 source gives one, the truth of a rendered session, and the file and key it was read from, so
 a reader can check every number. Inputs are the stage outputs as loaded dicts (SI units):
-``camera.yaml``, ``sync.yaml``, the se3 and seed ``result.yaml``, ``comparison.yaml``,
-``truth.yaml``, ``corners_summary.yaml``, ``vicon_repair.yaml`` and a flight's ``stats.yaml``; any of them may be missing (a session that only
-calibrates, a config without the seed method).
+``camera.yaml``, ``corners_summary.yaml``, ``vicon_repair.yaml``, ``sync.yaml``, the se3 and
+seed ``result.yaml``, ``comparison.yaml``, ``truth.yaml`` and a flight's ``stats.yaml``; any
+of them may be missing (a session that only calibrates, a config without the seed method).
 """
 
 from __future__ import annotations
