@@ -208,13 +208,13 @@ def test_changed_pnp_threshold_reruns_only_its_dependants(demo_run):
     """Changing the RANSAC threshold reruns poses and what depends on it, nothing upstream."""
     jobs = _jobs_after_change(demo_run, lambda c: c["pnp"].update(ransac_reproj_px=2.5))
     assert jobs == {"poses", "sync", "pairs", "optimise_seed", "optimise_se3", "analyse",
-                    "heldout_seed", "heldout_se3", "compare", "summary", "all"}
+                    "heldout_seed", "heldout_se3", "compare", "summary", "headline", "all"}
 
 
 def test_changed_iteration_count_reruns_only_the_optimiser(demo_run):
     """Changing the seed optimiser's k reruns the optimiser and its analysis only."""
     jobs = _jobs_after_change(demo_run, lambda c: c["optimise"]["seed"].update(k_iterations=7))
-    assert jobs == {"optimise_seed", "analyse", "heldout_seed", "compare", "summary", "all"}
+    assert jobs == {"optimise_seed", "analyse", "heldout_seed", "compare", "summary", "headline", "all"}
 
 
 def test_changed_filter_cutoff_reruns_from_vicon_repair(demo_run):
@@ -222,7 +222,7 @@ def test_changed_filter_cutoff_reruns_from_vicon_repair(demo_run):
     jobs = _jobs_after_change(demo_run, lambda c: c["vicon"]["filter"].update(cutoff_hz=8.0))
     assert jobs == {"vicon_repair", "vicon_bodies", "vicon_resample", "sync", "pairs",
                     "optimise_seed", "optimise_se3", "analyse", "heldout_seed", "heldout_se3",
-                    "compare", "summary", "all"}
+                    "compare", "summary", "headline", "all"}
 
 
 def test_demo_stats_match_the_error_table(demo_run):
@@ -300,7 +300,7 @@ def test_changed_session_path_reruns_only_that_session(demo_run):
     out = proc.stdout + proc.stderr
     stats = out.split("Job stats:", 1)[1]
     assert re.search(r"^calibrate\s+1$", stats, re.M), stats
-    assert jobs_in(out) == {"calibrate", "all"}
+    assert jobs_in(out) == {"calibrate", "headline", "all"}  # the headline shows the calibration
     assert "output: results/stills/camera.yaml" in out
     assert "output: results/demo/camera.yaml" not in out
 
