@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -24,6 +25,14 @@ MOCAP_SUFFIXES = (".csv", ".c3d")
 COMMON_INNER = ((9, 6), (8, 6), (7, 5), (7, 6), (10, 7), (6, 4), (5, 4), (11, 8), (8, 5))
 
 EPILOG = """\
+examples:
+  cvsflow calibrate stills/ --inner 9x6 --square-m 0.025 --out calib/
+  cvsflow export camera results/demo --format kalibr --out camchain.yaml
+  cvsflow export trajectory results/demo --out-dir traj/
+  cvsflow init recordings/lab1 --out my_session.yaml
+  cvsflow run --cores 2 --configfile my_session.yaml results/lab1/comparison.yaml
+`cvsflow COMMAND --help` explains each command's options.
+
 board convention: cvsflow's config counts SQUARES (board.squares_x, squares_y); OpenCV and
 Kalibr count INNER CORNERS (one fewer each way). `--inner 9x6` is 10x7 squares.
 
@@ -101,41 +110,86 @@ def cmd_export_camera(args) -> int:
     return 0
 
 
-def _pairs_trajectory(pairs, prefix_pos, quat_cols):
+def _tum_frame(t_s, T):
+    """Common trajectory form (``t_s``, ``x_m..z_m``, ``qx..qw``) of (N, 4, 4) transforms."""
     import pandas as pd
 
-    d = pd.DataFrame({"t_s": pairs["t_s"].to_numpy(float)})
-    for a in "xyz":
-        d[f"{a}_m"] = pairs[f"{prefix_pos}{a}_m"].to_numpy(float)
-    for name, col in zip(("qx", "qy", "qz", "qw"), quat_cols, strict=True):
-        d[name] = col
+    from cvsflow.transforms import quat_from_R
+
+    q = quat_from_R(T[:, :3, :3]).reshape(-1, 4)
+    d = pd.DataFrame({"t_s": np.asarray(t_s, dtype=float)})
+    for k, a in enumerate("xyz"):
+        d[f"{a}_m"] = T[:, k, 3]
+    for k, a in enumerate(("qx", "qy", "qz", "qw")):
+        d[a] = q[:, k]
     return d
 
 
+def session_trajectories(pairs, se3_result=None):
+    """The unaligned trajectories of a session, as (N, 4, 4) transforms on the video clock.
+
+    Parameters
+    ----------
+    pairs : DataFrame
+        pairs.parquet (``t_s``, ``cvs_rvec_*``, ``cvs_{x,y,z}_m``, ``cmbm_*``).
+    se3_result : dict, optional
+        The se3 result.yaml: its mountings ``T_Cm_C`` and ``T_Bm_B`` map the Vicon pose into
+        the camera optical and board frames.
+
+    Returns
+    -------
+    dict
+        ``cvs_T_C_B`` (PnP), ``vicon_T_Cm_Bm`` (Vicon, marker bodies) and with ``se3_result``
+        ``vicon_T_C_B`` = T_Cm_C⁻¹ T_Cm_Bm T_Bm_B: the Vicon reference in the frames of the CVS
+        estimate, so that ``evo_ape tum vicon_T_C_B.tum cvs_T_C_B.tum`` compares like with like.
+    """
+    from cvsflow.transforms import R_from_quat, R_from_rvec, invert_T, make_T
+
+    rvec = pairs[["cvs_rvec_0", "cvs_rvec_1", "cvs_rvec_2"]].to_numpy(float)
+    T_C_B = make_T(R_from_rvec(rvec), pairs[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy(float))
+    q = pairs[[f"cmbm_q{a}" for a in "xyzw"]].to_numpy(float)
+    T_Cm_Bm = make_T(R_from_quat(q), pairs[["cmbm_x_m", "cmbm_y_m", "cmbm_z_m"]].to_numpy(float))
+    out = {"cvs_T_C_B": T_C_B.reshape(-1, 4, 4), "vicon_T_Cm_Bm": T_Cm_Bm.reshape(-1, 4, 4)}
+    if se3_result is not None:
+        T_C_Cm = invert_T(np.asarray(se3_result["T_Cm_C"], dtype=float))
+        T_Bm_B = np.asarray(se3_result["T_Bm_B"], dtype=float)
+        out["vicon_T_C_B"] = T_C_Cm @ out["vicon_T_Cm_Bm"] @ T_Bm_B
+    return out
+
+
 def cmd_export_trajectory(args) -> int:
-    from cvsflow.io import read_parquet
+    from cvsflow.io import read_parquet, read_yaml
     from cvsflow.io.flightlog import write_tum
-    from cvsflow.transforms import R_from_rvec, quat_from_R
 
     src = Path(args.results)
     path = src / "pairs.parquet" if src.is_dir() else src
     if not path.is_file():
         raise InputError(f"{path}: pairs.parquet not found (give a finished results/<session> folder)")
     pairs = read_parquet(path)
-    need = {"t_s", "cvs_rvec_0", "cvs_x_m", "cmbm_x_m", "cmbm_qw"}
+    need = {"t_s", "cvs_rvec_0", "cvs_rvec_1", "cvs_rvec_2", "cvs_x_m", "cvs_y_m", "cvs_z_m",
+            "cmbm_x_m", "cmbm_y_m", "cmbm_z_m", "cmbm_qx", "cmbm_qy", "cmbm_qz", "cmbm_qw"}
     if not need <= set(pairs.columns):
-        raise InputError(f"{path}: expected columns {sorted(need)} (docs/contracts.md, pairs.parquet)")
-    rvec = pairs[["cvs_rvec_0", "cvs_rvec_1", "cvs_rvec_2"]].to_numpy(float)
-    q_cvs = np.array([quat_from_R(R_from_rvec(r)) for r in rvec]).reshape(-1, 4)
-    cvs = _pairs_trajectory(pairs, "cvs_", q_cvs.T)
-    vic = _pairs_trajectory(pairs, "cmbm_", [pairs[f"cmbm_q{a}"].to_numpy(float) for a in "xyzw"])
+        missing = sorted(need - set(pairs.columns))
+        raise InputError(f"{path}: missing columns {missing} (docs/contracts.md, pairs.parquet)")
+    se3_path = Path(args.se3) if args.se3 else path.parent / "se3" / "calib" / "result.yaml"
+    if args.se3 and not se3_path.is_file():
+        raise InputError(f"{se3_path}: se3 result.yaml not found")
+    se3 = read_yaml(se3_path) if se3_path.is_file() else None
+    if se3 is not None and not {"T_Cm_C", "T_Bm_B"} <= set(se3):
+        raise InputError(f"{se3_path}: expected the keys T_Cm_C and T_Bm_B (an se3 result.yaml)")
     out = Path(args.out_dir)
-    write_tum(cvs, out / "cvs_T_C_B.tum")
-    write_tum(vic, out / "vicon_T_Cm_Bm.tum")
-    print(
-        f"wrote {out / 'cvs_T_C_B.tum'} and {out / 'vicon_T_Cm_Bm.tum'} ({len(pairs)} poses each, "
-        "video clock, unaligned: the frames differ by T_Cm_C and T_Bm_B)"
-    )
+    t_s = pairs["t_s"].to_numpy(float)
+    written = []
+    for name, T in session_trajectories(pairs, se3).items():
+        write_tum(_tum_frame(t_s, T), out / f"{name}.tum")
+        written.append(str(out / f"{name}.tum"))
+    print(f"wrote {', '.join(written)} ({len(pairs)} poses each, video clock, unaligned)")
+    if se3 is None:
+        print(f"no {se3_path}: vicon_T_C_B.tum (the Vicon in the CVS frames) not written; the "
+              "two files differ by T_Cm_C and T_Bm_B, which evo's one-sided -a cannot remove")
+    else:
+        print(f"compare: evo_ape tum {out / 'vicon_T_C_B.tum'} {out / 'cvs_T_C_B.tum'} "
+              f"(mountings from {se3_path}; add -a or -s for evo's own alignment)")
     return 0
 
 
@@ -220,7 +274,12 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
         notes.append(f"stills: {stills[0]} ({stills[1]} images)")
         from cvsflow.io.media import list_stills
 
-        inner = _try_inner_sizes(list_stills(stills[0])[0])
+        # The first stills may not show the whole board: try a few before giving up.
+        tried = list_stills(stills[0])[:5]
+        found = [size for size in map(_try_inner_sizes, tried) if size is not None]
+        if found:
+            inner = max(set(found), key=found.count)
+            notes.append(f"board found on {found.count(inner)} of the first {len(tried)} stills")
     videos = sorted(p for p in folder.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES)
     session["video"] = str(videos[0]) if videos else "TODO"
     notes.append(f"video: {videos[0]}" if videos else "no video found: set video")
@@ -251,13 +310,23 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
         )
     subjects: dict[str, list[str]] = {}
     for n in names:
-        subjects.setdefault(n.split(":")[0], []).append(n)
+        subjects.setdefault(n.split(":")[0] if ":" in n else "(no subject)", []).append(n)
+    if subjects:
+        notes.append("subjects in the export: " + "; ".join(
+            f"{k} ({len(v)} markers)" for k, v in subjects.items()))
     cam = next((v for k, v in subjects.items() if "cam" in k.lower()), ["TODO"])
-    brd = next((v for k, v in subjects.items() if "board" in k.lower()), ["TODO"])
-    session["markers"] = {
-        "camera": {"names": cam, "layout_m": "TODO: one [x, y, z] per marker, m, body frame"},
-        "board": {"names": brd, "layout_m": "TODO: one [x, y, z] per marker, m, body frame"},
-    }
+    brd = next((v for k, v in subjects.items() if "board" in k.lower() or "chess" in k.lower()),
+               ["TODO"])
+    for body, chosen in (("camera", cam), ("board", brd)):
+        if chosen == ["TODO"] and names:
+            notes.append(f"no subject named like the {body}: pick its markers from the list above")
+        elif 0 < len(chosen) < 3:
+            notes.append(f"{body}: {len(chosen)} markers; a rigid body needs at least 3")
+    # No layout_m: the vicon stage learns it from the first still second of the take; a
+    # measured layout (one [x, y, z] per name, metres, body frame) can be added.
+    notes.append("markers.*.layout_m left out: learned from the first still second of the take "
+                 "(add your measured layout, m, to use it instead)")
+    session["markers"] = {"camera": {"names": cam}, "board": {"names": brd}}
     return session, notes
 
 
@@ -271,9 +340,12 @@ def cmd_init(args) -> int:
     if out.exists():
         raise InputError(f"{out}: exists; cvsflow init never overwrites a file (give --out)")
     session, notes = build_session_config(folder)
-    name = args.name or folder.resolve().name
+    # A session name is a wildcard value: letters, digits, _ and - only (workflow/rules/common.smk).
+    name = re.sub(r"[^A-Za-z0-9_-]", "_", args.name or folder.resolve().name)
     text = "# Session config written by `cvsflow init`: check every line, fill every TODO.\n"
-    text += "# Use: snakemake --configfile " + str(out) + " (merges with config/config.yaml)\n"
+    text += "# Use: cvsflow run --configfile " + str(out) + "\n"
+    text += ("# It MERGES with config/config.yaml: the demo session and flight run too unless you\n"
+             "# name your targets (results/" + name + "/comparison.yaml); see the README.\n")
     text += "".join(f"# {n}\n" for n in notes)
     text += yaml.safe_dump({"sessions": {name: session}}, sort_keys=False, default_flow_style=None)
     with atomic_output(out) as tmp:
@@ -420,13 +492,18 @@ def build_parser() -> argparse.ArgumentParser:
     ec.set_defaults(func=cmd_export_camera)
     et = esub.add_parser(
         "trajectory",
-        help="CVS (T_C_B) and Vicon (T_Cm_Bm) trajectories as TUM files, unaligned, for evo",
-        description="Writes cvs_T_C_B.tum and vicon_T_Cm_Bm.tum (video clock, s, m, quaternion "
-        "xyzw) from pairs.parquet. They are unaligned: apply evo's own -a/-s; note the frames "
-        "differ on both sides (T_Cm_C and T_Bm_B), which a one-sided alignment does not remove.",
+        help="CVS and Vicon trajectories of a session as unaligned TUM files, for evo",
+        description="From pairs.parquet, on the video clock (s, m, quaternion xyzw), unaligned: "
+        "cvs_T_C_B.tum (PnP), vicon_T_Cm_Bm.tum (the Vicon, marker bodies) and, when the "
+        "session has an se3 result, vicon_T_C_B.tum = T_Cm_C^-1 T_Cm_Bm T_Bm_B (the Vicon in "
+        "the CVS frames). Compare with `evo_ape tum vicon_T_C_B.tum cvs_T_C_B.tum`, adding "
+        "evo's own -a/-s if wanted; vicon_T_Cm_Bm and cvs_T_C_B differ by transforms on both "
+        "sides, which evo's one-sided alignment cannot remove.",
     )
     et.add_argument("results", help="results/<session> folder or its pairs.parquet")
     et.add_argument("--out-dir", required=True, help="output folder")
+    et.add_argument("--se3", help="se3 result.yaml with the mountings "
+                    "(default: RESULTS/se3/calib/result.yaml if present)")
     et.set_defaults(func=cmd_export_trajectory)
 
     r = sub.add_parser(
@@ -442,7 +519,10 @@ def build_parser() -> argparse.ArgumentParser:
         "init",
         help="write a session config from a recording folder, for you to check",
         description="Finds the stills folder, the video and the Nexus CSV / C3D export; lists "
-        "the marker names; tries common inner-corner sizes on one still. Never overwrites.",
+        "the subjects and marker names in the export; tries common inner-corner sizes on the "
+        "first stills; leaves TODO where it cannot know (square_m always) and layout_m out "
+        "(learned from the take). Never overwrites. The file merges with config/config.yaml "
+        "when given to --configfile.",
     )
     i.add_argument("dir", help="recording folder")
     i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml)")

@@ -27,7 +27,7 @@ def _six_axes(title, figsize=(13.0, 7.0)):
     return fig, axes
 
 
-def plot_convergence(conv, f_bounds_px=None):
+def plot_convergence(conv, f_bounds_px=None, diverged_reason=None):
     """Per-dimension RMS error of eps against iteration, plus fx, fy (seed figure 1.6).
 
     Parameters
@@ -36,7 +36,10 @@ def plot_convergence(conv, f_bounds_px=None):
         :func:`cvsflow.analyse.convergence` output (SI).
     f_bounds_px : (float, float), optional
         The grid search's bounds (px, result.yaml ``f_bounds_px``): drawn on the focal-length
-        panel when the focal lengths come within 10 % of the range of one of them.
+        panel when the focal lengths come within 10 % of the range of one of them; the
+        panel's title states both.
+    diverged_reason : str, optional
+        result.yaml ``diverged_reason`` of a diverged run: the title says it diverged.
 
     Returns
     -------
@@ -45,7 +48,10 @@ def plot_convergence(conv, f_bounds_px=None):
     """
     fig = Figure(figsize=(15.0, 7.0), layout="constrained")
     axes = fig.subplots(2, 4).ravel()
-    fig.suptitle("Convergence of the seed optimiser (eps after each iteration)")
+    title = "Convergence of the seed optimiser (eps after each iteration)"
+    if diverged_reason:
+        title += "\nDIVERGED: " + _short(diverged_reason)
+    fig.suptitle(title, color="tab:red" if diverged_reason else "black")
     it = conv["iteration"].to_numpy()
     for ax, d in zip(axes[:6], POSE_DIMS, strict=True):
         name, unit, k = DISPLAY[d]
@@ -57,6 +63,7 @@ def plot_convergence(conv, f_bounds_px=None):
     axes[6].plot(it, conv["fy_px"], label="fy")
     axes[6].set(xlabel="iteration [-]", ylabel="focal length [px]", title="focal lengths")
     if f_bounds_px is not None:
+        axes[6].set_title(f"focal lengths (grid bounds {f_bounds_px[0]:g} to {f_bounds_px[1]:g} px)")
         f_all = np.r_[conv["fx_px"].to_numpy(float), conv["fy_px"].to_numpy(float)]
         span = max(float(np.ptp(f_all)), 1.0)
         for b in f_bounds_px:
@@ -136,8 +143,44 @@ SEED_LABELS = ("Vicon (P* + P̄)", "CVS original f", "CVS optimised f")
 SE3_LABELS = ("Vicon via the fitted mountings", "CVS, calibrated intrinsics", "CVS, se3 intrinsics")
 
 
-def plot_vicon_vs_cvs(tracks, labels=SEED_LABELS):
-    """Vicon against the original and improved CVS estimate over time (figure 1.8).
+def _short(text, n=110):
+    """The first ``n`` characters of a reason, for a title."""
+    text = " ".join(str(text).split())
+    return text if len(text) <= n else text[: n - 3] + "..."
+
+
+def mark_diverged(fig, reason):
+    """Add "DIVERGED: reason" in red under a figure's title (a diverged seed run); returns fig."""
+    if reason:
+        title = fig.get_suptitle()
+        fig.suptitle((title + "\n" if title else "") + "DIVERGED: " + _short(reason),
+                     color="tab:red")
+    return fig
+
+
+def break_gaps(t, *columns, factor=1.5):
+    """Insert a NaN row wherever the time step exceeds ``factor`` times the median step.
+
+    Matplotlib joins consecutive points; a NaN between two samples stops the line there, so a
+    missing stretch (no board, no Vicon) shows as a gap instead of a straight line across it.
+
+    Returns
+    -------
+    tuple of ndarray
+        ``t`` and each column with the NaN rows inserted (float).
+    """
+    t = np.asarray(t, dtype=float)
+    cols = [np.asarray(c, dtype=float) for c in columns]
+    if t.size < 3:
+        return (t, *cols)
+    dt = np.diff(t)
+    step = np.median(dt[dt > 0]) if np.any(dt > 0) else 0.0
+    gaps = np.flatnonzero(dt > factor * step) + 1 if step > 0 else np.array([], int)
+    return (np.insert(t, gaps, np.nan), *[np.insert(c, gaps, np.nan) for c in cols])
+
+
+def plot_vicon_vs_cvs(tracks, labels=SEED_LABELS, diverged_reason=None):
+    """Vicon against the original and improved CVS estimate over time, and their errors (figure 1.8).
 
     Parameters
     ----------
@@ -145,21 +188,48 @@ def plot_vicon_vs_cvs(tracks, labels=SEED_LABELS):
         :func:`cvsflow.analyse.vicon_vs_cvs` output (SI).
     labels : tuple of str
         Legend of the Vicon, original and improved tracks (``SEED_LABELS``, ``SE3_LABELS``).
+    diverged_reason : str, optional
+        Of a diverged seed run: the title says so.
 
     Returns
     -------
     Figure
-        6 axes, time in s against pose in mm or deg.
+        12 axes in 4 rows of 3: translation tracks (mm), their errors CVS - Vicon (mm),
+        rotation tracks (deg), their errors (deg); time in s, shared per column. Lines break
+        where frames are missing (:func:`break_gaps`).
     """
-    fig, axes = _six_axes("Vicon against the original and improved CVS estimates", (15.0, 8.0))
-    t = tracks["t_s"].to_numpy()
-    for ax, d in zip(axes, POSE_DIMS, strict=True):
-        name, unit, k = DISPLAY[d]
-        ax.plot(t, tracks[f"vicon_{d}"] * k, "k", lw=1.2, label=labels[0])
-        ax.plot(t, tracks[f"original_{d}"] * k, lw=0.8, alpha=0.8, label=labels[1])
-        ax.plot(t, tracks[f"improved_{d}"] * k, lw=0.8, alpha=0.8, label=labels[2])
-        ax.set(xlabel="time [s]", ylabel=f"{name} [{unit}]", title=name)
-        ax.legend(fontsize="small")
+    fig = Figure(figsize=(15.0, 11.0), layout="constrained")
+    axes = fig.subplots(4, 3, sharex=True, gridspec_kw={"height_ratios": [3, 2, 3, 2]})
+    title = "Vicon against the original and improved CVS estimates, and the errors CVS - Vicon"
+    if diverged_reason:
+        title += "\nDIVERGED: " + _short(diverged_reason)
+    fig.suptitle(title, color="tab:red" if diverged_reason else "black")
+    t = tracks["t_s"].to_numpy(dtype=float)
+    for k, d in enumerate(POSE_DIMS):
+        name, unit, f = DISPLAY[d]
+        row = 0 if k < 3 else 2
+        ax, ax_e = axes[row, k % 3], axes[row + 1, k % 3]
+        vic, orig, impr = (tracks[f"{p}_{d}"].to_numpy(float) * f
+                           for p in ("vicon", "original", "improved"))
+        err_o, err_i = orig - vic, impr - vic
+        if k >= 3:  # angle differences wrapped to (-180, 180] deg
+            err_o, err_i = (np.degrees(np.angle(np.exp(1j * np.radians(e)))) for e in (err_o, err_i))
+        tt, vic, orig, impr, err_o, err_i = break_gaps(t, vic, orig, impr, err_o, err_i)
+        ax.plot(tt, vic, "k", lw=1.2, label=labels[0])
+        ax.plot(tt, orig, lw=0.8, alpha=0.8, label=labels[1])
+        ax.plot(tt, impr, lw=0.8, alpha=0.8, label=labels[2])
+        ax.set(ylabel=f"{name} [{unit}]", title=name)
+        ax_e.axhline(0.0, color="k", lw=0.6)
+        ax_e.plot(tt, err_o, lw=0.7, color="C0", label=f"{labels[1]} - Vicon")
+        ax_e.plot(tt, err_i, lw=0.7, color="C1", label=f"{labels[2]} - Vicon")
+        ax_e.set(ylabel=f"CVS - Vicon, {name} [{unit}]")
+        for a in (ax, ax_e):
+            a.grid(alpha=0.3)
+    for ax in axes[-1]:
+        ax.set_xlabel("time [s]")
+    # One legend: an error line has the colour of its CVS track.
+    handles, names = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="outside lower center", ncol=3, fontsize="small")
     return fig
 
 
@@ -210,6 +280,10 @@ def plot_error_maps(maps):
     """Maps of binned mean errors over pairs of pose dimensions (figure 1.9): contours where
     the bins are well filled, the bins themselves where they are sparse (grey: too few samples).
 
+    One row per error dimension, one column per pose pair, and one colour scale per row (shared
+    by its pose pairs, symmetric about zero, clipped at the 98th percentile of |mean| so that a
+    single extreme bin does not wash out the rest): a row reads as one quantity.
+
     Parameters
     ----------
     maps : list of dict
@@ -218,30 +292,45 @@ def plot_error_maps(maps):
     Returns
     -------
     Figure
-        One axis per map (rows: pose pairs, columns: error dimension) plus one colour bar
-        axis each; pose axes and errors in mm or deg.
+        One axis per map (rows: error dimension, columns: pose pair) plus one colour bar axis
+        per row; pose axes and errors in mm or deg.
     """
-    n_rows = max(1, len(maps) // 6)
-    n_cols = min(6, len(maps))
-    fig = Figure(figsize=(3.4 * n_cols, 3.0 * n_rows), layout="constrained")
-    axes = np.atleast_1d(fig.subplots(n_rows, n_cols)).ravel()
-    fig.suptitle("Mean error in bins of the board pose (CVS, optimised f)")
-    for ax, m in zip(axes, maps, strict=False):
-        na, ua, ka = DISPLAY[m["pose_dim_a"]]
-        nb, ub, kb = DISPLAY[m["pose_dim_b"]]
-        ne, ue, ke = DISPLAY[m["error_dim"]]
-        z = m["mean"].T * ke  # rows: b, columns: a
-        finite = np.isfinite(z)
-        # signed errors: a diverging map centred on zero
-        lim = float(np.nanmax(np.abs(z))) if finite.any() else 1.0
+    pairs = list(dict.fromkeys((m["pose_dim_a"], m["pose_dim_b"]) for m in maps))
+    dims = list(dict.fromkeys(m["error_dim"] for m in maps))
+    by_key = {(m["pose_dim_a"], m["pose_dim_b"], m["error_dim"]): m for m in maps}
+    fig = Figure(figsize=(3.6 * len(pairs) + 1.2, 2.5 * len(dims) + 0.6), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(len(dims), len(pairs), squeeze=False))
+    fig.suptitle("Mean error in bins of the board pose (CVS, optimised f); one colour scale per row")
+    for i, d in enumerate(dims):
+        ne, ue, ke = DISPLAY[d]
+        row_maps = [by_key.get((a, b, d)) for a, b in pairs]
+        values = np.concatenate([np.ravel(m["mean"]) * ke for m in row_maps if m is not None])
+        values = values[np.isfinite(values)]
+        lim = float(np.percentile(np.abs(values), 98)) if values.size else 1.0
+        lim = lim if lim > 0 else 1.0
         style = {"cmap": "RdBu_r", "vmin": -lim, "vmax": lim}
-        ax.set_facecolor("0.85")  # empty bins grey, distinct from a zero mean (white)
-        if finite.mean() >= 0.6:  # contours only where the bins are well filled
-            cs = ax.contourf(m["centres_a"] * ka, m["centres_b"] * kb, np.ma.masked_invalid(z),
-                             levels=np.linspace(-lim, lim, 13), **style)
-        else:  # sparse bins: draw the bins themselves rather than contour across holes
-            cs = ax.pcolormesh(m["edges_a"] * ka, m["edges_b"] * kb, np.ma.masked_invalid(z),
-                               **style)
-        fig.colorbar(cs, ax=ax, label=f"mean error in {ne} [{ue}]")
-        ax.set(xlabel=f"{na} [{ua}]", ylabel=f"{nb} [{ub}]", title=f"error in {ne}")
+        mappable = None
+        for j, m in enumerate(row_maps):
+            ax = axes[i, j]
+            if m is None:
+                ax.set_axis_off()
+                continue
+            na, ua, ka = DISPLAY[m["pose_dim_a"]]
+            nb, ub, kb = DISPLAY[m["pose_dim_b"]]
+            z = np.clip(m["mean"].T * ke, -lim, lim)  # rows: b, columns: a
+            finite = np.isfinite(z)
+            ax.set_facecolor("0.85")  # empty bins grey, distinct from a zero mean (white)
+            if finite.mean() >= 0.6:  # contours only where the bins are well filled
+                mappable = ax.contourf(m["centres_a"] * ka, m["centres_b"] * kb,
+                                       np.ma.masked_invalid(z),
+                                       levels=np.linspace(-lim, lim, 13), **style)
+            else:  # sparse bins: draw the bins themselves rather than contour across holes
+                mappable = ax.pcolormesh(m["edges_a"] * ka, m["edges_b"] * kb,
+                                         np.ma.masked_invalid(z), **style)
+            ax.set(xlabel=f"{na} [{ua}]", ylabel=f"{nb} [{ub}]")
+            if i == 0:
+                ax.set_title(f"over {na} and {nb}")
+        if mappable is not None:
+            fig.colorbar(mappable, ax=list(axes[i]), label=f"mean error\nin {ne} [{ue}]",
+                         extend="both")
     return fig

@@ -182,7 +182,6 @@ def test_plot_functions_return_labelled_figures():
         "conv": (pr.plot_convergence(analyse.convergence(_iterations())), 8),
         "hist": (pr.plot_error_histograms(df, analyse.normality_tests(df)), 6),
         "qq": (pr.plot_qq(analyse.qq_data(df)), 6),
-        "track": (pr.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(df, {"P_bar": P_bar})), 6),
     }
     for name, (fig, n_axes) in figs.items():
         assert isinstance(fig, Figure), name
@@ -193,11 +192,59 @@ def test_plot_functions_return_labelled_figures():
     assert len(fig.axes) == 3  # table, heat map, colour bar
     assert fig.axes[1].get_xticklabels()[0].get_text() == "x [mm]"  # units on the ticks
     assert fig.axes[1].get_yticklabels()[5].get_text() == "yaw ψ [deg]"
-    maps = analyse.error_maps(df, bins=6)
-    fig = pr.plot_error_maps(maps)
-    assert len(fig.axes) == 2 * 18  # 18 maps, each with a colour bar
-    assert all(_labelled(ax) for ax in fig.axes[:18:1] if ax.get_label() != "<colorbar>")
-    assert "mm" in fig.axes[0].get_xlabel()
+
+
+def test_error_maps_one_row_and_one_colour_scale_per_error_dimension():
+    """18 maps in 6 rows (error dims) x 3 columns (pose pairs); a row shares one colour scale."""
+    from cvsflow.plots import results as pr
+
+    df, _, _ = _errors(300)
+    fig = pr.plot_error_maps(analyse.error_maps(df, bins=6))
+    maps = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    bars = [ax for ax in fig.axes if ax.get_label() == "<colorbar>"]
+    assert len(maps) == 18 and len(bars) == 6
+    assert all(_labelled(ax) for ax in maps)
+    assert "mm" in maps[0].get_xlabel() and "deg" in maps[-1].get_xlabel()
+    assert "in x [mm]" in bars[0].get_ylabel() and "yaw" in bars[-1].get_ylabel()
+    for row in range(6):
+        limits = {tuple(np.round(c.get_clim(), 12)) for ax in maps[3 * row: 3 * row + 3]
+                  for c in ax.collections}
+        assert len(limits) == 1  # one colour scale per row
+        lo, hi = limits.pop()
+        assert lo == -hi and hi > 0
+
+
+def test_vicon_vs_cvs_errors_in_mm_and_lines_broken_at_gaps():
+    """Track and error rows per dimension; the error panel is eps in mm; a gap breaks the lines."""
+    from cvsflow.plots import results as pr
+
+    df, eps, P_bar = _errors(300)
+    df = df.drop(index=range(100, 130)).reset_index(drop=True)  # 1 s without frames
+    eps = np.delete(eps, range(100, 130), axis=0)
+    fig = pr.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(df, {"P_bar": P_bar}), diverged_reason="fy at 5000 px")
+    assert len(fig.axes) == 12
+    assert "DIVERGED: fy at 5000 px" in fig.get_suptitle()
+    ax_x, ax_ex = fig.axes[0], fig.axes[3]
+    assert ax_ex.get_ylabel() == "CVS - Vicon, x [mm]"
+    improved_err = ax_ex.get_lines()[2].get_ydata()  # zero line, original, improved
+    finite = np.isfinite(improved_err)
+    assert (~finite).sum() == 1  # one NaN: the one gap
+    np.testing.assert_allclose(improved_err[finite], 1e3 * eps[:, 0], atol=1e-9)
+    t = ax_x.get_lines()[0].get_xdata()
+    k = np.flatnonzero(np.isnan(t))[0]
+    assert t[k - 1] == pytest.approx(99 / 30) and t[k + 1] == pytest.approx(130 / 30)
+    assert fig.axes[-1].get_xlabel() == "time [s]"
+    assert "deg" in fig.axes[-1].get_ylabel()
+
+
+def test_break_gaps_leaves_a_regular_series_alone():
+    from cvsflow.plots.results import break_gaps
+
+    t = np.arange(10) / 30.0
+    tt, y = break_gaps(t, np.ones(10))
+    np.testing.assert_array_equal(tt, t)
+    tt, y = break_gaps(np.r_[t, 1.0], np.ones(11))
+    assert np.isnan(tt[10]) and np.isnan(y[10]) and tt.size == 12
 
 
 def test_covariance_display_units():
@@ -237,3 +284,26 @@ def test_summary_row_converts_to_report_units_and_true_p_bar():
     assert row["std_x_mm"] == pytest.approx(10.0)
     assert row["std_pitch_deg"] == pytest.approx(np.degrees(0.01))
     assert row["norm_final_mm"] == pytest.approx(10.0)
+
+
+def test_convergence_states_the_grid_bounds_and_divergence():
+    from cvsflow.plots import results as pr
+
+    fig = pr.plot_convergence(analyse.convergence(_iterations()), (100.0, 5000.0),
+                              diverged_reason="fy = 4985.8 px within a grid step of the bound")
+    assert fig.get_suptitle().splitlines()[1].startswith("DIVERGED: fy = 4985.8 px")
+    assert fig.axes[6].get_title() == "focal lengths (grid bounds 100 to 5000 px)"
+    assert "DIVERGED" not in pr.plot_convergence(analyse.convergence(_iterations())).get_suptitle()
+
+
+def test_mark_diverged_appends_the_reason_in_red_and_leaves_converged_runs_alone():
+    from cvsflow.plots import results as pr
+
+    df, _, _ = _errors(100)
+    fig = pr.mark_diverged(pr.plot_qq(analyse.qq_data(df)), "fy = 4985.8 px at the bound")
+    title = fig.get_suptitle()
+    assert title.startswith("Normal Q-Q plots") and title.endswith("DIVERGED: fy = 4985.8 px at the bound")
+    assert fig._suptitle.get_color() == "tab:red"
+    Sigma, corr = analyse.error_covariance(df)
+    assert pr.mark_diverged(pr.plot_covariance(Sigma, corr), "x").get_suptitle() == "DIVERGED: x"
+    assert pr.mark_diverged(pr.plot_qq(analyse.qq_data(df)), None).get_suptitle() == "Normal Q-Q plots of the errors"

@@ -58,30 +58,75 @@ def test_export_camera_and_missing_file_is_one_line(tmp_path, capsys):
     assert err.count("\n") == 1 and "nope" in err and "Traceback" not in err
 
 
-def test_export_trajectory_writes_unaligned_tum(tmp_path):
+def _pairs_from_truth(n=40, seed=0):
+    """pairs.parquet columns from known mountings: T_Cm_Bm = T_Cm_C T_C_B T_Bm_B^-1."""
     import pandas as pd
 
-    from cvsflow.transforms import quat_from_R
+    from cvsflow.transforms import T_from_pose6, invert_T, quat_from_R, rvec_tvec_from_T
 
-    rng = np.random.default_rng(0)
-    n = 5
-    rvec = rng.normal(scale=0.3, size=(n, 3))
-    q = np.array([quat_from_R(cv2.Rodrigues(r)[0]) for r in rvec])
-    pairs = pd.DataFrame({"frame": np.arange(n), "t_s": np.arange(n) / 30.0})
+    rng = np.random.default_rng(seed)
+    T_Cm_C = T_from_pose6([0.03, -0.02, 0.05, -1.5708, 0.0, -1.5708])
+    T_Bm_B = T_from_pose6([0.2, 0.395, -0.004, np.pi, 0.0, 0.0])
+    T_C_B = T_from_pose6(np.column_stack([rng.normal(scale=0.3, size=(n, 2)), rng.uniform(1, 3, n),
+                                          rng.normal(scale=0.3, size=(n, 3))]))
+    T_Cm_Bm = T_Cm_C @ T_C_B @ invert_T(T_Bm_B)
+    t_s = np.arange(n) / 30.0
+    t_s[n // 2:] += 1.0  # a gap: TUM keeps the true times
+    pairs = pd.DataFrame({"frame": np.arange(n), "t_s": t_s})
+    rt = [rvec_tvec_from_T(T) for T in T_C_B]
     for i in range(3):
-        pairs[f"cvs_rvec_{i}"] = rvec[:, i]
-    for a in "xyz":
-        pairs[f"cvs_{a}_m"] = rng.normal(size=n)
-        pairs[f"cmbm_{a}_m"] = rng.normal(size=n)
-    for a in "xyzw":
-        pairs[f"cmbm_q{a}"] = q[:, "xyzw".index(a)]
+        pairs[f"cvs_rvec_{i}"] = [r[0].ravel()[i] for r in rt]
+    for k, a in enumerate("xyz"):
+        pairs[f"cvs_{a}_m"] = T_C_B[:, k, 3]
+        pairs[f"cmbm_{a}_m"] = T_Cm_Bm[:, k, 3]
+    q = quat_from_R(T_Cm_Bm[:, :3, :3])
+    for k, a in enumerate("xyzw"):
+        pairs[f"cmbm_q{a}"] = q[:, k]
+    return pairs, T_C_B, T_Cm_Bm, {"T_Cm_C": T_Cm_C.tolist(), "T_Bm_B": T_Bm_B.tolist()}
+
+
+def _read_tum(path):
+    """As evo's TUM reader does: '#' comments, 8 columns (t, tx, ty, tz, qx, qy, qz, qw)."""
+    a = np.loadtxt(path, comments="#")
+    assert a.ndim == 2 and a.shape[1] == 8
+    return a
+
+
+def test_export_trajectory_writes_unaligned_tum_and_the_vicon_in_cvs_frames(tmp_path, capsys):
+    from cvsflow.transforms import R_from_quat
+
+    pairs, T_C_B, T_Cm_Bm, se3 = _pairs_from_truth()
+    write_parquet(pairs, tmp_path / "pairs.parquet")
+    write_yaml(se3, tmp_path / "se3" / "calib" / "result.yaml")
+    assert cli.main(["export", "trajectory", str(tmp_path), "--out-dir", str(tmp_path / "t")]) == 0
+    assert "evo_ape tum" in capsys.readouterr().out
+    cvs = _read_tum(tmp_path / "t" / "cvs_T_C_B.tum")
+    vic_raw = _read_tum(tmp_path / "t" / "vicon_T_Cm_Bm.tum")
+    vic = _read_tum(tmp_path / "t" / "vicon_T_C_B.tum")
+    np.testing.assert_allclose(cvs[:, 0], pairs["t_s"], atol=1e-9)  # video clock, gap kept
+    np.testing.assert_allclose(cvs[:, 1:4], T_C_B[:, :3, 3], atol=1e-8)
+    np.testing.assert_allclose(R_from_quat(cvs[:, 4:]), T_C_B[:, :3, :3], atol=1e-7)
+    np.testing.assert_allclose(vic_raw[:, 1:4], T_Cm_Bm[:, :3, 3], atol=1e-8)
+    # Unaligned but in the same frames: the Vicon through the mountings is the CVS pose itself.
+    np.testing.assert_allclose(vic[:, 1:4], cvs[:, 1:4], atol=1e-7)
+    np.testing.assert_allclose(R_from_quat(vic[:, 4:]), R_from_quat(cvs[:, 4:]), atol=1e-7)
+    # ... while the marker-body trajectory is far from it (the mountings are not removed).
+    assert np.abs(vic_raw[:, 1:4] - cvs[:, 1:4]).max() > 0.1
+
+
+def test_export_trajectory_without_se3_and_bad_tables(tmp_path, capsys):
+    pairs, *_ = _pairs_from_truth(10)
     write_parquet(pairs, tmp_path / "pairs.parquet")
     assert cli.main(["export", "trajectory", str(tmp_path), "--out-dir", str(tmp_path / "t")]) == 0
-    cvs = np.loadtxt(tmp_path / "t" / "cvs_T_C_B.tum")
-    vic = np.loadtxt(tmp_path / "t" / "vicon_T_Cm_Bm.tum")
-    np.testing.assert_allclose(cvs[:, 1:4], pairs[["cvs_x_m", "cvs_y_m", "cvs_z_m"]], atol=1e-8)
-    # Same rotation, quaternion sign free.
-    np.testing.assert_allclose(np.abs(np.sum(cvs[:, 4:] * vic[:, 4:], axis=1)), 1.0, atol=1e-7)
+    assert "vicon_T_C_B.tum" in capsys.readouterr().out
+    assert sorted(p.name for p in (tmp_path / "t").iterdir()) == ["cvs_T_C_B.tum", "vicon_T_Cm_Bm.tum"]
+    rc = cli.main(["export", "trajectory", str(tmp_path), "--out-dir", str(tmp_path / "u"),
+                   "--se3", str(tmp_path / "none.yaml")])
+    assert rc == 1 and "none.yaml" in capsys.readouterr().err
+    write_parquet(pairs.drop(columns=["cmbm_qw"]), tmp_path / "bad.parquet")
+    rc = cli.main(["export", "trajectory", str(tmp_path / "bad.parquet"), "--out-dir", str(tmp_path / "v")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "cmbm_qw" in err and "bad.parquet" in err and not (tmp_path / "v").exists()
 
 
 def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
@@ -106,6 +151,9 @@ def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
     assert cfg["board"]["squares_x"] == 6 and cfg["board"]["squares_y"] == 5  # 5x4 inner corners
     assert cfg["markers"]["camera"]["names"] == ["cam:C1", "cam:C2"]
     assert cfg["markers"]["board"]["names"] == ["board:B1"]
+    assert "layout_m" not in cfg["markers"]["camera"]  # learned from the take unless measured
+    text = out.read_text()
+    assert "MERGES with config/config.yaml" in text and "a rigid body needs at least 3" in text
     before = out.read_text()
     assert cli.main(["init", str(rec), "--out", str(out)]) == 1
     assert out.read_text() == before
@@ -129,3 +177,42 @@ def test_bad_inner_is_usage_error():
     with pytest.raises(SystemExit) as exc:
         cli.main(["calibrate", "d", "--inner", "9by6", "--square-m", "0.02", "--out", "o"])
     assert exc.value.code == 2
+
+
+def test_init_names_a_session_as_a_wildcard_and_reports_what_is_missing(tmp_path, capsys):
+    rec = tmp_path / "lab 1 (May)"
+    rec.mkdir()
+    assert cli.main(["init", str(rec), "--out", str(tmp_path / "s.yaml")]) == 0
+    cfg = yaml.safe_load((tmp_path / "s.yaml").read_text())
+    (name, session), = cfg["sessions"].items()
+    assert name == "lab_1__May_"
+    assert session["calib_dir"] == session["video"] == session["vicon"] == "TODO"
+    out = capsys.readouterr().out
+    assert "set calib_dir" in out and "set video" in out and "set vicon" in out
+
+
+def _readme_session_block():
+    """The YAML block of the README's 'Your own session' section."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = readme.split("## Your own session", 1)[1]
+    return yaml.safe_load(section.split("```yaml", 1)[1].split("```", 1)[0])
+
+
+def test_readme_session_config_validates_merged_with_the_demo_config():
+    """The README's copyable session, merged as --configfile merges it, passes the schema and
+    runs every stage; the demo session stays in (the merge the README warns about)."""
+    import copy
+
+    from snakemake.utils import update_config, validate
+
+    from cvsflow.sessions import check_sessions
+
+    root = Path(__file__).resolve().parents[2]
+    config = yaml.safe_load((root / "config" / "config.yaml").read_text())
+    update_config(config, copy.deepcopy(_readme_session_block()))
+    validate(config, str(root / "workflow" / "schemas" / "config.schema.yaml"))
+    assert set(config["sessions"]) == {"demo", "lab1"}
+    stages = check_sessions(config["sessions"])
+    assert {"calibrate", "poses", "vicon", "pairs"} <= set(stages["lab1"])
+    lab1 = config["sessions"]["lab1"]
+    assert lab1["board"]["squares_x"] == 6 and len(lab1["markers"]["camera"]["layout_m"]) == 4

@@ -95,7 +95,7 @@ def test_camera_key_reuses_another_sessions_calibration(tmp_path):
     assert "results/lab2/camera.yaml" not in out
     poses_block = out.split("rule poses:", 1)[1].split("\n\n", 1)[0]
     assert "results/lab1/camera.yaml" in poses_block
-    assert dry_run_jobs(tmp_path, "--forceall") == {"all", "calibrate", "corners", "poses"}
+    assert dry_run_jobs(tmp_path, "--forceall") == {"all", "calibrate", "corners", "poses", "headline"}
 
 
 @pytest.mark.parametrize("camera, message", [

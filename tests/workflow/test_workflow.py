@@ -208,13 +208,13 @@ def test_changed_pnp_threshold_reruns_only_its_dependants(demo_run):
     """Changing the RANSAC threshold reruns poses and what depends on it, nothing upstream."""
     jobs = _jobs_after_change(demo_run, lambda c: c["pnp"].update(ransac_reproj_px=2.5))
     assert jobs == {"poses", "sync", "pairs", "optimise_seed", "optimise_se3", "analyse",
-                    "heldout_seed", "heldout_se3", "compare", "summary", "all"}
+                    "heldout_seed", "heldout_se3", "compare", "summary", "headline", "all"}
 
 
 def test_changed_iteration_count_reruns_only_the_optimiser(demo_run):
     """Changing the seed optimiser's k reruns the optimiser and its analysis only."""
     jobs = _jobs_after_change(demo_run, lambda c: c["optimise"]["seed"].update(k_iterations=7))
-    assert jobs == {"optimise_seed", "analyse", "heldout_seed", "compare", "summary", "all"}
+    assert jobs == {"optimise_seed", "analyse", "heldout_seed", "compare", "summary", "headline", "all"}
 
 
 def test_changed_filter_cutoff_reruns_from_vicon_repair(demo_run):
@@ -222,7 +222,7 @@ def test_changed_filter_cutoff_reruns_from_vicon_repair(demo_run):
     jobs = _jobs_after_change(demo_run, lambda c: c["vicon"]["filter"].update(cutoff_hz=8.0))
     assert jobs == {"vicon_repair", "vicon_bodies", "vicon_resample", "sync", "pairs",
                     "optimise_seed", "optimise_se3", "analyse", "heldout_seed", "heldout_se3",
-                    "compare", "summary", "all"}
+                    "compare", "summary", "headline", "all"}
 
 
 def test_demo_stats_match_the_error_table(demo_run):
@@ -300,7 +300,7 @@ def test_changed_session_path_reruns_only_that_session(demo_run):
     out = proc.stdout + proc.stderr
     stats = out.split("Job stats:", 1)[1]
     assert re.search(r"^calibrate\s+1$", stats, re.M), stats
-    assert jobs_in(out) == {"calibrate", "all"}
+    assert jobs_in(out) == {"calibrate", "headline", "all"}  # the headline shows the calibration
     assert "output: results/stills/camera.yaml" in out
     assert "output: results/demo/camera.yaml" not in out
 
@@ -356,3 +356,57 @@ def test_alternative_methods_run_end_to_end(tmp_path):
     assert comparison["error_frame"] == "B"
     repair = yaml.safe_load((tmp_path / "results/demo/vicon_repair.yaml").read_text())
     assert repair["filter"] is not None
+
+
+def test_demo_report_opens_on_the_headline_table(demo_run):
+    """The report's landing page holds each session's headline numbers, read from the result files."""
+    import json
+
+    table = pd.read_csv(demo_run / "results" / "headline.csv")
+    rows = table.set_index(["session", "group", "quantity"])
+    camera = yaml.safe_load((demo_run / "results/demo/camera.yaml").read_text())
+    comparison = yaml.safe_load((demo_run / "results/demo/comparison.yaml").read_text())
+    se3 = yaml.safe_load((demo_run / "results/demo/se3/calib/result.yaml").read_text())
+    assert rows.loc[("demo", "calibration", "fx"), "value"] == pytest.approx(camera["K"][0][0], rel=1e-7)
+    assert rows.loc[("demo", "se3", "fy"), "std"] == pytest.approx(se3["std_errors"]["fy"], rel=1e-7)
+    held = rows.loc[("demo", "held-out RMS (se3, frame C)", "z"), "value"]
+    assert held == pytest.approx(1e3 * comparison["se3"]["per_dim"]["z_m"]["rms"], rel=1e-7)
+    nees = rows.loc[("demo", "error model (se3, held-out)", "mean NEES (6 if consistent)"), "value"]
+    assert nees == pytest.approx(comparison["error_model"]["nees_mean"], rel=1e-7)
+    assert set(table["session"]) == {"demo", "stills", "flight flight_demo"}
+    snakemake(demo_run, "--report", "report_headline.html")
+    html = (demo_run / "report_headline.html").read_text(errors="replace")
+    start = html.index("var workflow_desc = ") + len("var workflow_desc = ")
+    desc = json.JSONDecoder().raw_decode(html[start:])[0]
+    assert "No headline table" not in desc
+    for session in ("Session demo", "Session stills", "Flight flight_demo"):
+        assert session in desc
+    for key in (("demo", "calibration", "fx"), ("demo", "se3", "fx"),
+                ("demo", "held-out RMS (se3, frame C)", "z"),
+                ("demo", "error model (se3, held-out)", "inside the 95 % band")):
+        assert rows.loc[key, "text"] in desc
+
+
+def test_init_on_the_rendered_recording_gives_a_config_the_workflow_accepts(demo_run):
+    """`cvsflow init` on the rendered session's folder finds its files, board and markers; with
+    square_m filled in, the workflow validates the config and plans the new session."""
+    out = demo_run / "init_session.yaml"
+    out.unlink(missing_ok=True)
+    proc = subprocess.run([sys.executable, "-m", "cvsflow.cli", "init", "data/demo", "--out", out.name,
+                           "--name", "again"], cwd=demo_run, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    session = yaml.safe_load(out.read_text())["sessions"]["again"]
+    truth = yaml.safe_load((demo_run / "data/demo/truth.yaml").read_text())
+    config = yaml.safe_load((demo_run / "config/config.yaml").read_text())["sessions"]["demo"]
+    assert session["calib_dir"] == "data/demo/calib"
+    assert session["video"] == "data/demo/video.mp4" and session["vicon"] == "data/demo/vicon.csv"
+    assert session["board"]["squares_x"] == truth["board"]["squares_x"]
+    assert session["board"]["squares_y"] == truth["board"]["squares_y"]
+    assert session["markers"]["camera"]["names"] == config["markers"]["camera"]["names"]
+    assert session["markers"]["board"]["names"] == config["markers"]["board"]["names"]
+    assert session["board"]["square_m"] == "TODO"
+    session["board"]["square_m"] = truth["board"]["square_m"]
+    out.write_text(yaml.safe_dump({"sessions": {"again": session}}))
+    proc = snakemake(demo_run, "-n", "results/again/comparison.yaml", "--configfile", str(out))
+    assert "calibrate" in jobs_in(proc.stdout + proc.stderr)
+    out.unlink()

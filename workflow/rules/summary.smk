@@ -35,3 +35,57 @@ rule summary:
         runs=lambda wc: optimiser_runs(),
     script:
         "../scripts/summary.py"
+
+
+def headline_inputs(wildcards):
+    """Per session the files the headline table reads (only those its stages write)."""
+    files = {}
+    methods = set(config["optimise"]["methods"])
+    for session in SESSIONS:
+        cam = camera_session(session, SESSIONS)
+        if cam is not None and (cam != session or runs_stage(session, "calibrate")):
+            files[f"{session}/camera"] = f"results/{cam}/camera.yaml"
+        if is_synth(session):
+            files[f"{session}/truth"] = f"data/{session}/truth.yaml"
+        if runs_stage(session, "poses"):
+            files[f"{session}/corners"] = f"results/{session}/corners_summary.yaml"
+        if runs_stage(session, "vicon"):
+            files[f"{session}/vicon_repair"] = f"results/{session}/vicon_repair.yaml"
+        if runs_stage(session, "pairs"):
+            files[f"{session}/sync"] = f"results/{session}/sync.yaml"
+            for method in methods:
+                # The headline reports the run from the calibrated focal lengths.
+                files[f"{session}/{method}"] = f"results/{session}/{method}/calib/result.yaml"
+            if {"seed", "se3"} <= methods:
+                files[f"{session}/comparison"] = f"results/{session}/comparison.yaml"
+    for flight in FLIGHTS:
+        files[f"flight {flight}/stats"] = f"results/flights/{flight}/stats.yaml"
+    return files
+
+
+rule headline:
+    input:
+        unpack(headline_inputs),
+    output:
+        table=report(
+            "results/headline.csv",
+            caption="../report/headline.rst",
+            category="Summary",
+            subcategory="headline numbers per session",
+            labels={"figure": "headline numbers (table)"},
+        ),
+        rst="results/headline.rst",
+    log:
+        "logs/headline.log",
+    benchmark:
+        "benchmarks/headline.tsv"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    params:
+        sessions=lambda wc: list(SESSIONS),
+        camera_from={s: camera_session(s, SESSIONS) for s in SESSIONS},
+        flights=lambda wc: list(FLIGHTS),
+    script:
+        "../scripts/headline.py"

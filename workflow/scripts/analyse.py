@@ -22,17 +22,20 @@ with stage_logging(snakemake.log[0], "analyse") as log:
     Sigma, corr = analyse.error_covariance(errors)
     out = snakemake.output
     iterations = read_parquet(snakemake.input.iterations)
+    # A diverged seed run (its own check) says so in every figure's title.
+    diverged = result.get("diverged_reason") if result.get("diverged") else None
     if snakemake.wildcards.method == "se3":
         save_figure(plots_se3.plot_solver_convergence(iterations), out.convergence)
     else:
         conv = analyse.convergence(iterations)
-        save_figure(plots.plot_convergence(conv, result.get("f_bounds_px")), out.convergence)
-    save_figure(plots.plot_error_histograms(errors, tests), out.histograms)
-    save_figure(plots.plot_qq(analyse.qq_data(errors)), out.qq)
+        save_figure(plots.plot_convergence(conv, result.get("f_bounds_px"), diverged), out.convergence)
+    save_figure(plots.mark_diverged(plots.plot_error_histograms(errors, tests), diverged), out.histograms)
+    save_figure(plots.mark_diverged(plots.plot_qq(analyse.qq_data(errors)), diverged), out.qq)
     labels = plots.SE3_LABELS if snakemake.wildcards.method == "se3" else plots.SEED_LABELS
-    save_figure(plots.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(errors, result), labels), out.vicon_vs_cvs)
-    save_figure(plots.plot_covariance(Sigma, corr), out.covariance)
+    save_figure(plots.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(errors, result), labels, diverged),
+                out.vicon_vs_cvs)
+    save_figure(plots.mark_diverged(plots.plot_covariance(Sigma, corr), diverged), out.covariance)
     maps = analyse.error_maps(errors, bins=cfg["contour_bins"], min_count=cfg["contour_min_count"])
-    save_figure(plots.plot_error_maps(maps), out.error_maps)
+    save_figure(plots.mark_diverged(plots.plot_error_maps(maps), diverged), out.error_maps)
     log.info("n = %d pairs; error norm %.4f -> %.4f m", stats["n"],
              stats["optimum"]["norm_normalised_init_m"], stats["optimum"]["norm_normalised_final_m"])

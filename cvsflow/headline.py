@@ -1,0 +1,265 @@
+"""The headline numbers of every session, for the report's landing page and headline.csv.
+
+One row per quantity, in report units (px, mm, deg, s, %), with its standard error where the
+source gives one, the truth of a rendered session, and the file and key it was read from, so
+a reader can check every number. Inputs are the stage outputs as loaded dicts (SI units):
+``camera.yaml``, ``corners_summary.yaml``, ``vicon_repair.yaml``, ``sync.yaml``, the se3 and
+seed ``result.yaml``, ``comparison.yaml``, ``truth.yaml`` and a flight's ``stats.yaml``; any
+of them may be missing (a session that only calibrates, a config without the seed method).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+#: Columns of headline.csv.
+COLUMNS = ["session", "group", "quantity", "value", "std", "truth", "unit", "text", "source"]
+#: Display name, unit and SI-to-display factor of the error dimensions.
+DIMS = (("x_m", "x", "mm", 1e3), ("y_m", "y", "mm", 1e3), ("z_m", "z", "mm", 1e3),
+        ("roll_rad", "roll", "deg", 180 / math.pi), ("pitch_rad", "pitch", "deg", 180 / math.pi),
+        ("yaw_rad", "yaw", "deg", 180 / math.pi))
+NAN = float("nan")
+
+
+def _num(v):
+    try:
+        v = float(v)
+    except (TypeError, ValueError):
+        return NAN
+    return v
+
+
+def _fmt(v, digits=4):
+    """A number with ``digits`` significant digits, no exponent for report-sized values."""
+    v = _num(v)
+    if not math.isfinite(v):
+        return "n/a"
+    if v == 0:
+        return "0"
+    mag = math.floor(math.log10(abs(v)))
+    decimals = max(0, digits - 1 - mag)
+    return f"{v:.{decimals}f}"
+
+
+class _Rows:
+    """Collects the rows of one session."""
+
+    def __init__(self, session):
+        self.session = session
+        self.rows = []
+
+    def add(self, group, quantity, value, unit, source, std=NAN, truth=NAN, text=None, digits=4):
+        value, std, truth = _num(value), _num(std), _num(truth)
+        if text is None:
+            text = _fmt(value, digits)
+            if math.isfinite(std):
+                text += f" ± {_fmt(std, 2)}"
+        self.rows.append({"session": self.session, "group": group, "quantity": quantity,
+                          "value": value, "std": std, "truth": truth, "unit": unit, "text": text,
+                          "source": source})
+
+    def note(self, group, quantity, text, source):
+        self.rows.append({"session": self.session, "group": group, "quantity": quantity,
+                          "value": NAN, "std": NAN, "truth": NAN, "unit": "", "text": text,
+                          "source": source})
+
+
+def _pose6(T):
+    from cvsflow.transforms import pose6_from_T
+
+    return pose6_from_T(np.asarray(T, dtype=float))
+
+
+def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=None, seed=None,
+                     comparison=None, truth=None, corners=None, vicon_repair=None):
+    """The headline rows of one session (see the module docstring for the inputs).
+
+    Parameters
+    ----------
+    session : str
+        Session name, used in the file names of ``source``.
+    camera_from : str, optional
+        The session whose camera.yaml this one uses (its ``camera:`` key); default ``session``.
+
+    Returns
+    -------
+    list of dict
+        Rows with :data:`COLUMNS`; ``value``, ``std``, ``truth`` in ``unit``; ``text`` the
+        value as shown (a diverged seed run shows its reason, not its numbers).
+    """
+    r = _Rows(session)
+    base = f"results/{session}"
+    warnings = []
+    K_true = np.asarray(truth["camera"]["K"], float) if truth and "camera" in truth else None
+
+    if camera is not None:
+        src = f"results/{camera_from or session}/camera.yaml"
+        K = np.asarray(camera["K"], float)
+        std = camera.get("std", {}) or {}
+        for name, (i, j) in (("fx", (0, 0)), ("fy", (1, 1)), ("cx", (0, 2)), ("cy", (1, 2))):
+            r.add("calibration", name, K[i, j], "px", f"{src}: K", std=std.get(name, NAN),
+                  truth=K_true[i, j] if K_true is not None else NAN, digits=5)
+        r.add("calibration", "reprojection RMS", camera.get("rms_px"), "px", f"{src}: rms_px")
+        r.add("calibration", "stills used", camera.get("n_used"), "", f"{src}: n_used",
+              text=str(camera.get("n_used", "n/a")))
+        warnings += [("calibration", w, f"{src}: warnings") for w in camera.get("warnings") or []]
+
+    if corners is not None:
+        src = f"{base}/corners_summary.yaml"
+        n, found = corners.get("n_frames_decoded"), corners.get("n_found")
+        r.add("data", "video frames with a board", 100 * _num(found) / max(_num(n), 1), "%",
+              f"{src}: n_found, n_frames_decoded", text=f"{found} of {n}")
+        r.add("data", "video frames dropped (timestamp gaps)", corners.get("n_dropped"), "",
+              f"{src}: n_dropped", text=str(corners.get("n_dropped", "n/a")))
+        warnings += [("corners", w, f"{src}: warnings") for w in corners.get("warnings") or []]
+    if vicon_repair is not None:
+        src = f"{base}/vicon_repair.yaml"
+        tot = vicon_repair.get("total") or {}
+        n = sum(_num(tot.get(k, 0)) for k in ("measured", "rigid", "interp", "missing"))
+        filled = _num(tot.get("rigid", 0)) + _num(tot.get("interp", 0))
+        if n > 0:
+            r.add("data", "Vicon marker samples filled", 100 * filled / n, "%",
+                  f"{src}: total", digits=3,
+                  text=f"{_fmt(100 * filled / n, 3)} (rigid {tot.get('rigid', 0)}, interpolated "
+                       f"{tot.get('interp', 0)}, left missing {tot.get('missing', 0)})")
+        warnings += [("vicon", w, f"{src}: warnings") for w in vicon_repair.get("warnings") or []]
+
+    if sync is not None:
+        src = f"{base}/sync.yaml"
+        sigma = (sync.get("details") or {}).get("dt_sigma_s", NAN)
+        r.add("sync", f"offset t_vicon - t_video ({sync.get('method', '?')})",
+              sync.get("dt_offset_s"), "s", f"{src}: dt_offset_s", std=sigma,
+              truth=truth.get("dt_offset_s", NAN) if truth else NAN, digits=6)
+        r.add("sync", "quality", sync.get("quality"), "[-]", f"{src}: quality",
+              text=f"{_fmt(sync.get('quality'), 3)} (minimum "
+                   f"{_fmt((sync.get('details') or {}).get('min_quality'), 2)})")
+        warnings += [("sync", w, f"{src}: warnings") for w in sync.get("warnings") or []]
+
+    if se3 is not None:
+        src = f"{base}/se3/calib/result.yaml"
+        std = se3.get("std_errors", {})
+        for name in ("fx", "fy"):
+            r.add("se3", name, se3.get(f"{name}_px"), "px", f"{src}: {name}_px, std_errors.{name}",
+                  std=std.get(name, NAN), digits=5,
+                  truth=K_true[(0, 0) if name == "fx" else (1, 1)] if K_true is not None else NAN)
+        r.add("se3", "time offset dt", se3.get("dt_offset_s"), "s",
+              f"{src}: dt_offset_s, std_errors.dt_offset_s", std=std.get("dt_offset_s", NAN),
+              truth=truth.get("dt_offset_s", NAN) if truth else NAN, digits=6)
+        for T in ("T_Cm_C", "T_Bm_B"):
+            if T not in se3:
+                continue
+            p = _pose6(se3[T])
+            pt = _pose6(truth[T]) if truth and T in truth else np.full(6, NAN)
+            for k, a in enumerate("xyz"):
+                r.add("se3", f"{T} {a}", 1e3 * p[k], "mm", f"{src}: {T}, std_errors.{T}_{a}_m",
+                      std=1e3 * _num(std.get(f"{T}_{a}_m")), truth=1e3 * pt[k])
+            for k, (a, name) in enumerate(zip("xyz", ("roll", "pitch", "yaw"), strict=True)):
+                r.add("se3", f"{T} {name}", np.degrees(p[3 + k]), "deg",
+                      f"{src}: {T}, std_errors.{T}_r{a}_rad",
+                      std=np.degrees(_num(std.get(f"{T}_r{a}_rad"))), truth=np.degrees(pt[3 + k]))
+        r.add("se3", "corner reprojection RMS", se3.get("rms_px"), "px", f"{src}: rms_px")
+        warnings += [("se3", w, f"{src}: warnings") for w in se3.get("warnings") or []]
+
+    if seed is not None:
+        src = f"{base}/seed/calib/result.yaml"
+        if seed.get("diverged"):
+            r.note("seed", "status", f"DIVERGED: {seed.get('diverged_reason', '')}",
+                   f"{src}: diverged, diverged_reason")
+            warnings.append(("seed", "the seed method diverged; its numbers are not measurements",
+                             f"{src}: diverged"))
+        else:
+            for name in ("fx", "fy"):
+                r.add("seed", name, seed.get(f"{name}_px"), "px", f"{src}: {name}_px", digits=5)
+
+    if comparison is not None:
+        src = f"{base}/comparison.yaml"
+        se3_cmp = comparison.get("se3") or {}
+        frame = comparison.get("error_frame", "C")
+        for d, name, unit, k in DIMS:
+            s = (se3_cmp.get("per_dim") or {}).get(d)
+            if s is not None:
+                r.add(f"held-out RMS (se3, frame {frame})", name, k * _num(s.get("rms")), unit,
+                      f"{src}: se3.per_dim.{d}.rms")
+        seed_cmp = comparison.get("seed") or {}
+        if seed_cmp.get("diverged"):
+            r.note(f"held-out RMS (seed, frame {frame})", "all axes",
+                   "not shown: the seed run diverged (comparison.yaml lists its numbers under "
+                   "seed.statistics_not_measurements)", f"{src}: seed.diverged")
+        elif seed_cmp.get("per_dim"):
+            for d, name, unit, k in DIMS:
+                s = seed_cmp["per_dim"].get(d)
+                if s is not None:
+                    r.add(f"held-out RMS (seed, frame {frame})", name, k * _num(s.get("rms")),
+                          unit, f"{src}: seed.per_dim.{d}.rms")
+        em = comparison.get("error_model") or {}
+        if em:
+            r.add("error model (se3, held-out)", "inside the 68 % band", 100 * _num(em.get("inside_68_all")),
+                  "%", f"{src}: error_model.inside_68_all", digits=3)
+            r.add("error model (se3, held-out)", "inside the 95 % band", 100 * _num(em.get("inside_95_all")),
+                  "%", f"{src}: error_model.inside_95_all", digits=3)
+            r.add("error model (se3, held-out)", "mean NEES (6 if consistent)", em.get("nees_mean"),
+                  "[-]", f"{src}: error_model.nees_mean", digits=3)
+    for group, text, source in warnings:
+        r.note("warnings", group, text, source)
+    if not warnings:
+        r.note("warnings", "all stages", "none", "camera.yaml, sync.yaml, result.yaml: warnings")
+    return r.rows
+
+
+def flight_headline(flight, stats):
+    """The headline rows of one flight from its ``stats.yaml`` (APE, clock)."""
+    r = _Rows(f"flight {flight}")
+    src = f"results/flights/{flight}/stats.yaml"
+    ape_t, ape_r = stats.get("ape_trans") or {}, stats.get("ape_rot") or {}
+    r.add("on-board vs camera reference", "APE translation RMSE", 1e3 * _num(ape_t.get("rmse")),
+          "mm", f"{src}: ape_trans.rmse")
+    r.add("on-board vs camera reference", "APE rotation RMSE", np.degrees(_num(ape_r.get("rmse"))),
+          "deg", f"{src}: ape_rot.rmse")
+    clock = stats.get("clock") or {}
+    r.add("clock", "offset", clock.get("dt_offset_s"), "s", f"{src}: clock.dt_offset_s", digits=6)
+    r.add("clock", "quality", clock.get("quality"), "[-]", f"{src}: clock.quality", digits=3)
+    r.add("on-board vs camera reference", "pairs", stats.get("n_pairs"), "", f"{src}: n_pairs",
+          text=str(stats.get("n_pairs", "n/a")))
+    return r.rows
+
+
+def headline_table(rows):
+    """The rows as a DataFrame with :data:`COLUMNS` (headline.csv)."""
+    return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def _rst_cell(text):
+    # A cell is one line of a list-table; `|` and `*` would start RST markup.
+    return str(text).replace("\n", " ").replace("*", "\\*").replace("|", "\\|") or " "
+
+
+def headline_rst(rows):
+    """The rows as reStructuredText: one section and one list-table per session.
+
+    Columns: quantity, value (± standard error), truth (rendered sessions only), unit,
+    file: key. The text is meant to be inlined into the report's landing page.
+    """
+    table = headline_table(rows)
+    out = []
+    for session, block in table.groupby("session", sort=False):
+        title = f"Session {session}" if not session.startswith("flight ") else session.capitalize()
+        out += [title, "-" * len(title), ""]
+        has_truth = bool(np.isfinite(block["truth"].to_numpy(float)).any())
+        header = ["quantity", "value ± std. error"] + (["truth"] if has_truth else [])
+        header += ["unit", "file: key"]
+        widths = "30 22 " + ("10 " if has_truth else "") + "8 30"
+        out += [".. list-table::", "   :header-rows: 1", f"   :widths: {widths}", ""]
+        out.append("   * - " + "\n     - ".join(header))
+        for group, g in block.groupby("group", sort=False):
+            for _, row in g.iterrows():
+                cells = [f"{group}: {row['quantity']}", row["text"]]
+                if has_truth:
+                    cells.append(_fmt(row["truth"], 5) if math.isfinite(row["truth"]) else "")
+                cells += [row["unit"], f"``{row['source']}``"]
+                out.append("   * - " + "\n     - ".join(_rst_cell(c) if not str(c).startswith("``")
+                                                      else c for c in cells))
+        out.append("")
+    return "\n".join(out) + "\n"
