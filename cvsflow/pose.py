@@ -603,8 +603,13 @@ def track_corners(
     if not np.array_equal(ordered, corners):
         return None, "lost"
     H_fit, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
-    if H_fit is None or not board_squares_pattern_ok(gray, H_fit, board, MIN_PATTERN_CONTRAST):
+    if H_fit is None:
         return None, "lost"
+    if not board_squares_pattern_ok(gray, H_fit, board, MIN_PATTERN_CONTRAST):
+        # A hand over squares (and the corners it hides, which stay where they were put and
+        # agree with their neighbours): keep the corners that show the chessboard's saddle.
+        return _follow_partial(gray, corners, np.ones(len(corners), bool), grid, board,
+                               subpix_window_px, sc, max_grid_deviation, "partial")
     return corners, "tracked"
 
 
@@ -615,19 +620,28 @@ def _inside(p: np.ndarray, w: int, h: int, margin: float) -> np.ndarray:
     )
 
 
-# Smallest grey-level step between the light and the dark quadrants around a kept corner.
+# Smallest grey-level step between the light and the dark quadrants around a kept corner:
+# this share of the board's contrast (median light minus median dark over all kept corners),
+# and never below MIN_SADDLE_CONTRAST grey levels. A finger over part of a corner's squares
+# puts skin (between the two) into a quadrant and fails it.
 MIN_SADDLE_CONTRAST = 10.0
+SADDLE_CONTRAST_FRAC = 0.5
+# Sample points along the diagonals, as a share of a square from the corner.
+SADDLE_RADII = (0.2, 0.4)
 
 
 def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     """(N,) bool: corner k shows dark squares on one diagonal, light on the other (its own
-    colours: square (x+1, y+1) black when x + y is even), sampled 0.3 squares off the corner."""
+    colours: square (x+1, y+1) black when x + y is even), sampled along the diagonals at
+    ``SADDLE_RADII`` squares from the corner, every sample of a quadrant on its side."""
     h, w = gray.shape
-    off = np.array([[0.3, 0.3], [-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3]])
-    pts = grid[:, None, :] + off[None]  # (N, 4, 2)
+    off = np.array([[r * a, r * b] for a, b in ((1, 1), (-1, -1), (1, -1), (-1, 1))
+                    for r in SADDLE_RADII])  # dark-or-light pairs: first 2 radii x 2 = 4
+    n_off = len(off)
+    pts = grid[:, None, :] + off[None]  # (N, M, 2)
     ref = cv2.perspectiveTransform(grid.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
     q = cv2.perspectiveTransform(pts.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
-    q = q.reshape(-1, 4, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
+    q = q.reshape(-1, n_off, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
     ok = np.isfinite(q).all(axis=(1, 2))
     qi = np.rint(np.nan_to_num(q)).astype(int)
     ok &= (qi[..., 0] >= 0).all(1) & (qi[..., 0] < w).all(1) & (qi[..., 1] >= 0).all(1) & (
@@ -635,11 +649,15 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     ).all(1)
     qi[..., 0] = np.clip(qi[..., 0], 0, w - 1)
     qi[..., 1] = np.clip(qi[..., 1], 0, h - 1)
-    level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, 4)
+    level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, M)
+    half = n_off // 2  # the (1, 1) and (-1, -1) diagonal first, then the other
     black_first = ((grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0)
-    dark = np.where(black_first[:, None], level[:, :2], level[:, 2:])
-    light = np.where(black_first[:, None], level[:, 2:], level[:, :2])
-    return ok & (light.min(axis=1) - dark.max(axis=1) >= MIN_SADDLE_CONTRAST)
+    dark = np.where(black_first[:, None], level[:, :half], level[:, half:])
+    light = np.where(black_first[:, None], level[:, half:], level[:, :half])
+    known = ok & np.isfinite(np.asarray(corners_px)).all(axis=1)
+    contrast = float(np.median(light[known]) - np.median(dark[known])) if known.any() else 0.0
+    need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
+    return ok & (light.min(axis=1) - dark.max(axis=1) >= need)
 
 
 def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
