@@ -267,12 +267,14 @@ def keep_consistent_corners(corners_px: np.ndarray, board: dict,
         window); every kept corner within its limit of its kept neighbours' prediction.
     """
     out = np.array(corners_px, dtype=np.float64).reshape(-1, 2)
+    # The limits from all the corners given: dropping one changes the local spacing little.
+    limit = deviation_limit_px(out, board, max_grid_deviation)
     for _ in range(len(out)):
         known = np.isfinite(out).all(axis=1)
         if not known.any():
             break
         _, dev = grid_deviation(out, board)
-        excess = np.where(known, dev / deviation_limit_px(out, board, max_grid_deviation), 0.0)
+        excess = np.where(known, dev / limit, 0.0)
         worst = int(np.argmax(excess))
         if excess[worst] <= 1.0:
             break
@@ -413,7 +415,7 @@ def refine_corners(
             return None
         corners[bad] = retry
         _, deviation = grid_deviation(corners, board)
-        if (deviation > deviation_limit_px(corners, board, max_grid_deviation)).any():
+        if (deviation > limit).any():
             return None
     return corners.astype(np.float64)
 
@@ -647,9 +649,9 @@ def track_corners(
     if not inner.all():
         return _follow_partial(gray, corners, inner, grid, board, subpix_window_px, sc,
                                max_grid_deviation)
-    ordered, _ = order_corners(corners, gray, board, corners)
-    if not np.array_equal(ordered, corners):
-        return None, "lost"
+    # No order_corners here: the flow cannot mirror the grid, and a grid turned by 180 degrees
+    # on a board whose ends differ puts every square on the wrong colour, which the square
+    # check below refuses (on a board whose ends look alike nothing can tell, as in detection).
     H_fit, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
     if H_fit is None:
         return None, "lost"
