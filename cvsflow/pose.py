@@ -766,6 +766,9 @@ QUICK_MIN_SQUARE_PX = 12.0
 # after the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found within
 # that many frames and the frames before it are tracked backwards).
 SEARCH_EVERY_MAX = 8
+# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) on the 1st frame
+# after the loss and every DEEP_SEARCH_EVERY frames.
+DEEP_SEARCH_EVERY = 32
 # Most grey-image bytes kept waiting for a board (memory does not grow with the session:
 # 48 frames at 1920x1080, 340 at 640x480); older waiting frames are decided without it.
 MAX_PENDING_BYTES = 100 * 2**20
@@ -906,6 +909,13 @@ class _CornerFollower:
         corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
                                          self.board, self.subpix, self.max_dev,
                                          self._quick_scale())
+        if corners_px is None and (self.lost_for == 1 or self.lost_for % DEEP_SEARCH_EVERY == 0):
+            # Now and then the full detector (on the shrunk image), for the whole boards the
+            # quick one misses (low contrast, small squares).
+            prev = self.flags if self.flags is not None else VIDEO_SEARCH_FLAGS
+            corners_px, method = self._guard(detect_corners, "cv_error", frame, gray,
+                                             self.board, self.subpix, None, prev,
+                                             self.max_dev, False)
         if corners_px is None:
             self._wait(frame, t_s, gray, True, out)
             return out
@@ -950,19 +960,16 @@ class _CornerFollower:
         return frame, t_s, self._published(corners_px, method), method
 
     def _relocate(self, frame, t_s, gray):
-        """A frame the tracker lost the board in: the quick search, then (on the first frame
-        of a loss only) the detector on the image shrunk to DETECT_LONG_SIDE_PX."""
-        first = self.lost_for == 0
+        """A frame the tracker lost the board in (at most ``max_gap`` frames after it was
+        followed): the quick search, then the detector on the image shrunk to
+        DETECT_LONG_SIDE_PX (the board is likely still there)."""
         self.lost_for += 1
-        if not first and not self._search_now():
-            return frame, t_s, None, "not_searched"
         corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
                                          self.board, self.subpix, self.max_dev,
                                          self._quick_scale())
-        if corners_px is None and first:
+        if corners_px is None:
             return self._detect(frame, t_s, gray, full_size=False)
-        if corners_px is not None:
-            self._keep(gray, corners_px, frame, found=True)
+        self._keep(gray, corners_px, frame, found=True)
         return frame, t_s, corners_px, method
 
     def _published(self, corners_px, method):
