@@ -752,16 +752,17 @@ def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_
 PARTIAL_METHODS = ("partial", "out_of_view")
 
 
-# While no board is followed, a quick detector looks for it: findChessboardCorners without
-# adaptive threshold, with the fast check, on the image shrunk to at most half size and
-# QUICK_LONG_SIDE_PX (measured on the demo render: 2.3 ms on a frame with a partly visible
-# board against 33 ms for the full detector; it finds 52 of 60 whole boards, against 60).
-# Frames it misses wait; once a board is found they are tracked backwards from it.
-QUICK_FIND_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
+# While no board is followed, a quick detector looks for it: findChessboardCorners with the
+# fast check on the image shrunk to at most half size and QUICK_LONG_SIDE_PX. Adaptive
+# threshold: without it, on the realistic 1080x1920 render (exposure and white-balance drift,
+# blur), it found 16 of the 18 boards plain OpenCV finds at half size, 9 at 0.42 (with it: 17
+# and 14). Frames it misses wait; once a board is found they are tracked backwards from it.
+QUICK_FIND_FLAGS = (cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+                    | cv2.CALIB_CB_FAST_CHECK)
 QUICK_SCALE = 0.5
-QUICK_LONG_SIDE_PX = 800
+QUICK_LONG_SIDE_PX = 960
 # Squares at least this size (px) in the shrunk image when the board's size is known.
-QUICK_MIN_SQUARE_PX = 12.0
+QUICK_MIN_SQUARE_PX = 16.0
 # The search backs off while the board stays lost: it runs on the 1st, 2nd, 4th and 8th frame
 # after the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found within
 # that many frames and the frames before it are tracked backwards).
@@ -819,16 +820,23 @@ def quick_detect_corners(
     f = np.array([w / small.shape[1], h / small.shape[0]])
     # Pixel centres: small pixel i covers full pixels [s i, s (i + 1)), centre s (i + 0.5) - 0.5.
     corners = (corners.reshape(-1, 2) + 0.5) * f - 0.5
-    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
-    if corners is None or not _inside(
-        corners, w, h, _track_scales(corners, board, gray.shape)["border"]
-    ).all():
+    grid = _grid_points(board)
+    sc = _track_scales(corners, board, gray.shape)
+    refined = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
+    if refined is not None and _inside(refined, w, h, sc["border"]).all():
+        ordered, _ = order_corners(refined, gray, board)
+        H, _ = cv2.findHomography(grid, ordered.astype(np.float32), 0)
+        if H is not None and board_squares_pattern_ok(gray, H, board, MIN_PATTERN_CONTRAST):
+            return ordered, "quick"
+    # A hand over some corners or squares, or corners at the border (OpenCV still found the
+    # grid): keep the corners that agree with their neighbours and show the chessboard's
+    # saddle, checked as a tracked board partly hidden.
+    ordered, _ = order_corners(corners if refined is None else refined, gray, board)
+    partial, _ = _follow_partial(gray, ordered, _inside(ordered, w, h, sc["border"]), grid,
+                                 board, subpix_window_px, sc, max_grid_deviation, "partial")
+    if partial is None:
         return None, "not_found"
-    ordered, _ = order_corners(corners, gray, board)
-    H, _ = cv2.findHomography(_grid_points(board), ordered.astype(np.float32), 0)
-    if H is None or not board_squares_pattern_ok(gray, H, board, MIN_PATTERN_CONTRAST):
-        return None, "not_found"
-    return ordered, "quick"
+    return partial, "quick"
 
 
 def _median_spacing(corners_px: np.ndarray, board: dict) -> float:
@@ -889,7 +897,7 @@ class _CornerFollower:
         """Shrink factor of the quick search: squares of the last board >= QUICK_MIN_SQUARE_PX."""
         if self.spacing <= 0:
             return None
-        return float(np.clip(QUICK_MIN_SQUARE_PX / self.spacing, 0.2, QUICK_SCALE))
+        return float(np.clip(QUICK_MIN_SQUARE_PX / self.spacing, 0.25, QUICK_SCALE))
 
     def push(self, frame, t_s, gray):
         out = []
