@@ -19,6 +19,7 @@ chunks on several cores. bench/bench_corners.py measures both against the render
 from __future__ import annotations
 
 import collections
+import contextlib
 import functools
 import logging
 import time
@@ -235,10 +236,8 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     except np.linalg.LinAlgError:  # neighbours all on a line: singular, no prediction
         h[:, :8] = np.nan
         for k in np.flatnonzero(enough):
-            try:
+            with contextlib.suppress(np.linalg.LinAlgError):
                 h[k, :8] = np.linalg.solve(a[k], -normal[k, :8, 8])
-            except np.linalg.LinAlgError:
-                pass
     p = np.einsum("kij,kj->ki", h.reshape(-1, 3, 3), np.stack([x, y, one], axis=1))
     with np.errstate(divide="ignore", invalid="ignore"):
         predicted = p[:, :2] / p[:, 2:3] / scale + centre
