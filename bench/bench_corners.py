@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import copy
+import fractions
 import json
 import os
 import resource
@@ -121,6 +122,7 @@ def _long_video(short: Path, out: Path, repeats: int) -> Path:
                         stream.options = {"crf": "23", "preset": "veryfast"}
                     frame = frame.reformat(format="yuv420p")
                     frame.pts = i
+                    frame.time_base = fractions.Fraction(1, 30)
                     i += 1
                     for packet in stream.encode(frame):
                         dst.mux(packet)
@@ -298,7 +300,8 @@ def main():
     header = (f"{'session':13s} {'size':>9s} {'frames':>6s} {'decode/s':>8s} {'stage/s':>7s} "
               f"{'ratio':>5s} {'MB dec':>6s} {'MB stg':>6s} {'whole':>9s} {'plain':>9s} "
               f"{'partial':>7s} {'flips':>5s}  err px stage med/p95 | plain med/p95")
-    lines, details = [header], []
+    print(header, flush=True)
+    details = []
     for name in args.sessions.split(","):
         folder = _render(cache, name, args.duration_s)
         video = folder / "video.mp4"
@@ -315,12 +318,13 @@ def main():
                         pd.read_parquet(folder / "truth_corners.parquet"), nx)
         w, h = cfg["synth"]["image_size"]
         fd, fs = dec["frames"] / dec["cpu_s"], stg["frames"] / stg["cpu_s"]
-        lines.append(
+        print(
             f"{name:13s} {f'{w}x{h}':>9s} {acc['n_frames']:6d} {fd:8.0f} {fs:7.0f} "
             f"{fs / fd:5.2f} {dec['peak_mb']:6.0f} {stg['peak_mb']:6.0f} "
             f"{acc['found_whole']:4d}/{acc['whole']:<4d} {acc['found_plain']:4d}/{acc['plain']:<4d} "
             f"{acc['partial']:7d} {acc['flipped']:5d}  "
-            "{:.3f}/{:.3f} | {:.3f}/{:.3f}".format(*acc["err_stage"], *acc["err_plain"])
+            "{:.3f}/{:.3f} | {:.3f}/{:.3f}".format(*acc["err_stage"], *acc["err_plain"]),
+            flush=True,
         )
         details.append(f"{name}: frames by method {stg['methods']}")
     if not args.no_long and "fhd1080" in args.sessions.split(","):
@@ -335,7 +339,7 @@ def main():
                 f"memory fhd1080 {label:5s}: {stg['frames']:5d} frames, decode {fd:.0f}/s "
                 f"peak {dec['peak_mb']:.0f} MB, stage {fs:.0f}/s peak {stg['peak_mb']:.0f} MB"
             )
-    print("\n".join(lines + details))
+    print("\n".join(details))
     print("frames/s by CPU time of the process (one core); ratio = stage / decode (target >= "
           "0.5); whole = found / frames wholly visible and not occluded; plain = found / frames "
           "plain OpenCV finds; err on the frames both found")

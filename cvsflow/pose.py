@@ -618,9 +618,7 @@ def track_corners(
     start = prev[seen].reshape(-1, 1, 2)
     if f > 1:
         # Area-averaged pixel i of the shrunk image covers full pixels [f i, f (i + 1)).
-        small_prev = cv2.resize(prev_gray, None, fx=1.0 / f, fy=1.0 / f,
-                                interpolation=cv2.INTER_AREA)
-        small = cv2.resize(gray, None, fx=1.0 / f, fy=1.0 / f, interpolation=cv2.INTER_AREA)
+        small_prev, small = _shrunk(prev_gray, f), _shrunk(gray, f)
         start = ((start + 0.5) / f - 0.5).astype(np.float32)
     else:
         small_prev, small = prev_gray, gray
@@ -666,6 +664,22 @@ def track_corners(
         return _follow_partial(gray, corners, np.ones(len(corners), bool), grid, board,
                                subpix_window_px, sc, max_grid_deviation, "partial")
     return corners, "tracked"
+
+
+# Shrunk copies of the last few images: a frame shrunk for the flow into it serves again for
+# the flow out of it. Keyed by the image object itself (held here, so its id is not reused).
+_SHRUNK: list = []
+
+
+def _shrunk(gray: np.ndarray, f: int) -> np.ndarray:
+    """``gray`` shrunk by the integer factor ``f`` (area average), from a small cache."""
+    for image, k, small in _SHRUNK:
+        if image is gray and k == f:
+            return small
+    small = cv2.resize(gray, None, fx=1.0 / f, fy=1.0 / f, interpolation=cv2.INTER_AREA)
+    _SHRUNK.append((gray, f, small))
+    del _SHRUNK[:-3]
+    return small
 
 
 def _inside(p: np.ndarray, w: int, h: int, margin: float) -> np.ndarray:
@@ -952,7 +966,19 @@ class _CornerFollower:
         return frame, t_s, None, "not_found" if searched else "not_searched"
 
     def finish(self):
-        """Decide the frames still waiting: no board was found to track them from."""
+        """Decide the frames still waiting: the last one is searched (if the back-off skipped
+        it) and the others tracked back from it; else no board was found to track from."""
+        if self.pending and not self.pending[-1][3]:
+            frame, t_s, gray, _ = self.pending.pop()
+            self.pending_bytes -= gray.nbytes
+            corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
+                                             self.board, self.subpix, self.max_dev,
+                                             self._quick_scale())
+            if corners_px is not None:
+                return self._track_back(gray, corners_px, frame) + [
+                    (frame, t_s, corners_px, method)]
+            self.pending.append((frame, t_s, gray, True))
+            self.pending_bytes += gray.nbytes
         out = [self._undecided(*p) for p in self.pending]
         self.pending.clear()
         self.pending_bytes = 0
