@@ -193,9 +193,22 @@ def _run_variant(name: str, video: Path, out: Path, board: dict) -> dict:
     cpu = time.process_time() - cpu0
     if table is not None:
         table.to_parquet(out)
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    peak_mb = _peak_rss_mb()
     return {"frames": n, "wall_s": wall, "cpu_s": cpu, "peak_mb": peak_mb,
             "methods": table.attrs.get("order_methods") if name == "stage" else None}
+
+
+def _peak_rss_mb() -> float:
+    """Peak resident memory of this process, MB: VmHWM (ru_maxrss survives exec on Linux, so
+    a child would report its parent's peak)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def _spawn(variant: str, video: Path, out: Path, session: str) -> dict:
