@@ -9,11 +9,14 @@ Tables are those of docs/contracts.md: ``corners.parquet`` (``extract_corners``)
 
 Speed: the full detector (``detect_corners``) costs ~3 ms on a frame with a whole board and
 ~30 ms on one without (a board partly out of view is the worst case). ``extract_corners``
-therefore follows the board from frame to frame (``track_corners``: optical flow, then the
-same refinement and checks), keeps following it while it is partly out of view, looks for a
-lost board with a quick half-size detector and tracks backwards from where it finds it, and
-runs the full detector only where all of that fails. ``cvsflow.corners_fast`` runs it in
-chunks on several cores. bench/bench_corners.py measures both against the renderer's truth.
+therefore follows the board from frame to frame (``track_corners``: optical flow on a shrunk
+image, then refinement at full size and the grid, saddle and square-colour checks), keeps
+following it while it is partly out of view or under a hand, looks for a lost board with a
+quick detector on a shrunk image, backing off while it stays lost (the frames in between wait,
+within a memory bound, and are tracked backwards from where it is found), and runs the full
+detector (on the shrunk image) only right after a loss and every ``DEEP_SEARCH_EVERY`` frames
+while lost. ``cvsflow.corners_fast`` runs it in chunks on several cores.
+bench/bench_corners.py measures it per resolution against the renderer's truth.
 """
 
 from __future__ import annotations
