@@ -1128,8 +1128,11 @@ def extract_corners(
         corner k at board point (k % nx, k // nx) * square_m; a frame without a board
         has one row with ``corner = -1`` and NaN pixels. ``attrs`` holds counts:
         ``n_frames``, ``n_found``, ``order_methods`` (dict method -> frames: ``tracked``,
-        ``out_of_view`` (followed partly out of the image), and ``detect_corners``' methods
-        for frames where the full detector ran).
+        ``out_of_view`` (followed partly out of the image), ``partial`` (a hand over it),
+        ``quick`` (the quick search), ``*_back`` (tracked backwards from a later frame),
+        ``detect_corners``' methods for frames where the full detector ran; without a board:
+        ``not_found`` (a detector looked), ``not_searched`` (the search's back-off skipped
+        the frame and no board could be tracked into it), ``inconsistent``, ``cv_error``).
 
     Raises
     ------
@@ -1244,8 +1247,8 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
     -------
     summary : dict
         ``n_frames_decoded``, ``n_found``, ``found_share``, ``frames_by_method`` (method ->
-        frames: how each frame was decided; ``not_found``, ``inconsistent``, ``cv_error``
-        ... are the reasons a frame has no board), ``n_cv_errors``, ``corners_per_found_frame``
+        frames: how each frame was decided; ``not_found``, ``not_searched``,
+        ``inconsistent``, ``cv_error`` are the reasons a frame has no board), ``n_cv_errors``, ``corners_per_found_frame``
         (min, median, max); with ``timing``: ``n_frames_header``, ``n_frames_demuxed``,
         ``n_dropped``, ``dropped_gaps`` (``[after_frame, missing]``), ``period_s`` (median),
         ``period_min_s``, ``period_max_s``.
