@@ -1248,7 +1248,8 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
     summary : dict
         ``n_frames_decoded``, ``n_found``, ``found_share``, ``frames_by_method`` (method ->
         frames: how each frame was decided; ``not_found``, ``not_searched``,
-        ``inconsistent``, ``cv_error`` are the reasons a frame has no board), ``n_cv_errors``, ``corners_per_found_frame``
+        ``inconsistent``, ``cv_error`` are the reasons a frame has no board),
+        ``n_cv_errors``, ``corners_per_found_frame``
         (min, median, max); with ``timing``: ``n_frames_header``, ``n_frames_demuxed``,
         ``n_dropped``, ``dropped_gaps`` (``[after_frame, missing]``), ``period_s`` (median),
         ``period_min_s``, ``period_max_s``.
