@@ -9,15 +9,21 @@ Tables are those of docs/contracts.md: ``corners.parquet`` (``extract_corners``)
 
 Speed: the full detector (``detect_corners``) costs ~3 ms on a frame with a whole board and
 ~30 ms on one without (a board partly out of view is the worst case). ``extract_corners``
-therefore follows the board from frame to frame (``track_corners``: optical flow, then the
-same refinement and checks), keeps following it while it is partly out of view, looks for a
-lost board with a quick half-size detector and tracks backwards from where it finds it, and
-runs the full detector only where all of that fails. ``cvsflow.corners_fast`` runs it in
-chunks on several cores. bench/bench_corners.py measures both against the renderer's truth.
+therefore follows the board from frame to frame (``track_corners``: optical flow on a shrunk
+image, then refinement at full size and the grid, saddle and square-colour checks), keeps
+following it while it is partly out of view or under a hand, looks for a lost board with a
+quick detector on a shrunk image, backing off while it stays lost (the frames in between wait,
+within a memory bound, and are tracked backwards from where it is found), and runs the full
+detector (on the shrunk image) only right after a loss and every ``DEEP_SEARCH_EVERY`` frames
+while lost. ``cvsflow.corners_fast`` runs it in chunks on several cores.
+bench/bench_corners.py measures it per resolution against the renderer's truth.
 """
 
 from __future__ import annotations
 
+import collections
+import contextlib
+import functools
 import logging
 import time
 from collections.abc import Iterable
@@ -217,12 +223,24 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     zero, one = np.zeros_like(x), np.ones_like(x)
     rows_u = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=1)
     rows_v = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=1)
-    # Corner k's DLT system keeps only its neighbours' rows; its homography is the null
-    # vector, the eigenvector of the smallest eigenvalue of A_k^T A_k (9x9 per corner, half
-    # the time of an SVD of each (2N, 9) A_k; same vector to 1e-11 px after conditioning).
+    # Corner k's DLT system keeps only its neighbours' rows: the sum of their outer products
+    # (normal equations, 9x9 per corner). Its homography is taken with h33 = 1 (the board's
+    # origin is in front of the camera, so h33, its projective depth, is not 0): an 8x8 solve
+    # per corner, a tenth of the time of the eigenvector of the smallest eigenvalue, and the
+    # same homography on exact points.
     outer = rows_u[:, :, None] * rows_u[:, None, :] + rows_v[:, :, None] * rows_v[:, None, :]
-    normal = np.tensordot(weights, outer, axes=1)  # (N, 9, 9): sum of neighbours' rows
-    h = np.linalg.eigh(normal)[1][:, :, 0]  # (N, 9): each corner's homography
+    normal = (weights @ outer.reshape(len(x), 81)).reshape(-1, 9, 9)  # (N, 9, 9)
+    h = np.ones((len(x), 9))
+    enough = weights.sum(axis=1) >= 4  # fewer known neighbours: no prediction (below)
+    a = normal[:, :8, :8].copy()
+    a[~enough] = np.eye(8)
+    try:
+        h[:, :8] = np.linalg.solve(a, -normal[:, :8, 8:9])[..., 0]
+    except np.linalg.LinAlgError:  # neighbours all on a line: singular, no prediction
+        h[:, :8] = np.nan
+        for k in np.flatnonzero(enough):
+            with contextlib.suppress(np.linalg.LinAlgError):
+                h[k, :8] = np.linalg.solve(a[k], -normal[k, :8, 8])
     p = np.einsum("kij,kj->ki", h.reshape(-1, 3, 3), np.stack([x, y, one], axis=1))
     with np.errstate(divide="ignore", invalid="ignore"):
         predicted = p[:, :2] / p[:, 2:3] / scale + centre
@@ -251,19 +269,28 @@ def keep_consistent_corners(corners_px: np.ndarray, board: dict,
         window); every kept corner within its limit of its kept neighbours' prediction.
     """
     out = np.array(corners_px, dtype=np.float64).reshape(-1, 2)
+    # The limits from all the corners given: dropping one changes the local spacing little.
+    limit = deviation_limit_px(out, board, max_grid_deviation)
     for _ in range(len(out)):
         known = np.isfinite(out).all(axis=1)
         if not known.any():
             break
         _, dev = grid_deviation(out, board)
-        excess = np.where(known, dev / deviation_limit_px(out, board, max_grid_deviation), 0.0)
-        worst = int(np.argmax(excess))
-        if excess[worst] <= 1.0:
+        excess = np.where(known, dev / limit, 0.0)
+        if excess.max() <= 1.0:
             break
+        # Drop each corner that is the worst among its grid neighbours (a misplaced corner
+        # pulls its neighbours' predictions too, so only the local worst is dropped; corners
+        # far apart go in the same pass).
+        nx, ny = board_pattern(board)
+        weights = _neighbour_weights(nx, ny)
+        neighbour_max = np.max(np.where(weights > 0, excess[None, :], 0.0), axis=1)
+        worst = (excess > 1.0) & (excess >= neighbour_max)
         out[worst] = np.nan
     return out
 
 
+@functools.lru_cache(maxsize=16)
 def _neighbour_weights(nx: int, ny: int) -> np.ndarray:
     """(N, N) mask: corner j within two grid steps of corner k, j != k."""
     k = np.arange(nx * ny)
@@ -271,7 +298,9 @@ def _neighbour_weights(nx: int, ny: int) -> np.ndarray:
     dj = np.abs(k[:, None] // nx - k[None, :] // nx)
     near = (di <= 2) & (dj <= 2)
     np.fill_diagonal(near, False)
-    return near.astype(np.float64)
+    weights = near.astype(np.float64)
+    weights.flags.writeable = False  # cached: shared by every call
+    return weights
 
 
 def detect_corners(
@@ -281,6 +310,7 @@ def detect_corners(
     previous_px: np.ndarray | None = None,
     flags: int = VIDEO_FIND_FLAGS,
     max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
+    full_size: bool = True,
 ) -> tuple[np.ndarray | None, str]:
     """Chessboard corners of one frame, refined and in board order.
 
@@ -300,6 +330,9 @@ def detect_corners(
         (``grid_deviation``), as a share of its local grid spacing (``local_spacing``; never
         below ``MIN_GRID_DEVIATION_PX``). A corner beyond it is refined once more from the
         prediction; if it still deviates, the frame counts as not found (``"inconsistent"``).
+    full_size : bool
+        Where the search on the shrunk image (``DETECT_LONG_SIDE_PX``) fails, search the
+        full-size image too (slow: ~0.3 s at 1280x720 on a frame with a partly hidden board).
 
     Returns
     -------
@@ -318,7 +351,7 @@ def detect_corners(
     The neighbour check catches both.
     """
     pattern = board_pattern(board)
-    found, corners = _find_on_pyramid(gray, pattern, flags)
+    found, corners = _find_on_pyramid(gray, pattern, flags, full_size)
     if not found:
         return None, "not_found"
     corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
@@ -333,8 +366,9 @@ def detect_corners(
 DETECT_LONG_SIDE_PX = 960
 
 
-def _find_on_pyramid(gray: np.ndarray, pattern, flags: int):
-    """findChessboardCorners on a shrunk image (corners in full-size pixels), else full size."""
+def _find_on_pyramid(gray: np.ndarray, pattern, flags: int, full_size: bool = True):
+    """findChessboardCorners on a shrunk image (corners in full-size pixels), else full size
+    (unless ``full_size`` is False)."""
     scale = DETECT_LONG_SIDE_PX / max(gray.shape)
     if scale < 1.0:
         small = cv2.resize(gray, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
@@ -342,6 +376,8 @@ def _find_on_pyramid(gray: np.ndarray, pattern, flags: int):
         if found:
             f = np.array([gray.shape[1] / small.shape[1], gray.shape[0] / small.shape[0]])
             return True, (corners.reshape(-1, 2) + 0.5) * f - 0.5
+        if not full_size:
+            return False, None
         flags |= cv2.CALIB_CB_FAST_CHECK
     return cv2.findChessboardCorners(gray, pattern, None, flags)
 
@@ -387,7 +423,7 @@ def refine_corners(
             return None
         corners[bad] = retry
         _, deviation = grid_deviation(corners, board)
-        if (deviation > deviation_limit_px(corners, board, max_grid_deviation)).any():
+        if (deviation > limit).any():
             return None
     return corners.astype(np.float64)
 
@@ -417,6 +453,9 @@ TRACK_BORDER_FRAC = SUBPIX_WINDOW_FRAC
 TRACK_HOMOGRAPHY_FRAC = 0.25
 LK_WINDOW_FRAC = 0.5
 LK_WINDOW_MAX_PX = 61
+LK_MIN_SQUARE_PX = 16.0
+LK_MAX_SHRINK = 3
+LK_WINDOW_SHRUNK_PX = 11
 
 
 def _track_scales(corners_px: np.ndarray, board: dict, shape: tuple[int, int]) -> dict:
@@ -429,14 +468,21 @@ def _track_scales(corners_px: np.ndarray, board: dict, shape: tuple[int, int]) -
     ])
     d = d[np.isfinite(d)]
     spacing = float(np.median(d)) if len(d) else 0.0
-    lk = int(min(LK_WINDOW_MAX_PX, max(LK_WINDOW_PX, round(LK_WINDOW_FRAC * spacing))))
+    # Optical flow runs on the image shrunk by 2 ** lk_shrink, so that squares keep at least
+    # LK_MIN_SQUARE_PX: its cost grows with the window's area, and the flow only has to land
+    # within cornerSubPix's window (refined at full size afterwards).
+    shrink = int(np.clip(np.floor(np.log2(max(spacing, 1.0) / LK_MIN_SQUARE_PX)), 0,
+                         LK_MAX_SHRINK))
+    lk = int(min(LK_WINDOW_MAX_PX, max(LK_WINDOW_PX if not shrink else LK_WINDOW_SHRUNK_PX,
+                                       round(LK_WINDOW_FRAC * spacing / 2 ** shrink))))
     lk += 1 - lk % 2  # odd
     extra = max(0, int(round(np.log2(max(shape) / 640.0)))) if max(shape) > 640 else 0
     return {
         "border": max(TRACK_BORDER_PX, TRACK_BORDER_FRAC * spacing),
         "homography_rms": max(MAX_TRACK_HOMOGRAPHY_RMS_PX, TRACK_HOMOGRAPHY_FRAC * spacing),
         "lk_window": lk,
-        "lk_levels": LK_LEVELS + extra,
+        "lk_levels": max(2, LK_LEVELS + extra - shrink),
+        "lk_shrink": shrink,
     }
 # The checkerboard seen through the tracked corners must have this much contrast (grey levels)
 # between its white and black squares, and every square on the right side of the midpoint.
@@ -571,11 +617,21 @@ def track_corners(
     if seen.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
     sc = _track_scales(prev, board, gray.shape)
+    f = 2 ** sc["lk_shrink"]
+    start = prev[seen].reshape(-1, 1, 2)
+    if f > 1:
+        # Area-averaged pixel i of the shrunk image covers full pixels [f i, f (i + 1)).
+        small_prev, small = _shrunk(prev_gray, f), _shrunk(gray, f)
+        start = ((start + 0.5) / f - 0.5).astype(np.float32)
+    else:
+        small_prev, small = prev_gray, gray
     moved, status, _ = cv2.calcOpticalFlowPyrLK(
-        prev_gray, gray, prev[seen].reshape(-1, 1, 2), None,
+        small_prev, small, start, None,
         winSize=(sc["lk_window"], sc["lk_window"]), maxLevel=sc["lk_levels"],
         criteria=LK_CRITERIA,
     )
+    if f > 1:
+        moved = (moved + 0.5) * f - 0.5
     ok = status.ravel() == 1
     if ok.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
@@ -599,13 +655,34 @@ def track_corners(
     if not inner.all():
         return _follow_partial(gray, corners, inner, grid, board, subpix_window_px, sc,
                                max_grid_deviation)
-    ordered, _ = order_corners(corners, gray, board, corners)
-    if not np.array_equal(ordered, corners):
-        return None, "lost"
+    # No order_corners here: the flow cannot mirror the grid, and a grid turned by 180 degrees
+    # on a board whose ends differ puts every square on the wrong colour, which the square
+    # check below refuses (on a board whose ends look alike nothing can tell, as in detection).
     H_fit, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
-    if H_fit is None or not board_squares_pattern_ok(gray, H_fit, board, MIN_PATTERN_CONTRAST):
+    if H_fit is None:
         return None, "lost"
+    if not board_squares_pattern_ok(gray, H_fit, board, MIN_PATTERN_CONTRAST):
+        # A hand over squares (and the corners it hides, which stay where they were put and
+        # agree with their neighbours): keep the corners that show the chessboard's saddle.
+        return _follow_partial(gray, corners, np.ones(len(corners), bool), grid, board,
+                               subpix_window_px, sc, max_grid_deviation, "partial")
     return corners, "tracked"
+
+
+# Shrunk copies of the last few images: a frame shrunk for the flow into it serves again for
+# the flow out of it. Keyed by the image object itself (held here, so its id is not reused).
+_SHRUNK: list = []
+
+
+def _shrunk(gray: np.ndarray, f: int) -> np.ndarray:
+    """``gray`` shrunk by the integer factor ``f`` (area average), from a small cache."""
+    for image, k, small in _SHRUNK:
+        if image is gray and k == f:
+            return small
+    small = cv2.resize(gray, None, fx=1.0 / f, fy=1.0 / f, interpolation=cv2.INTER_AREA)
+    _SHRUNK.append((gray, f, small))
+    del _SHRUNK[:-3]
+    return small
 
 
 def _inside(p: np.ndarray, w: int, h: int, margin: float) -> np.ndarray:
@@ -615,19 +692,28 @@ def _inside(p: np.ndarray, w: int, h: int, margin: float) -> np.ndarray:
     )
 
 
-# Smallest grey-level step between the light and the dark quadrants around a kept corner.
+# Smallest grey-level step between the light and the dark quadrants around a kept corner:
+# this share of the board's contrast (median light minus median dark over all kept corners),
+# and never below MIN_SADDLE_CONTRAST grey levels. A finger over part of a corner's squares
+# puts skin (between the two) into a quadrant and fails it.
 MIN_SADDLE_CONTRAST = 10.0
+SADDLE_CONTRAST_FRAC = 0.5
+# Sample points along the diagonals, as a share of a square from the corner.
+SADDLE_RADII = (0.2, 0.4)
 
 
 def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     """(N,) bool: corner k shows dark squares on one diagonal, light on the other (its own
-    colours: square (x+1, y+1) black when x + y is even), sampled 0.3 squares off the corner."""
+    colours: square (x+1, y+1) black when x + y is even), sampled along the diagonals at
+    ``SADDLE_RADII`` squares from the corner, every sample of a quadrant on its side."""
     h, w = gray.shape
-    off = np.array([[0.3, 0.3], [-0.3, -0.3], [0.3, -0.3], [-0.3, 0.3]])
-    pts = grid[:, None, :] + off[None]  # (N, 4, 2)
+    off = np.array([[r * a, r * b] for a, b in ((1, 1), (-1, -1), (1, -1), (-1, 1))
+                    for r in SADDLE_RADII])  # dark-or-light pairs: first 2 radii x 2 = 4
+    n_off = len(off)
+    pts = grid[:, None, :] + off[None]  # (N, M, 2)
     ref = cv2.perspectiveTransform(grid.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
     q = cv2.perspectiveTransform(pts.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
-    q = q.reshape(-1, 4, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
+    q = q.reshape(-1, n_off, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
     ok = np.isfinite(q).all(axis=(1, 2))
     qi = np.rint(np.nan_to_num(q)).astype(int)
     ok &= (qi[..., 0] >= 0).all(1) & (qi[..., 0] < w).all(1) & (qi[..., 1] >= 0).all(1) & (
@@ -635,11 +721,15 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     ).all(1)
     qi[..., 0] = np.clip(qi[..., 0], 0, w - 1)
     qi[..., 1] = np.clip(qi[..., 1], 0, h - 1)
-    level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, 4)
+    level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, M)
+    half = n_off // 2  # the (1, 1) and (-1, -1) diagonal first, then the other
     black_first = ((grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0)
-    dark = np.where(black_first[:, None], level[:, :2], level[:, 2:])
-    light = np.where(black_first[:, None], level[:, 2:], level[:, :2])
-    return ok & (light.min(axis=1) - dark.max(axis=1) >= MIN_SADDLE_CONTRAST)
+    dark = np.where(black_first[:, None], level[:, :half], level[:, half:])
+    light = np.where(black_first[:, None], level[:, half:], level[:, :half])
+    known = ok & np.isfinite(np.asarray(corners_px)).all(axis=1)
+    contrast = float(np.median(light[known]) - np.median(dark[known])) if known.any() else 0.0
+    need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
+    return ok & (light.min(axis=1) - dark.max(axis=1) >= need)
 
 
 def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
@@ -663,8 +753,10 @@ def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_
     H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
     if H is None:
         return None, "lost"
-    out[~_saddle_ok(gray, H, out, grid)] = np.nan
-    out = keep_consistent_corners(out, board, max_grid_deviation)
+    saddle = _saddle_ok(gray, H, out, grid)
+    if not saddle[known].all():
+        out[~saddle] = np.nan
+        out = keep_consistent_corners(out, board, max_grid_deviation)
     known = np.isfinite(out).all(axis=1)
     if known.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
@@ -684,15 +776,28 @@ def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_
 PARTIAL_METHODS = ("partial", "out_of_view")
 
 
-# While no board is followed, a quick detector looks for it: findChessboardCorners without
-# adaptive threshold on the image at half size (measured on the demo render: 2.3 ms on a frame
-# with a partly visible board against 33 ms for the full detector; it finds 52 of 60 whole
-# boards, against 60). Frames it misses wait; once a board is found they are tracked
-# backwards from it, and only those still undecided go to the full detector.
-QUICK_FIND_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE
+# While no board is followed, a quick detector looks for it: findChessboardCorners with the
+# fast check, without adaptive threshold, on the image shrunk to at most half size and
+# QUICK_LONG_SIDE_PX. On the realistic 1080x1920 render (exposure and white-balance drift,
+# blur, a hand) it found 16 of the 18 boards plain OpenCV finds at half size (17 with adaptive
+# threshold, at 4x the cost on frames with a partly hidden board: ~50 ms against ~190 ms at
+# 640x360 on the loaded test machine). Frames it misses wait; once a board is found they are
+# tracked backwards from it; the full detector runs now and then (DEEP_SEARCH_EVERY).
+QUICK_FIND_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
 QUICK_SCALE = 0.5
-# Most frames kept waiting for a board (grey images, ~0.3 MB each at 640x480).
-MAX_PENDING_FRAMES = 300
+QUICK_LONG_SIDE_PX = 960
+# Squares at least this size (px) in the shrunk image when the board's size is known.
+QUICK_MIN_SQUARE_PX = 16.0
+# The search backs off while the board stays lost: it runs on the 1st, 2nd, 4th and 8th frame
+# after the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found within
+# that many frames and the frames before it are tracked backwards).
+SEARCH_EVERY_MAX = 8
+# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) on the 1st frame
+# after the loss and every DEEP_SEARCH_EVERY frames.
+DEEP_SEARCH_EVERY = 32
+# Most grey-image bytes kept waiting for a board (memory does not grow with the session:
+# 48 frames at 1920x1080, 340 at 640x480); older waiting frames are decided without it.
+MAX_PENDING_BYTES = 100 * 2**20
 
 
 def quick_detect_corners(
@@ -700,8 +805,9 @@ def quick_detect_corners(
     board: dict,
     subpix_window_px: int = 5,
     max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
+    scale: float | None = None,
 ) -> tuple[np.ndarray | None, str]:
-    """Corners of a whole board found on the half-size image, refined at full size.
+    """Corners of a whole board found on a shrunk image, refined at full size.
 
     Parameters
     ----------
@@ -709,6 +815,9 @@ def quick_detect_corners(
     board : dict
     subpix_window_px, max_grid_deviation
         As in ``detect_corners``.
+    scale : float, optional
+        Shrink factor (<= 1); by default ``QUICK_SCALE``, less for images whose long side
+        exceeds twice ``QUICK_LONG_SIDE_PX``.
 
     Returns
     -------
@@ -725,30 +834,53 @@ def quick_detect_corners(
     no board (see ``extract_corners``).
     """
     h, w = gray.shape
-    small = cv2.resize(gray, None, fx=QUICK_SCALE, fy=QUICK_SCALE, interpolation=cv2.INTER_AREA)
+    if scale is None:
+        scale = min(QUICK_SCALE, QUICK_LONG_SIDE_PX / max(h, w))
+    scale = float(min(1.0, scale))
+    small = gray if scale >= 1.0 else cv2.resize(gray, None, fx=scale, fy=scale,
+                                                 interpolation=cv2.INTER_AREA)
     found, corners = cv2.findChessboardCorners(small, board_pattern(board), None, QUICK_FIND_FLAGS)
     if not found:
         return None, "not_found"
-    scale = np.array([w / small.shape[1], h / small.shape[0]])
+    f = np.array([w / small.shape[1], h / small.shape[0]])
     # Pixel centres: small pixel i covers full pixels [s i, s (i + 1)), centre s (i + 0.5) - 0.5.
-    corners = (corners.reshape(-1, 2) + 0.5) * scale - 0.5
-    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
-    if corners is None or not _inside(
-        corners, w, h, _track_scales(corners, board, gray.shape)["border"]
-    ).all():
+    corners = (corners.reshape(-1, 2) + 0.5) * f - 0.5
+    grid = _grid_points(board)
+    sc = _track_scales(corners, board, gray.shape)
+    refined = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
+    if refined is not None and _inside(refined, w, h, sc["border"]).all():
+        ordered, _ = order_corners(refined, gray, board)
+        H, _ = cv2.findHomography(grid, ordered.astype(np.float32), 0)
+        if H is not None and board_squares_pattern_ok(gray, H, board, MIN_PATTERN_CONTRAST):
+            return ordered, "quick"
+    # A hand over some corners or squares, or corners at the border (OpenCV still found the
+    # grid): keep the corners that agree with their neighbours and show the chessboard's
+    # saddle, checked as a tracked board partly hidden.
+    ordered, _ = order_corners(corners if refined is None else refined, gray, board)
+    partial, _ = _follow_partial(gray, ordered, _inside(ordered, w, h, sc["border"]), grid,
+                                 board, subpix_window_px, sc, max_grid_deviation, "partial")
+    if partial is None:
         return None, "not_found"
-    ordered, _ = order_corners(corners, gray, board)
-    H, _ = cv2.findHomography(_grid_points(board), ordered.astype(np.float32), 0)
-    if H is None or not board_squares_pattern_ok(gray, H, board, MIN_PATTERN_CONTRAST):
-        return None, "not_found"
-    return ordered, "quick"
+    return partial, "quick"
+
+
+def _median_spacing(corners_px: np.ndarray, board: dict) -> float:
+    """Median distance between grid neighbours, px (0 when none is known)."""
+    nx, ny = board_pattern(board)
+    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    d = np.concatenate([np.linalg.norm(np.diff(grid, axis=a), axis=-1).ravel() for a in (0, 1)])
+    d = d[np.isfinite(d)]
+    return float(np.median(d)) if len(d) else 0.0
 
 
 class _CornerFollower:
-    """extract_corners' per-frame decisions: track, detect quickly, or detect fully.
+    """extract_corners' per-frame decisions: track, search quickly (backing off), or detect.
 
     ``push`` takes frames in order and returns the ``(frame, t_s, corners_px or None,
     method)`` results that are decided, in frame order; ``finish`` returns the rest.
+    Frames without a board are ``"not_found"`` when a detector looked at them and
+    ``"not_searched"`` when the search's back-off skipped them (and no board could be
+    tracked into them from a later frame).
     """
 
     def __init__(self, board, subpix_window_px, max_grid_deviation, max_gap, flags, track,
@@ -761,7 +893,8 @@ class _CornerFollower:
         self.flags = flags
         self.track = track
         self.restart_every = restart_every
-        self.pending = []  # (frame, t_s, gray) waiting for a board to track back from
+        self.pending = collections.deque()  # (frame, t_s, gray, searched) waiting for a board
+        self.pending_bytes = 0
         self.cv_errors = 0  # OpenCV calls that raised (the frame went on without them)
         self._reset()
 
@@ -778,6 +911,18 @@ class _CornerFollower:
     def _reset(self):
         self.state = None  # (gray, corners_px, frame) of the last frame the board was followed
         self.last_found = None  # (corners_px, frame): continuity for detect_corners
+        self.lost_for = 0  # frames since the board was last followed (the search's back-off)
+        self.spacing = 0.0  # median square size (px) of the board when last followed
+
+    def _search_now(self) -> bool:
+        n = self.lost_for
+        return n <= 2 or (n <= SEARCH_EVERY_MAX and n & (n - 1) == 0) or n % SEARCH_EVERY_MAX == 0
+
+    def _quick_scale(self):
+        """Shrink factor of the quick search: squares of the last board >= QUICK_MIN_SQUARE_PX."""
+        if self.spacing <= 0:
+            return None
+        return float(np.clip(QUICK_MIN_SQUARE_PX / self.spacing, 0.25, QUICK_SCALE))
 
     def push(self, frame, t_s, gray):
         out = []
@@ -790,31 +935,62 @@ class _CornerFollower:
         if self.state is not None and frame - self.state[2] <= self.max_gap:
             out.append(self._track(frame, t_s, gray, self.state))
             return out
+        self.lost_for += 1
+        if not self._search_now():
+            self._wait(frame, t_s, gray, False, out)
+            return out
         corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
-                                         self.board, self.subpix, self.max_dev)
+                                         self.board, self.subpix, self.max_dev,
+                                         self._quick_scale())
+        if corners_px is None and (self.lost_for == 1 or self.lost_for % DEEP_SEARCH_EVERY == 0):
+            # Now and then the full detector (on the shrunk image), for the whole boards the
+            # quick one misses (low contrast, small squares).
+            prev = self.flags if self.flags is not None else VIDEO_SEARCH_FLAGS
+            corners_px, method = self._guard(detect_corners, "cv_error", frame, gray,
+                                             self.board, self.subpix, None, prev,
+                                             self.max_dev, False)
         if corners_px is None:
-            self.pending.append((frame, t_s, gray))
-            if len(self.pending) >= MAX_PENDING_FRAMES:
-                out += self.finish()
+            self._wait(frame, t_s, gray, True, out)
             return out
         out += self._track_back(gray, corners_px, frame)
         self._keep(gray, corners_px, frame, found=True)
         out.append((frame, t_s, corners_px, method))
         return out
 
+    def _wait(self, frame, t_s, gray, searched, out):
+        """Keep a frame for tracking backwards; decide the oldest beyond the memory bound."""
+        self.pending.append((frame, t_s, gray, searched))
+        self.pending_bytes += gray.nbytes
+        while self.pending_bytes > MAX_PENDING_BYTES and len(self.pending) > 1:
+            out.append(self._undecided(*self.pending.popleft()))
+
+    def _undecided(self, frame, t_s, gray, searched):
+        self.pending_bytes -= gray.nbytes
+        return frame, t_s, None, "not_found" if searched else "not_searched"
+
     def finish(self):
-        """Full detection (and tracking forwards from it) on the frames still waiting."""
-        pending, self.pending = self.pending, []
-        out = []
-        for frame, t_s, gray in pending:
-            if self.state is not None and frame - self.state[2] <= self.max_gap:
-                out.append(self._track(frame, t_s, gray, self.state))
-            else:
-                out.append(self._detect(frame, t_s, gray))
+        """Decide the frames still waiting: the last one is searched (if the back-off skipped
+        it) and the others tracked back from it; else no board was found to track from."""
+        if self.pending and not self.pending[-1][3]:
+            frame, t_s, gray, _ = self.pending.pop()
+            self.pending_bytes -= gray.nbytes
+            corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
+                                             self.board, self.subpix, self.max_dev,
+                                             self._quick_scale())
+            if corners_px is not None:
+                return self._track_back(gray, corners_px, frame) + [
+                    (frame, t_s, corners_px, method)]
+            self.pending.append((frame, t_s, gray, True))
+            self.pending_bytes += gray.nbytes
+        out = [self._undecided(*p) for p in self.pending]
+        self.pending.clear()
+        self.pending_bytes = 0
         return out
 
     def _keep(self, gray, corners_px, frame, found):
         self.state = (gray, corners_px, frame)
+        self.lost_for = 0
+        self.spacing = _median_spacing(corners_px, self.board) or self.spacing
         if found:
             self.last_found = (corners_px, frame)
 
@@ -824,9 +1000,22 @@ class _CornerFollower:
             self.max_dev
         )
         if method == "lost":
-            return self._detect(frame, t_s, gray)
+            return self._relocate(frame, t_s, gray)
         self._keep(gray, corners_px, frame, found=method == "tracked")
         return frame, t_s, self._published(corners_px, method), method
+
+    def _relocate(self, frame, t_s, gray):
+        """A frame the tracker lost the board in (at most ``max_gap`` frames after it was
+        followed): the quick search, then the detector on the image shrunk to
+        DETECT_LONG_SIDE_PX (the board is likely still there)."""
+        self.lost_for += 1
+        corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
+                                         self.board, self.subpix, self.max_dev,
+                                         self._quick_scale())
+        if corners_px is None:
+            return self._detect(frame, t_s, gray, full_size=False)
+        self._keep(gray, corners_px, frame, found=True)
+        return frame, t_s, corners_px, method
 
     def _published(self, corners_px, method):
         """The corners a tracked frame puts in the table (None: not found)."""
@@ -834,7 +1023,7 @@ class _CornerFollower:
             return corners_px
         return None
 
-    def _detect(self, frame, t_s, gray):
+    def _detect(self, frame, t_s, gray, full_size=True):
         prev = None
         if self.last_found is not None and frame - self.last_found[1] <= self.max_gap:
             prev = self.last_found[0]
@@ -842,17 +1031,20 @@ class _CornerFollower:
         if flags is None:
             flags = VIDEO_FIND_FLAGS if prev is not None else VIDEO_SEARCH_FLAGS
         corners_px, method = self._guard(detect_corners, "cv_error", frame, gray, self.board,
-                                         self.subpix, prev, flags, self.max_dev)
+                                         self.subpix, prev, flags, self.max_dev, full_size)
         if corners_px is not None:
             self._keep(gray, corners_px, frame, found=True)
         return frame, t_s, corners_px, method
 
     def _track_back(self, gray, corners_px, frame):
-        """Results of the waiting frames, tracked backwards from a frame with the board."""
-        pending, self.pending = self.pending, []
+        """Results of the waiting frames, tracked backwards from a frame with the board; where
+        that fails, the detector once (the board may have been whole there), then nothing."""
+        pending, self.pending = list(self.pending), collections.deque()
+        self.pending_bytes = 0
         ref = (gray, corners_px, frame)
         out = []
-        for f, t_s, g in reversed(pending):
+        tried_detect = False
+        for f, t_s, g, searched in reversed(pending):
             result = None
             if ref[2] - f <= self.max_gap:
                 px, method = self._guard(track_corners, "lost", f, ref[0], g, ref[1],
@@ -860,13 +1052,17 @@ class _CornerFollower:
                 if method != "lost":
                     ref = (g, px, f)
                     result = (f, t_s, self._published(px, method), method + "_back")
+                elif not tried_detect:
+                    tried_detect = True
+                    px, method = self._guard(detect_corners, "cv_error", f, g, self.board,
+                                             self.subpix, None,
+                                             self.flags or VIDEO_SEARCH_FLAGS, self.max_dev,
+                                             False)
+                    if px is not None:
+                        ref = (g, px, f)
+                    result = (f, t_s, px, method)
             if result is None:
-                px, method = self._guard(detect_corners, "cv_error", f, g, self.board,
-                                         self.subpix, None, self.flags or VIDEO_SEARCH_FLAGS,
-                                         self.max_dev)
-                if px is not None:
-                    ref = (g, px, f)
-                result = (f, t_s, px, method)
+                result = (f, t_s, None, "not_found" if searched else "not_searched")
             out.append(result)
         return out[::-1]
 
@@ -932,8 +1128,11 @@ def extract_corners(
         corner k at board point (k % nx, k // nx) * square_m; a frame without a board
         has one row with ``corner = -1`` and NaN pixels. ``attrs`` holds counts:
         ``n_frames``, ``n_found``, ``order_methods`` (dict method -> frames: ``tracked``,
-        ``out_of_view`` (followed partly out of the image), and ``detect_corners``' methods
-        for frames where the full detector ran).
+        ``out_of_view`` (followed partly out of the image), ``partial`` (a hand over it),
+        ``quick`` (the quick search), ``*_back`` (tracked backwards from a later frame),
+        ``detect_corners``' methods for frames where the full detector ran; without a board:
+        ``not_found`` (a detector looked), ``not_searched`` (the search's back-off skipped
+        the frame and no board could be tracked into it), ``inconsistent``, ``cv_error``).
 
     Raises
     ------
@@ -1048,8 +1247,9 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
     -------
     summary : dict
         ``n_frames_decoded``, ``n_found``, ``found_share``, ``frames_by_method`` (method ->
-        frames: how each frame was decided; ``not_found``, ``inconsistent``, ``cv_error``
-        ... are the reasons a frame has no board), ``n_cv_errors``, ``corners_per_found_frame``
+        frames: how each frame was decided; ``not_found``, ``not_searched``,
+        ``inconsistent``, ``cv_error`` are the reasons a frame has no board),
+        ``n_cv_errors``, ``corners_per_found_frame``
         (min, median, max); with ``timing``: ``n_frames_header``, ``n_frames_demuxed``,
         ``n_dropped``, ``dropped_gaps`` (``[after_frame, missing]``), ``period_s`` (median),
         ``period_min_s``, ``period_max_s``.
