@@ -197,6 +197,17 @@ _TILTED_TILT_DEG = (40.0, 50.0)
 _IN_PLANE_RAD = 0.3
 
 
+def _depth_range(depth_m, z_cap_m):
+    """``depth_m`` (lo, hi) with hi at most ``z_cap_m``, lo kept below it, m.
+
+    The ranges above suit the demo's camera and board; a wider lens or smaller squares cap the
+    depth at which a square still spans ``min_square_px`` (``still_poses``)."""
+    lo, hi = depth_m
+    if hi <= z_cap_m:
+        return lo, hi
+    return min(lo, 0.75 * z_cap_m), z_cap_m
+
+
 def still_plan(rng, n):
     """The strata of ``n`` calibration stills: one (push, tilt axis or None) per still.
 
@@ -302,7 +313,9 @@ def still_poses(
     -------
     T_C_B : ndarray, shape (k, 4, 4)
         Poses, metres, k <= n (fewer only when the board cannot be placed as planned);
-        distances 0.7-2.1 m, tilts 10-50 degrees, in-plane turns up to 17 degrees.
+        distances 0.7-2.1 m (nearer where a wide lens or small squares need it; a still tries
+        ``max_tries`` draws at the nominal depths, then as many capped), tilts 10-50 degrees,
+        in-plane turns up to 17 degrees.
 
     Notes
     -----
@@ -314,15 +327,24 @@ def still_poses(
     center_B = outline_B.mean(axis=0)
     limit = 2.0 * max(width / K[0, 0], height / K[1, 1])  # normalised, beyond any fit
     board_corners = None if board is None else (board.corners_B(), board.nx, board.ny)
+    # Deepest board whose squares (foreshortened by the largest tilt) keep min_square_px: used
+    # only for a still the nominal depths cannot place, so sessions that render keep their draws.
+    z_cap_m = np.inf
+    if board is not None:
+        z_cap_m = 0.95 * min(K[0, 0], K[1, 1]) * board.square_m / min_square_px
+    z_caps_m = (np.inf, z_cap_m * np.cos(np.deg2rad(_CELL_TILT_DEG[1])))
+    z_caps_tilted_m = (np.inf, z_cap_m * np.cos(np.deg2rad(_TILTED_TILT_DEG[1])))
     poses = []
     for push, tilt_axis in still_plan(rng, n):
-        for _ in range(max_tries):
+        for attempt in range(2 * max_tries):
+            capped = attempt // max_tries
             if tilt_axis is None:
-                z_m = rng.uniform(*_CELL_DEPTH_M[int(np.count_nonzero(push))])
+                depth_m = _depth_range(_CELL_DEPTH_M[int(np.count_nonzero(push))], z_caps_m[capped])
+                z_m = rng.uniform(*depth_m)
                 axis = rng.uniform(0.0, 2.0 * np.pi)
                 tilt = np.deg2rad(rng.uniform(*_CELL_TILT_DEG))
             else:
-                z_m = rng.uniform(*_TILTED_DEPTH_M)
+                z_m = rng.uniform(*_depth_range(_TILTED_DEPTH_M, z_caps_tilted_m[capped]))
                 axis = tilt_axis + (np.pi if rng.uniform() < 0.5 else 0.0)
                 tilt = np.deg2rad(rng.uniform(*_TILTED_TILT_DEG))
             in_plane = rng.uniform(-_IN_PLANE_RAD, _IN_PLANE_RAD)

@@ -320,6 +320,24 @@ def test_still_poses_in_view_and_varied(spec):
     np.testing.assert_array_equal(poses, again)
 
 
+def test_still_poses_come_nearer_for_a_wide_lens_and_small_squares():
+    """A wide webcam (f 518 px, k1 -0.30) and 5 cm squares: at the nominal 1.5-2.1 m a square
+    spans ~13 px, below the 20 px refinement floor; every still is still placed, nearer."""
+    K = np.array([[520.0, 0.0, 318.0], [0.0, 518.0, 236.0], [0.0, 0.0, 1.0]])
+    dist = np.array([-0.30, 0.11, 0.0004, 0.0011, -0.02])
+    board = Board(squares_x=9, squares_y=7, square_m=0.05)
+    outline = still_outline_B(board)
+    poses = still_poses(np.random.default_rng(31), 15, K, dist, (640, 480), outline, board=board)
+    assert len(poses) == 15
+    grid = project_points(poses, board.corners_B(), K, dist).reshape(15, board.ny, board.nx, 2)
+    sides = np.r_[np.linalg.norm(np.diff(grid, axis=2), axis=-1).ravel(),
+                  np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel()]
+    assert sides.min() >= 20.0
+    uv = project_points(poses, outline, K, dist)
+    assert np.all((uv >= 10) & (uv <= [629, 469]))
+    assert poses[:, 2, 3].max() < 1.3 and np.ptp(poses[:, 2, 3]) > 0.3
+
+
 @pytest.mark.parametrize("seed", [7, 11, 23])
 def test_still_corners_cover_every_image_region(spec, seed):
     """The session's 15 stills put inner corners in every cell of a 3x3 grid of the image,
