@@ -36,6 +36,37 @@ def atomic_output(path, suffix=None):
         raise
 
 
+def read_text_lines(path, kind="CSV") -> list[str]:
+    """The lines of a UTF-8 text export (a BOM is dropped); InputError naming ``path`` when it is
+    missing or not text (``kind`` names what was expected, e.g. "CSV", "TSV")."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig", errors="strict")
+    except FileNotFoundError as exc:
+        raise InputError(f"{path}: file not found") from exc
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not a text {kind} file ({exc})") from exc
+    return text.splitlines()
+
+
+def check_frames(path, frames, first, lines, column="Frame") -> None:
+    """Frame numbers must be integers, one step apart; else InputError naming the line."""
+    bad = np.isnan(frames) | (frames != np.round(frames))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            f"{path}, line {first + i + 1}, column {column}: expected an integer frame number, "
+            f"got {lines[i].split(',')[0].split(chr(9))[0]!r}"
+        )
+    steps = np.diff(frames)
+    if np.any(steps != 1):
+        i = int(np.flatnonzero(steps != 1)[0]) + 1
+        raise InputError(
+            f"{path}, line {first + i + 1}: frame {int(frames[i])} follows frame "
+            f"{int(frames[i - 1])} (expected consecutive frames)"
+        )
+
+
 def _to_builtin(obj):
     """Numpy scalars and arrays to plain Python, so YAML stays readable and portable."""
     if isinstance(obj, dict):

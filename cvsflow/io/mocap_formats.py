@@ -291,24 +291,6 @@ def parse_numeric_block(path, lines, first, n_cols, column_names, sep=",", na_va
     raise InputError(f"{path}, lines {first + 1}-{first + len(lines)}: unreadable data block")
 
 
-def check_frames(path, frames, first, lines, column="Frame") -> None:
-    """Frame numbers must be integers, one step apart; else InputError naming the line."""
-    bad = np.isnan(frames) | (frames != np.round(frames))
-    if bad.any():
-        i = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"{path}, line {first + i + 1}, column {column}: expected an integer frame number, "
-            f"got {lines[i].split(',')[0].split(chr(9))[0]!r}"
-        )
-    steps = np.diff(frames)
-    if np.any(steps != 1):
-        i = int(np.flatnonzero(steps != 1)[0]) + 1
-        raise InputError(
-            f"{path}, line {first + i + 1}: frame {int(frames[i])} follows frame "
-            f"{int(frames[i - 1])} (expected consecutive frames)"
-        )
-
-
 def system_bodies_table(frame, t_s, body, R_W_body, t_W_body_m, residual_m, n_markers) -> pd.DataFrame:
     """A system bodies table for one body (``bodies.parquet`` columns) from rotations and positions.
 

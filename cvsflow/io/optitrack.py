@@ -37,10 +37,9 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from cvsflow.errors import InputError
-from cvsflow.io.files import atomic_output
+from cvsflow.io.files import atomic_output, check_frames, read_text_lines
 from cvsflow.io.mocap_formats import (
     MocapExport,
-    check_frames,
     parse_numeric_block,
     system_bodies_table,
 )
@@ -83,13 +82,7 @@ def read_motive_csv(path) -> MocapExport:
         consecutive, a rigid body without its seven pose columns. Messages name file and line.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig", errors="strict")
-    except FileNotFoundError as exc:
-        raise InputError(f"{path}: file not found") from exc
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a text CSV file ({exc})") from exc
-    lines = text.splitlines()
+    lines = read_text_lines(path, "CSV")
     meta_cells = _row(lines[0]) if lines else []
     if not meta_cells or meta_cells[0].strip() != "Format Version":
         raise InputError(

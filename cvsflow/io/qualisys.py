@@ -35,10 +35,9 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.errors import InputError
-from cvsflow.io.files import atomic_output
+from cvsflow.io.files import atomic_output, check_frames, read_text_lines
 from cvsflow.io.mocap_formats import (
     MocapExport,
-    check_frames,
     parse_numeric_block,
     system_bodies_table,
 )
@@ -78,13 +77,7 @@ def read_qtm_tsv(path) -> MocapExport:
         non-consecutive frames; fewer rows than NO_OF_FRAMES (file cut short).
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig", errors="strict")
-    except FileNotFoundError as exc:
-        raise InputError(f"{path}: file not found") from exc
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a text TSV file ({exc})") from exc
-    lines = text.splitlines()
+    lines = read_text_lines(path, "TSV")
     header = {}
     i = 0
     while i < len(lines) and _KEY.match(lines[i].split("\t")[0]):

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.errors import InputError
-from cvsflow.io.files import atomic_output
+from cvsflow.io.files import atomic_output, check_frames, read_text_lines
 
 AXES = ("x", "y", "z")
 
@@ -123,13 +123,7 @@ def read_nexus_csv(path) -> pd.DataFrame:
         consecutive. The message names the file and the 1-based line number.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig", errors="strict")
-    except FileNotFoundError as exc:
-        raise InputError(f"{path}: file not found") from exc
-    except UnicodeDecodeError as exc:
-        raise InputError(f"{path}: not a text CSV file ({exc})") from exc
-    lines = text.splitlines()
+    lines = read_text_lines(path, "CSV")
     start = next(
         (i for i, ln in enumerate(lines) if _split(ln)[0].lower() == "trajectories"), None
     )
@@ -226,19 +220,7 @@ def read_nexus_csv(path) -> pd.DataFrame:
     except (ValueError, TypeError):
         raise _locate_bad_cell(path, block, n_cols, first, names) from None
     frames = values[:, 0]
-    if np.isnan(frames).any() or np.any(frames != np.round(frames)):
-        i = int(np.flatnonzero(np.isnan(frames) | (frames != np.round(frames)))[0])
-        raise InputError(
-            f"{path}, line {first + i + 1}, column Frame: expected an integer frame number, "
-            f"got {data_lines[i].split(',')[0]!r}"
-        )
-    steps = np.diff(frames)
-    if np.any(steps != 1):
-        i = int(np.flatnonzero(steps != 1)[0]) + 1
-        raise InputError(
-            f"{path}, line {first + i + 1}: frame {int(frames[i])} follows frame "
-            f"{int(frames[i - 1])} (expected consecutive frames)"
-        )
+    check_frames(path, frames, first, data_lines)
     coords = values[:, 2:]
     bad = np.isinf(coords)  # 'inf', '-inf', '1e999': not a position, a gap (NaN)
     if bad.any():
