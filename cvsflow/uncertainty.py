@@ -690,3 +690,299 @@ def score_error_model(model, features, errors, cov_err=None):
     out["nees_mean"] = float(nees.mean())
     out["nees_inside_95"] = float(np.mean(nees <= chi2.ppf(0.95, 6)))
     return out
+
+
+# --------------------------------------------------------------------------- model (T): transfer
+
+#: Per-frame quantities known when a frame is measured (:func:`measurement_features`).
+MEASUREMENT_FEATURES = ("distance_m", "tilt_rad", "radius_norm", "n_corners", "spread_px",
+                        "speed_px", "reproj_rms_px")
+#: Parameters of model (T), in the order of its vector (logs of positive scales).
+TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "b_pos_m", "b_rot_rad", "nu")
+#: Working units of the fit (mm, mrad): keeps the 6x6 covariances well conditioned.
+_UNIT = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3])
+
+
+def _seen_corners(corners, frame_ids, n_corners):
+    """Observed pixels (N, P, 2) of the given frames (NaN where unseen) and each frame's image
+    speed (N,), px per frame period: the mean travel of its corners between its neighbours."""
+    from cvsflow.optimise.se3 import corner_arrays
+
+    fr, t, uv = corner_arrays(corners, n_corners, min_corners=1)
+    idx = np.searchsorted(fr, frame_ids)
+    idx = np.clip(idx, 0, len(fr) - 1)
+    if not np.array_equal(fr[idx], np.asarray(frame_ids)):
+        missing = sorted(set(np.asarray(frame_ids).tolist()) - set(fr.tolist()))[:5]
+        raise OptimiseError(f"measurement_features: frames {missing} have no corners")
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    prev = np.clip(np.arange(len(fr)) - 1, 0, None)
+    nxt = np.clip(np.arange(len(fr)) + 1, None, len(fr) - 1)
+    span = np.where(nxt > prev, t[nxt] - t[prev], np.inf)
+    travel = np.nanmean(np.linalg.norm(uv[nxt] - uv[prev], axis=-1), axis=1)
+    speed = travel / span * period
+    # a neighbour without shared corners or far away in time (a gap): no estimate, say 0 px
+    speed = np.where(np.isfinite(speed) & (span < 3.5 * period), speed, 0.0)
+    return uv[idx], speed[idx]
+
+
+def measurement_features(heldout, corners, board, fits=None, frame="C"):
+    """What is known of each held-out frame when it is measured, and its covariance terms.
+
+    Parameters
+    ----------
+    heldout : DataFrame
+        :func:`cvsflow.evaluate.cross_validate_se3` rows (``frame``, ``fold``, the CVS pose
+        ``cvs_rvec_0..2``, ``cvs_x_m..z_m``, the reference ``ref_*``, ``reproj_rms_px``).
+    corners : DataFrame
+        corners.parquet of the session (which corners each frame saw, the image speed).
+    board : dict
+        ``squares_x``, ``squares_y``, ``square_m``.
+    fits : list of dict
+        The folds' se3 results (heldout/se3_folds.yaml): the K, dist of each fold linearise
+        its PnP; when they carry their ``correlation`` (a full se3 result), the calibration
+        term ``parcov_{a}{b}`` too (:func:`parameter_covariance`, the correlated term common
+        to all frames of a fold).
+    frame : {"C", "B"}
+        Error frame.
+
+    Returns
+    -------
+    features : DataFrame
+        ``frame``; the :data:`MEASUREMENT_FEATURES` (distance to the board centre m, tilt of
+        the board normal from the line of sight rad, radial image position of the board centre
+        in normalised units, corners seen, their RMS spread about their centroid px, image
+        speed px per frame period (the blur proxy: blur = speed x exposure / period),
+        reprojection RMS of the PnP px); ``unitcov_{a}{b}``, the error covariance of the PnP
+        pose per px^2 of iid corner noise over the corners this frame saw ((J^T J)^-1 pushed
+        to [x, y, z, roll, pitch, yaw], m^2 / px^2 .. rad^2 / px^2); ``parcov_{a}{b}`` with
+        ``fits``.
+    """
+    from cvsflow.calibration import board_object_points
+
+    p_B = board_object_points(board)
+    need = ["frame", *[f"cvs_rvec_{j}" for j in range(3)], "cvs_x_m", "cvs_y_m", "cvs_z_m",
+            "reproj_rms_px"]
+    missing = [c for c in need if c not in heldout.columns]
+    if missing:
+        raise OptimiseError(f"measurement_features: held-out table lacks columns {missing}")
+    frames = heldout["frame"].to_numpy()
+    uv, speed = _seen_corners(corners, frames, len(p_B))
+    seen = np.isfinite(uv).all(axis=-1)
+    rvec = heldout[need[1:4]].to_numpy(float)
+    tvec = heldout[need[4:7]].to_numpy(float)
+    if fits:
+        K_by_fold = {int(f["fold"]): (np.asarray(f["K"], float), np.asarray(f["dist"], float))
+                     for f in fits}  # fmt: skip
+        fold = heldout["fold"].to_numpy().astype(int)
+    else:
+        K_by_fold, fold = None, None
+    obj = np.asarray(p_B, np.float64)
+    cov_rt = np.empty((len(frames), 6, 6))
+    for i in range(len(frames)):
+        if K_by_fold is None:
+            raise OptimiseError("measurement_features: fits are needed (the K of each fold)")
+        K, dist = K_by_fold[int(fold[i])]
+        _, jac = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rvec[i], tvec[i], K, dist)
+        J = jac[:, :6]
+        cov_rt[i] = np.linalg.pinv(np.einsum("mi,mj->ij", J, J, optimize=False))
+    unit = error_covariance(rvec, tvec, cov_rt, frame=frame)
+    R = tf.R_from_rvec(rvec).reshape(-1, 3, 3)
+    centre_C = np.einsum("nij,j->ni", R, obj.mean(axis=0)) + tvec
+    dist_m = np.linalg.norm(centre_C, axis=1)
+    cos_tilt = np.abs(np.einsum("ni,ni->n", R[:, :, 2], centre_C)) / dist_m
+    centroid = np.nanmean(uv, axis=1)
+    spread = np.sqrt(np.nanmean(np.sum((uv - centroid[:, None]) ** 2, axis=-1), axis=1))
+    out = pd.DataFrame({
+        "frame": frames,
+        "distance_m": dist_m,
+        "tilt_rad": np.arccos(np.clip(cos_tilt, -1.0, 1.0)),
+        "radius_norm": np.hypot(centre_C[:, 0], centre_C[:, 1]) / centre_C[:, 2],
+        "n_corners": seen.sum(axis=1),
+        "spread_px": spread,
+        "speed_px": speed,
+        "reproj_rms_px": heldout["reproj_rms_px"].to_numpy(float),
+    })  # fmt: skip
+    iu = np.triu_indices(6)
+    for c, name in enumerate(_cov_columns("unitcov")):
+        out[name] = unit[:, iu[0][c], iu[1][c]]
+    if fits and all("correlation" in f for f in fits):
+        cov_par, _ = parameter_covariance(heldout, p_B, fits, frame=frame)
+        for c, name in enumerate(_cov_columns("parcov")):
+            out[name] = cov_par[:, iu[0][c], iu[1][c]]
+    return out
+
+
+def _transfer_terms(features):
+    """(U (N, 6, 6) per px^2, P (N, 6, 6), speed (N,), reproj (N,)) in working units."""
+    U = _cov_from_columns(features, "unitcov")
+    has_par = all(c in features.columns for c in _cov_columns("parcov"))
+    P = _cov_from_columns(features, "parcov") if has_par else np.zeros_like(U)
+    scale = 1.0 / np.outer(_UNIT, _UNIT)
+    speed = features["speed_px"].to_numpy(float)
+    reproj = features["reproj_rms_px"].to_numpy(float)
+    return U * scale, P * scale, speed, reproj
+
+
+def _unpack_transfer(q):
+    s0, s_speed, s_reproj, c, b_pos, b_rot = np.exp(q[:6])
+    return s0, s_speed, s_reproj, c, b_pos, b_rot, 2.0 + np.exp(q[6])
+
+
+def _transfer_cov(q, U, P, speed, reproj):
+    """Model (T) covariance (N, 6, 6), working units, and the corner variance (N,), px^2."""
+    s0, s_speed, s_reproj, c, b_pos, b_rot, _ = _unpack_transfer(q)
+    var_px = s0**2 + (s_speed * speed) ** 2 + (s_reproj * reproj) ** 2
+    floor = np.r_[np.full(3, b_pos), np.full(3, b_rot)] / _UNIT
+    return var_px[:, None, None] * U + c**2 * P + np.diag(floor**2)[None], var_px
+
+
+def fit_transfer_model(features, errors):
+    """Fit model (T) by maximum likelihood on frames of one or more sessions.
+
+    Model (T), per frame i (what is known when it is measured):
+
+        sigma_px,i^2 = s0^2 + (s_speed v_i)^2 + (s_reproj r_i)^2
+        Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
+
+    with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
+    saw (it carries the distance, the view angles, the corner count and their spread), v_i the
+    image speed (px per frame period: blur), r_i the frame's PnP reprojection RMS, P_i the
+    calibration's covariance (intrinsics free and fixed, both mountings) propagated through
+    PnP and the reference (the term common to every frame the fit scores, hence correlated in
+    time), and the floors b the Vicon reference's own noise. The errors are multivariate
+    Student-t with nu > 2 degrees of freedom and covariance Sigma_i. Every scale is in
+    physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
+    fitted on some sessions predicts another.
+
+    Parameters
+    ----------
+    features : DataFrame
+        :func:`measurement_features` of the training frames (``unitcov``, optional ``parcov``).
+    errors : DataFrame
+        The same frames' ``err_{dim}`` (CVS - reference, :func:`cvsflow.evaluate.pose_errors`).
+
+    Returns
+    -------
+    model : dict
+        ``kind: T``, ``dims``, one entry per :data:`TRANSFER_PARAMS` (px, -, -, -, m, rad, -),
+        ``nll`` (mean per frame), ``n_train``.
+
+    Raises
+    ------
+    OptimiseError
+        Missing columns, fewer than 20 frames or non-finite data.
+    """
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    missing = [c for c in cols if c not in errors.columns]
+    missing += [c for c in [*_cov_columns("unitcov"), "speed_px", "reproj_rms_px"]
+                if c not in features.columns]  # fmt: skip
+    if missing:
+        raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
+    E = errors[cols].to_numpy(float) / _UNIT
+    U, P, speed, reproj = _transfer_terms(features)
+    if len(E) != len(U) or len(E) < 20:
+        raise OptimiseError(
+            f"fit_transfer_model: {len(E)} error rows and {len(U)} feature rows; need equal, >= 20"
+        )
+    if not (np.isfinite(E).all() and np.isfinite(U).all() and np.isfinite(P).all()):
+        raise OptimiseError("fit_transfer_model: non-finite errors or covariances")
+    d = 6
+
+    def nll(q):
+        S, _ = _transfer_cov(q, U, P, speed, reproj)
+        nu = _unpack_transfer(q)[6]
+        try:
+            L = np.linalg.cholesky(S * ((nu - 2.0) / nu))
+        except np.linalg.LinAlgError:
+            return 1e30
+        z = np.linalg.solve(L, E[:, :, None])[:, :, 0]
+        m2 = np.einsum("ni,ni->n", z, z)
+        logdet = 2.0 * np.log(np.einsum("nii->ni", L)).sum(axis=1)
+        ll = (gammaln((nu + d) / 2) - gammaln(nu / 2) - 0.5 * d * np.log(nu * np.pi)
+              - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(m2 / nu))
+        return -float(np.mean(ll))
+
+    x0 = np.log([0.2, 0.02, 0.3, 1.0, 5e-4, 5e-4, 5.0])
+    best = None
+    # the likelihood is smooth but can be flat in a term the data do not need (e.g. no
+    # parameter covariance, no speed): two starts, keep the better
+    for start in (x0, x0 + np.r_[0.7, -1.5, -1.5, -0.7, 0.7, 0.7, 0.0]):
+        sol = minimize(nll, start, method="L-BFGS-B", bounds=[(-25, 10)] * 6 + [(-4, 6)],
+                       options={"maxiter": 500})
+        if best is None or sol.fun < best.fun:
+            best = sol
+    vals = _unpack_transfer(best.x)
+    model = {"kind": "T", "dims": list(ERROR_DIMS), "n_train": int(len(E)),
+             "nll": float(best.fun)}
+    model.update({name: float(v) for name, v in zip(TRANSFER_PARAMS, vals, strict=True)})
+    return model
+
+
+def _q_from_model(model):
+    v = [model[n] for n in TRANSFER_PARAMS]
+    return np.r_[np.log(v[:6]), np.log(v[6] - 2.0)]
+
+
+def transfer_covariance(model, features):
+    """Model (T)'s predicted 6x6 error covariance of each frame, SI (m, rad), (N, 6, 6)."""
+    S, _ = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
+    return S * np.outer(_UNIT, _UNIT)
+
+
+def cramer_rao_sigma(features, sigma_px):
+    """Cramer-Rao standard deviation of each frame's pose error from the corner noise alone.
+
+    The PnP pose is the ML estimate under iid Gaussian corner noise of ``sigma_px`` per axis,
+    whose covariance is bounded below by sigma_px^2 (J^T J)^-1 (the Fisher information of the
+    corners the frame saw), pushed to the error dimensions: the physical floor of a frame.
+
+    Returns
+    -------
+    crb : ndarray, shape (N, 6)
+        m for x, y, z; rad for roll, pitch, yaw.
+    """
+    U = _cov_from_columns(features, "unitcov")
+    sig = np.broadcast_to(np.asarray(sigma_px, float), (len(U),))
+    return np.sqrt(np.einsum("nii->ni", U)) * sig[:, None]
+
+
+def score_covariance(cov, errors, nu=None):
+    """Calibration of predicted covariances on (held-out) frames.
+
+    Parameters
+    ----------
+    cov : ndarray, shape (N, 6, 6)
+        Predicted error covariance, SI.
+    errors : DataFrame
+        ``err_{dim}`` of the same frames.
+    nu : float, optional
+        Student-t degrees of freedom of the prediction (the band quantiles); None: normal.
+
+    Returns
+    -------
+    score : dict
+        ``n``; ``inside_68``, ``inside_95`` per dimension and ``_all``; ``z_rms`` per
+        dimension; ``nees_mean``, ``nees_inside_95`` (below the chi-square(6) 95 % quantile).
+    """
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
+    sigma = np.sqrt(np.einsum("nii->ni", cov))
+    Zs = E / sigma
+    out = {"n": int(len(E))}
+    for band, k in band_multipliers({"nu": nu}).items():
+        inside = np.abs(Zs) <= k
+        out[f"inside_{band}"] = {d: float(inside[:, j].mean()) for j, d in enumerate(ERROR_DIMS)}
+        out[f"inside_{band}_all"] = float(inside.mean())
+    out["z_rms"] = {d: float(np.sqrt(np.mean(Zs[:, j] ** 2))) for j, d in enumerate(ERROR_DIMS)}
+    S = cov / np.outer(_UNIT, _UNIT)
+    r = E / _UNIT
+    nees = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+    out["nees_mean"] = float(nees.mean())
+    out["nees_inside_95"] = float(np.mean(nees <= chi2.ppf(0.95, 6)))
+    return out
+
+
+def nees_values(cov, errors):
+    """Per-frame NEES e^T Sigma^-1 e (N,) of errors ``err_{dim}`` under covariances (N, 6, 6)."""
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float) / _UNIT
+    S = cov / np.outer(_UNIT, _UNIT)
+    return np.einsum("ni,ni->n", E, np.linalg.solve(S, E[:, :, None])[:, :, 0])
