@@ -698,14 +698,15 @@ def score_error_model(model, features, errors, cov_err=None):
 MEASUREMENT_FEATURES = ("distance_m", "tilt_rad", "radius_norm", "n_corners", "spread_px",
                         "speed_px", "reproj_rms_px")
 #: Parameters of model (T), in the order of its vector (logs of positive scales).
-TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "b_pos_m", "b_rot_rad", "nu")
+TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "b_rot_rad", "nu")
 #: Working units of the fit (mm, mrad): keeps the 6x6 covariances well conditioned.
 _UNIT = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3])
 
 
 def _seen_corners(corners, frame_ids, n_corners):
-    """Observed pixels (N, P, 2) of the given frames (NaN where unseen) and each frame's image
-    speed (N,), px per frame period: the mean travel of its corners between its neighbours."""
+    """Observed pixels (N, P, 2) of the given frames (NaN where unseen), each frame's image
+    speed (N,), px per frame period (the mean travel of its corners between its neighbours),
+    and each corner's image velocity (N, P, 2), px/s (NaN where not seen in the neighbours)."""
     from cvsflow.optimise.se3 import corner_arrays
 
     fr, t, uv = corner_arrays(corners, n_corners, min_corners=1)
@@ -721,8 +722,10 @@ def _seen_corners(corners, frame_ids, n_corners):
     travel = np.nanmean(np.linalg.norm(uv[nxt] - uv[prev], axis=-1), axis=1)
     speed = travel / span * period
     # a neighbour without shared corners or far away in time (a gap): no estimate, say 0 px
-    speed = np.where(np.isfinite(speed) & (span < 3.5 * period), speed, 0.0)
-    return uv[idx], speed[idx]
+    near = span < 3.5 * period
+    speed = np.where(np.isfinite(speed) & near, speed, 0.0)
+    vel = (uv[nxt] - uv[prev]) / np.where(near, span, np.nan)[:, None, None]
+    return uv[idx], speed[idx], vel[idx]
 
 
 def measurement_features(heldout, corners, board, fits=None, frame="C"):
@@ -754,8 +757,10 @@ def measurement_features(heldout, corners, board, fits=None, frame="C"):
         speed px per frame period (the blur proxy: blur = speed x exposure / period),
         reprojection RMS of the PnP px); ``unitcov_{a}{b}``, the error covariance of the PnP
         pose per px^2 of iid corner noise over the corners this frame saw ((J^T J)^-1 pushed
-        to [x, y, z, roll, pitch, yaw], m^2 / px^2 .. rad^2 / px^2); ``parcov_{a}{b}`` with
-        ``fits``.
+        to [x, y, z, roll, pitch, yaw], m^2 / px^2 .. rad^2 / px^2); ``rs_err_{dim}``, the
+        CVS pose error that the rolling shutter's shear predicts (the fold's fitted line delay
+        times each corner's image velocity and its row after the mean row, through PnP, in
+        the error's units; zero for a global shutter); ``parcov_{a}{b}`` with ``fits``.
     """
     from cvsflow.calibration import board_object_points
 
@@ -766,26 +771,41 @@ def measurement_features(heldout, corners, board, fits=None, frame="C"):
     if missing:
         raise OptimiseError(f"measurement_features: held-out table lacks columns {missing}")
     frames = heldout["frame"].to_numpy()
-    uv, speed = _seen_corners(corners, frames, len(p_B))
+    uv, speed, vel = _seen_corners(corners, frames, len(p_B))
     seen = np.isfinite(uv).all(axis=-1)
     rvec = heldout[need[1:4]].to_numpy(float)
     tvec = heldout[need[4:7]].to_numpy(float)
     if fits:
         K_by_fold = {int(f["fold"]): (np.asarray(f["K"], float), np.asarray(f["dist"], float))
                      for f in fits}  # fmt: skip
+        ld_by_fold = {int(f["fold"]): float(f.get("line_delay_s") or 0.0) for f in fits}
         fold = heldout["fold"].to_numpy().astype(int)
     else:
         K_by_fold, fold = None, None
     obj = np.asarray(p_B, np.float64)
     cov_rt = np.empty((len(frames), 6, 6))
+    rs_rt = np.zeros((len(frames), 6))
     for i in range(len(frames)):
         if K_by_fold is None:
             raise OptimiseError("measurement_features: fits are needed (the K of each fold)")
         K, dist = K_by_fold[int(fold[i])]
         _, jac = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rvec[i], tvec[i], K, dist)
         J = jac[:, :6]
-        cov_rt[i] = np.linalg.pinv(np.einsum("mi,mj->ij", J, J, optimize=False))
+        JtJ_inv = np.linalg.pinv(np.einsum("mi,mj->ij", J, J, optimize=False))
+        cov_rt[i] = JtJ_inv
+        ld = ld_by_fold[int(fold[i])]
+        if ld != 0.0:
+            # rolling shutter: corner k is displaced by its image velocity times its row's delay
+            # after the mean row (the reference's time); PnP turns the shear into a pose error
+            rows = uv[i, seen[i], 1]
+            d_uv = np.nan_to_num(vel[i, seen[i]]) * (ld * (rows - rows.mean()))[:, None]
+            rs_rt[i] = JtJ_inv @ (J.T @ d_uv.reshape(-1))
     unit = error_covariance(rvec, tvec, cov_rt, frame=frame)
+    # the shear's pose error, signed: PnP of the sheared corners minus PnP of the unsheared
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    T_at = tf.T_from_rvec_tvec(rvec, tvec)
+    rs = pose_errors(tf.T_from_rvec_tvec(rvec - rs_rt[:, :3], tvec - rs_rt[:, 3:]), T_at,
+                     frame=frame)[cols].to_numpy()  # fmt: skip
     R = tf.R_from_rvec(rvec).reshape(-1, 3, 3)
     centre_C = np.einsum("nij,j->ni", R, obj.mean(axis=0)) + tvec
     dist_m = np.linalg.norm(centre_C, axis=1)
@@ -805,6 +825,8 @@ def measurement_features(heldout, corners, board, fits=None, frame="C"):
     iu = np.triu_indices(6)
     for c, name in enumerate(_cov_columns("unitcov")):
         out[name] = unit[:, iu[0][c], iu[1][c]]
+    for j, d in enumerate(ERROR_DIMS):
+        out[f"rs_err_{d}"] = rs[:, j]
     if fits and all("correlation" in f for f in fits):
         cov_par, _ = parameter_covariance(heldout, p_B, fits, frame=frame)
         for c, name in enumerate(_cov_columns("parcov")):
@@ -813,27 +835,34 @@ def measurement_features(heldout, corners, board, fits=None, frame="C"):
 
 
 def _transfer_terms(features):
-    """(U (N, 6, 6) per px^2, P (N, 6, 6), speed (N,), reproj (N,)) in working units."""
+    """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), reproj (N,)), working
+    units."""
     U = _cov_from_columns(features, "unitcov")
-    has_par = all(c in features.columns for c in _cov_columns("parcov"))
-    P = _cov_from_columns(features, "parcov") if has_par else np.zeros_like(U)
+
+    def block(name):
+        has = all(c in features.columns for c in _cov_columns(name))
+        return _cov_from_columns(features, name) if has else np.zeros_like(U)
+
     scale = 1.0 / np.outer(_UNIT, _UNIT)
     speed = features["speed_px"].to_numpy(float)
     reproj = features["reproj_rms_px"].to_numpy(float)
-    return U * scale, P * scale, speed, reproj
+    rs_cols = [f"rs_err_{d}" for d in ERROR_DIMS]
+    RS = (features[rs_cols].to_numpy(float) / _UNIT if all(c in features for c in rs_cols)
+          else np.zeros((len(U), 6)))  # fmt: skip
+    return U * scale, block("parcov") * scale, RS, speed, reproj
 
 
 def _unpack_transfer(q):
-    s0, s_speed, s_reproj, c, b_pos, b_rot = np.exp(q[:6])
-    return s0, s_speed, s_reproj, c, b_pos, b_rot, 2.0 + np.exp(q[6])
+    s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot = np.exp(q[:7])
+    return s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, 2.0 + np.exp(q[7])
 
 
-def _transfer_cov(q, U, P, speed, reproj):
-    """Model (T) covariance (N, 6, 6), working units, and the corner variance (N,), px^2."""
-    s0, s_speed, s_reproj, c, b_pos, b_rot, _ = _unpack_transfer(q)
+def _transfer_cov(q, U, P, RS, speed, reproj):
+    """Model (T) mean (N, 6) and covariance (N, 6, 6), working units."""
+    s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, _ = _unpack_transfer(q)
     var_px = s0**2 + (s_speed * speed) ** 2 + (s_reproj * reproj) ** 2
     floor = np.r_[np.full(3, b_pos), np.full(3, b_rot)] / _UNIT
-    return var_px[:, None, None] * U + c**2 * P + np.diag(floor**2)[None], var_px
+    return s_rs * RS, var_px[:, None, None] * U + c**2 * P + np.diag(floor**2)[None]
 
 
 def fit_transfer_model(features, errors):
@@ -842,6 +871,7 @@ def fit_transfer_model(features, errors):
     Model (T), per frame i (what is known when it is measured):
 
         sigma_px,i^2 = s0^2 + (s_speed v_i)^2 + (s_reproj r_i)^2
+        mu_i = s_rs r_i
         Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
 
     with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
@@ -849,7 +879,10 @@ def fit_transfer_model(features, errors):
     image speed (px per frame period: blur), r_i the frame's PnP reprojection RMS, P_i the
     calibration's covariance (intrinsics free and fixed, both mountings) propagated through
     PnP and the reference (the term common to every frame the fit scores, hence correlated in
-    time), and the floors b the Vicon reference's own noise. The errors are multivariate
+    time), r_i the pose error a rolling shutter's shear predicts (fitted line delay x image
+    velocity x row through PnP; 0 for a global shutter: the CVS's PnP ignores the shear, the
+    reference is taken at the mean row; a known error, hence a mean, not a variance), and the
+    floors b the Vicon reference's own noise. The errors are multivariate
     Student-t with nu > 2 degrees of freedom and covariance Sigma_i. Every scale is in
     physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
     fitted on some sessions predicts another.
@@ -864,7 +897,8 @@ def fit_transfer_model(features, errors):
     Returns
     -------
     model : dict
-        ``kind: T``, ``dims``, one entry per :data:`TRANSFER_PARAMS` (px, -, -, -, m, rad, -),
+        ``kind: T``, ``dims``, one entry per :data:`TRANSFER_PARAMS` (px, -, -, -, -, m, rad,
+        -),
         ``nll`` (mean per frame), ``n_train``.
 
     Raises
@@ -879,7 +913,7 @@ def fit_transfer_model(features, errors):
     if missing:
         raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
     E = errors[cols].to_numpy(float) / _UNIT
-    U, P, speed, reproj = _transfer_terms(features)
+    U, P, RS, speed, reproj = _transfer_terms(features)
     if len(E) != len(U) or len(E) < 20:
         raise OptimiseError(
             f"fit_transfer_model: {len(E)} error rows and {len(U)} feature rows; need equal, >= 20"
@@ -887,46 +921,64 @@ def fit_transfer_model(features, errors):
     if not (np.isfinite(E).all() and np.isfinite(U).all() and np.isfinite(P).all()):
         raise OptimiseError("fit_transfer_model: non-finite errors or covariances")
     d = 6
+    # the shear term is a first-order prediction of the error itself: its scale is 1 in
+    # physics (fitted on the rendered rolling-shutter session it comes out at 1.01), and a
+    # session without a rolling shutter cannot tell it (fitted line delays of ~1e-7 s would
+    # fit it to their noise): held at 1
+    fit_rs = False
+
+    def full(q):
+        return q if fit_rs else np.r_[q[:4], 0.0, q[4:]]
 
     def nll(q):
-        S, _ = _transfer_cov(q, U, P, speed, reproj)
-        nu = _unpack_transfer(q)[6]
+        q = full(q)
+        mu, S = _transfer_cov(q, U, P, RS, speed, reproj)
+        nu = _unpack_transfer(q)[7]
         try:
             L = np.linalg.cholesky(S * ((nu - 2.0) / nu))
         except np.linalg.LinAlgError:
             return 1e30
-        z = np.linalg.solve(L, E[:, :, None])[:, :, 0]
+        z = np.linalg.solve(L, (E - mu)[:, :, None])[:, :, 0]
         m2 = np.einsum("ni,ni->n", z, z)
         logdet = 2.0 * np.log(np.einsum("nii->ni", L)).sum(axis=1)
         ll = (gammaln((nu + d) / 2) - gammaln(nu / 2) - 0.5 * d * np.log(nu * np.pi)
               - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(m2 / nu))
         return -float(np.mean(ll))
 
-    x0 = np.log([0.2, 0.02, 0.3, 1.0, 5e-4, 5e-4, 5.0])
+    x0 = np.log([0.2, 0.02, 0.3, 1.0, 1.0, 5e-4, 5e-4, 5.0])
     best = None
     # the likelihood is smooth but can be flat in a term the data do not need (e.g. no
     # parameter covariance, no speed): two starts, keep the better
-    for start in (x0, x0 + np.r_[0.7, -1.5, -1.5, -0.7, 0.7, 0.7, 0.0]):
-        sol = minimize(nll, start, method="L-BFGS-B", bounds=[(-25, 10)] * 6 + [(-4, 6)],
+    keep = np.ones(8, bool)
+    keep[4] = fit_rs
+    for start in (x0, x0 + np.r_[0.7, -1.5, -1.5, -0.7, -0.7, 0.7, 0.7, 0.0]):
+        sol = minimize(nll, start[keep], method="L-BFGS-B",
+                       bounds=([(-25, 10)] * 7 + [(-4, 6)])[: keep.sum() - 1] + [(-4, 6)],
                        options={"maxiter": 500})
         if best is None or sol.fun < best.fun:
             best = sol
-    vals = _unpack_transfer(best.x)
+    vals = _unpack_transfer(full(best.x))
     model = {"kind": "T", "dims": list(ERROR_DIMS), "n_train": int(len(E)),
-             "nll": float(best.fun)}
+             "nll": float(best.fun), "s_rs_fitted": fit_rs}
     model.update({name: float(v) for name, v in zip(TRANSFER_PARAMS, vals, strict=True)})
     return model
 
 
 def _q_from_model(model):
     v = [model[n] for n in TRANSFER_PARAMS]
-    return np.r_[np.log(v[:6]), np.log(v[6] - 2.0)]
+    return np.r_[np.log(v[:7]), np.log(v[7] - 2.0)]
 
 
 def transfer_covariance(model, features):
     """Model (T)'s predicted 6x6 error covariance of each frame, SI (m, rad), (N, 6, 6)."""
-    S, _ = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
+    _, S = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
     return S * np.outer(_UNIT, _UNIT)
+
+
+def transfer_mean(model, features):
+    """Model (T)'s predicted error of each frame (the rolling shutter's shear), SI, (N, 6)."""
+    mu, _ = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
+    return mu * _UNIT
 
 
 def cramer_rao_sigma(features, sigma_px):
@@ -946,7 +998,7 @@ def cramer_rao_sigma(features, sigma_px):
     return np.sqrt(np.einsum("nii->ni", U)) * sig[:, None]
 
 
-def score_covariance(cov, errors, nu=None):
+def score_covariance(cov, errors, nu=None, mean=None):
     """Calibration of predicted covariances on (held-out) frames.
 
     Parameters
@@ -957,6 +1009,8 @@ def score_covariance(cov, errors, nu=None):
         ``err_{dim}`` of the same frames.
     nu : float, optional
         Student-t degrees of freedom of the prediction (the band quantiles); None: normal.
+    mean : ndarray, shape (N, 6), optional
+        Predicted error (the bands' centres), SI; default 0.
 
     Returns
     -------
@@ -965,6 +1019,8 @@ def score_covariance(cov, errors, nu=None):
         dimension; ``nees_mean``, ``nees_inside_95`` (below the chi-square(6) 95 % quantile).
     """
     E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
+    if mean is not None:
+        E = E - mean
     sigma = np.sqrt(np.einsum("nii->ni", cov))
     Zs = E / sigma
     out = {"n": int(len(E))}
@@ -981,8 +1037,109 @@ def score_covariance(cov, errors, nu=None):
     return out
 
 
-def nees_values(cov, errors):
-    """Per-frame NEES e^T Sigma^-1 e (N,) of errors ``err_{dim}`` under covariances (N, 6, 6)."""
-    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float) / _UNIT
+def nees_values(cov, errors, mean=None):
+    """Per-frame NEES e^T Sigma^-1 e (N,) of errors ``err_{dim}`` (minus ``mean``) under
+    covariances (N, 6, 6)."""
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
+    E = (E if mean is None else E - mean) / _UNIT
     S = cov / np.outer(_UNIT, _UNIT)
     return np.einsum("ni,ni->n", E, np.linalg.solve(S, E[:, :, None])[:, :, 0])
+
+
+def _autocorr_lag1(z, fold):
+    """Lag-1 autocorrelation of standardised errors z (N, 6) within each fold's runs."""
+    same = fold[1:] == fold[:-1]
+    a, b = z[:-1][same], z[1:][same]
+    return np.sum(a * b, axis=0) / np.sqrt(np.sum(a * a, axis=0) * np.sum(b * b, axis=0))
+
+
+def score_transfer(model, features, errors, folds=None, sigma_px=None):
+    """Model (T) scored on one session: overall and per cross-validation fold.
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output (fitted without this session).
+    features, errors : DataFrame
+        :func:`measurement_features` and ``err_{dim}`` (and ``t_s``) of its held-out rows.
+    folds : ndarray, optional
+        The time-block fold of each row (the se3 fit that scored it).
+    sigma_px : float or ndarray, optional
+        Corner noise for the Cramer-Rao bound (the se3 fits' ``sigma_px``); adds
+        ``error_over_crb`` (RMS of error / CRB per axis) and ``crb_median`` per axis.
+
+    Returns
+    -------
+    score : dict
+        :func:`score_covariance` keys, ``lag1_autocorr`` per axis (of the errors standardised
+        by their predicted sigma, within folds), ``folds`` (list of per-fold scores with
+        ``fold``), and with ``sigma_px`` the CRB keys.
+    """
+    cov = transfer_covariance(model, features)
+    mu = transfer_mean(model, features)
+    out = score_covariance(cov, errors, nu=model["nu"], mean=mu)
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
+    z = (E - mu) / np.sqrt(np.einsum("nii->ni", cov))
+    fold = np.zeros(len(E), int) if folds is None else np.asarray(folds).astype(int)
+    out["lag1_autocorr"] = dict(zip(ERROR_DIMS, map(float, _autocorr_lag1(z, fold)), strict=True))
+    if sigma_px is not None:
+        crb = cramer_rao_sigma(features, sigma_px)
+        out["error_over_crb"] = {d: float(np.sqrt(np.mean((E[:, j] / crb[:, j]) ** 2)))
+                                 for j, d in enumerate(ERROR_DIMS)}  # fmt: skip
+        out["crb_median"] = {d: float(np.median(crb[:, j])) for j, d in enumerate(ERROR_DIMS)}
+    out["folds"] = []
+    if folds is not None:
+        for k in np.unique(fold):
+            sel = fold == k
+            s = score_covariance(cov[sel], errors[sel].reset_index(drop=True), nu=model["nu"],
+                                 mean=mu[sel])
+            s["fold"] = int(k)
+            out["folds"].append(s)
+    return out
+
+
+def leave_one_session_out(sessions):
+    """Fit model (T) on all sessions but one, score the one left out; every session in turn.
+
+    Parameters
+    ----------
+    sessions : dict
+        Session name -> dict with ``features`` (:func:`measurement_features`), ``errors``
+        (the held-out table: ``err_{dim}``, ``fold``) and optional ``sigma_px`` (per row or
+        scalar, for the Cramer-Rao bound).
+
+    Returns
+    -------
+    result : dict
+        ``sessions``: name -> {``model`` (fitted without it), ``score``
+        (:func:`score_transfer`)}; ``pooled_model`` (fitted on every session, the one to
+        use on new data).
+
+    Raises
+    ------
+    OptimiseError
+        Fewer than two sessions.
+    """
+    names = list(sessions)
+    if len(names) < 2:
+        raise OptimiseError(f"leave_one_session_out: {len(names)} session(s); need at least 2")
+
+    def stack(keep):
+        f = pd.concat([sessions[n]["features"] for n in keep], ignore_index=True)
+        e = pd.concat([sessions[n]["errors"] for n in keep], ignore_index=True)
+        return f, e
+
+    out = {"sessions": {}}
+    for name in names:
+        f, e = stack([n for n in names if n != name])
+        model = fit_transfer_model(f, e)
+        s = sessions[name]
+        err = s["errors"].reset_index(drop=True)
+        folds = err["fold"].to_numpy() if "fold" in err else None
+        score = score_transfer(model, s["features"].reset_index(drop=True), err, folds,
+                               s.get("sigma_px"))  # fmt: skip
+        out["sessions"][name] = {"model": model, "score": score}
+        log.info("LOSO %s: NEES %.2f, inside 95 %% %s", name, score["nees_mean"],
+                 {d: round(v, 3) for d, v in score["inside_95"].items()})
+    out["pooled_model"] = fit_transfer_model(*stack(names))
+    return out

@@ -362,7 +362,7 @@ def _draw_transfer(rng, n, truth, n_blocks=8):
     return feats, E, S
 
 
-TRUTH_T = {"s0_px": 0.15, "s_speed": 0.03, "s_reproj": 0.5, "c_cal": 1.0, "b_pos_m": 4e-4,
+TRUTH_T = {"s0_px": 0.15, "s_speed": 0.03, "s_reproj": 0.5, "c_cal": 1.0, "s_rs": 1.0, "b_pos_m": 4e-4,
            "b_rot_rad": 3e-4, "nu": 6.0}  # fmt: skip
 
 
