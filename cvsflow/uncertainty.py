@@ -1143,3 +1143,60 @@ def leave_one_session_out(sessions):
                  {d: round(v, 3) for d, v in score["inside_95"].items()})
     out["pooled_model"] = fit_transfer_model(*stack(names))
     return out
+
+
+#: Model (T) fitted on the held-out frames of the five rendered sessions of
+#: bench/uncertainty_sessions.yaml (1800 frames; five cameras, lenses, boards, distance ranges,
+#: one rolling shutter), by ``PYTHONPATH=. .venv/bin/python bench/bench_uncertainty.py``
+#: (``pooled_model``). Each of those sessions left out and predicted by the other four: NEES
+#: 4.6-8.7, results/bench_uncertainty/loso.yaml and docs/findings.md.
+RENDERED_TRANSFER_MODEL = {
+    "kind": "T", "dims": list(ERROR_DIMS), "n_train": 1800, "s_rs_fitted": False,
+    "s0_px": 0.0197, "s_speed": 0.00303, "s_reproj": 0.869, "c_cal": 1.061, "s_rs": 1.0,
+    "b_pos_m": 8.89e-05, "b_rot_rad": 1.32e-04, "nu": 7.81,
+}  # fmt: skip
+
+
+def crossfit_transfer(features, errors, sigma_px=None):
+    """Model (T) fitted on all time-block folds of a session but one, scored on the last.
+
+    Parameters
+    ----------
+    features : DataFrame
+        :func:`measurement_features` of the session's held-out rows.
+    errors : DataFrame
+        The held-out rows (``err_{dim}``, ``fold``).
+    sigma_px : ndarray, optional
+        Per-row corner noise for the Cramer-Rao bound.
+
+    Returns
+    -------
+    score : dict
+        Pooled ``n``, ``inside_68``, ``inside_95`` (per axis and ``_all``), ``nees_mean``,
+        ``nees_inside_95``, ``z_rms``, ``model: T``, ``folds`` (per-fold
+        :func:`score_covariance` with ``fold`` and the fold's ``params``).
+    cov : ndarray, shape (N, 6, 6)
+        Each row's covariance from the model that did not see its fold.
+    mu : ndarray, shape (N, 6)
+        Each row's predicted error (the rolling shutter's shear).
+    """
+    fold = errors["fold"].to_numpy().astype(int)
+    cov = np.full((len(errors), 6, 6), np.nan)
+    mu = np.full((len(errors), 6), np.nan)
+    folds = []
+    for k in np.unique(fold):
+        train, test = fold != k, fold == k
+        model = fit_transfer_model(features[train].reset_index(drop=True),
+                                   errors[train].reset_index(drop=True))  # fmt: skip
+        f_test = features[test].reset_index(drop=True)
+        cov[test] = transfer_covariance(model, f_test)
+        mu[test] = transfer_mean(model, f_test)
+        s = score_covariance(cov[test], errors[test].reset_index(drop=True), nu=model["nu"],
+                             mean=mu[test])  # fmt: skip
+        s["fold"] = int(k)
+        s["params"] = {n: model[n] for n in TRANSFER_PARAMS}
+        folds.append(s)
+    nu = float(np.median([f["params"]["nu"] for f in folds]))
+    out = score_covariance(cov, errors, nu=nu, mean=mu)
+    out.update(model="T", folds=folds)
+    return out, cov, mu
