@@ -728,6 +728,59 @@ def _seen_corners(corners, frame_ids, n_corners):
     return uv[idx], speed[idx], vel[idx]
 
 
+
+def frame_noise_terms(uv_px, vel_px_s, rvec, tvec, p_B, K, dist, line_delay_s=0.0, frame="C"):
+    """Per frame: the PnP error covariance per px^2 of corner noise over the corners it saw,
+    and the pose error its rolling shutter's shear predicts.
+
+    Parameters
+    ----------
+    uv_px : ndarray, shape (N, P, 2)
+        Observed corners, NaN where unseen.
+    vel_px_s : ndarray, shape (N, P, 2)
+        Image velocity of each corner, px/s (NaN: taken as 0).
+    rvec, tvec : ndarray, shape (N, 3)
+        The PnP pose T_C_B (rad, m), the linearisation point.
+    p_B : ndarray, shape (P, 3)
+        Board corners in B, m.
+    K, dist : ndarray
+        Intrinsics of the PnP.
+    line_delay_s : float
+        Line delay, s per row (0: a global shutter, no shear).
+    frame : {"C", "B"}
+        Error frame.
+
+    Returns
+    -------
+    unit : ndarray, shape (N, 6, 6)
+        (J^T J)^-1 pushed to the error [x, y, z, roll, pitch, yaw], per px^2.
+    shear : ndarray, shape (N, 6)
+        The error of PnP on the sheared corners (corner k displaced by its velocity times
+        ``line_delay_s`` times its row after the frame's mean row), SI.
+    """
+    obj = np.asarray(p_B, np.float64)
+    seen = np.isfinite(uv_px).all(axis=-1)
+    cov_rt = np.empty((len(uv_px), 6, 6))
+    d_rt = np.zeros((len(uv_px), 6))
+    for i in range(len(uv_px)):
+        _, jac = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rvec[i], tvec[i], K, dist)
+        J = jac[:, :6]
+        JtJ_inv = np.linalg.pinv(np.einsum("mi,mj->ij", J, J, optimize=False))
+        cov_rt[i] = JtJ_inv
+        if line_delay_s != 0.0:
+            # corner k is displaced by its image velocity times its row's delay after the mean
+            # row (the reference's time); PnP turns the shear into a pose error
+            rows = uv_px[i, seen[i], 1]
+            d_uv = np.nan_to_num(vel_px_s[i, seen[i]]) * (line_delay_s * (rows - rows.mean()))[:, None]
+            d_rt[i] = JtJ_inv @ (J.T @ d_uv.reshape(-1))
+    unit = error_covariance(rvec, tvec, cov_rt, frame=frame)
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    T_at = tf.T_from_rvec_tvec(rvec, tvec)
+    shear = pose_errors(tf.T_from_rvec_tvec(rvec - d_rt[:, :3], tvec - d_rt[:, 3:]), T_at,
+                        frame=frame)[cols].to_numpy()  # fmt: skip
+    return unit, shear
+
+
 def measurement_features(heldout, corners, board, fits=None, frame="C"):
     """What is known of each held-out frame when it is measured, and its covariance terms.
 
@@ -783,29 +836,14 @@ def measurement_features(heldout, corners, board, fits=None, frame="C"):
     else:
         K_by_fold, fold = None, None
     obj = np.asarray(p_B, np.float64)
-    cov_rt = np.empty((len(frames), 6, 6))
-    rs_rt = np.zeros((len(frames), 6))
-    for i in range(len(frames)):
-        if K_by_fold is None:
-            raise OptimiseError("measurement_features: fits are needed (the K of each fold)")
-        K, dist = K_by_fold[int(fold[i])]
-        _, jac = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rvec[i], tvec[i], K, dist)
-        J = jac[:, :6]
-        JtJ_inv = np.linalg.pinv(np.einsum("mi,mj->ij", J, J, optimize=False))
-        cov_rt[i] = JtJ_inv
-        ld = ld_by_fold[int(fold[i])]
-        if ld != 0.0:
-            # rolling shutter: corner k is displaced by its image velocity times its row's delay
-            # after the mean row (the reference's time); PnP turns the shear into a pose error
-            rows = uv[i, seen[i], 1]
-            d_uv = np.nan_to_num(vel[i, seen[i]]) * (ld * (rows - rows.mean()))[:, None]
-            rs_rt[i] = JtJ_inv @ (J.T @ d_uv.reshape(-1))
-    unit = error_covariance(rvec, tvec, cov_rt, frame=frame)
-    # the shear's pose error, signed: PnP of the sheared corners minus PnP of the unsheared
-    cols = [f"err_{d}" for d in ERROR_DIMS]
-    T_at = tf.T_from_rvec_tvec(rvec, tvec)
-    rs = pose_errors(tf.T_from_rvec_tvec(rvec - rs_rt[:, :3], tvec - rs_rt[:, 3:]), T_at,
-                     frame=frame)[cols].to_numpy()  # fmt: skip
+    if K_by_fold is None:
+        raise OptimiseError("measurement_features: fits are needed (the K of each fold)")
+    unit = np.empty((len(frames), 6, 6))
+    rs = np.zeros((len(frames), 6))
+    for k in np.unique(fold):
+        sel = fold == k
+        unit[sel], rs[sel] = frame_noise_terms(uv[sel], vel[sel], rvec[sel], tvec[sel], obj,
+                                               *K_by_fold[int(k)], ld_by_fold[int(k)], frame)
     R = tf.R_from_rvec(rvec).reshape(-1, 3, 3)
     centre_C = np.einsum("nij,j->ni", R, obj.mean(axis=0)) + tvec
     dist_m = np.linalg.norm(centre_C, axis=1)
@@ -834,6 +872,14 @@ def measurement_features(heldout, corners, board, fits=None, frame="C"):
     return out
 
 
+def corner_noise_from_reproj(reproj_rms_px, n_corners):
+    """Corner noise per image axis (px) that a PnP reprojection RMS over n corners implies:
+    the residual length's RMS over sqrt(2), times sqrt(2n / (2n - 6)) for the 6 pose
+    parameters fitted (iid noise: its expectation is the noise)."""
+    n_res = 2.0 * np.asarray(n_corners, float)
+    return np.asarray(reproj_rms_px, float) / np.sqrt(2.0) * np.sqrt(n_res / np.maximum(n_res - 6, 1))
+
+
 def _transfer_terms(features):
     """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), reproj (N,)), working
     units."""
@@ -845,7 +891,8 @@ def _transfer_terms(features):
 
     scale = 1.0 / np.outer(_UNIT, _UNIT)
     speed = features["speed_px"].to_numpy(float)
-    reproj = features["reproj_rms_px"].to_numpy(float)
+    reproj = corner_noise_from_reproj(features["reproj_rms_px"].to_numpy(float),
+                                      features["n_corners"].to_numpy(float))
     rs_cols = [f"rs_err_{d}" for d in ERROR_DIMS]
     RS = (features[rs_cols].to_numpy(float) / _UNIT if all(c in features for c in rs_cols)
           else np.zeros((len(U), 6)))  # fmt: skip
@@ -870,13 +917,15 @@ def fit_transfer_model(features, errors):
 
     Model (T), per frame i (what is known when it is measured):
 
-        sigma_px,i^2 = s0^2 + (s_speed v_i)^2 + (s_reproj r_i)^2
+        sigma_px,i^2 = s0^2 + (s_speed v_i)^2 + (s_reproj n_i)^2
         mu_i = s_rs r_i
         Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
 
     with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
     saw (it carries the distance, the view angles, the corner count and their spread), v_i the
-    image speed (px per frame period: blur), r_i the frame's PnP reprojection RMS, P_i the
+    image speed (px per frame period: blur), n_i the corner noise the frame's PnP
+    reprojection RMS implies (:func:`corner_noise_from_reproj`; s_reproj = 1 for iid
+    noise), P_i the
     calibration's covariance (intrinsics free and fixed, both mountings) propagated through
     PnP and the reference (the term common to every frame the fit scores, hence correlated in
     time), r_i the pose error a rolling shutter's shear predicts (fitted line delay x image
@@ -908,7 +957,7 @@ def fit_transfer_model(features, errors):
     """
     cols = [f"err_{d}" for d in ERROR_DIMS]
     missing = [c for c in cols if c not in errors.columns]
-    missing += [c for c in [*_cov_columns("unitcov"), "speed_px", "reproj_rms_px"]
+    missing += [c for c in [*_cov_columns("unitcov"), "speed_px", "reproj_rms_px", "n_corners"]
                 if c not in features.columns]  # fmt: skip
     if missing:
         raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
@@ -1149,11 +1198,11 @@ def leave_one_session_out(sessions):
 #: bench/uncertainty_sessions.yaml (1800 frames; five cameras, lenses, boards, distance ranges,
 #: one rolling shutter), by ``PYTHONPATH=. .venv/bin/python bench/bench_uncertainty.py``
 #: (``pooled_model``). Each of those sessions left out and predicted by the other four: NEES
-#: 4.6-8.7, results/bench_uncertainty/loso.yaml and docs/findings.md.
+#: 4.7-8.9, results/bench_uncertainty/loso.yaml and docs/findings.md.
 RENDERED_TRANSFER_MODEL = {
     "kind": "T", "dims": list(ERROR_DIMS), "n_train": 1800, "s_rs_fitted": False,
-    "s0_px": 0.0197, "s_speed": 0.00303, "s_reproj": 0.869, "c_cal": 1.061, "s_rs": 1.0,
-    "b_pos_m": 8.89e-05, "b_rot_rad": 1.32e-04, "nu": 7.81,
+    "s0_px": 0.01446, "s_speed": 0.002527, "s_reproj": 1.166, "c_cal": 1.063, "s_rs": 1.0,
+    "b_pos_m": 8.881e-05, "b_rot_rad": 0.000133, "nu": 7.83,
 }  # fmt: skip
 
 

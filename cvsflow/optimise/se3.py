@@ -1413,6 +1413,7 @@ def simulate_session(
     max_tilt_rad=0.7,
     line_delay_s=0.0,
     speed=1.0,
+    focal_px=700.0,
 ):
     """Corner-level synthetic session with known truth (no rendering): for tests and bench.
 
@@ -1444,6 +1445,8 @@ def simulate_session(
         the frame time); each corner is where the board was when its row was read.
     speed : float
         Factor on the frequencies of the hand motion (2: twice as fast, same path).
+    focal_px : float
+        Nominal focal length (px) of the 640 x 480 camera (each of fx, fy drawn about it).
 
     Returns
     -------
@@ -1460,7 +1463,7 @@ def simulate_session(
     p_B = board_points_B(board)
     centre_B = p_B.mean(axis=0)
     K = K_from_intrinsics(
-        700.0 + rng.normal(0, 5), 700.0 + rng.normal(0, 5), 320 + rng.normal(0, 5),
+        focal_px + rng.normal(0, 5), focal_px + rng.normal(0, 5), 320 + rng.normal(0, 5),
         240 + rng.normal(0, 5),
     )  # fmt: skip
     dist = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02]) * (1 + 0.1 * rng.normal(size=5))

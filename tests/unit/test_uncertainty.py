@@ -342,7 +342,9 @@ def _draw_transfer(rng, n, truth, n_blocks=8):
     P0 = B @ B.T
     speed = rng.uniform(0, 10, n)
     reproj = rng.uniform(0.1, 0.5, n)
-    feats = pd.DataFrame({"speed_px": speed, "reproj_rms_px": reproj})
+    # reproj_rms_px of many corners: the implied corner noise is reproj_rms / sqrt(2) = reproj
+    feats = pd.DataFrame({"speed_px": speed, "reproj_rms_px": np.sqrt(2.0) * reproj,
+                          "n_corners": 1e9})  # fmt: skip
     iu = np.triu_indices(6)
     for c, name in enumerate(un._cov_columns("unitcov")):
         feats[name] = U[:, iu[0][c], iu[1][c]]
