@@ -82,6 +82,9 @@ MIN_FRAMES = 10
 MIN_FRAME_CORNERS = 6
 #: Half-width (s) of the time window around t_i + dt0 that must hold valid Vicon samples.
 DT_MARGIN_S = 0.05
+#: Share of a take's smoothed camera samples that must lie within the static tolerance
+#: (:func:`is_static`): robust to the short bumps a bridged marker dropout leaves.
+STATIC_QUANTILE = 0.95
 
 
 # --------------------------------------------------------------------------- projection
@@ -232,8 +235,8 @@ def smooth_track(t_s, T_W_X, valid, window_s):
     return tf.make_T(R_ref @ tf.R_from_rvec(r), p)
 
 
-def is_static(T_W_X, tol_m, tol_rad):
-    """True when every pose of a (smoothed) track lies within tol_m and tol_rad of its mean.
+def is_static(T_W_X, tol_m, tol_rad, quantile=STATIC_QUANTILE):
+    """True when a (smoothed) track stays within tol_m and tol_rad of its mean nearly always.
 
     Parameters
     ----------
@@ -241,11 +244,23 @@ def is_static(T_W_X, tol_m, tol_rad):
         Valid body poses, metres.
     tol_m, tol_rad : float
         Largest deviation of the position (m) and rotation angle (rad) from the mean.
+    quantile : float
+        Share of the samples that must lie within the tolerances (1: every one).
+
+    Notes
+    -----
+    A quantile, not the maximum: a marker dropout that the repair bridges can throw the raw
+    rigid-body orientation of a 0.17 m camera body by tens of mrad for a few samples, which the
+    1 s moving average spreads into a ~2 mrad bump. On the 20 s demo such a bump at video
+    t = 17-19 s was the take's largest deviation (2.04 mrad against a 2 mrad tolerance): the
+    camera counted as moving, the reference followed the bump and the held-out errors came in a
+    run there (docs/findings.md). A camera that truly moves exceeds the tolerance for far more
+    than 5 % of a take.
     """
     p = T_W_X[:, :3, 3]
     R_mean = tf.mean_rotation(T_W_X[:, :3, :3])
-    dev_m = np.linalg.norm(p - p.mean(axis=0), axis=1).max()
-    dev_rad = tf.rotation_angle(R_mean.T @ T_W_X[:, :3, :3]).max()
+    dev_m = np.quantile(np.linalg.norm(p - p.mean(axis=0), axis=1), quantile)
+    dev_rad = np.quantile(tf.rotation_angle(R_mean.T @ T_W_X[:, :3, :3]), quantile)
     return bool(dev_m <= tol_m and dev_rad <= tol_rad)
 
 
@@ -906,7 +921,7 @@ def optimise_se3(
         Window (s) of the centred moving average applied to the camera body track before
         interpolation (:func:`smooth_track`); 0 uses the raw track.
     camera_static_tol : (float, float) or None
-        (m, rad): when the smoothed camera track stays this close to its mean over the whole
+        (m, rad): when the smoothed camera track stays this close to its mean over 95 % of the
         take (:func:`is_static`), the camera is treated as static and its mean pose is used
         for every frame (its marker noise then averages over the take). None: never.
     board_smooth_s : float
