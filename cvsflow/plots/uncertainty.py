@@ -52,7 +52,7 @@ def plot_calibration_table(comparison: dict) -> Figure:
         rows.append(_rows(sc, f"{name}, all"))
         keys.append(sc)
     cols = ["model / fold", "NEES", *[f"68 {n}" for n in NAMES], *[f"95 {n}" for n in NAMES], "n"]
-    fig, ax = plt.subplots(figsize=(13, 0.9 + 0.28 * (len(rows) + 3)), layout="constrained")
+    fig, ax = plt.subplots(figsize=(13, 0.7 + 0.2 * (len(rows) + 2)), layout="constrained")
     ax.axis("off")
     table = ax.table(cellText=rows, colLabels=cols, loc="upper center", cellLoc="center")
     table.auto_set_font_size(False)
