@@ -1250,7 +1250,8 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None):
     (:func:`cvsflow.uncertainty.fit_transfer_model`) predicts for the CVS side, without the
     Vicon's floor and mountings (a flight has no Vicon): the corner noise from each frame's
     image speed and reprojection RMS through the PnP of the corners it saw, the calibration's
-    intrinsics uncertainty through PnP (one draw for the whole flight: correlated), and, with a
+    intrinsics uncertainty through PnP (one draw for the whole flight: correlated; the principal
+    point's is left out, the alignment absorbs it), and, with a
     rolling shutter (``calib["line_delay_s"]``), the outer product of the pose error its shear
     predicts (the reference does not correct it).
 
@@ -1298,6 +1299,9 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None):
               + (model["s_reproj"] * reproj) ** 2)  # fmt: skip
     # intrinsics through PnP: d(rvec, tvec)/d(intrinsics) = -(J^T J)^-1 J^T J_K
     sd = _intrinsics_std(calib)
+    # a principal-point error is to first order a turn of C about its origin, which the
+    # flight's alignment (R_C_L) absorbs: only focal lengths and distortion stay
+    sd[2:4] = 0.0
     seen = np.isfinite(uv).all(axis=-1)
     cov_rt = np.empty((len(rows), 6, 6))
     obj = np.asarray(p_B, np.float64)
