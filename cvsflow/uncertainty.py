@@ -1137,14 +1137,27 @@ def score_transfer(model, features, errors, folds=None, sigma_px=None):
                                  for j, d in enumerate(ERROR_DIMS)}  # fmt: skip
         out["crb_median"] = {d: float(np.median(crb[:, j])) for j, d in enumerate(ERROR_DIMS)}
     out["folds"] = []
+    rho = np.clip(np.mean(list(out["lag1_autocorr"].values())), 0.0, 0.95)
+    out.update(_sampling_band(len(E), rho))
     if folds is not None:
         for k in np.unique(fold):
             sel = fold == k
             s = score_covariance(cov[sel], errors[sel].reset_index(drop=True), nu=model["nu"],
                                  mean=mu[sel])
             s["fold"] = int(k)
+            s.update(_sampling_band(int(sel.sum()), rho))
             out["folds"].append(s)
     return out
+
+
+def _sampling_band(n, rho):
+    """How far a calibrated model's shares of n frames scatter when the standardised errors
+    have lag-1 autocorrelation rho (AR(1)): ``n_effective`` = n (1 - rho) / (1 + rho) and the
+    2-sigma binomial half-widths ``inside_95_tolerance``, ``inside_68_tolerance``."""
+    n_eff = max(n * (1.0 - rho) / (1.0 + rho), 1.0)
+    return {"n_effective": float(n_eff), "lag1_mean": float(rho),
+            "inside_95_tolerance": float(2.0 * np.sqrt(0.95 * 0.05 / n_eff)),
+            "inside_68_tolerance": float(2.0 * np.sqrt(0.6827 * 0.3173 / n_eff))}
 
 
 def leave_one_session_out(sessions):
