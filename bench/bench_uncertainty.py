@@ -43,7 +43,8 @@ def load(name, board):
     heldout = read_parquet(res / "heldout" / "se3.parquet")
     fits = read_yaml(res / "heldout" / "se3_folds.yaml")["folds"]
     corners = read_parquet(res / "corners.parquet")
-    feats = un.measurement_features(heldout, corners, board, fits=fits)
+    bodies = read_parquet(res / "bodies.parquet")
+    feats = un.measurement_features(heldout, corners, board, fits=fits, bodies=bodies)
     sig = {int(f["fold"]): float(f["sigma_px"]) for f in fits}
     sigma_px = np.array([sig[int(k)] for k in heldout["fold"]])
     ld = [f.get("line_delay_s") for f in fits]

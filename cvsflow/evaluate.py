@@ -564,7 +564,8 @@ def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, lev
 
 
 def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, frame="C",
-                    boot_block_s=2.0, n_boot=1000, seed=0, corners=None, transfer_model=None):
+                    boot_block_s=2.0, n_boot=1000, seed=0, corners=None, transfer_model=None,
+                    bodies=None):
     """The comparison stage: both methods' held-out statistics and the error model's calibration.
 
     Parameters
@@ -588,6 +589,8 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
         (:func:`cvsflow.uncertainty.crossfit_transfer`, what each frame's measurement tells:
         its seen corners, speed, reprojection RMS, the fold fit's calibration covariance and
         line delay), and the Cramer-Rao floor is reported; without, the older model (P).
+    bodies : DataFrame, optional
+        bodies.parquet: which frames' board markers were gap-filled (``vicon_filled``).
     transfer_model : dict, optional
         A model (T) fitted on other sessions (default
         :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`), scored here as
@@ -622,7 +625,8 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     if corners is not None:
         from cvsflow import uncertainty as un
 
-        feats = un.measurement_features(se3, corners, board, fits=fold_fits, frame=frame)
+        feats = un.measurement_features(se3, corners, board, fits=fold_fits, frame=frame,
+                                        bodies=bodies)
         score, cov, mu = un.crossfit_transfer(feats, se3)
         comparison["error_model"] = score
         model = un.RENDERED_TRANSFER_MODEL if transfer_model is None else transfer_model

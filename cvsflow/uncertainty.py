@@ -698,7 +698,8 @@ def score_error_model(model, features, errors, cov_err=None):
 MEASUREMENT_FEATURES = ("distance_m", "tilt_rad", "radius_norm", "n_corners", "spread_px",
                         "speed_px", "reproj_rms_px")
 #: Parameters of model (T), in the order of its vector (logs of positive scales).
-TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "b_rot_rad", "nu")
+TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "b_rot_rad",
+                   "b_fill_pos_m", "b_fill_rot_rad", "nu")
 #: Working units of the fit (mm, mrad): keeps the 6x6 covariances well conditioned.
 _UNIT = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3])
 
@@ -781,7 +782,7 @@ def frame_noise_terms(uv_px, vel_px_s, rvec, tvec, p_B, K, dist, line_delay_s=0.
     return unit, shear
 
 
-def measurement_features(heldout, corners, board, fits=None, frame="C"):
+def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=None):
     """What is known of each held-out frame when it is measured, and its covariance terms.
 
     Parameters
@@ -800,6 +801,10 @@ def measurement_features(heldout, corners, board, fits=None, frame="C"):
         to all frames of a fold).
     frame : {"C", "B"}
         Error frame.
+    bodies : DataFrame, optional
+        bodies.parquet (``t_s``, ``body``, ``n_filled``): adds ``vicon_filled``, 1 where a
+        board marker was gap-filled within :data:`FILL_WINDOW_S` of the frame's Vicon time
+        (``t_vicon_s``), else 0.
 
     Returns
     -------
@@ -865,6 +870,8 @@ def measurement_features(heldout, corners, board, fits=None, frame="C"):
         out[name] = unit[:, iu[0][c], iu[1][c]]
     for j, d in enumerate(ERROR_DIMS):
         out[f"rs_err_{d}"] = rs[:, j]
+    if bodies is not None and "n_filled" in bodies and "t_vicon_s" in heldout:
+        out["vicon_filled"] = vicon_filled(bodies, heldout["t_vicon_s"].to_numpy(float))
     if fits and all("correlation" in f for f in fits):
         cov_par, _ = parameter_covariance(heldout, p_B, fits, frame=frame)
         for c, name in enumerate(_cov_columns("parcov")):
@@ -880,9 +887,24 @@ def corner_noise_from_reproj(reproj_rms_px, n_corners):
     return np.asarray(reproj_rms_px, float) / np.sqrt(2.0) * np.sqrt(n_res / np.maximum(n_res - 6, 1))
 
 
+#: Half-width (s) of the window about a frame's Vicon time whose board samples count for
+#: ``vicon_filled`` (the interpolation and the board track's 0.01 s smoothing reach ~1 sample).
+FILL_WINDOW_S = 0.01
+
+
+def vicon_filled(bodies, t_vicon_s, body="board"):
+    """1.0 where a marker of ``body`` was gap-filled within FILL_WINDOW_S of each time, else 0."""
+    b = bodies[bodies["body"] == body].sort_values("t_s")
+    t = b["t_s"].to_numpy(float)
+    c = np.r_[0, np.cumsum(b["n_filled"].to_numpy(float) > 0)]
+    lo = np.searchsorted(t, np.asarray(t_vicon_s) - FILL_WINDOW_S, side="left")
+    hi = np.searchsorted(t, np.asarray(t_vicon_s) + FILL_WINDOW_S, side="right")
+    return (c[hi] - c[lo] > 0).astype(float)
+
+
 def _transfer_terms(features):
-    """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), reproj (N,)), working
-    units."""
+    """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), corner noise (N,), Vicon
+    gap-filled (N,)), working units."""
     U = _cov_from_columns(features, "unitcov")
 
     def block(name):
@@ -896,20 +918,24 @@ def _transfer_terms(features):
     rs_cols = [f"rs_err_{d}" for d in ERROR_DIMS]
     RS = (features[rs_cols].to_numpy(float) / _UNIT if all(c in features for c in rs_cols)
           else np.zeros((len(U), 6)))  # fmt: skip
-    return U * scale, block("parcov") * scale, RS, speed, reproj
+    filled = (features["vicon_filled"].to_numpy(float) if "vicon_filled" in features
+              else np.zeros(len(U)))  # fmt: skip
+    return U * scale, block("parcov") * scale, RS, speed, reproj, filled
 
 
 def _unpack_transfer(q):
-    s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot = np.exp(q[:7])
-    return s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, 2.0 + np.exp(q[7])
+    return (*np.exp(q[:9]), 2.0 + np.exp(q[9]))
 
 
-def _transfer_cov(q, U, P, RS, speed, reproj):
+def _transfer_cov(q, U, P, RS, speed, reproj, filled):
     """Model (T) mean (N, 6) and covariance (N, 6, 6), working units."""
-    s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, _ = _unpack_transfer(q)
+    s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, _ = _unpack_transfer(q)
     var_px = s0**2 + (s_speed * speed) ** 2 + (s_reproj * reproj) ** 2
     floor = np.r_[np.full(3, b_pos), np.full(3, b_rot)] / _UNIT
-    return s_rs * RS, var_px[:, None, None] * U + c**2 * P + np.diag(floor**2)[None]
+    fill = np.r_[np.full(3, f_pos), np.full(3, f_rot)] / _UNIT
+    S = (var_px[:, None, None] * U + c**2 * P + np.diag(floor**2)[None]
+         + filled[:, None, None] * np.diag(fill**2)[None])  # fmt: skip
+    return s_rs * RS, S
 
 
 def fit_transfer_model(features, errors):
@@ -920,6 +946,7 @@ def fit_transfer_model(features, errors):
         sigma_px,i^2 = s0^2 + (s_speed v_i)^2 + (s_reproj n_i)^2
         mu_i = s_rs r_i
         Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
+                  + f_i diag(b_fill_pos^2 I3, b_fill_rot^2 I3)
 
     with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
     saw (it carries the distance, the view angles, the corner count and their spread), v_i the
@@ -931,7 +958,9 @@ def fit_transfer_model(features, errors):
     time), r_i the pose error a rolling shutter's shear predicts (fitted line delay x image
     velocity x row through PnP; 0 for a global shutter: the CVS's PnP ignores the shear, the
     reference is taken at the mean row; a known error, hence a mean, not a variance), and the
-    floors b the Vicon reference's own noise. The errors are multivariate
+    floors b the Vicon reference's own noise, raised by b_fill where a board marker was
+    gap-filled about the frame (f_i = 1, ``vicon_filled``: the filled marker's error moves
+    the rigid fit). The errors are multivariate
     Student-t with nu > 2 degrees of freedom and covariance Sigma_i. Every scale is in
     physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
     fitted on some sessions predicts another.
@@ -962,7 +991,7 @@ def fit_transfer_model(features, errors):
     if missing:
         raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
     E = errors[cols].to_numpy(float) / _UNIT
-    U, P, RS, speed, reproj = _transfer_terms(features)
+    U, P, RS, speed, reproj, filled = _transfer_terms(features)
     if len(E) != len(U) or len(E) < 20:
         raise OptimiseError(
             f"fit_transfer_model: {len(E)} error rows and {len(U)} feature rows; need equal, >= 20"
@@ -981,8 +1010,8 @@ def fit_transfer_model(features, errors):
 
     def nll(q):
         q = full(q)
-        mu, S = _transfer_cov(q, U, P, RS, speed, reproj)
-        nu = _unpack_transfer(q)[7]
+        mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled)
+        nu = _unpack_transfer(q)[9]
         try:
             L = np.linalg.cholesky(S * ((nu - 2.0) / nu))
         except np.linalg.LinAlgError:
@@ -994,15 +1023,15 @@ def fit_transfer_model(features, errors):
               - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(m2 / nu))
         return -float(np.mean(ll))
 
-    x0 = np.log([0.2, 0.02, 0.3, 1.0, 1.0, 5e-4, 5e-4, 5.0])
+    x0 = np.log([0.2, 0.02, 0.3, 1.0, 1.0, 5e-4, 5e-4, 2e-3, 2e-3, 5.0])
     best = None
     # the likelihood is smooth but can be flat in a term the data do not need (e.g. no
     # parameter covariance, no speed): two starts, keep the better
-    keep = np.ones(8, bool)
+    keep = np.ones(10, bool)
     keep[4] = fit_rs
-    for start in (x0, x0 + np.r_[0.7, -1.5, -1.5, -0.7, -0.7, 0.7, 0.7, 0.0]):
+    for start in (x0, x0 + np.r_[0.7, -1.5, -1.5, -0.7, -0.7, 0.7, 0.7, -1.0, -1.0, 0.0]):
         sol = minimize(nll, start[keep], method="L-BFGS-B",
-                       bounds=([(-25, 10)] * 7 + [(-4, 6)])[: keep.sum() - 1] + [(-4, 6)],
+                       bounds=[(-25, 10)] * (keep.sum() - 1) + [(-4, 6)],
                        options={"maxiter": 500})
         if best is None or sol.fun < best.fun:
             best = sol
@@ -1015,7 +1044,7 @@ def fit_transfer_model(features, errors):
 
 def _q_from_model(model):
     v = [model[n] for n in TRANSFER_PARAMS]
-    return np.r_[np.log(v[:7]), np.log(v[7] - 2.0)]
+    return np.r_[np.log(v[:9]), np.log(v[9] - 2.0)]
 
 
 def transfer_covariance(model, features):

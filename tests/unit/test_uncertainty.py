@@ -365,7 +365,7 @@ def _draw_transfer(rng, n, truth, n_blocks=8):
 
 
 TRUTH_T = {"s0_px": 0.15, "s_speed": 0.03, "s_reproj": 0.5, "c_cal": 1.0, "s_rs": 1.0, "b_pos_m": 4e-4,
-           "b_rot_rad": 3e-4, "nu": 6.0}  # fmt: skip
+           "b_rot_rad": 3e-4, "b_fill_pos_m": 2e-3, "b_fill_rot_rad": 2e-3, "nu": 6.0}  # fmt: skip
 
 
 def test_transfer_model_recovers_its_parameters_and_is_calibrated():
@@ -396,3 +396,15 @@ def test_transfer_model_bad_input():
         un.fit_transfer_model(feats.drop(columns=["speed_px"]), E)
     with pytest.raises(OptimiseError, match=">= 20"):
         un.fit_transfer_model(feats.iloc[:10], E.iloc[:10])
+
+
+def test_vicon_filled_marks_frames_near_a_gap_filled_board_sample():
+    """A board sample with a filled marker at t = 1.0 s marks the frames whose Vicon time is
+    within FILL_WINDOW_S of it, not the others nor the camera's fills."""
+    t = np.arange(0.0, 2.0, 1.0 / 300)
+    bodies = pd.DataFrame({"t_s": np.r_[t, t], "body": ["board"] * len(t) + ["camera"] * len(t),
+                           "n_filled": 0})  # fmt: skip
+    bodies.loc[(bodies["body"] == "board") & (np.abs(bodies["t_s"] - 1.0) < 1e-9), "n_filled"] = 1
+    bodies.loc[(bodies["body"] == "camera") & (np.abs(bodies["t_s"] - 0.5) < 1e-9), "n_filled"] = 2
+    tq = np.array([0.5, 0.985, 0.995, 1.0, 1.009, 1.02, 1.5])
+    np.testing.assert_array_equal(un.vicon_filled(bodies, tq), [0, 0, 1, 1, 1, 0, 0])

@@ -54,6 +54,7 @@ rule compare:
         se3_folds="results/{session}/heldout/se3_folds.yaml",
         se3_result="results/{session}/se3/calib/result.yaml",
         corners="results/{session}/corners.parquet",
+        bodies="results/{session}/bodies.parquet",
     output:
         comparison="results/{session}/comparison.yaml",
         se3_scored="results/{session}/heldout/se3_scored.parquet",

@@ -15,7 +15,7 @@ with stage_logging(snakemake.log[0], "compare") as log:
         read_parquet(snakemake.input.seed), read_parquet(snakemake.input.se3), result,
         read_yaml(snakemake.input.se3_folds)["folds"], snakemake.params.board, frame=ev["frame"],
         boot_block_s=ev["boot_block_s"], n_boot=ev["n_boot"], seed=ev["seed"],
-        corners=read_parquet(snakemake.input.corners),
+        corners=read_parquet(snakemake.input.corners), bodies=read_parquet(snakemake.input.bodies),
     )
     score = comparison["error_model"]
     log.info("se3/seed held-out RMS ratio: %s", comparison["rms_ratio_se3_to_seed"])
