@@ -564,7 +564,8 @@ def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, lev
 
 
 def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, frame="C",
-                    boot_block_s=2.0, n_boot=1000, seed=0):
+                    boot_block_s=2.0, n_boot=1000, seed=0, corners=None, transfer_model=None,
+                    bodies=None):
     """The comparison stage: both methods' held-out statistics and the error model's calibration.
 
     Parameters
@@ -583,14 +584,30 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
         Frame of the composed errors.
     boot_block_s, n_boot, seed
         Moving-block bootstrap: block length (s), resamples and seed.
+    corners : DataFrame, optional
+        corners.parquet of the session: with it the error model is (T)
+        (:func:`cvsflow.uncertainty.crossfit_transfer`, what each frame's measurement tells:
+        its seen corners, speed, reprojection RMS, the fold fit's calibration covariance and
+        line delay), and the Cramer-Rao floor is reported; without, the older model (P).
+    bodies : DataFrame, optional
+        bodies.parquet: which frames' board markers were gap-filled (``vicon_filled``).
+    transfer_model : dict, optional
+        A model (T) fitted on other sessions (default
+        :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`), scored here as
+        ``error_model_transfer`` (with ``corners``).
 
     Returns
     -------
     comparison : dict
-        :func:`compare_methods` output plus ``error_model`` (:func:`crossfit_error_model`
-        score) and ``error_frame``.
+        :func:`compare_methods` output plus ``error_model`` (the within-session cross-fit
+        score, per fold in ``folds[]``: ``nees_mean``, ``inside_68``, ``inside_95`` per axis,
+        ...), ``error_frame``; with ``corners`` also ``error_model_transfer`` (the model
+        fitted on other sessions, same keys) and ``cramer_rao`` (``error_over_crb``: RMS of
+        held-out error / CRB per axis; ``crb_median`` per axis, SI; ``sigma_px``).
     se3_errors : DataFrame
-        The se3 held-out table with ``eps_*`` equal to its composed errors.
+        The se3 held-out table with ``eps_*`` equal to its composed errors; with ``corners``
+        also ``sigma_{dim}`` (predicted), ``mu_{dim}`` (predicted error), ``crb_{dim}``
+        (Cramer-Rao standard deviation) and ``nees``.
     sigma, mu : ndarray, shape (N, 6)
         Predicted standard deviation and bias of every se3 held-out frame.
     """
@@ -605,6 +622,32 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     comparison = compare_methods({"seed": seed_heldout, "se3": se3},
                                  block_len=max(1, int(round(boot_block_s * fps))),
                                  n_boot=n_boot, seed=seed)
+    if corners is not None:
+        from cvsflow import uncertainty as un
+
+        feats = un.measurement_features(se3, corners, board, fits=fold_fits, frame=frame,
+                                        bodies=bodies)
+        score, cov, mu = un.crossfit_transfer(feats, se3)
+        comparison["error_model"] = score
+        model = un.RENDERED_TRANSFER_MODEL if transfer_model is None else transfer_model
+        sig_px = se3["sigma_px"].to_numpy(float)
+        tr = un.score_transfer(model, feats, se3, se3["fold"].to_numpy(), sig_px)
+        comparison["error_model_transfer"] = {k: v for k, v in tr.items()
+                                              if k not in ("error_over_crb", "crb_median")}
+        comparison["error_model_transfer"]["params"] = {n: model[n] for n in un.TRANSFER_PARAMS}
+        comparison["cramer_rao"] = {"error_over_crb": tr["error_over_crb"],
+                                    "crb_median": tr["crb_median"],
+                                    "sigma_px": float(np.median(sig_px))}  # fmt: skip
+        sigma = np.sqrt(np.einsum("nii->ni", cov))
+        crb = un.cramer_rao_sigma(feats, sig_px)
+        for j, d in enumerate(ERROR_DIMS):
+            se3[f"sigma_{d}"] = sigma[:, j]
+            se3[f"mu_{d}"] = mu[:, j]
+            se3[f"crb_{d}"] = crb[:, j]
+        se3["nees"] = un.nees_values(cov, se3, mean=mu)
+        comparison["error_frame"] = frame
+        mark_seed_divergence(comparison, seed_heldout)
+        return comparison, se3, sigma, mu
     features, cov_err = error_features(
         se3, board_object_points(board), np.asarray(se3_result["K"], float),
         np.asarray(se3_result["dist"], float), float(np.median(se3["sigma_px"])), frame=frame,

@@ -1227,3 +1227,92 @@ def reference_covariance_from_pnp(poses_raw, p_B, K, dist, sigma_px):
         cov_rt = pnp_covariance(rv, tv, p_B, np.asarray(K, float), np.asarray(dist, float), sigma_px)
         Sigma[valid] = error_covariance(rv, tv, cov_rt, frame="C")
     return Sigma
+
+
+def _intrinsics_std(calib):
+    """1-sigma of [fx, fy, cx, cy, k1, k2, p1, p2, k3] from an se3 result or a camera.yaml."""
+    from cvsflow.optimise.se3 import DEFAULT_INTRINSIC_STD, INTRINSIC_NAMES
+
+    sd = dict(DEFAULT_INTRINSIC_STD)
+    std = calib.get("std") if isinstance(calib.get("std"), dict) else {}
+    sd.update({k: float(v) for k, v in std.items() if k in sd and v is not None})
+    fixed = calib.get("fixed_intrinsics") or {}
+    sd.update(dict(zip(fixed.get("names", []), map(float, fixed.get("std", [])), strict=False)))
+    se = calib.get("std_errors") or {}
+    sd.update({k: float(v) for k, v in se.items() if k in sd})
+    return np.array([sd[n] for n in INTRINSIC_NAMES])
+
+
+def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None):
+    """Reference covariance per frame of a flight from the error model (T) of the se3 stage.
+
+    The camera reference of a flight is the PnP pose of the board: its error is what model (T)
+    (:func:`cvsflow.uncertainty.fit_transfer_model`) predicts for the CVS side, without the
+    Vicon's floor and mountings (a flight has no Vicon): the corner noise from each frame's
+    image speed and reprojection RMS through the PnP of the corners it saw, the calibration's
+    intrinsics uncertainty through PnP (one draw for the whole flight: correlated; the principal
+    point's is left out, the alignment absorbs it), and, with a
+    rolling shutter (``calib["line_delay_s"]``), the outer product of the pose error its shear
+    predicts (the reference does not correct it).
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet of the flight's video (``frame``, ``valid``, ``rvec_0..2``,
+        ``x_m..z_m``, ``reproj_rms_px``).
+    corners : DataFrame
+        corners.parquet of the flight's video.
+    p_B : ndarray, shape (P, 3)
+        Board corners in B, m.
+    calib : dict
+        The se3 result (``K``, ``dist``, ``std_errors``, ``fixed_intrinsics``,
+        ``line_delay_s``) or a camera.yaml (``K``, ``dist``, ``std``); intrinsics without a
+        standard deviation take ``DEFAULT_INTRINSIC_STD``; their correlations are left out.
+    model : dict, optional
+        Model (T); default :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`.
+
+    Returns
+    -------
+    Sigma_ref : ndarray, shape (N, 6, 6)
+        ``[dt, dtheta]`` in C per row of ``poses_raw``; NaN where not valid.
+    """
+    import cv2
+
+    from cvsflow import uncertainty as un
+
+    model = un.RENDERED_TRANSFER_MODEL if model is None else model
+    valid = poses_raw["valid"].to_numpy(bool)
+    Sigma = np.full((len(poses_raw), 6, 6), np.nan)
+    if not valid.any():
+        return Sigma
+    rows = poses_raw[valid]
+    rv = rows[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
+    tv = rows[["x_m", "y_m", "z_m"]].to_numpy(float)
+    K = np.asarray(calib["K"], float)
+    dist = np.asarray(calib["dist"], float).ravel()
+    uv, speed, vel = un._seen_corners(corners, rows["frame"].to_numpy(), len(p_B))
+    ld = float(calib.get("line_delay_s") or 0.0)
+    unit, shear = un.frame_noise_terms(uv, vel, rv, tv, p_B, K, dist, ld, frame="C")
+    n_seen = np.isfinite(uv).all(axis=-1).sum(axis=1)
+    reproj = un.corner_noise_from_reproj(rows["reproj_rms_px"].to_numpy(float), n_seen)
+    var_px = (model["s0_px"] ** 2 + (model["s_speed"] * speed) ** 2
+              + (model["s_reproj"] * reproj) ** 2)  # fmt: skip
+    # intrinsics through PnP: d(rvec, tvec)/d(intrinsics) = -(J^T J)^-1 J^T J_K
+    sd = _intrinsics_std(calib)
+    # a principal-point error is to first order a turn of C about its origin, which the
+    # flight's alignment (R_C_L) absorbs: only focal lengths and distortion stay
+    sd[2:4] = 0.0
+    seen = np.isfinite(uv).all(axis=-1)
+    cov_rt = np.empty((len(rows), 6, 6))
+    obj = np.asarray(p_B, np.float64)
+    for i in range(len(rows)):
+        _, jac = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rv[i], tv[i], K, dist)
+        Jp, JK = jac[:, :6], jac[:, 6:15]
+        A = -np.linalg.lstsq(Jp.T @ Jp, Jp.T @ JK, rcond=None)[0]
+        cov_rt[i] = (A * sd**2) @ A.T
+    from cvsflow.uncertainty import error_covariance
+
+    cal = error_covariance(rv, tv, cov_rt, frame="C")
+    Sigma[valid] = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
+                    + shear[:, :, None] * shear[:, None, :])  # fmt: skip
+    return Sigma

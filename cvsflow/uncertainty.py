@@ -690,3 +690,605 @@ def score_error_model(model, features, errors, cov_err=None):
     out["nees_mean"] = float(nees.mean())
     out["nees_inside_95"] = float(np.mean(nees <= chi2.ppf(0.95, 6)))
     return out
+
+
+# --------------------------------------------------------------------------- model (T): transfer
+
+#: Per-frame quantities known when a frame is measured (:func:`measurement_features`).
+MEASUREMENT_FEATURES = ("distance_m", "tilt_rad", "radius_norm", "n_corners", "spread_px",
+                        "speed_px", "reproj_rms_px")
+#: Parameters of model (T), in the order of its vector (logs of positive scales).
+TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "b_rot_rad",
+                   "b_fill_pos_m", "b_fill_rot_rad", "nu")
+#: Working units of the fit (mm, mrad): keeps the 6x6 covariances well conditioned.
+_UNIT = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3])
+
+
+def _seen_corners(corners, frame_ids, n_corners):
+    """Observed pixels (N, P, 2) of the given frames (NaN where unseen), each frame's image
+    speed (N,), px per frame period (the mean travel of its corners between its neighbours),
+    and each corner's image velocity (N, P, 2), px/s (NaN where not seen in the neighbours)."""
+    from cvsflow.optimise.se3 import corner_arrays
+
+    fr, t, uv = corner_arrays(corners, n_corners, min_corners=1)
+    idx = np.searchsorted(fr, frame_ids)
+    idx = np.clip(idx, 0, len(fr) - 1)
+    if not np.array_equal(fr[idx], np.asarray(frame_ids)):
+        missing = sorted(set(np.asarray(frame_ids).tolist()) - set(fr.tolist()))[:5]
+        raise OptimiseError(f"measurement_features: frames {missing} have no corners")
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    prev = np.clip(np.arange(len(fr)) - 1, 0, None)
+    nxt = np.clip(np.arange(len(fr)) + 1, None, len(fr) - 1)
+    span = np.where(nxt > prev, t[nxt] - t[prev], np.inf)
+    travel = np.nanmean(np.linalg.norm(uv[nxt] - uv[prev], axis=-1), axis=1)
+    speed = travel / span * period
+    # a neighbour without shared corners or far away in time (a gap): no estimate, say 0 px
+    near = span < 3.5 * period
+    speed = np.where(np.isfinite(speed) & near, speed, 0.0)
+    vel = (uv[nxt] - uv[prev]) / np.where(near, span, np.nan)[:, None, None]
+    return uv[idx], speed[idx], vel[idx]
+
+
+
+def frame_noise_terms(uv_px, vel_px_s, rvec, tvec, p_B, K, dist, line_delay_s=0.0, frame="C"):
+    """Per frame: the PnP error covariance per px^2 of corner noise over the corners it saw,
+    and the pose error its rolling shutter's shear predicts.
+
+    Parameters
+    ----------
+    uv_px : ndarray, shape (N, P, 2)
+        Observed corners, NaN where unseen.
+    vel_px_s : ndarray, shape (N, P, 2)
+        Image velocity of each corner, px/s (NaN: taken as 0).
+    rvec, tvec : ndarray, shape (N, 3)
+        The PnP pose T_C_B (rad, m), the linearisation point.
+    p_B : ndarray, shape (P, 3)
+        Board corners in B, m.
+    K, dist : ndarray
+        Intrinsics of the PnP.
+    line_delay_s : float
+        Line delay, s per row (0: a global shutter, no shear).
+    frame : {"C", "B"}
+        Error frame.
+
+    Returns
+    -------
+    unit : ndarray, shape (N, 6, 6)
+        (J^T J)^-1 pushed to the error [x, y, z, roll, pitch, yaw], per px^2.
+    shear : ndarray, shape (N, 6)
+        The error of PnP on the sheared corners (corner k displaced by its velocity times
+        ``line_delay_s`` times its row after the frame's mean row), SI.
+    """
+    obj = np.asarray(p_B, np.float64)
+    seen = np.isfinite(uv_px).all(axis=-1)
+    cov_rt = np.empty((len(uv_px), 6, 6))
+    d_rt = np.zeros((len(uv_px), 6))
+    for i in range(len(uv_px)):
+        _, jac = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rvec[i], tvec[i], K, dist)
+        J = jac[:, :6]
+        JtJ_inv = np.linalg.pinv(np.einsum("mi,mj->ij", J, J, optimize=False))
+        cov_rt[i] = JtJ_inv
+        if line_delay_s != 0.0:
+            # corner k is displaced by its image velocity times its row's delay after the mean
+            # row (the reference's time); PnP turns the shear into a pose error
+            rows = uv_px[i, seen[i], 1]
+            d_uv = np.nan_to_num(vel_px_s[i, seen[i]]) * (line_delay_s * (rows - rows.mean()))[:, None]
+            d_rt[i] = JtJ_inv @ (J.T @ d_uv.reshape(-1))
+    unit = error_covariance(rvec, tvec, cov_rt, frame=frame)
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    T_at = tf.T_from_rvec_tvec(rvec, tvec)
+    shear = pose_errors(tf.T_from_rvec_tvec(rvec - d_rt[:, :3], tvec - d_rt[:, 3:]), T_at,
+                        frame=frame)[cols].to_numpy()  # fmt: skip
+    return unit, shear
+
+
+def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=None):
+    """What is known of each held-out frame when it is measured, and its covariance terms.
+
+    Parameters
+    ----------
+    heldout : DataFrame
+        :func:`cvsflow.evaluate.cross_validate_se3` rows (``frame``, ``fold``, the CVS pose
+        ``cvs_rvec_0..2``, ``cvs_x_m..z_m``, the reference ``ref_*``, ``reproj_rms_px``).
+    corners : DataFrame
+        corners.parquet of the session (which corners each frame saw, the image speed).
+    board : dict
+        ``squares_x``, ``squares_y``, ``square_m``.
+    fits : list of dict
+        The folds' se3 results (heldout/se3_folds.yaml): the K, dist of each fold linearise
+        its PnP; when they carry their ``correlation`` (a full se3 result), the calibration
+        term ``parcov_{a}{b}`` too (:func:`parameter_covariance`, the correlated term common
+        to all frames of a fold).
+    frame : {"C", "B"}
+        Error frame.
+    bodies : DataFrame, optional
+        bodies.parquet (``t_s``, ``body``, ``n_filled``): adds ``vicon_filled``, 1 where a
+        board marker was gap-filled within :data:`FILL_WINDOW_S` of the frame's Vicon time
+        (``t_vicon_s``), else 0.
+
+    Returns
+    -------
+    features : DataFrame
+        ``frame``; the :data:`MEASUREMENT_FEATURES` (distance to the board centre m, tilt of
+        the board normal from the line of sight rad, radial image position of the board centre
+        in normalised units, corners seen, their RMS spread about their centroid px, image
+        speed px per frame period (the blur proxy: blur = speed x exposure / period),
+        reprojection RMS of the PnP px); ``unitcov_{a}{b}``, the error covariance of the PnP
+        pose per px^2 of iid corner noise over the corners this frame saw ((J^T J)^-1 pushed
+        to [x, y, z, roll, pitch, yaw], m^2 / px^2 .. rad^2 / px^2); ``rs_err_{dim}``, the
+        CVS pose error that the rolling shutter's shear predicts (the fold's fitted line delay
+        times each corner's image velocity and its row after the mean row, through PnP, in
+        the error's units; zero for a global shutter); ``parcov_{a}{b}`` with ``fits``.
+    """
+    from cvsflow.calibration import board_object_points
+
+    p_B = board_object_points(board)
+    need = ["frame", *[f"cvs_rvec_{j}" for j in range(3)], "cvs_x_m", "cvs_y_m", "cvs_z_m",
+            "reproj_rms_px"]
+    missing = [c for c in need if c not in heldout.columns]
+    if missing:
+        raise OptimiseError(f"measurement_features: held-out table lacks columns {missing}")
+    frames = heldout["frame"].to_numpy()
+    uv, speed, vel = _seen_corners(corners, frames, len(p_B))
+    seen = np.isfinite(uv).all(axis=-1)
+    rvec = heldout[need[1:4]].to_numpy(float)
+    tvec = heldout[need[4:7]].to_numpy(float)
+    if fits:
+        K_by_fold = {int(f["fold"]): (np.asarray(f["K"], float), np.asarray(f["dist"], float))
+                     for f in fits}  # fmt: skip
+        ld_by_fold = {int(f["fold"]): float(f.get("line_delay_s") or 0.0) for f in fits}
+        fold = heldout["fold"].to_numpy().astype(int)
+    else:
+        K_by_fold, fold = None, None
+    obj = np.asarray(p_B, np.float64)
+    if K_by_fold is None:
+        raise OptimiseError("measurement_features: fits are needed (the K of each fold)")
+    unit = np.empty((len(frames), 6, 6))
+    rs = np.zeros((len(frames), 6))
+    for k in np.unique(fold):
+        sel = fold == k
+        unit[sel], rs[sel] = frame_noise_terms(uv[sel], vel[sel], rvec[sel], tvec[sel], obj,
+                                               *K_by_fold[int(k)], ld_by_fold[int(k)], frame)
+    R = tf.R_from_rvec(rvec).reshape(-1, 3, 3)
+    centre_C = np.einsum("nij,j->ni", R, obj.mean(axis=0)) + tvec
+    dist_m = np.linalg.norm(centre_C, axis=1)
+    cos_tilt = np.abs(np.einsum("ni,ni->n", R[:, :, 2], centre_C)) / dist_m
+    centroid = np.nanmean(uv, axis=1)
+    spread = np.sqrt(np.nanmean(np.sum((uv - centroid[:, None]) ** 2, axis=-1), axis=1))
+    out = pd.DataFrame({
+        "frame": frames,
+        "distance_m": dist_m,
+        "tilt_rad": np.arccos(np.clip(cos_tilt, -1.0, 1.0)),
+        "radius_norm": np.hypot(centre_C[:, 0], centre_C[:, 1]) / centre_C[:, 2],
+        "n_corners": seen.sum(axis=1),
+        "spread_px": spread,
+        "speed_px": speed,
+        "reproj_rms_px": heldout["reproj_rms_px"].to_numpy(float),
+    })  # fmt: skip
+    iu = np.triu_indices(6)
+    for c, name in enumerate(_cov_columns("unitcov")):
+        out[name] = unit[:, iu[0][c], iu[1][c]]
+    for j, d in enumerate(ERROR_DIMS):
+        out[f"rs_err_{d}"] = rs[:, j]
+    if bodies is not None and "n_filled" in bodies and "t_vicon_s" in heldout:
+        out["vicon_filled"] = vicon_filled(bodies, heldout["t_vicon_s"].to_numpy(float))
+    if fits and all("correlation" in f for f in fits):
+        cov_par, _ = parameter_covariance(heldout, p_B, fits, frame=frame)
+        for c, name in enumerate(_cov_columns("parcov")):
+            out[name] = cov_par[:, iu[0][c], iu[1][c]]
+    return out
+
+
+def corner_noise_from_reproj(reproj_rms_px, n_corners):
+    """Corner noise per image axis (px) that a PnP reprojection RMS over n corners implies:
+    the residual length's RMS over sqrt(2), times sqrt(2n / (2n - 6)) for the 6 pose
+    parameters fitted (iid noise: its expectation is the noise)."""
+    n_res = 2.0 * np.asarray(n_corners, float)
+    return np.asarray(reproj_rms_px, float) / np.sqrt(2.0) * np.sqrt(n_res / np.maximum(n_res - 6, 1))
+
+
+#: Half-width (s) of the window about a frame's Vicon time whose board samples count for
+#: ``vicon_filled`` (the interpolation and the board track's 0.01 s smoothing reach ~1 sample).
+FILL_WINDOW_S = 0.01
+
+
+def vicon_filled(bodies, t_vicon_s, body="board"):
+    """1.0 where a marker of ``body`` was gap-filled within FILL_WINDOW_S of each time, else 0."""
+    b = bodies[bodies["body"] == body].sort_values("t_s")
+    t = b["t_s"].to_numpy(float)
+    c = np.r_[0, np.cumsum(b["n_filled"].to_numpy(float) > 0)]
+    lo = np.searchsorted(t, np.asarray(t_vicon_s) - FILL_WINDOW_S, side="left")
+    hi = np.searchsorted(t, np.asarray(t_vicon_s) + FILL_WINDOW_S, side="right")
+    return (c[hi] - c[lo] > 0).astype(float)
+
+
+def _transfer_terms(features):
+    """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), corner noise (N,), Vicon
+    gap-filled (N,)), working units."""
+    U = _cov_from_columns(features, "unitcov")
+
+    def block(name):
+        has = all(c in features.columns for c in _cov_columns(name))
+        return _cov_from_columns(features, name) if has else np.zeros_like(U)
+
+    scale = 1.0 / np.outer(_UNIT, _UNIT)
+    speed = features["speed_px"].to_numpy(float)
+    reproj = corner_noise_from_reproj(features["reproj_rms_px"].to_numpy(float),
+                                      features["n_corners"].to_numpy(float))
+    rs_cols = [f"rs_err_{d}" for d in ERROR_DIMS]
+    RS = (features[rs_cols].to_numpy(float) / _UNIT if all(c in features for c in rs_cols)
+          else np.zeros((len(U), 6)))  # fmt: skip
+    filled = (features["vicon_filled"].to_numpy(float) if "vicon_filled" in features
+              else np.zeros(len(U)))  # fmt: skip
+    return U * scale, block("parcov") * scale, RS, speed, reproj, filled
+
+
+def _unpack_transfer(q):
+    return (*np.exp(q[:9]), 2.0 + np.exp(q[9]))
+
+
+def _transfer_cov(q, U, P, RS, speed, reproj, filled):
+    """Model (T) mean (N, 6) and covariance (N, 6, 6), working units."""
+    s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, _ = _unpack_transfer(q)
+    var_px = s0**2 + (s_speed * speed) ** 2 + (s_reproj * reproj) ** 2
+    floor = np.r_[np.full(3, b_pos), np.full(3, b_rot)] / _UNIT
+    fill = np.r_[np.full(3, f_pos), np.full(3, f_rot)] / _UNIT
+    S = (var_px[:, None, None] * U + c**2 * P + np.diag(floor**2)[None]
+         + filled[:, None, None] * np.diag(fill**2)[None])  # fmt: skip
+    return s_rs * RS, S
+
+
+def fit_transfer_model(features, errors):
+    """Fit model (T) by maximum likelihood on frames of one or more sessions.
+
+    Model (T), per frame i (what is known when it is measured):
+
+        sigma_px,i^2 = s0^2 + (s_speed v_i)^2 + (s_reproj n_i)^2
+        mu_i = s_rs r_i
+        Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
+                  + f_i diag(b_fill_pos^2 I3, b_fill_rot^2 I3)
+
+    with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
+    saw (it carries the distance, the view angles, the corner count and their spread), v_i the
+    image speed (px per frame period: blur), n_i the corner noise the frame's PnP
+    reprojection RMS implies (:func:`corner_noise_from_reproj`; s_reproj = 1 for iid
+    noise), P_i the
+    calibration's covariance (intrinsics free and fixed, both mountings) propagated through
+    PnP and the reference (the term common to every frame the fit scores, hence correlated in
+    time), r_i the pose error a rolling shutter's shear predicts (fitted line delay x image
+    velocity x row through PnP; 0 for a global shutter: the CVS's PnP ignores the shear, the
+    reference is taken at the mean row; a known error, hence a mean, not a variance), and the
+    floors b the Vicon reference's own noise, raised by b_fill where a board marker was
+    gap-filled about the frame (f_i = 1, ``vicon_filled``: the filled marker's error moves
+    the rigid fit). The errors are multivariate
+    Student-t with nu > 2 degrees of freedom and covariance Sigma_i. Every scale is in
+    physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
+    fitted on some sessions predicts another.
+
+    Parameters
+    ----------
+    features : DataFrame
+        :func:`measurement_features` of the training frames (``unitcov``, optional ``parcov``).
+    errors : DataFrame
+        The same frames' ``err_{dim}`` (CVS - reference, :func:`cvsflow.evaluate.pose_errors`).
+
+    Returns
+    -------
+    model : dict
+        ``kind: T``, ``dims``, one entry per :data:`TRANSFER_PARAMS` (px, -, -, -, -, m, rad,
+        -),
+        ``nll`` (mean per frame), ``n_train``.
+
+    Raises
+    ------
+    OptimiseError
+        Missing columns, fewer than 20 frames or non-finite data.
+    """
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    missing = [c for c in cols if c not in errors.columns]
+    missing += [c for c in [*_cov_columns("unitcov"), "speed_px", "reproj_rms_px", "n_corners"]
+                if c not in features.columns]  # fmt: skip
+    if missing:
+        raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
+    E = errors[cols].to_numpy(float) / _UNIT
+    U, P, RS, speed, reproj, filled = _transfer_terms(features)
+    if len(E) != len(U) or len(E) < 20:
+        raise OptimiseError(
+            f"fit_transfer_model: {len(E)} error rows and {len(U)} feature rows; need equal, >= 20"
+        )
+    if not (np.isfinite(E).all() and np.isfinite(U).all() and np.isfinite(P).all()):
+        raise OptimiseError("fit_transfer_model: non-finite errors or covariances")
+    d = 6
+    # the shear term is a first-order prediction of the error itself: its scale is 1 in
+    # physics (fitted on the rendered rolling-shutter session it comes out at 1.01), and a
+    # session without a rolling shutter cannot tell it (fitted line delays of ~1e-7 s would
+    # fit it to their noise): held at 1
+    fit_rs = False
+
+    def full(q):
+        return q if fit_rs else np.r_[q[:4], 0.0, q[4:]]
+
+    def nll(q):
+        q = full(q)
+        mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled)
+        nu = _unpack_transfer(q)[9]
+        try:
+            L = np.linalg.cholesky(S * ((nu - 2.0) / nu))
+        except np.linalg.LinAlgError:
+            return 1e30
+        z = np.linalg.solve(L, (E - mu)[:, :, None])[:, :, 0]
+        m2 = np.einsum("ni,ni->n", z, z)
+        logdet = 2.0 * np.log(np.einsum("nii->ni", L)).sum(axis=1)
+        ll = (gammaln((nu + d) / 2) - gammaln(nu / 2) - 0.5 * d * np.log(nu * np.pi)
+              - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(m2 / nu))
+        return -float(np.mean(ll))
+
+    x0 = np.log([0.2, 0.02, 0.3, 1.0, 1.0, 5e-4, 5e-4, 2e-3, 2e-3, 5.0])
+    best = None
+    # the likelihood is smooth but can be flat in a term the data do not need (e.g. no
+    # parameter covariance, no speed): two starts, keep the better
+    keep = np.ones(10, bool)
+    keep[4] = fit_rs
+    for start in (x0, x0 + np.r_[0.7, -1.5, -1.5, -0.7, -0.7, 0.7, 0.7, -1.0, -1.0, 0.0]):
+        sol = minimize(nll, start[keep], method="L-BFGS-B",
+                       bounds=[(-25, 10)] * (keep.sum() - 1) + [(-4, 6)],
+                       options={"maxiter": 500})
+        if best is None or sol.fun < best.fun:
+            best = sol
+    vals = _unpack_transfer(full(best.x))
+    model = {"kind": "T", "dims": list(ERROR_DIMS), "n_train": int(len(E)),
+             "nll": float(best.fun), "s_rs_fitted": fit_rs}
+    model.update({name: float(v) for name, v in zip(TRANSFER_PARAMS, vals, strict=True)})
+    return model
+
+
+def _q_from_model(model):
+    v = [model[n] for n in TRANSFER_PARAMS]
+    return np.r_[np.log(v[:9]), np.log(v[9] - 2.0)]
+
+
+def transfer_covariance(model, features):
+    """Model (T)'s predicted 6x6 error covariance of each frame, SI (m, rad), (N, 6, 6)."""
+    _, S = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
+    return S * np.outer(_UNIT, _UNIT)
+
+
+def transfer_mean(model, features):
+    """Model (T)'s predicted error of each frame (the rolling shutter's shear), SI, (N, 6)."""
+    mu, _ = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
+    return mu * _UNIT
+
+
+def cramer_rao_sigma(features, sigma_px):
+    """Cramer-Rao standard deviation of each frame's pose error from the corner noise alone.
+
+    The PnP pose is the ML estimate under iid Gaussian corner noise of ``sigma_px`` per axis,
+    whose covariance is bounded below by sigma_px^2 (J^T J)^-1 (the Fisher information of the
+    corners the frame saw), pushed to the error dimensions: the physical floor of a frame.
+
+    Returns
+    -------
+    crb : ndarray, shape (N, 6)
+        m for x, y, z; rad for roll, pitch, yaw.
+    """
+    U = _cov_from_columns(features, "unitcov")
+    sig = np.broadcast_to(np.asarray(sigma_px, float), (len(U),))
+    return np.sqrt(np.einsum("nii->ni", U)) * sig[:, None]
+
+
+def score_covariance(cov, errors, nu=None, mean=None):
+    """Calibration of predicted covariances on (held-out) frames.
+
+    Parameters
+    ----------
+    cov : ndarray, shape (N, 6, 6)
+        Predicted error covariance, SI.
+    errors : DataFrame
+        ``err_{dim}`` of the same frames.
+    nu : float, optional
+        Student-t degrees of freedom of the prediction (the band quantiles); None: normal.
+    mean : ndarray, shape (N, 6), optional
+        Predicted error (the bands' centres), SI; default 0.
+
+    Returns
+    -------
+    score : dict
+        ``n``; ``inside_68``, ``inside_95`` per dimension and ``_all``; ``z_rms`` per
+        dimension; ``nees_mean``, ``nees_inside_95`` (below the chi-square(6) 95 % quantile).
+    """
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
+    if mean is not None:
+        E = E - mean
+    sigma = np.sqrt(np.einsum("nii->ni", cov))
+    Zs = E / sigma
+    out = {"n": int(len(E))}
+    for band, k in band_multipliers({"nu": nu}).items():
+        inside = np.abs(Zs) <= k
+        out[f"inside_{band}"] = {d: float(inside[:, j].mean()) for j, d in enumerate(ERROR_DIMS)}
+        out[f"inside_{band}_all"] = float(inside.mean())
+    out["z_rms"] = {d: float(np.sqrt(np.mean(Zs[:, j] ** 2))) for j, d in enumerate(ERROR_DIMS)}
+    S = cov / np.outer(_UNIT, _UNIT)
+    r = E / _UNIT
+    nees = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
+    out["nees_mean"] = float(nees.mean())
+    out["nees_inside_95"] = float(np.mean(nees <= chi2.ppf(0.95, 6)))
+    return out
+
+
+def nees_values(cov, errors, mean=None):
+    """Per-frame NEES e^T Sigma^-1 e (N,) of errors ``err_{dim}`` (minus ``mean``) under
+    covariances (N, 6, 6)."""
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
+    E = (E if mean is None else E - mean) / _UNIT
+    S = cov / np.outer(_UNIT, _UNIT)
+    return np.einsum("ni,ni->n", E, np.linalg.solve(S, E[:, :, None])[:, :, 0])
+
+
+def _autocorr_lag1(z, fold):
+    """Lag-1 autocorrelation of standardised errors z (N, 6) within each fold's runs."""
+    same = fold[1:] == fold[:-1]
+    a, b = z[:-1][same], z[1:][same]
+    return np.sum(a * b, axis=0) / np.sqrt(np.sum(a * a, axis=0) * np.sum(b * b, axis=0))
+
+
+def score_transfer(model, features, errors, folds=None, sigma_px=None):
+    """Model (T) scored on one session: overall and per cross-validation fold.
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output (fitted without this session).
+    features, errors : DataFrame
+        :func:`measurement_features` and ``err_{dim}`` (and ``t_s``) of its held-out rows.
+    folds : ndarray, optional
+        The time-block fold of each row (the se3 fit that scored it).
+    sigma_px : float or ndarray, optional
+        Corner noise for the Cramer-Rao bound (the se3 fits' ``sigma_px``); adds
+        ``error_over_crb`` (RMS of error / CRB per axis) and ``crb_median`` per axis.
+
+    Returns
+    -------
+    score : dict
+        :func:`score_covariance` keys, ``lag1_autocorr`` per axis (of the errors standardised
+        by their predicted sigma, within folds), ``folds`` (list of per-fold scores with
+        ``fold``), and with ``sigma_px`` the CRB keys.
+    """
+    cov = transfer_covariance(model, features)
+    mu = transfer_mean(model, features)
+    out = score_covariance(cov, errors, nu=model["nu"], mean=mu)
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
+    z = (E - mu) / np.sqrt(np.einsum("nii->ni", cov))
+    fold = np.zeros(len(E), int) if folds is None else np.asarray(folds).astype(int)
+    out["lag1_autocorr"] = dict(zip(ERROR_DIMS, map(float, _autocorr_lag1(z, fold)), strict=True))
+    if sigma_px is not None:
+        crb = cramer_rao_sigma(features, sigma_px)
+        out["error_over_crb"] = {d: float(np.sqrt(np.mean((E[:, j] / crb[:, j]) ** 2)))
+                                 for j, d in enumerate(ERROR_DIMS)}  # fmt: skip
+        out["crb_median"] = {d: float(np.median(crb[:, j])) for j, d in enumerate(ERROR_DIMS)}
+    out["folds"] = []
+    rho = np.clip(np.mean(list(out["lag1_autocorr"].values())), 0.0, 0.95)
+    out.update(_sampling_band(len(E), rho))
+    if folds is not None:
+        for k in np.unique(fold):
+            sel = fold == k
+            s = score_covariance(cov[sel], errors[sel].reset_index(drop=True), nu=model["nu"],
+                                 mean=mu[sel])
+            s["fold"] = int(k)
+            s.update(_sampling_band(int(sel.sum()), rho))
+            out["folds"].append(s)
+    return out
+
+
+def _sampling_band(n, rho):
+    """How far a calibrated model's shares of n frames scatter when the standardised errors
+    have lag-1 autocorrelation rho (AR(1)): ``n_effective`` = n (1 - rho) / (1 + rho) and the
+    2-sigma binomial half-widths ``inside_95_tolerance``, ``inside_68_tolerance``."""
+    n_eff = max(n * (1.0 - rho) / (1.0 + rho), 1.0)
+    return {"n_effective": float(n_eff), "lag1_mean": float(rho),
+            "inside_95_tolerance": float(2.0 * np.sqrt(0.95 * 0.05 / n_eff)),
+            "inside_68_tolerance": float(2.0 * np.sqrt(0.6827 * 0.3173 / n_eff))}
+
+
+def leave_one_session_out(sessions):
+    """Fit model (T) on all sessions but one, score the one left out; every session in turn.
+
+    Parameters
+    ----------
+    sessions : dict
+        Session name -> dict with ``features`` (:func:`measurement_features`), ``errors``
+        (the held-out table: ``err_{dim}``, ``fold``) and optional ``sigma_px`` (per row or
+        scalar, for the Cramer-Rao bound).
+
+    Returns
+    -------
+    result : dict
+        ``sessions``: name -> {``model`` (fitted without it), ``score``
+        (:func:`score_transfer`)}; ``pooled_model`` (fitted on every session, the one to
+        use on new data).
+
+    Raises
+    ------
+    OptimiseError
+        Fewer than two sessions.
+    """
+    names = list(sessions)
+    if len(names) < 2:
+        raise OptimiseError(f"leave_one_session_out: {len(names)} session(s); need at least 2")
+
+    def stack(keep):
+        f = pd.concat([sessions[n]["features"] for n in keep], ignore_index=True)
+        e = pd.concat([sessions[n]["errors"] for n in keep], ignore_index=True)
+        return f, e
+
+    out = {"sessions": {}}
+    for name in names:
+        f, e = stack([n for n in names if n != name])
+        model = fit_transfer_model(f, e)
+        s = sessions[name]
+        err = s["errors"].reset_index(drop=True)
+        folds = err["fold"].to_numpy() if "fold" in err else None
+        score = score_transfer(model, s["features"].reset_index(drop=True), err, folds,
+                               s.get("sigma_px"))  # fmt: skip
+        out["sessions"][name] = {"model": model, "score": score}
+        log.info("LOSO %s: NEES %.2f, inside 95 %% %s", name, score["nees_mean"],
+                 {d: round(v, 3) for d, v in score["inside_95"].items()})
+    out["pooled_model"] = fit_transfer_model(*stack(names))
+    return out
+
+
+#: Model (T) fitted on the held-out frames of the five rendered sessions of
+#: bench/uncertainty_sessions.yaml (1800 frames; five cameras, lenses, boards, distance ranges,
+#: one rolling shutter), by ``PYTHONPATH=. .venv/bin/python bench/bench_uncertainty.py``
+#: (``pooled_model``). Each of those sessions left out and predicted by the other four: NEES
+#: 2.6-7.6, results/bench_uncertainty/loso.yaml and docs/findings.md.
+RENDERED_TRANSFER_MODEL = {
+    "kind": "T", "dims": list(ERROR_DIMS), "n_train": 1800, "s_rs_fitted": False,
+    "s0_px": 0.01084, "s_speed": 4.987e-06, "s_reproj": 1.127, "c_cal": 1.011, "s_rs": 1.0,
+    "b_pos_m": 8.242e-05, "b_rot_rad": 0.0001234, "b_fill_pos_m": 0.000779,
+    "b_fill_rot_rad": 0.002943, "nu": 13.44,
+}  # fmt: skip
+
+
+def crossfit_transfer(features, errors, sigma_px=None):
+    """Model (T) fitted on all time-block folds of a session but one, scored on the last.
+
+    Parameters
+    ----------
+    features : DataFrame
+        :func:`measurement_features` of the session's held-out rows.
+    errors : DataFrame
+        The held-out rows (``err_{dim}``, ``fold``).
+    sigma_px : ndarray, optional
+        Per-row corner noise for the Cramer-Rao bound.
+
+    Returns
+    -------
+    score : dict
+        Pooled ``n``, ``inside_68``, ``inside_95`` (per axis and ``_all``), ``nees_mean``,
+        ``nees_inside_95``, ``z_rms``, ``model: T``, ``folds`` (per-fold
+        :func:`score_covariance` with ``fold`` and the fold's ``params``).
+    cov : ndarray, shape (N, 6, 6)
+        Each row's covariance from the model that did not see its fold.
+    mu : ndarray, shape (N, 6)
+        Each row's predicted error (the rolling shutter's shear).
+    """
+    fold = errors["fold"].to_numpy().astype(int)
+    cov = np.full((len(errors), 6, 6), np.nan)
+    mu = np.full((len(errors), 6), np.nan)
+    folds = []
+    for k in np.unique(fold):
+        train, test = fold != k, fold == k
+        model = fit_transfer_model(features[train].reset_index(drop=True),
+                                   errors[train].reset_index(drop=True))  # fmt: skip
+        f_test = features[test].reset_index(drop=True)
+        cov[test] = transfer_covariance(model, f_test)
+        mu[test] = transfer_mean(model, f_test)
+        s = score_covariance(cov[test], errors[test].reset_index(drop=True), nu=model["nu"],
+                             mean=mu[test])  # fmt: skip
+        s["fold"] = int(k)
+        s["params"] = {n: model[n] for n in TRANSFER_PARAMS}
+        folds.append(s)
+    nu = float(np.median([f["params"]["nu"] for f in folds]))
+    out = score_covariance(cov, errors, nu=nu, mean=mu)
+    out.update(model="T", folds=folds)
+    return out, cov, mu

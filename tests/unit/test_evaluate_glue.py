@@ -152,3 +152,43 @@ def test_diverged_seed_statistics_are_moved_and_marked():
     wide = pd.DataFrame({f"eps_{d}": rng.normal(0, 1.8, 100) for d in DIMS})
     out = ev.mark_seed_divergence(ev.compare_methods({"seed": wide, "se3": se3}, n_boot=50), wide)
     assert out["seed"]["diverged"] is True and "std" in out["seed"]["diverged_reason"]
+
+
+def test_compare_heldout_with_corners_scores_model_T_per_fold(session):
+    """With the corners, compare_heldout scores model (T) per held-out fold (the keys
+    downstream tools read: error_model.folds[].nees_mean and inside_95 per axis), the model
+    fitted on other sessions and the Cramer-Rao ratio; on a session of iid 0.3 px corner noise
+    the held-out errors are within a factor 2 of the bound, the within-session NEES is near 6,
+    and the figures build."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from cvsflow.plots import uncertainty as uplots
+
+    s = session
+    held, fits = ev.cross_validate_se3(
+        s["corners"], s["bodies"], s["camera"], s["board"], s["truth"]["dt_offset_s"],
+        n_folds=4, block_s=1.5, seed=0, free=["fx", "fy", "k1", "k2", "p1", "p2"],
+    )  # fmt: skip
+    seed_held = held[["frame", "t_s"]].copy()
+    for d in DIMS:
+        seed_held[f"eps_{d}"] = held[f"err_{d}"] * 3.0
+    full = se3.optimise_se3(s["corners"], s["bodies"], s["camera"], s["board"],
+                            s["truth"]["dt_offset_s"]).result  # fmt: skip
+    comp, scored, sigma, mu = ev.compare_heldout(
+        seed_held, held, full, fits, s["board"], n_boot=50, corners=s["corners"]
+    )
+    em = comp["error_model"]
+    assert em["model"] == "T" and len(em["folds"]) == 4
+    for f in em["folds"]:
+        assert set(f["inside_95"]) == set(DIMS) and np.isfinite(f["nees_mean"])
+    assert 4.0 < em["nees_mean"] < 8.5
+    assert all(0.88 < v <= 1.0 for v in em["inside_95"].values())
+    assert set(comp["error_model_transfer"]["inside_95"]) == set(DIMS)
+    ratio = comp["cramer_rao"]["error_over_crb"]
+    assert all(0.7 < v < 2.0 for v in ratio.values()), ratio
+    assert sigma.shape == (len(held), 6) and np.isfinite(sigma).all()
+    assert np.abs(mu).max() < 1e-9  # a global shutter: no predicted shear
+    assert {"nees", "crb_x_m", "sigma_yaw_rad"} <= set(scored.columns)
+    uplots.plot_calibration_table(comp)
+    uplots.plot_nees_histogram(scored)

@@ -273,3 +273,138 @@ def test_parameter_covariance_of_a_fixed_intrinsic_matches_monte_carlo():
         sd_mc, sd = np.sqrt(np.diag(C_mc)), np.sqrt(np.diag(cov[i]))
         np.testing.assert_allclose(sd, sd_mc, rtol=0.1)
         np.testing.assert_allclose(cov[i] / np.outer(sd, sd), C_mc / np.outer(sd_mc, sd_mc), atol=0.1)
+
+
+# --------------------------------------------------------------------------- model (T)
+
+
+@pytest.fixture(scope="module")
+def truth_session():
+    """A 10 s corner-level session scored against its own truth (the true K): CVS = PnP of the
+    noisy corners, reference = the true pose, so the error is the corner noise alone."""
+    s = se3.simulate_session(21, duration_s=10.0, pixel_noise_px=0.4)
+    tr = s["truth"]
+    p_B = se3.board_points_B(s["board"])
+    frame, t, uv = se3.corner_arrays(s["corners"], len(p_B))
+    T_cvs, ok = se3.solve_pnp_frames(uv, p_B, tr["K"], tr["dist"])
+    rows = {"frame": frame[ok], "t_s": t[ok], "fold": 0}
+    for pre, T in (("cvs_", T_cvs[ok]), ("ref_", tr["T_C_B"][ok])):
+        q = tf.quat_from_R(T[:, :3, :3])
+        for j, a in enumerate("xyz"):
+            rows[f"{pre}{a}_m"] = T[:, j, 3]
+        for j, a in enumerate(("qx", "qy", "qz", "qw")):
+            rows[f"{pre}{a}"] = q[:, j]
+    rv = tf.rvec_from_R(T_cvs[ok][:, :3, :3])
+    for j in range(3):
+        rows[f"cvs_rvec_{j}"] = rv[:, j]
+    rows["reproj_rms_px"] = 0.4
+    table = ev.frame_errors(pd.DataFrame(rows))
+    fits = [{"fold": 0, "K": tr["K"].tolist(), "dist": tr["dist"].tolist()}]
+    return s, table, fits
+
+
+def test_cramer_rao_sigma_is_the_pnp_scatter(truth_session):
+    """With the true camera and iid 0.4 px corner noise, the CVS errors over the CRB of their
+    frame have an RMS of 1 (within 10 %) on every axis: the bound is reached by PnP."""
+    s, table, fits = truth_session
+    feats = un.measurement_features(table, s["corners"], s["board"], fits=fits)
+    crb = un.cramer_rao_sigma(feats, 0.4)
+    E = table[[f"err_{d}" for d in ev.ERROR_DIMS]].to_numpy()
+    z = np.sqrt(np.mean((E / crb) ** 2, axis=0))
+    np.testing.assert_allclose(z, 1.0, atol=0.1)
+    assert (feats["n_corners"] == 20).all()
+    assert feats["speed_px"].between(0.0, 50.0).all() and feats["speed_px"].median() > 0.1
+
+
+def test_measurement_features_use_only_the_seen_corners(truth_session):
+    """Hiding half of a frame's corners raises its unit covariance (fewer, closer corners)."""
+    s, table, fits = truth_session
+    c = s["corners"].copy()
+    f0 = int(table["frame"].iloc[10])
+    hide = (c["frame"] == f0) & (c["corner"] >= 10)
+    c.loc[hide, ["u_px", "v_px"]] = np.nan
+    full = un.measurement_features(table.iloc[[10]], s["corners"], s["board"], fits=fits)
+    part = un.measurement_features(table.iloc[[10]], c, s["board"], fits=fits)
+    assert int(part["n_corners"].iloc[0]) == 10 and part["spread_px"].iloc[0] < full["spread_px"].iloc[0]
+    assert part["unitcov_00"].iloc[0] > 1.5 * full["unitcov_00"].iloc[0]
+    with pytest.raises(OptimiseError, match="lacks columns"):
+        un.measurement_features(table.drop(columns=["reproj_rms_px"]), s["corners"], s["board"],
+                                fits=fits)  # fmt: skip
+
+
+def _draw_transfer(rng, n, truth, n_blocks=8):
+    """Synthetic features and errors drawn from model (T) with known parameters: U from random
+    SPD matrices, a parameter covariance P shared by blocks of frames whose error is one draw
+    per block (the correlated term), Student-t frames."""
+    A = rng.normal(size=(n, 6, 6)) * np.r_[1e-3, 1e-3, 3e-3, 2e-3, 2e-3, 1e-3][None, :, None]
+    U = A @ np.swapaxes(A, 1, 2) + np.eye(6) * 1e-8
+    B = rng.normal(size=(6, 6)) * 3e-4
+    P0 = B @ B.T
+    speed = rng.uniform(0, 10, n)
+    reproj = rng.uniform(0.1, 0.5, n)
+    # reproj_rms_px of many corners: the implied corner noise is reproj_rms / sqrt(2) = reproj
+    feats = pd.DataFrame({"speed_px": speed, "reproj_rms_px": np.sqrt(2.0) * reproj,
+                          "n_corners": 1e9})  # fmt: skip
+    iu = np.triu_indices(6)
+    for c, name in enumerate(un._cov_columns("unitcov")):
+        feats[name] = U[:, iu[0][c], iu[1][c]]
+    for c, name in enumerate(un._cov_columns("parcov")):
+        feats[name] = P0[iu[0][c], iu[1][c]]
+    model = {"kind": "T", **truth}
+    S = un.transfer_covariance(model, feats)
+    var_px = truth["s0_px"] ** 2 + (truth["s_speed"] * speed) ** 2 + (truth["s_reproj"] * reproj) ** 2
+    floor = np.r_[[truth["b_pos_m"]] * 3, [truth["b_rot_rad"]] * 3] ** 2
+    indep = var_px[:, None, None] * U + np.diag(floor)
+    block = np.arange(n) * n_blocks // n
+    shared = rng.multivariate_normal(np.zeros(6), truth["c_cal"] ** 2 * P0, n_blocks)[block]
+    nu = truth["nu"]
+    w = np.sqrt((nu - 2) / rng.chisquare(nu, n))
+    e = np.einsum("nij,nj->ni", np.linalg.cholesky(indep), rng.normal(size=(n, 6))) * w[:, None]
+    E = pd.DataFrame(e + shared, columns=[f"err_{d}" for d in ev.ERROR_DIMS])
+    return feats, E, S
+
+
+TRUTH_T = {"s0_px": 0.15, "s_speed": 0.03, "s_reproj": 0.5, "c_cal": 1.0, "s_rs": 1.0, "b_pos_m": 4e-4,
+           "b_rot_rad": 3e-4, "b_fill_pos_m": 2e-3, "b_fill_rot_rad": 2e-3, "nu": 6.0}  # fmt: skip
+
+
+def test_transfer_model_recovers_its_parameters_and_is_calibrated():
+    """Model (T) fitted on 6000 frames drawn from it recovers the corner-noise scale, the speed
+    term and the floors; on 3000 new frames (another draw of the shared term) NEES ~ 6 and
+    the bands hold per axis."""
+    rng = np.random.default_rng(3)
+    feats, E, _ = _draw_transfer(rng, 4000, TRUTH_T, n_blocks=200)
+    m = un.fit_transfer_model(feats, E)
+    assert m["kind"] == "T"
+    for name, rtol in (("s_speed", 0.15), ("b_pos_m", 0.2), ("b_rot_rad", 0.2), ("c_cal", 0.2)):
+        assert abs(m[name] - TRUTH_T[name]) < rtol * TRUTH_T[name], (name, m[name])
+    var_true = TRUTH_T["s0_px"] ** 2 + (TRUTH_T["s_reproj"] * 0.3) ** 2
+    var_fit = m["s0_px"] ** 2 + (m["s_reproj"] * 0.3) ** 2
+    assert abs(var_fit / var_true - 1) < 0.15  # s0 and s_reproj trade at fixed reproj spread
+    assert m["nu"] > 4.0  # heavy tails seen (the shared Gaussian term lightens the total's)
+    f2, E2, _ = _draw_transfer(np.random.default_rng(4), 3000, TRUTH_T, n_blocks=100)
+    sc = un.score_covariance(un.transfer_covariance(m, f2), E2, nu=m["nu"])
+    assert 5.0 < sc["nees_mean"] < 7.0
+    for d in ev.ERROR_DIMS:
+        assert 0.93 < sc["inside_95"][d] < 0.97 and 0.64 < sc["inside_68"][d] < 0.72, d
+
+
+def test_transfer_model_bad_input():
+    """Named errors: missing columns, too few rows."""
+    feats, E, _ = _draw_transfer(np.random.default_rng(0), 30, TRUTH_T)
+    with pytest.raises(OptimiseError, match="missing columns"):
+        un.fit_transfer_model(feats.drop(columns=["speed_px"]), E)
+    with pytest.raises(OptimiseError, match=">= 20"):
+        un.fit_transfer_model(feats.iloc[:10], E.iloc[:10])
+
+
+def test_vicon_filled_marks_frames_near_a_gap_filled_board_sample():
+    """A board sample with a filled marker at t = 1.0 s marks the frames whose Vicon time is
+    within FILL_WINDOW_S of it, not the others nor the camera's fills."""
+    t = np.arange(0.0, 2.0, 1.0 / 300)
+    bodies = pd.DataFrame({"t_s": np.r_[t, t], "body": ["board"] * len(t) + ["camera"] * len(t),
+                           "n_filled": 0})  # fmt: skip
+    bodies.loc[(bodies["body"] == "board") & (np.abs(bodies["t_s"] - 1.0) < 1e-9), "n_filled"] = 1
+    bodies.loc[(bodies["body"] == "camera") & (np.abs(bodies["t_s"] - 0.5) < 1e-9), "n_filled"] = 2
+    tq = np.array([0.5, 0.985, 0.995, 1.0, 1.009, 1.02, 1.5])
+    np.testing.assert_array_equal(un.vicon_filled(bodies, tq), [0, 0, 1, 1, 1, 0, 0])

@@ -196,6 +196,7 @@ def flight_inputs(wildcards):
         "onboard": f["log"],
         "poses": f"results/{s}/poses_raw.parquet",
         "camera": f"results/{s}/camera.yaml",
+        "corners": f"results/{s}/corners.parquet",  # the reference's error model (T)
     }
     if "calibration" in f:
         files["se3_result"] = f"results/{f['calibration']}/se3/calib/result.yaml"

@@ -53,8 +53,11 @@ rule compare:
         se3="results/{session}/heldout/se3.parquet",
         se3_folds="results/{session}/heldout/se3_folds.yaml",
         se3_result="results/{session}/se3/calib/result.yaml",
+        corners="results/{session}/corners.parquet",
+        bodies="results/{session}/bodies.parquet",
     output:
         comparison="results/{session}/comparison.yaml",
+        se3_scored="results/{session}/heldout/se3_scored.parquet",
         heldout=report(
             "results/{session}/figures/heldout_errors.png",
             caption="../report/heldout_errors.rst",
@@ -75,6 +78,20 @@ rule compare:
             category="{session}",
             subcategory="held-out comparison (seed vs se3)",
             labels={"session": "{session}", "figure": "se3 estimate correlations"},
+        ),
+        calibration_table=report(
+            "results/{session}/figures/error_model_calibration.png",
+            caption="../report/error_model_calibration.rst",
+            category="{session}",
+            subcategory="held-out comparison (seed vs se3)",
+            labels={"session": "{session}", "figure": "error model calibration"},
+        ),
+        nees=report(
+            "results/{session}/figures/nees_histogram.png",
+            caption="../report/nees_histogram.rst",
+            category="{session}",
+            subcategory="held-out comparison (seed vs se3)",
+            labels={"session": "{session}", "figure": "NEES histogram"},
         ),
     log:
         "logs/{session}/compare.log",

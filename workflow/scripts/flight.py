@@ -26,8 +26,11 @@ with stage_logging(snakemake.log[0], "flight") as log:
         sigma_px = float(calib["sigma_px"]) if "sigma_px" in calib else fl.corner_noise_per_axis(
             np.nanmedian(poses["reproj_rms_px"]), len(p_B))
         reference = fl.reference_from_poses(poses)
-        Sigma_ref = fl.reference_covariance_from_pnp(
-            poses, p_B, calib["K"], calib["dist"], sigma_px)
+        if hasattr(inp, "corners"):  # model (T): seen corners, speed, residual, calibration
+            Sigma_ref = fl.reference_covariance_transfer(poses, read_parquet(inp.corners), p_B, calib)
+        else:
+            Sigma_ref = fl.reference_covariance_from_pnp(
+                poses, p_B, calib["K"], calib["dist"], sigma_px)
         onboard = read_flight_log(inp.onboard, cfg["format"], cfg.get("ulog_source", "local_position"),
                                   cfg.get("csv"))
         T_Q_B = T_from_pose6(cfg["T_Q_B_pose6"]) if "T_Q_B_pose6" in cfg else None

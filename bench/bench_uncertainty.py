@@ -1,0 +1,123 @@
+"""Leave-one-session-out test of the error model (T) on rendered sessions.
+
+Reads, for each session, results/<s>/heldout/se3.parquet and se3_folds.yaml (rule
+heldout_se3), results/<s>/corners.parquet and the board from the config; fits model (T) on
+all sessions but one and scores the one left out, per session and per time-block fold, with
+the Cramer-Rao ratio and the lag-1 autocorrelation of the standardised errors. Prints the
+tables and writes the scores to results/bench_uncertainty/loso.yaml. Render the sessions first
+(bench/uncertainty_sessions.yaml says how). Usage:
+
+    PYTHONPATH=. .venv/bin/python bench/bench_uncertainty.py [session ...]
+
+Default sessions: every session of bench/uncertainty_sessions.yaml plus ``demo`` when
+results/demo/heldout exists.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from cvsflow import uncertainty as un
+from cvsflow.evaluate import ERROR_DIMS
+from cvsflow.io import read_parquet, read_yaml, write_yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+TARGETS = {"nees": (4.5, 7.5), "inside_95": (0.93, 0.97), "inside_68": (0.64, 0.72)}
+
+
+def boards():
+    out = {}
+    for cfg in ("config/config.yaml", "bench/uncertainty_sessions.yaml"):
+        for name, s in yaml.safe_load((ROOT / cfg).read_text())["sessions"].items():
+            out[name] = s["board"]
+    return out
+
+
+def load(name, board):
+    res = ROOT / "results" / name
+    heldout = read_parquet(res / "heldout" / "se3.parquet")
+    fits = read_yaml(res / "heldout" / "se3_folds.yaml")["folds"]
+    corners = read_parquet(res / "corners.parquet")
+    bodies = read_parquet(res / "bodies.parquet")
+    feats = un.measurement_features(heldout, corners, board, fits=fits, bodies=bodies)
+    sig = {int(f["fold"]): float(f["sigma_px"]) for f in fits}
+    sigma_px = np.array([sig[int(k)] for k in heldout["fold"]])
+    ld = [f.get("line_delay_s") for f in fits]
+    return {"features": feats, "errors": heldout, "sigma_px": sigma_px, "line_delay_s": ld}
+
+
+def fmt_axes(d, f="{:.3f}"):
+    return " ".join(f.format(d[a]) for a in ERROR_DIMS)
+
+
+def main(names):
+    b = boards()
+    if not names:
+        names = [n for n in b if n != "demo" and (ROOT / "results" / n / "heldout").exists()]
+        if (ROOT / "results/demo/heldout/se3.parquet").exists():
+            names.append("demo")
+    t0 = time.perf_counter()
+    sessions = {n: load(n, b[n]) for n in names}
+    print(f"features of {len(names)} sessions: {time.perf_counter() - t0:.1f} s")
+    for n, s in sessions.items():
+        f = s["features"]
+        lds = [f"{v:.3g}" if v is not None else "-" for v in s["line_delay_s"]]
+        print(f"  {n}: {len(f)} held-out frames, distance {f['distance_m'].min():.2f}-"
+              f"{f['distance_m'].max():.2f} m, corners {f['n_corners'].min()}-"
+              f"{f['n_corners'].max()}, speed median {f['speed_px'].median():.1f} px/frame, "
+              f"fold line delays {lds}")
+    t0 = time.perf_counter()
+    loso = un.leave_one_session_out(sessions)
+    print(f"leave-one-session-out: {time.perf_counter() - t0:.1f} s\n")
+    print("axes: " + " ".join(ERROR_DIMS))
+    misses, misses_beyond = [], []
+    for n, r in loso["sessions"].items():
+        sc, m = r["score"], r["model"]
+        print(f"{n}: n {sc['n']}, NEES {sc['nees_mean']:.2f}, model s0 {m['s0_px']:.3f} px "
+              f"s_speed {m['s_speed']:.3f} s_reproj {m['s_reproj']:.2f} c_cal {m['c_cal']:.2f} "
+              f"b {m['b_pos_m'] * 1e3:.2f} mm {m['b_rot_rad'] * 1e3:.2f} mrad nu {m['nu']:.1f}")
+        print(f"   inside 95: {fmt_axes(sc['inside_95'])}")
+        print(f"   inside 68: {fmt_axes(sc['inside_68'])}")
+        print(f"   z RMS:     {fmt_axes(sc['z_rms'])}")
+        print(f"   err/CRB:   {fmt_axes(sc['error_over_crb'], '{:.2f}')}")
+        print(f"   lag-1 ac:  {fmt_axes(sc['lag1_autocorr'], '{:.2f}')}")
+        for fs in sc["folds"]:
+            print(f"   fold {fs['fold']}: n {fs['n']:3d} NEES {fs['nees_mean']:6.2f}  in95 "
+                  f"{fmt_axes(fs['inside_95'])}  in68 {fmt_axes(fs['inside_68'])}")
+        for label, s in [("session", sc)] + [(f"fold {fs['fold']}", fs) for fs in sc["folds"]]:
+            lo, hi = TARGETS["nees"]
+            if not lo <= s["nees_mean"] <= hi:
+                misses.append(f"{n} {label}: NEES {s['nees_mean']:.2f}")
+            for band in ("95", "68"):
+                lo, hi = TARGETS[f"inside_{band}"]
+                tol = s[f"inside_{band}_tolerance"]
+                bad = {a: round(v, 3) for a, v in s[f"inside_{band}"].items() if not lo <= v <= hi}
+                if bad:
+                    misses.append(f"{n} {label}: inside {band} {bad}")
+                beyond = {a: v for a, v in bad.items() if not lo - tol <= v <= hi + tol}
+                if beyond:
+                    misses_beyond.append(f"{n} {label}: inside {band} {beyond} "
+                                         f"(+-{tol:.3f} at n_eff {s['n_effective']:.0f})")
+    pm = loso["pooled_model"]
+    print("\npooled model (all sessions): " + ", ".join(f"{k} {pm[k]:.4g}" for k in un.TRANSFER_PARAMS))
+    print(f"\ntargets missed ({len(misses)}):")
+    for m in misses:
+        print("  " + m)
+    print(f"\nband targets missed by more than a calibrated model's 2-sigma sampling scatter "
+          f"(AR(1) effective n) ({len(misses_beyond)}):")
+    for m in misses_beyond:
+        print("  " + m)
+    out = ROOT / "results" / "bench_uncertainty" / "loso.yaml"
+    write_yaml({"sessions": {n: r for n, r in loso["sessions"].items()},
+                "pooled_model": pm, "targets_missed": misses,
+                "band_targets_missed_beyond_sampling": misses_beyond}, out)
+    print(f"\nwritten {out.relative_to(ROOT)}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
