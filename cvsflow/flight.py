@@ -974,6 +974,10 @@ class FlightResult:
     ref_aligned, est_aligned : DataFrame
         Body trajectories T_C_Q (reference) and s,T_C_L applied to T_L_Q (estimate) at the
         reference times: the files to hand to evo (TUM).
+    est_unaligned : DataFrame
+        The estimate T_L_Q as logged (frame L, not aligned), interpolated at the reference
+        times through the fitted clock: beside ``ref_aligned`` it lets evo's own ``-a`` / ``-s``
+        do the alignment.
     """
 
     errors: pd.DataFrame
@@ -982,6 +986,7 @@ class FlightResult:
     alignment: Alignment
     ref_aligned: pd.DataFrame
     est_aligned: pd.DataFrame
+    est_unaligned: pd.DataFrame
 
 
 def evaluate_flight(
@@ -1123,6 +1128,7 @@ def evaluate_flight(
         stats["rpe_rot"] = error_stats(r["rot_rad"])
     ref_aligned = traj_from_T(t_ref[use], T_C_Q, attrs={"frames": "T_C_Q (reference)"})
     est_aligned = traj_from_T(t_ref[use], T_est_C, attrs={"frames": "T_C_Q (on-board, aligned)"})
+    est_unaligned = traj_from_T(t_ref[use], T_L_Q, attrs={"frames": "T_L_Q (on-board, unaligned)"})
     for name, st in stats["axes"].items():
         if "unresolved_fraction" in st and st["unresolved_fraction"] > 0.5:
             log.warning(
@@ -1130,7 +1136,7 @@ def evaluate_flight(
                 name,
                 100 * st["unresolved_fraction"],
             )
-    return FlightResult(errors, stats, clock, al, ref_aligned, est_aligned)
+    return FlightResult(errors, stats, clock, al, ref_aligned, est_aligned, est_unaligned)
 
 
 def sigma_columns(Sigma):

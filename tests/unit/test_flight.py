@@ -401,6 +401,28 @@ def test_tum_export_reproduces_ape_without_alignment(demo, tmp_path):
     assert F.error_stats(e)["rmse"] == pytest.approx(r.stats["ape_trans"]["rmse"], abs=1e-8)
 
 
+def test_unaligned_tum_export_lets_evo_align_it_itself(demo, tmp_path):
+    """onboard_unaligned.tum (the log's own frame L, at the reference times) beside the reference:
+    a fresh Umeyama fit on the re-read files (evo's -a) gives the stage's APE; unaligned they
+    disagree by the frame change L -> C (metres, not mm)."""
+    from cvsflow.io.flightlog import read_tum, write_tum
+
+    r = F.evaluate_flight(demo.reference, demo.onboard, demo.T_Q_B, demo.Sigma_ref)
+    write_tum(r.ref_aligned, tmp_path / "ref.txt")
+    write_tum(r.est_unaligned, tmp_path / "est.txt")
+    ref, est = read_tum(tmp_path / "ref.txt"), read_tum(tmp_path / "est.txt")
+    i_r, i_e = F.associate(ref["t_s"].to_numpy(), est["t_s"].to_numpy())
+    assert len(i_r) == r.stats["n_pairs"]
+    p_ref = ref[["x_m", "y_m", "z_m"]].to_numpy()[i_r]
+    p_est = est[["x_m", "y_m", "z_m"]].to_numpy()[i_e]
+    raw = F.error_stats(F.ape_translation(p_ref, p_est))["rmse"]
+    al = F.align_trajectories(p_ref, p_est, "se3")
+    aligned = al.apply_T(F.T_from_traj(est.iloc[i_e]))[:, :3, 3]
+    rmse = F.error_stats(F.ape_translation(p_ref, aligned))["rmse"]
+    assert rmse == pytest.approx(r.stats["ape_trans"]["rmse"], rel=1e-6)
+    assert raw > 10 * rmse
+
+
 def _pnp_flight(seed, focal_px, board, intr_sd, rng):
     """A corner-level 'flight' video: PnP poses at intrinsics off by one calibration draw."""
     from cvsflow import transforms as tf

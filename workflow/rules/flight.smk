@@ -27,6 +27,7 @@ rule flight:
         stats="results/flights/{flight}/stats.yaml",
         reference_tum="results/flights/{flight}/reference_aligned.tum",
         onboard_tum="results/flights/{flight}/onboard_aligned.tum",
+        onboard_unaligned_tum="results/flights/{flight}/onboard_unaligned.tum",
         fig_errors=report(
             "results/flights/{flight}/figures/errors.png",
             caption="../report/flight_errors.rst",

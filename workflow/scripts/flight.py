@@ -48,6 +48,7 @@ with stage_logging(snakemake.log[0], "flight") as log:
     write_yaml(stats, snakemake.output.stats)
     write_tum(result.ref_aligned, snakemake.output.reference_tum)
     write_tum(result.est_aligned, snakemake.output.onboard_tum)
+    write_tum(result.est_unaligned, snakemake.output.onboard_unaligned_tum)
     k = cfg.get("k_sigma", 1.0)
     save_figure(plots.plot_flight_errors(result.errors, k_sigma=max(2.0, k)), snakemake.output.fig_errors)
     save_figure(plots.plot_flight_trajectories(result.ref_aligned, result.est_aligned),
