@@ -17,6 +17,7 @@ from cvsflow.mocap import (
     interpolate_bodies,
     learn_layout,
     lowpass_markers,
+    refine_layout,
     repair_markers,
 )
 from cvsflow.transforms import invert_T, make_T, rotation_angle, transform_points
@@ -141,6 +142,35 @@ def test_rigid_fill_is_exact_and_flagged():
     assert summary["per_marker"]["board:B2"] == {"measured": 540, "rigid": 60, "interp": 0, "missing": 0}
     assert not filled["board:B1_filled"].any()
     np.testing.assert_array_equal(filled["board:B1_x_m"], truth["board:B1_x_m"])
+
+
+def test_refined_layout_stops_the_pose_jump_when_a_marker_drops_out():
+    """Camera markers placed 1-4 mm off the drawn layout_m, C3 missing for 0.2 s: fitted to the
+    drawn layout the static camera's orientation jumps by over 5 mrad at the dropout; with the
+    layout the markers show (refine_layout) it stays within 0.01 mrad, and a fully seen body
+    keeps the drawn layout's frame (the refined layout fits the drawn one as the markers do)."""
+    rng = np.random.default_rng(5)
+    df, _, _ = synthetic_markers(duration_s=2.0)
+    true_layout = CAMERA_LAYOUT_M + rng.uniform(-0.004, 0.004, CAMERA_LAYOUT_M.shape)
+    T_W_Cm = camera_pose()
+    for name, p in zip(CAMERA_NAMES, true_layout, strict=True):
+        df[[f"{name}_{a}_m" for a in "xyz"]] = transform_points(T_W_Cm, p)
+    df.loc[100:159, [f"camera:C3_{a}_m" for a in "xyz"]] = np.nan
+    jumps = {}
+    for refine in (False, True):
+        filled, _ = fill_marker_gaps(df, _specs(), max_gap_s=0.1, refine_layout=refine)
+        _, T, valid = body_poses(fit_bodies(filled, _specs(), refine_layout=refine), "camera")
+        assert valid.all()
+        full = np.r_[0:100, 160:len(df)]
+        jumps[refine] = 1e3 * rotation_angle(T[100:160, :3, :3] @ np.swapaxes(T[full[:1], :3, :3], 1, 2)).max()
+        np.testing.assert_allclose(T[full], np.broadcast_to(T[0], T[full].shape), atol=1e-12)
+    assert jumps[False] > 5.0 and jumps[True] < 0.01
+    refined = refine_layout(df, CAMERA_NAMES, CAMERA_LAYOUT_M)
+    # the same shape as the true markers (pairwise distances), in the drawn layout's frame
+    d = lambda L: np.linalg.norm(L[:, None] - L[None], axis=-1)  # noqa: E731
+    np.testing.assert_allclose(d(refined), d(true_layout), atol=1e-9)
+    T_fit, _, _ = fit_rigid(CAMERA_LAYOUT_M, refined[None])
+    np.testing.assert_allclose(T_fit[0], np.eye(4), atol=1e-9)
 
 
 def test_repair_summary_warns_of_markers_never_seen_and_long_gaps():

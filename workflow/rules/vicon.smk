@@ -72,6 +72,7 @@ rule vicon_bodies:
         mocap=lambda wc: mocap_cfg(wc.session),
         max_fit_rms_m=config["vicon"]["max_fit_rms_m"],
         max_fit_rms_share=config["vicon"]["max_fit_rms_share"],
+        refine_layout=config["vicon"]["refine_layout"],
     script:
         "../scripts/vicon_bodies.py"
 
