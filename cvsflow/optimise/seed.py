@@ -302,11 +302,11 @@ def _solve_R_t(uv_px, X_B, fx, fy, cx, cy, dist5, R, t, max_iter, tol):
 #: Rows (candidate x frame) per stack of :func:`_solve_rows`: bounds the memory of one
 #: stack (about 10 kB per row for a 20-corner board) while keeping numpy's per-call
 #: overhead small.
-ROWS_PER_CHUNK = 8192
+ROWS_PER_CHUNK = 1024
 
 
 def _solve_rows(uv_px, frame_of_row, X_B, fx_rows, fy_rows, cx, cy, dist5, R, t, max_iter, tol,
-                pool=None, n_workers=1, rows_per_chunk=ROWS_PER_CHUNK):
+                pool=None, n_workers=1, rows_per_chunk=None):
     """:func:`_solve_R_t` of many (candidate, frame) rows, in chunks, on a thread pool if given.
 
     Row i solves frame ``frame_of_row[i]`` (an index into ``uv_px``, (N_frames, P, 2)) at
@@ -315,6 +315,7 @@ def _solve_rows(uv_px, frame_of_row, X_B, fx_rows, fy_rows, cx, cy, dist5, R, t,
     Returns R (M, 3, 3) and t (M, 3).
     """
     n = frame_of_row.size
+    rows_per_chunk = ROWS_PER_CHUNK if rows_per_chunk is None else rows_per_chunk
     n_chunks = max(int(n_workers) if pool is not None else 1, -(-n // int(rows_per_chunk)))
     n_chunks = max(1, min(n_chunks, n))
     bounds = np.linspace(0, n, n_chunks + 1).astype(int)
