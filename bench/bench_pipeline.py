@@ -4,14 +4,21 @@ Renders the demo at the given length once into a cache folder (``--cache``), the
 whole workflow (every stage after ``synth``: calibration, corners, poses, Vicon, sync, pairs,
 both optimisers, held-out scoring, analysis, figures, summary, flight demo) in a fresh working
 directory and prints the wall time, each rule's time from Snakemake's benchmark files, and
-the peak memory of the slowest job.
+the peak memory of the slowest job. CPU seconds (``cpu_s``, Snakemake's ``cpu_time``) are printed
+beside wall seconds: on a shared machine they are the steadier number.
 
     .venv/bin/python bench/bench_pipeline.py --duration 90 --cores 2
+    .venv/bin/python bench/bench_pipeline.py --imports      # start-up cost of each workflow script
+
+``--imports`` times, in fresh interpreters (best of 3), the import lines of every script in
+workflow/scripts/ and of the heavy libraries they pull in: the fixed cost each job pays
+before it reads its first input.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import subprocess
 import sys
@@ -31,7 +38,12 @@ def main() -> None:
     parser.add_argument("--cores", type=int, default=2)
     parser.add_argument("--cache", type=Path, default=Path(tempfile.gettempdir()) / "cvsflow_bench")
     parser.add_argument("--keep", action="store_true", help="keep the working directory")
+    parser.add_argument("--imports", action="store_true",
+                        help="only time each workflow script's imports")
     args = parser.parse_args()
+    if args.imports:
+        import_times()
+        return
 
     config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     config["sessions"]["demo"]["synth"]["duration_s"] = args.duration
@@ -58,15 +70,39 @@ def main() -> None:
     for tsv in sorted((work / "benchmarks").rglob("*.tsv")):
         b = pd.read_csv(tsv, sep="\t")
         rows.append({"job": str(tsv.relative_to(work / "benchmarks"))[:-4], "s": b["s"].iloc[0],
-                     "max_rss_MB": b["max_rss"].iloc[0]})
+                     "cpu_s": b["cpu_time"].iloc[0], "max_rss_MB": b["max_rss"].iloc[0]})
     table = pd.DataFrame(rows).sort_values("s", ascending=False)
     print(table.to_string(index=False, float_format=lambda v: f"{v:.1f}"))
     print(f"\ndemo {args.duration:g} s, {args.cores} cores: pipeline wall time {wall:.1f} s "
-          f"(rendering excluded); peak RSS of one job {table['max_rss_MB'].max():.0f} MB")
+          f"(rendering excluded); jobs' CPU {table['cpu_s'].sum():.1f} s; "
+          f"peak RSS of one job {table['max_rss_MB'].max():.0f} MB")
     if args.keep:
         print(f"working directory kept: {work}")
     else:
         shutil.rmtree(work)
+
+
+def import_times() -> None:
+    """Print the CPU and wall seconds of each workflow script's imports (fresh interpreter)."""
+    cases = [("python (bare)", "pass"), ("numpy", "import numpy"), ("pandas", "import pandas"),
+             ("scipy", "import scipy.optimize, scipy.spatial.transform"), ("cv2", "import cv2"),
+             ("matplotlib.pyplot", "import matplotlib.pyplot"),
+             ("snakemake.script", "import snakemake.script")]
+    for script in sorted((REPO / "workflow" / "scripts").glob("*.py")):
+        lines = [ln for ln in script.read_text().splitlines() if re.match(r"(import|from) \S", ln)]
+        cases.append((f"scripts/{script.name}", "\n".join(lines)))
+    print(f"{'imports of':28s} {'cpu_s':>6s} {'wall_s':>6s}")
+    for name, code in cases:
+        best_wall = best_cpu = float("inf")
+        for _ in range(3):
+            t0 = time.perf_counter()
+            proc = subprocess.run([sys.executable, "-c", f"{code}\nimport time\nprint(time.process_time())"],
+                                  capture_output=True, text=True, cwd=REPO)
+            if proc.returncode != 0:
+                sys.exit(f"{name}: import failed:\n{proc.stderr[-2000:]}")
+            best_wall = min(best_wall, time.perf_counter() - t0)
+            best_cpu = min(best_cpu, float(proc.stdout.split()[-1]))
+        print(f"{name:28s} {best_cpu:6.2f} {best_wall:6.2f}", flush=True)
 
 
 def run(workdir: Path, cores: int, *targets: str) -> None:

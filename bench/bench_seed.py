@@ -1,29 +1,61 @@
-"""Time the seed optimiser on a synthetic 90 s session (2400 frames) and print the numbers.
+"""Time the seed optimiser and its held-out scoring, before and after a change, and check that
+the outputs are byte-identical.
 
-Usage: ``.venv/bin/python bench/bench_seed.py [--frames 2400] [--k 50] [--workers 2]
-[--objective sum_squares] [--seed 0]``
+Usage::
 
-The corners come from projecting a 5 x 4 inner-corner board (square 0.09 m) along a random
-smooth trajectory at 1-4 m with K (fx 700, fy 700, cx 320, cy 240), OpenCV distortion and
-0.2 px noise. The Vicon P* is the true pose minus a constant offset, so the right answer is
-f = (700, 700) px and P_bar = the offset; the optimiser starts at (660, 730) px.
+    .venv/bin/python bench/bench_seed.py                                   # synthetic session
+    .venv/bin/python bench/bench_seed.py --results results/demo            # a pipeline session
+    .venv/bin/python bench/bench_seed.py --results results/demo --impl after --cv
+
+``--results DIR`` takes ``pairs.parquet``, ``corners.parquet`` and ``camera.yaml`` from a
+pipeline results folder, the board of ``--session`` and the options ``optimise.seed`` and
+``evaluate`` from ``--config`` (default config/config.yaml), like the workflow's
+``optimise_seed`` and ``heldout_seed`` rules (``heldout/se3.parquet``, when present, gives the
+held-out blocks as in the workflow). Without it a synthetic session is made: a 5 x 4
+inner-corner board (square 0.09 m) along a random smooth trajectory at 1-4 m with K (fx 700,
+fy 700, cx 320, cy 240), OpenCV distortion and 0.2 px noise; P* is the true pose minus a
+constant offset, so the right answer is f = (700, 700) px and P_bar = the offset; the
+optimiser starts at (660, 730) px.
+
+``--impl before`` runs cvsflow/optimise/seed.py as it was at git revision ``--before``
+(default: the last commit before the batched solver), ``after`` the working tree's module,
+``both`` (default) one then the other. Each run writes result.yaml (without the wall times),
+iterations.parquet, errors.parquet and, with ``--cv``, the held-out table as the workflow
+scripts do, and prints their sha256 and wall and CPU seconds (``time.process_time``: the
+machine may be shared, so CPU seconds are the steadier number; with threads, CPU seconds
+can exceed wall seconds).
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import importlib.util
+import subprocess
+import sys
+import tempfile
 import time
+from contextlib import contextmanager
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pandas as pd
+import yaml
 
-from cvsflow.optimise.seed import POSE_DIMS, board_object_points, optimise_seed
+import cvsflow.optimise.seed as seed_after
+from cvsflow.evaluate import cross_validate_seed
+from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.optimise.seed import POSE_DIMS, board_object_points
 from cvsflow.transforms import T_from_pose6, rvec_tvec_from_T
 
+REPO = Path(__file__).resolve().parents[1]
+#: cvsflow/optimise/seed.py before the batched multi-candidate solver (issue 20)
+BEFORE_REV = "ddf966f"
 BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
 DIST = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02])
 OFFSET = np.array([0.05, -0.03, 0.10, 0.02, -0.01, 0.03])
+OUTPUTS = ("result.yaml", "iterations.parquet", "errors.parquet")
 
 
 def synthesise(n_frames, seed, noise_px=0.2):
@@ -54,38 +86,134 @@ def synthesise(n_frames, seed, noise_px=0.2):
     return pairs, corners, K
 
 
+def load_before(rev):
+    """cvsflow/optimise/seed.py at git revision ``rev``, as a module of its own."""
+    src = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:cvsflow/optimise/seed.py"],
+                         capture_output=True, text=True, check=True).stdout
+    path = Path(tempfile.mkdtemp(prefix="bench_seed_")) / "seed_before.py"
+    path.write_text(src)
+    spec = importlib.util.spec_from_file_location("cvsflow_seed_before", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@contextmanager
+def using(module):
+    """Let cross_validate_seed (which imports cvsflow.optimise.seed) call ``module``'s optimiser."""
+    saved = seed_after.optimise_seed
+    seed_after.optimise_seed = module.optimise_seed
+    try:
+        yield
+    finally:
+        seed_after.optimise_seed = saved
+
+
+def sha(path):
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def timed(fn):
+    """fn(), its wall and CPU seconds."""
+    w0, c0 = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - w0, time.process_time() - c0
+
+
+def run(module, inputs, opts, cv, out_dir):
+    """Run one implementation; write its outputs as the workflow does; timings and hashes."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    pairs, corners, K, dist, board, folds, ev = inputs
+    with using(module):
+        res, wall, cpu = timed(lambda: module.optimise_seed(pairs, corners, K, dist, board,
+                                                            **opts))
+        stats = {"optimise_seed": (wall, cpu, res.result["n_pnp_solves"])}
+        write_parquet(res.iterations, out_dir / "iterations.parquet")
+        write_parquet(res.errors, out_dir / "errors.parquet")
+        res.result.pop("timings_s", None)
+        write_yaml(res.result, out_dir / "result.yaml")
+        files = list(OUTPUTS)
+        if cv:
+            cv_opts = {**opts, "k_iterations": ev["seed_k_iterations"]}
+            held, wall, cpu = timed(lambda: cross_validate_seed(
+                pairs, corners, K, dist, board, n_folds=ev["n_folds"], block_s=ev["block_s"],
+                seed=ev["seed"], folds=folds, **cv_opts))
+            stats["cross_validate_seed"] = (wall, cpu, None)
+            write_parquet(held, out_dir / "heldout_seed.parquet")
+            files.append("heldout_seed.parquet")
+    return stats, {f: sha(out_dir / f) for f in files}, res.result
+
+
 def main():
-    """Run and print timings, the recovered focal lengths and the error norms."""
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--frames", type=int, default=2400)
-    ap.add_argument("--k", type=int, default=50)
+    """Parse, run before and/or after, print timings, ratios and hash equality."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--results", type=Path, help="pipeline results folder of one session")
+    ap.add_argument("--config", type=Path, default=REPO / "config" / "config.yaml")
+    ap.add_argument("--session", default="demo")
+    ap.add_argument("--frames", type=int, default=2400, help="synthetic session length")
+    ap.add_argument("--seed", type=int, default=0, help="synthetic session seed")
+    ap.add_argument("--k", type=int, help="k_iterations (default: config, or 50)")
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--objective", default="sum_squares")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--objective", help="default: config, or sum_squares")
+    ap.add_argument("--cv", action="store_true", help="also time cross_validate_seed")
+    ap.add_argument("--impl", choices=("before", "after", "both"), default="both")
+    ap.add_argument("--before", default=BEFORE_REV, help="git revision of the 'before' code")
+    ap.add_argument("--out", type=Path, help="keep the outputs here")
     args = ap.parse_args()
-    t0 = time.perf_counter()
-    pairs, corners, K = synthesise(args.frames, args.seed)
-    t_synth = time.perf_counter() - t0
-    res = optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=args.k,
-                        f_init_px=(660.0, 730.0), objective=args.objective,
-                        n_workers=args.workers)
-    r = res.result
-    print(f"frames {args.frames}  k {args.k}  workers {args.workers}  objective {args.objective}")
-    print(f"synthesis_s {t_synth:.2f}")
-    print(f"total_s {r['timings_s']['total']:.2f}  grid_search_s {r['timings_s']['grid_search']:.2f}"
-          f"  per_iteration_s {r['timings_s']['total'] / max(args.k, 1):.3f}")
-    print(f"pnp_solves {r['n_pnp_solves']}  per_solve_ms "
-          f"{1e3 * r['timings_s']['grid_search'] / max(r['n_pnp_solves'], 1):.1f}")
-    print(f"f_init_px 660.0 730.0  f_final_px {r['fx_px']:.2f} {r['fy_px']:.2f}  truth 700 700")
-    print("P_bar_final", np.round(r["P_bar"], 4).tolist(), " truth", OFFSET.tolist())
-    print(f"norm_normalised_m init {r['norm_normalised_init_m']:.5f}"
-          f"  final {r['norm_normalised_final_m']:.5f}")
-    it = res.iterations
-    for j in (0, 1, 2, 5, 10, 20, 50):
-        if j < len(it):
-            row = it.iloc[j]
-            print(f"  iteration {j:2d}: fx {row.fx_px:.2f} fy {row.fy_px:.2f} "
-                  f"norm {row.norm_normalised:.5f} m")
+
+    config = yaml.safe_load(args.config.read_text())
+    ev = config["evaluate"]
+    if args.results is not None:
+        camera = read_yaml(args.results / "camera.yaml")
+        pairs = read_parquet(args.results / "pairs.parquet")
+        corners = read_parquet(args.results / "corners.parquet")
+        K, dist = np.array(camera["K"]), np.array(camera["dist"])
+        board = config["sessions"][args.session]["board"]
+        se3 = args.results / "heldout" / "se3.parquet"
+        folds = read_parquet(se3, columns=["t_s", "fold"]) if se3.exists() else None
+        opts = dict(config["optimise"]["seed"])
+        label = f"{args.results} (board of session {args.session!r})"
+    else:
+        pairs, corners, K = synthesise(args.frames, args.seed)
+        dist, board, folds = DIST, BOARD, None
+        opts = {"k_iterations": 50, "f_init_px": (660.0, 730.0)}
+        label = f"synthetic, {args.frames} frames, seed {args.seed}"
+    if args.k is not None:
+        opts["k_iterations"] = args.k
+    if args.objective is not None:
+        opts["objective"] = args.objective
+    opts["n_workers"] = args.workers
+    inputs = (pairs, corners, K, dist, board, folds, ev)
+    print(f"session: {label}; {len(pairs)} pairs; options {opts}")
+
+    impls = {"before": lambda: load_before(args.before), "after": lambda: seed_after}
+    chosen = ["before", "after"] if args.impl == "both" else [args.impl]
+    out_root = args.out or Path(tempfile.mkdtemp(prefix="bench_seed_out_"))
+    runs = {}
+    for name in chosen:
+        runs[name] = run(impls[name](), inputs, opts, args.cv, out_root / name)
+        stats, hashes, result = runs[name]
+        for stage, (wall, cpu, solves) in stats.items():
+            extra = f"  pnp_solves {solves}" if solves is not None else ""
+            print(f"{name:6s} {stage:20s} wall_s {wall:7.2f}  cpu_s {cpu:7.2f}{extra}")
+        print(f"{name:6s} f ({result['fx_px']:.4f}, {result['fy_px']:.4f}) px  "
+              f"norm {result['norm_normalised_init_m']:.5f} -> "
+              f"{result['norm_normalised_final_m']:.5f} m")
+        for f, h in hashes.items():
+            print(f"{name:6s} sha256 {h[:16]}  {f}")
+    if len(runs) == 2:
+        (sb, hb, _), (sa, ha, _) = runs["before"], runs["after"]
+        for stage in sb:
+            (wb, cb, _), (wa, ca, _) = sb[stage], sa[stage]
+            print(f"speed-up {stage:20s} wall x{wb / wa:5.2f}  cpu x{cb / ca:5.2f}")
+        same = all(hb[f] == ha[f] for f in hb)
+        for f in hb:
+            print(f"identical {f:22s} {hb[f] == ha[f]}")
+        print("outputs byte-identical:", same)
+        if not same:
+            sys.exit(1)
+    if args.out is None:
+        print(f"outputs in {out_root}")
 
 
 if __name__ == "__main__":

@@ -42,6 +42,12 @@ theorem). Undistorting the corners once is not exact: the normalised coordinates
 ``((u - cx) / fx, (v - cy) / fy)`` scale with the candidate f *before* the nonlinear
 undistortion, so the undistorted points change with every candidate; the forward model in
 pixels keeps it exact.
+
+All candidates of one grid level are solved as one stack of (candidate, frame) rows, cut
+into cache-sized chunks (:data:`ROWS_PER_CHUNK`) that ``n_workers`` threads share. Every row's
+arithmetic is independent of the others, so neither the stacking, the chunking nor the
+threads change a single bit of the result (bench/bench_seed.py compares the output files'
+sha256 with the per-candidate solver this replaced).
 """
 
 from __future__ import annotations
@@ -134,43 +140,58 @@ def _skew_exp(omega):
 
 
 def _project_with_jacobian(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist, want_jac=True):
-    """Distorted pixel projections (N, P, 2) and d(u, v)/d(omega, t) (N, P, 2, 6)."""
-    q = np.swapaxes(R_C_B @ X_B.T, 1, 2)  # R X, (N, P, 3)
-    p = q + t_C_B[:, None, :]  # points in C, metres
-    inv_z = 1.0 / p[..., 2]
-    x = p[..., 0] * inv_z
-    y = p[..., 1] * inv_z
+    """Distorted pixel projections (N, P, 2) and d(u, v)/d(omega, t) (N, P, 2, 6).
+
+    ``fx``, ``fy`` are scalars or (N, 1) arrays (one focal length per row). Every quantity is
+    computed on contiguous (N, P) arrays and written into J once: strided arithmetic on views
+    of J was most of the seed optimiser's time. The operations and their order are those of
+    the textbook expressions (the same floating-point results).
+    """
+    q = R_C_B @ X_B.T  # R X, (N, 3, P)
+    qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
+    inv_z = 1.0 / (qz + t_C_B[:, 2:3])
+    x = (qx + t_C_B[:, 0:1]) * inv_z
+    y = (qy + t_C_B[:, 1:2]) * inv_z
     k1, k2, p1, p2, k3 = dist
     r2 = x * x + y * y
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    uv = np.stack([fx * xd + cx, fy * yd + cy], axis=-1)
+    two_p1_x = 2.0 * p1 * x  # shared by xd, yd and the Jacobian (evaluated left to right)
+    two_p2_x = 2.0 * p2 * x
+    xd = x * radial + two_p1_x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + two_p2_x * y
+    uv = np.empty(x.shape + (2,))
+    uv[..., 0] = fx * xd + cx
+    uv[..., 1] = fy * yd + cy
     if not want_jac:
         return uv, xd, yd, None
     dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
     dxd_dx = radial + 2.0 * x * x * dradial_dr2 + 2.0 * p1 * y + 6.0 * p2 * x
-    dxd_dy = 2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y
-    dyd_dx = 2.0 * x * y * dradial_dr2 + 2.0 * p1 * x + 2.0 * p2 * y
-    dyd_dy = radial + 2.0 * y * y * dradial_dr2 + 6.0 * p1 * y + 2.0 * p2 * x
-    # d(u, v)/d(x, y) then d(x, y)/dp: A = d(u, v)/dp, shape (N, P, 2, 3)
+    dxd_dy = 2.0 * x * y * dradial_dr2 + two_p1_x + 2.0 * p2 * y
+    dyd_dx = dxd_dy  # the same expression: d(xd)/dy = d(yd)/dx
+    dyd_dy = radial + 2.0 * y * y * dradial_dr2 + 6.0 * p1 * y + two_p2_x
     du_dx, du_dy = fx * dxd_dx, fx * dxd_dy
     dv_dx, dv_dy = fy * dyd_dx, fy * dyd_dy
-    A = np.empty(p.shape[:2] + (2, 3))
-    A[..., 0, 0] = du_dx * inv_z
-    A[..., 0, 1] = du_dy * inv_z
-    A[..., 0, 2] = -(du_dx * x + du_dy * y) * inv_z
-    A[..., 1, 0] = dv_dx * inv_z
-    A[..., 1, 1] = dv_dy * inv_z
-    A[..., 1, 2] = -(dv_dx * x + dv_dy * y) * inv_z
-    J = np.empty(p.shape[:2] + (2, 6))
+    # A = d(u, v)/dp (rows u, v; columns x, y, z of p)
+    a00 = du_dx * inv_z
+    a01 = du_dy * inv_z
+    a02 = -(du_dx * x + du_dy * y) * inv_z
+    a10 = dv_dx * inv_z
+    a11 = dv_dy * inv_z
+    a12 = -(dv_dx * x + dv_dy * y) * inv_z
     # left perturbation R <- exp([w]x) R: dp/dw = -[q]x, so the row a^T (-[q]x) = (q x a)^T
-    qx, qy, qz = q[..., None, 0], q[..., None, 1], q[..., None, 2]
-    ax, ay, az = A[..., 0], A[..., 1], A[..., 2]
-    J[..., 0] = qy * az - qz * ay
-    J[..., 1] = qz * ax - qx * az
-    J[..., 2] = qx * ay - qy * ax
-    J[..., 3:] = A
+    J = np.empty(x.shape + (2, 6))
+    J[..., 0, 0] = qy * a02 - qz * a01
+    J[..., 0, 1] = qz * a00 - qx * a02
+    J[..., 0, 2] = qx * a01 - qy * a00
+    J[..., 0, 3] = a00
+    J[..., 0, 4] = a01
+    J[..., 0, 5] = a02
+    J[..., 1, 0] = qy * a12 - qz * a11
+    J[..., 1, 1] = qz * a10 - qx * a12
+    J[..., 1, 2] = qx * a11 - qy * a10
+    J[..., 1, 3] = a10
+    J[..., 1, 4] = a11
+    J[..., 1, 5] = a12
     return uv, xd, yd, J
 
 
@@ -227,45 +248,94 @@ def solve_pnp_batch(
 def _solve_R_t(uv_px, X_B, fx, fy, cx, cy, dist5, R, t, max_iter, tol):
     """Levenberg-Marquardt on (R, t) stacks, each frame damped and stopped on its own.
 
-    Returns R (N, 3, 3), t (N, 3) and the iterations run. A frame stops when its update is
-    below ``tol`` (rad, metres); only the still active frames are recomputed.
+    ``fx``, ``fy`` are scalars or one value per row (N,), so that many candidate focal
+    lengths are solved in one stack (:func:`_solve_rows`). Returns R (N, 3, 3), t (N, 3) and
+    the iterations run. A row stops when its update is below ``tol`` (rad, metres); only the
+    still active rows are recomputed.
+
+    Every row's arithmetic is independent of the other rows, so a row's result does not
+    depend on which rows share the stack. The projection and Jacobian at the trial pose are
+    kept and reused as the next iteration's linearisation (the same numbers a fresh
+    projection at that pose would give), so each iteration projects once.
     """
     R = np.array(R, dtype=float)
     t = np.array(t, dtype=float)
     n = uv_px.shape[0]
-    uv, _, _, _ = _project_with_jacobian(R, t, X_B, fx, fy, cx, cy, dist5, want_jac=False)
-    cost = np.sum((uv_px - uv) ** 2, axis=(1, 2))
-    lam = np.full(n, 1e-4)
-    active = np.arange(n)
+    # per-row focal lengths, (N, 1) to broadcast over the corners
+    fxa = np.broadcast_to(np.asarray(fx, dtype=float), (n,))[:, None]
+    fya = np.broadcast_to(np.asarray(fy, dtype=float), (n,))[:, None]
+    # the active rows' state, compacted when rows stop
+    rows = np.arange(n)
+    Ra, ta, obs = R.copy(), t.copy(), np.asarray(uv_px, dtype=float)
+    uva, _, _, Ja = _project_with_jacobian(Ra, ta, X_B, fxa, fya, cx, cy, dist5)
+    costa = np.sum((obs - uva) ** 2, axis=(1, 2))
+    lama = np.full(n, 1e-4)
     eye6 = np.eye(6)
     n_iter = 0
     for n_iter in range(1, max_iter + 1):  # noqa: B007
-        Ra, ta, obs = R[active], t[active], uv_px[active]
-        uv, _, _, J = _project_with_jacobian(Ra, ta, X_B, fx, fy, cx, cy, dist5)
-        m = active.size
-        r = (obs - uv).reshape(m, -1, 1)
-        Jf = J.reshape(m, -1, 6)
+        m = rows.size
+        r = (obs - uva).reshape(m, -1, 1)
+        Jf = Ja.reshape(m, -1, 6)
         JfT = Jf.transpose(0, 2, 1)
         JtJ = JfT @ Jf
         Jtr = JfT @ r
-        damp = lam[active, None, None] * (JtJ * eye6)  # Marquardt's diagonal scaling
+        damp = lama[:, None, None] * (JtJ * eye6)  # Marquardt's diagonal scaling
         delta = np.linalg.solve(JtJ + damp, Jtr)[..., 0]
         R_new = _skew_exp(delta[:, :3]) @ Ra
         t_new = ta + delta[:, 3:]
-        uv_new, _, _, _ = _project_with_jacobian(
-            R_new, t_new, X_B, fx, fy, cx, cy, dist5, want_jac=False
-        )
+        uv_new, _, _, J_new = _project_with_jacobian(R_new, t_new, X_B, fxa, fya, cx, cy, dist5)
         cost_new = np.sum((obs - uv_new) ** 2, axis=(1, 2))
-        accept = cost_new <= cost[active]
-        idx = active[accept]
-        R[idx], t[idx], cost[idx] = R_new[accept], t_new[accept], cost_new[accept]
-        lam[active] = np.where(accept, np.maximum(lam[active] * 0.1, 1e-9), lam[active] * 10.0)
+        accept = cost_new <= costa
+        reject = ~accept
+        if reject.any():  # rejected rows keep their pose and its linearisation
+            R_new[reject], t_new[reject], cost_new[reject] = Ra[reject], ta[reject], costa[reject]
+            uv_new[reject], J_new[reject] = uva[reject], Ja[reject]
+        Ra, ta, costa, uva, Ja = R_new, t_new, cost_new, uv_new, J_new
+        lama = np.where(accept, np.maximum(lama * 0.1, 1e-9), lama * 10.0)
         step = np.max(np.abs(delta), axis=1)
-        done = (accept & (step < tol)) | (lam[active] > 1e6)
-        active = active[~done]
-        if active.size == 0:
-            break
+        done = (accept & (step < tol)) | (lama > 1e6)
+        if done.any():
+            R[rows[done]], t[rows[done]] = Ra[done], ta[done]
+            keep = ~done
+            rows, Ra, ta, costa, uva, Ja = rows[keep], Ra[keep], ta[keep], costa[keep], uva[keep], Ja[keep]
+            obs, fxa, fya, lama = obs[keep], fxa[keep], fya[keep], lama[keep]
+            if rows.size == 0:
+                break
+    R[rows], t[rows] = Ra, ta  # rows still active after max_iter keep their last accepted pose
     return R, t, n_iter
+
+
+#: Rows (candidate x frame) per stack of :func:`_solve_rows`: bounds the memory of one
+#: stack (about 10 kB per row for a 20-corner board) while keeping numpy's per-call
+#: overhead small.
+ROWS_PER_CHUNK = 1024
+
+
+def _solve_rows(uv_px, frame_of_row, X_B, fx_rows, fy_rows, cx, cy, dist5, R, t, max_iter, tol,
+                pool=None, n_workers=1, rows_per_chunk=None):
+    """:func:`_solve_R_t` of many (candidate, frame) rows, in chunks, on a thread pool if given.
+
+    Row i solves frame ``frame_of_row[i]`` (an index into ``uv_px``, (N_frames, P, 2)) at
+    focal lengths ``fx_rows[i], fy_rows[i]`` from the pose ``R[i], t[i]``. Rows are
+    independent (see :func:`_solve_R_t`), so the chunking does not change a result.
+    Returns R (M, 3, 3) and t (M, 3).
+    """
+    n = frame_of_row.size
+    rows_per_chunk = ROWS_PER_CHUNK if rows_per_chunk is None else rows_per_chunk
+    n_chunks = max(int(n_workers) if pool is not None else 1, -(-n // int(rows_per_chunk)))
+    n_chunks = max(1, min(n_chunks, n))
+    bounds = np.linspace(0, n, n_chunks + 1).astype(int)
+
+    def work(i):
+        s = slice(bounds[i], bounds[i + 1])
+        return _solve_R_t(uv_px[frame_of_row[s]], X_B, fx_rows[s], fy_rows[s], cx, cy, dist5,
+                          R[s], t[s], max_iter, tol)[:2]
+
+    if pool is not None and n_chunks > 1:
+        parts = list(pool.map(work, range(n_chunks)))
+    else:
+        parts = [work(i) for i in range(n_chunks)]
+    return np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts])
 
 
 def _focal_sensitivity(uv_px, X_B, fx, fy, cx, cy, dist5, R, t):
@@ -480,7 +550,8 @@ def optimise_seed(
     f_bounds_px : (float, float)
         Candidates outside these bounds are skipped, pixels.
     n_workers : int
-        Threads evaluating grid candidates concurrently (numpy releases the GIL).
+        Threads sharing the chunks of each grid level's stacked PnP solve (numpy releases
+        the GIL); the result does not depend on it.
     gn_max_iter, gn_tol : int, float
         Gauss-Newton limits of the per-candidate PnP (rad and metres).
 
@@ -574,13 +645,21 @@ def optimise_seed(
     R0 = R_from_rvec(pairs[[f"cvs_rvec_{i}" for i in range(3)]].to_numpy(dtype=float))
     t0 = pairs[[f"cvs_{d}" for d in POSE_DIMS[:3]]].to_numpy(dtype=float)
 
-    def solve(fxy, R_start, t_start_):
-        return _solve_R_t(uv, X_B, fxy[0], fxy[1], cx, cy, dist5, R_start, t_start_,
-                          gn_max_iter, gn_tol)
+    pool = ThreadPoolExecutor(max_workers=int(n_workers)) if int(n_workers) > 1 else None
+    n_frames = len(frames)
+
+    def solve(cands, R_start, t_start_):
+        """Poses of every frame at every candidate (fx, fy): one batched solve of all rows."""
+        cands = np.asarray(cands, dtype=float).reshape(-1, 2)
+        Rc, tc = _solve_rows(uv, np.tile(np.arange(n_frames), len(cands)), X_B,
+                             np.repeat(cands[:, 0], n_frames), np.repeat(cands[:, 1], n_frames),
+                             cx, cy, dist5, R_start, t_start_, gn_max_iter, gn_tol,
+                             pool=pool, n_workers=n_workers)
+        return Rc.reshape(len(cands), n_frames, 3, 3), tc.reshape(len(cands), n_frames, 3)
 
     # F(f_init): re-estimated with our PnP so every F is on the same footing.
-    R, t, _ = solve(f, R0, t0)
-    pool = ThreadPoolExecutor(max_workers=int(n_workers)) if int(n_workers) > 1 else None
+    R, t = solve(f, R0, t0)
+    R, t = R[0], t[0]
     rows = []
     n_solves = 0
     t_grid = 0.0
@@ -618,13 +697,24 @@ def optimise_seed(
             dtheta_df = _focal_sensitivity(uv, X_B, f[0], f[1], cx, cy, dist5, R, t)
             target = P_star[:, :3] + P_bar[:3]
 
-            def score(fxy, R=R, t=t, dtheta_df=dtheta_df, target=target, f_now=f.copy()):
-                df = fxy - f_now
-                if not np.any(df):
-                    return objective_value(t - target, objective), R, t
-                step = dtheta_df @ df  # first-order warm start, (N, 6)
-                Rc, tc, _ = solve(fxy, _skew_exp(step[:, :3]) @ R, t + step[:, 3:])
-                return objective_value(tc - target, objective), Rc, tc
+            def score(cands, R=R, t=t, dtheta_df=dtheta_df, target=target, f_now=f.copy()):
+                """Objective and poses at each candidate; all candidates solved in one stack."""
+                out = [None] * len(cands)
+                moved = []
+                for i, fxy in enumerate(cands):
+                    df = fxy - f_now
+                    if not np.any(df):
+                        out[i] = (objective_value(t - target, objective), R, t)
+                    else:
+                        step = dtheta_df @ df  # first-order warm start, (N, 6)
+                        moved.append((i, _skew_exp(step[:, :3]) @ R, t + step[:, 3:]))
+                if moved:
+                    Rc, tc = solve([cands[i] for i, _, _ in moved],
+                                   np.concatenate([m[1] for m in moved]),
+                                   np.concatenate([m[2] for m in moved]))
+                    for k, (i, _, _) in enumerate(moved):
+                        out[i] = (objective_value(tc[k] - target, objective), Rc[k], tc[k])
+                return out
 
             best = (objective_value(t - target, objective), f.copy(), R, t)
             centre = f.copy()
@@ -636,7 +726,7 @@ def optimise_seed(
                          and f_bounds_px[0] <= c[0] <= f_bounds_px[1]
                          and f_bounds_px[0] <= c[1] <= f_bounds_px[1]]
                 seen.update(tuple(c) for c in cands)
-                results = list(pool.map(score, cands)) if pool else [score(c) for c in cands]
+                results = score(cands)
                 n_solves += len(cands)
                 for c, (val, Rc, tc) in zip(cands, results, strict=True):
                     if val < best[0]:

@@ -81,6 +81,36 @@ def test_solve_pnp_batch_matches_opencv():
         np.testing.assert_allclose(r_b[i], r_cv.ravel(), atol=1e-5)
 
 
+def test_batched_candidates_equal_one_solve_per_candidate_bit_for_bit():
+    """Stacking candidates, cutting the stack into chunks and threads change no bit of a pose.
+
+    optimise_seed solves all candidates of a grid level in one stack (_solve_rows); its
+    outputs are only reproducible if a row's result does not depend on its neighbours.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from cvsflow.optimise.seed import _dist5, _solve_R_t, _solve_rows
+    from cvsflow.transforms import R_from_rvec
+
+    _, _, _, _, uv, rvec, tvec = _session(40, seed=5)
+    X_B = board_object_points(BOARD)
+    cands = np.array([[690.0, 712.0], [700.0, 700.0], [640.0, 760.0]])
+    n = len(uv)
+    R0, d5 = R_from_rvec(rvec), _dist5(DIST)
+    one = [_solve_R_t(uv, X_B, fx, fy, 320.0, 240.0, d5, R0, tvec, 10, 1e-6)[:2]
+           for fx, fy in cands]
+    rows = np.tile(np.arange(n), len(cands))
+    with ThreadPoolExecutor(2) as pool:
+        R, t = _solve_rows(uv, rows, X_B, np.repeat(cands[:, 0], n), np.repeat(cands[:, 1], n),
+                           320.0, 240.0, d5, np.tile(R0, (3, 1, 1)), np.tile(tvec, (3, 1)), 10,
+                           1e-6, pool=pool, n_workers=2, rows_per_chunk=7)
+    for k, (R_k, t_k) in enumerate(one):
+        assert R[k * n:(k + 1) * n].tobytes() == R_k.tobytes()
+        assert t[k * n:(k + 1) * n].tobytes() == t_k.tobytes()
+    # and the candidates did move the poses (the comparison is not between start values)
+    assert not np.array_equal(one[0][1], one[2][1])
+
+
 def test_p_bar_and_eps_by_hand():
     """Eq. 1.10 is the mean difference (circular for angles); eq. 1.11 gives zero-mean eps."""
     rng = np.random.default_rng(1)
