@@ -14,8 +14,8 @@ image, then refinement at full size and the grid, saddle and square-colour check
 following it while it is partly out of view or under a hand, looks for a lost board with a
 quick detector on a shrunk image, backing off while it stays lost (the frames in between wait,
 within a memory bound, and are tracked backwards from where it is found), and runs the full
-detector (on the shrunk image) only right after a loss and every ``DEEP_SEARCH_EVERY`` frames
-while lost. ``cvsflow.corners_fast`` runs it in chunks on several cores.
+detector (on the shrunk image) only right after the tracker loses the board and every
+``DEEP_SEARCH_EVERY`` frames while lost. ``cvsflow.corners_fast`` runs it in chunks on several cores.
 bench/bench_corners.py measures it per resolution against the renderer's truth.
 """
 
@@ -792,8 +792,12 @@ QUICK_MIN_SQUARE_PX = 16.0
 # after the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found within
 # that many frames and the frames before it are tracked backwards).
 SEARCH_EVERY_MAX = 8
-# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) on the 1st frame
-# after the loss and every DEEP_SEARCH_EVERY frames.
+# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) every
+# DEEP_SEARCH_EVERY frames while no board is followed (and on the frames right after the
+# tracker lost one, ``_relocate``). Not on the first frame of a session or restart: there the
+# quick search misses mostly boards that are not there (a hand, the border; ~220 ms per
+# 1280x720 frame for nothing on the realistic renders), and a whole board it misses is found
+# DEEP_SEARCH_EVERY frames later and tracked back.
 DEEP_SEARCH_EVERY = 32
 # Most grey-image bytes kept waiting for a board (memory does not grow with the session:
 # 48 frames at 1920x1080, 340 at 640x480); older waiting frames are decided without it.
@@ -942,7 +946,7 @@ class _CornerFollower:
         corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
                                          self.board, self.subpix, self.max_dev,
                                          self._quick_scale())
-        if corners_px is None and (self.lost_for == 1 or self.lost_for % DEEP_SEARCH_EVERY == 0):
+        if corners_px is None and self.lost_for % DEEP_SEARCH_EVERY == 0:
             # Now and then the full detector (on the shrunk image), for the whole boards the
             # quick one misses (low contrast, small squares).
             prev = self.flags if self.flags is not None else VIDEO_SEARCH_FLAGS
