@@ -444,23 +444,30 @@ def refine_corners(
     corners_px : ndarray, shape (nx * ny, 2), float64, or None
         Refined corners in the order given; None when a corner still deviates.
     """
+    return _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation)[0]
+
+
+def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation):
+    """``refine_corners``, and the corners of its first cornerSubPix (None where it failed),
+    which a caller that falls back to ``_follow_partial`` reuses."""
     corners = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     w = _subpix_window(corners, board, subpix_window_px)
-    corners = _subpix(gray, corners, w)
-    if corners is None:
-        return None
+    first = _subpix(gray, corners, w)
+    if first is None:
+        return None, None
+    corners = first.copy()
     predicted, deviation = grid_deviation(corners, board)
     limit = deviation_limit_px(corners, board, max_grid_deviation)
     bad = deviation > limit
     if bad.any():
         retry = _subpix(gray, predicted[bad], w)
         if retry is None:
-            return None
+            return None, first
         corners[bad] = retry
         _, deviation = grid_deviation(corners, board)
         if (deviation > limit).any():
-            return None
-    return corners.astype(np.float64)
+            return None, first
+    return corners.astype(np.float64), first
 
 
 # Tracking (extract_corners' fast path). Pyramidal Lucas-Kanade (Bouguet 2000) moves the
@@ -682,10 +689,10 @@ def track_corners(
     if not _inside(p, w, h, 0.0).all():
         return _follow_partial(gray, p, _inside(p, w, h, sc["border"]), grid, board,
                                subpix_window_px, sc, max_grid_deviation)
-    corners = refine_corners(gray, p, board, subpix_window_px, max_grid_deviation)
+    corners, first = _refine_corners(gray, p, board, subpix_window_px, max_grid_deviation)
     if corners is None:  # a corner off its neighbours: hidden (a hand) or misplaced
         return _follow_partial(gray, p, np.ones(len(p), bool), grid, board, subpix_window_px,
-                               sc, max_grid_deviation, "partial")
+                               sc, max_grid_deviation, "partial", first)
     inner = _inside(corners, w, h, sc["border"])
     if not inner.all():
         return _follow_partial(gray, corners, inner, grid, board, subpix_window_px, sc,
@@ -768,13 +775,15 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
 
 
 def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
-                    method="out_of_view"):
+                    method="out_of_view", refined=None):
     """Refine the corners ``inner`` of a board partly hidden (image border, a hand), keep those
-    consistent with their neighbours, check the squares they bound; NaN for the others."""
+    consistent with their neighbours, check the squares they bound; NaN for the others.
+    ``refined``: cornerSubPix of ``p[inner]`` already taken (with ``_subpix_window(p)``)."""
     if inner.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
-    w = _subpix_window(p, board, subpix_window_px)
-    refined = _subpix(gray, p[inner], w)
+    if refined is None:
+        w = _subpix_window(p, board, subpix_window_px)
+        refined = _subpix(gray, p[inner], w)
     if refined is None:
         return None, "lost"
     out = np.full((len(grid), 2), np.nan)
