@@ -525,6 +525,23 @@ def _track_scales(corners_px: np.ndarray, board: dict, shape: tuple[int, int]) -
 MIN_PATTERN_CONTRAST = 20.0
 
 
+@functools.lru_cache(maxsize=16)
+def _square_samples(sx: int, sy: int) -> tuple[np.ndarray, np.ndarray]:
+    """``board_squares_pattern_ok``'s sample points in grid coordinates, (3, sx * sy, 9)
+    homogeneous, and which squares are black, (sx * sy,)."""
+    jj, ii = np.mgrid[0:sy, 0:sx]
+    a = np.array([-0.25, 0.0, 0.25])
+    da, db = (g.ravel() for g in np.meshgrid(a, a))
+    # Square (i, j) spans grid x in [i - 1, i], y in [j - 1, j] (corner 0 at (0, 0)).
+    gx = (ii.ravel() - 0.5)[:, None] + da[None]
+    gy = (jj.ravel() - 0.5)[:, None] + db[None]
+    samples = np.stack([gx, gy, np.ones_like(gx)])
+    black = (ii.ravel() + jj.ravel()) % 2 == 0
+    for arr in (samples, black):
+        arr.flags.writeable = False  # cached: shared by every call
+    return samples, black
+
+
 def board_squares_pattern_ok(
     gray: np.ndarray, H_img_grid: np.ndarray, board: dict, min_contrast: float = 20.0,
     corner_known: np.ndarray | None = None,
@@ -555,13 +572,8 @@ def board_squares_pattern_ok(
     ok : bool
     """
     sx, sy = int(board["squares_x"]), int(board["squares_y"])
-    jj, ii = np.mgrid[0:sy, 0:sx]
-    a = np.array([-0.25, 0.0, 0.25])
-    da, db = (g.ravel() for g in np.meshgrid(a, a))
-    # Square (i, j) spans grid x in [i - 1, i], y in [j - 1, j] (corner 0 at (0, 0)).
-    gx = (ii.ravel() - 0.5)[:, None] + da[None]
-    gy = (jj.ravel() - 0.5)[:, None] + db[None]
-    p = np.einsum("ij,jsk->isk", H_img_grid, np.stack([gx, gy, np.ones_like(gx)]))
+    samples, black_all = _square_samples(sx, sy)
+    p = np.einsum("ij,jsk->isk", H_img_grid, samples)
     with np.errstate(divide="ignore", invalid="ignore"):
         u, v = p[0] / p[2], p[1] / p[2]
     h, w = gray.shape
@@ -580,7 +592,7 @@ def board_squares_pattern_ok(
     if not inside.any():
         return False
     level = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)].mean(axis=1)
-    black = ((ii.ravel() + jj.ravel()) % 2 == 0)[inside]
+    black = black_all[inside]
     if black.all() or not black.any():
         return False
     lo, hi = level[black], level[~black]
