@@ -729,13 +729,22 @@ _SHRUNK: list = []
 
 
 def _shrunk(gray: np.ndarray, f: int) -> np.ndarray:
-    """``gray`` shrunk by the integer factor ``f`` (area average), from a small cache."""
+    """``gray`` shrunk by the integer factor ``f`` (area average), from a small cache.
+
+    A power of two is halved repeatedly: OpenCV's area resize by 1/2 is ~8x faster than by
+    1/4 (0.12 against 0.95 ms for a 1080x1920 frame), and two 2x2 averages are the 4x4
+    average (up to the rounding of the half-size image to 8 bits).
+    """
     for image, k, small in _SHRUNK:
         if image is gray and k == f:
             return small
-    small = cv2.resize(gray, None, fx=1.0 / f, fy=1.0 / f, interpolation=cv2.INTER_AREA)
+    if f > 2 and f % 2 == 0:
+        small = cv2.resize(_shrunk(gray, f // 2), None, fx=0.5, fy=0.5,
+                           interpolation=cv2.INTER_AREA)
+    else:
+        small = cv2.resize(gray, None, fx=1.0 / f, fy=1.0 / f, interpolation=cv2.INTER_AREA)
     _SHRUNK.append((gray, f, small))
-    del _SHRUNK[:-3]
+    del _SHRUNK[:-6]  # the last three images, at up to two factors each
     return small
 
 
