@@ -292,14 +292,24 @@ def keep_consistent_corners(corners_px: np.ndarray, board: dict,
         The input with dropped corners set to NaN (a hand over them, a border cutting their
         window); every kept corner within its limit of its kept neighbours' prediction.
     """
+    return _keep_consistent(corners_px, board, max_grid_deviation)
+
+
+def _keep_consistent(corners_px, board, max_grid_deviation, limit=None, deviation=None):
+    """``keep_consistent_corners``; ``limit`` and ``deviation``: ``deviation_limit_px`` and
+    ``grid_deviation`` of ``corners_px`` where the caller has them already."""
     out = np.array(corners_px, dtype=np.float64).reshape(-1, 2)
     # The limits from all the corners given: dropping one changes the local spacing little.
-    limit = deviation_limit_px(out, board, max_grid_deviation)
+    if limit is None:
+        limit = deviation_limit_px(out, board, max_grid_deviation)
     for _ in range(len(out)):
         known = np.isfinite(out).all(axis=1)
         if not known.any():
             break
-        _, dev = grid_deviation(out, board)
+        if deviation is None:
+            _, dev = grid_deviation(out, board)
+        else:
+            dev, deviation = deviation, None
         excess = np.where(known, dev / limit, 0.0)
         if excess.max() <= 1.0:
             break
@@ -448,8 +458,9 @@ def refine_corners(
 
 
 def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation):
-    """``refine_corners``, and the corners of its first cornerSubPix (None where it failed),
-    which a caller that falls back to ``_follow_partial`` reuses."""
+    """``refine_corners``, and the corners of its first cornerSubPix (None where it failed)
+    with their ``(deviation_limit_px, grid_deviation)``, which a caller that falls back to
+    ``_follow_partial`` reuses."""
     corners = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     w = _subpix_window(corners, board, subpix_window_px)
     first = _subpix(gray, corners, w)
@@ -458,6 +469,7 @@ def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviatio
     corners = first.copy()
     predicted, deviation = grid_deviation(corners, board)
     limit = deviation_limit_px(corners, board, max_grid_deviation)
+    first = (first, limit, deviation)
     bad = deviation > limit
     if bad.any():
         retry = _subpix(gray, predicted[bad], w)
@@ -799,17 +811,21 @@ def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_
                     method="out_of_view", refined=None):
     """Refine the corners ``inner`` of a board partly hidden (image border, a hand), keep those
     consistent with their neighbours, check the squares they bound; NaN for the others.
-    ``refined``: cornerSubPix of ``p[inner]`` already taken (with ``_subpix_window(p)``)."""
+    ``refined``: ``_refine_corners``' first cornerSubPix of ``p`` (every corner ``inner``),
+    with its limits and deviations."""
     if inner.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
+    limit = deviation = None
     if refined is None:
         w = _subpix_window(p, board, subpix_window_px)
         refined = _subpix(gray, p[inner], w)
+    else:
+        refined, limit, deviation = refined
     if refined is None:
         return None, "lost"
     out = np.full((len(grid), 2), np.nan)
     out[inner] = refined
-    out = keep_consistent_corners(out, board, max_grid_deviation)
+    out = _keep_consistent(out, board, max_grid_deviation, limit, deviation)
     known = np.isfinite(out).all(axis=1)
     if known.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
