@@ -2,6 +2,7 @@
 
 Usage: .venv/bin/python bench/bench_corners.py [--cache DIR] [--duration-s 6]
        [--sessions webcam640,hd720,fhd1080,portrait1080] [--long-repeats 10] [--no-long]
+       [--repeats 3]
 
 Renders a short clip of each session of config/config.yaml + config/realistic.yaml
 (``synth.preset: realistic``: 640x480, 1280x720, 1920x1080 HEVC, portrait 1080x1920) with the
@@ -291,6 +292,9 @@ def main():
     parser.add_argument("--sessions", default=",".join(SESSIONS))
     parser.add_argument("--long-repeats", type=int, default=10)
     parser.add_argument("--no-long", action="store_true")
+    parser.add_argument("--repeats", type=int, default=1,
+                        help="decode and stage runs per session (alternating); the least CPU "
+                             "time of each is reported")
     parser.add_argument("--variant", help=argparse.SUPPRESS)  # internal: run one, print JSON
     parser.add_argument("--video", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--out", type=Path, help=argparse.SUPPRESS)
@@ -323,8 +327,13 @@ def main():
         plain_path = folder / "bench_plain.parquet"
         if not plain_path.is_file():
             _spawn("plain", video, plain_path, name)
-        dec = _spawn("decode", video, folder / "bench_decode.parquet", name)
-        stg = _spawn("stage", video, folder / "bench_stage.parquet", name)
+        # Alternating runs, the least CPU time of each: the machine's load only adds time.
+        dec = stg = None
+        for _ in range(max(1, args.repeats)):
+            d = _spawn("decode", video, folder / "bench_decode.parquet", name)
+            s = _spawn("stage", video, folder / "bench_stage.parquet", name)
+            dec = d if dec is None or d["cpu_s"] < dec["cpu_s"] else dec
+            stg = s if stg is None or s["cpu_s"] < stg["cpu_s"] else stg
         acc = _accuracy(pd.read_parquet(folder / "bench_stage.parquet"),
                         pd.read_parquet(plain_path),
                         pd.read_parquet(folder / "truth_frames.parquet"),
@@ -353,9 +362,10 @@ def main():
                 f"peak {dec['peak_mb']:.0f} MB, stage {fs:.0f}/s peak {stg['peak_mb']:.0f} MB"
             )
     print("\n".join(details))
-    print("frames/s by CPU time of the process (one core); ratio = stage / decode (target >= "
-          "0.5); whole = found / frames wholly visible and not occluded; plain = found / frames "
-          "plain OpenCV finds; err on the frames both found")
+    print(f"frames/s by CPU time of the process (one core; the least of {max(1, args.repeats)} "
+          "runs); ratio = stage / decode (target >= 0.5); whole = found / frames wholly "
+          "visible and not occluded; plain = found / frames plain OpenCV finds; err on the "
+          "frames both found")
 
 
 if __name__ == "__main__":

@@ -14,8 +14,8 @@ image, then refinement at full size and the grid, saddle and square-colour check
 following it while it is partly out of view or under a hand, looks for a lost board with a
 quick detector on a shrunk image, backing off while it stays lost (the frames in between wait,
 within a memory bound, and are tracked backwards from where it is found), and runs the full
-detector (on the shrunk image) only right after a loss and every ``DEEP_SEARCH_EVERY`` frames
-while lost. ``cvsflow.corners_fast`` runs it in chunks on several cores.
+detector (on the shrunk image) only right after the tracker loses the board and every
+``DEEP_SEARCH_EVERY`` frames while lost. ``cvsflow.corners_fast`` runs it in chunks on several cores.
 bench/bench_corners.py measures it per resolution against the renderer's truth.
 """
 
@@ -101,6 +101,23 @@ MAX_GRID_DEVIATION_FRAC = 0.08
 MIN_GRID_DEVIATION_PX = 1.0
 
 
+def _median(values: np.ndarray) -> float:
+    """np.median of an array (same value), without its overhead (~10x on ~100 values)."""
+    s = np.sort(values, axis=None)
+    n = len(s)
+    return float(0.5 * (s[(n - 1) // 2] + s[n // 2]))
+
+
+def _neighbour_distances(corners_px: np.ndarray, board: dict) -> np.ndarray:
+    """Finite distances between grid neighbours (rows, then columns), px."""
+    nx, ny = board_pattern(board)
+    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    a, b = np.diff(grid, axis=1), np.diff(grid, axis=0)
+    d = np.concatenate([np.sqrt((a * a).sum(axis=-1)).ravel(),
+                        np.sqrt((b * b).sum(axis=-1)).ravel()])
+    return d[np.isfinite(d)]
+
+
 def local_spacing(corners_px: np.ndarray, board: dict) -> np.ndarray:
     """Local grid spacing at each corner: the mean distance to its grid neighbours (px).
 
@@ -135,7 +152,7 @@ def local_spacing(corners_px: np.ndarray, board: dict) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         spacing = (total / count).ravel()
     finite = np.isfinite(spacing)
-    fill = float(np.median(spacing[finite])) if finite.any() else 1.0
+    fill = _median(spacing[finite]) if finite.any() else 1.0
     return np.where(finite, spacing, fill)
 
 
@@ -147,16 +164,10 @@ def _subpix_window(corners_px: np.ndarray, board: dict, max_window_px: int) -> i
     the window (large images, near boards) get ``SUBPIX_WINDOW_FRAC`` of their spacing, so
     blur that spreads a corner over more pixels still fits inside the window.
     """
-    nx, ny = board_pattern(board)
-    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
-    d = np.concatenate([
-        np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel(),
-        np.linalg.norm(np.diff(grid, axis=0), axis=-1).ravel(),
-    ])
-    d = d[np.isfinite(d)]
+    d = _neighbour_distances(corners_px, board)
     if not len(d):
         return int(max(2, max_window_px))
-    wanted = max(max_window_px, int(round(SUBPIX_WINDOW_FRAC * np.median(d))))
+    wanted = max(max_window_px, int(round(SUBPIX_WINDOW_FRAC * _median(d))))
     return int(max(2, min(wanted, np.floor((d.min() - 1.0) / 2.0))))
 
 
@@ -209,30 +220,42 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     nx, ny = board_pattern(board)
     uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     weights = _neighbour_weights(nx, ny)  # (N, N): 1 where corner j helps predict corner k
+    xy1, mono = _grid_monomials(nx, ny)
     known = np.isfinite(uv).all(axis=1)  # NaN corners (dropped, hidden) predict nothing
     if not known.all():
         weights = weights * known[None, :]
         uv = np.where(known[:, None], uv, 0.0)
     # Conditioning as in Hartley's normalised DLT: centre and scale the pixels.
-    centre = uv[known].mean(axis=0) if known.any() else np.zeros(2)
-    scale = np.sqrt(2.0) / max(np.linalg.norm(uv[known] - centre, axis=1).mean(), 1e-9) \
-        if known.any() else 1.0
+    if known.any():
+        centre = uv[known].mean(axis=0)
+        scale = np.sqrt(2.0) / max(np.sqrt(((uv[known] - centre) ** 2).sum(axis=1)).mean(),
+                                   1e-9)
+    else:
+        centre, scale = np.zeros(2), 1.0
     u, v = ((uv - centre) * scale).T
-    k = np.arange(nx * ny)
-    x, y = (k % nx).astype(np.float64), (k // nx).astype(np.float64)
-    zero, one = np.zeros_like(x), np.ones_like(x)
-    rows_u = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=1)
-    rows_v = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=1)
     # Corner k's DLT system keeps only its neighbours' rows: the sum of their outer products
-    # (normal equations, 9x9 per corner). Its homography is taken with h33 = 1 (the board's
+    # (normal equations, 9x9 per corner). With X = (x, y, 1) a neighbour's two rows are
+    # (X, 0, -u X) and (0, X, -v X), so the sum has the blocks [[A, 0, -U], [0, A, -V],
+    # [-U, -V, S]] of A = sum X X', U = sum u X X', V = sum v X X', S = sum (u^2 + v^2) X X':
+    # one (N, N) @ (N, 36) product. Its homography is taken with h33 = 1 (the board's
     # origin is in front of the camera, so h33, its projective depth, is not 0): an 8x8 solve
     # per corner, a tenth of the time of the eigenvector of the smallest eigenvalue, and the
     # same homography on exact points.
-    outer = rows_u[:, :, None] * rows_u[:, None, :] + rows_v[:, :, None] * rows_v[:, None, :]
-    normal = (weights @ outer.reshape(len(x), 81)).reshape(-1, 9, 9)  # (N, 9, 9)
-    h = np.ones((len(x), 9))
-    enough = weights.sum(axis=1) >= 4  # fewer known neighbours: no prediction (below)
-    a = normal[:, :8, :8].copy()
+    n = len(u)
+    sums = weights @ np.concatenate(
+        [mono, u[:, None] * mono, v[:, None] * mono, (u * u + v * v)[:, None] * mono], axis=1
+    )
+    blocks = sums.reshape(n, 4, 3, 3)
+    normal = np.zeros((n, 9, 9))
+    normal[:, 0:3, 0:3] = blocks[:, 0]
+    normal[:, 3:6, 3:6] = blocks[:, 0]
+    normal[:, 0:3, 6:9] = normal[:, 6:9, 0:3] = -blocks[:, 1]
+    normal[:, 3:6, 6:9] = normal[:, 6:9, 3:6] = -blocks[:, 2]
+    normal[:, 6:9, 6:9] = blocks[:, 3]
+    h = np.ones((n, 9))
+    n_near = weights.sum(axis=1)
+    enough = n_near >= 4  # fewer known neighbours: no prediction (below)
+    a = normal[:, :8, :8]
     a[~enough] = np.eye(8)
     try:
         h[:, :8] = np.linalg.solve(a, -normal[:, :8, 8:9])[..., 0]
@@ -241,12 +264,13 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
         for k in np.flatnonzero(enough):
             with contextlib.suppress(np.linalg.LinAlgError):
                 h[k, :8] = np.linalg.solve(a[k], -normal[k, :8, 8])
-    p = np.einsum("kij,kj->ki", h.reshape(-1, 3, 3), np.stack([x, y, one], axis=1))
+    p = np.einsum("kij,kj->ki", h.reshape(-1, 3, 3), xy1)
     with np.errstate(divide="ignore", invalid="ignore"):
         predicted = p[:, :2] / p[:, 2:3] / scale + centre
-    deviation = np.linalg.norm(predicted - uv, axis=1)
+    d = predicted - uv
+    deviation = np.sqrt((d * d).sum(axis=1))
     # Fewer than four known neighbours leave the homography undetermined.
-    ok = np.isfinite(deviation) & known & (weights.sum(axis=1) >= 4)
+    ok = np.isfinite(deviation) & known & enough
     return predicted, np.where(ok, deviation, np.inf)
 
 
@@ -268,14 +292,24 @@ def keep_consistent_corners(corners_px: np.ndarray, board: dict,
         The input with dropped corners set to NaN (a hand over them, a border cutting their
         window); every kept corner within its limit of its kept neighbours' prediction.
     """
+    return _keep_consistent(corners_px, board, max_grid_deviation)
+
+
+def _keep_consistent(corners_px, board, max_grid_deviation, limit=None, deviation=None):
+    """``keep_consistent_corners``; ``limit`` and ``deviation``: ``deviation_limit_px`` and
+    ``grid_deviation`` of ``corners_px`` where the caller has them already."""
     out = np.array(corners_px, dtype=np.float64).reshape(-1, 2)
     # The limits from all the corners given: dropping one changes the local spacing little.
-    limit = deviation_limit_px(out, board, max_grid_deviation)
+    if limit is None:
+        limit = deviation_limit_px(out, board, max_grid_deviation)
     for _ in range(len(out)):
         known = np.isfinite(out).all(axis=1)
         if not known.any():
             break
-        _, dev = grid_deviation(out, board)
+        if deviation is None:
+            _, dev = grid_deviation(out, board)
+        else:
+            dev, deviation = deviation, None
         excess = np.where(known, dev / limit, 0.0)
         if excess.max() <= 1.0:
             break
@@ -288,6 +322,17 @@ def keep_consistent_corners(corners_px: np.ndarray, board: dict,
         worst = (excess > 1.0) & (excess >= neighbour_max)
         out[worst] = np.nan
     return out
+
+
+@functools.lru_cache(maxsize=16)
+def _grid_monomials(nx: int, ny: int) -> tuple[np.ndarray, np.ndarray]:
+    """Grid points (x, y, 1) of the inner corners, (N, 3), and their X X' flattened, (N, 9)."""
+    k = np.arange(nx * ny)
+    xy1 = np.stack([k % nx, k // nx, np.ones_like(k)], axis=1).astype(np.float64)
+    mono = (xy1[:, :, None] * xy1[:, None, :]).reshape(-1, 9)
+    for a in (xy1, mono):
+        a.flags.writeable = False  # cached: shared by every call
+    return xy1, mono
 
 
 @functools.lru_cache(maxsize=16)
@@ -409,23 +454,32 @@ def refine_corners(
     corners_px : ndarray, shape (nx * ny, 2), float64, or None
         Refined corners in the order given; None when a corner still deviates.
     """
+    return _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation)[0]
+
+
+def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation):
+    """``refine_corners``, and the corners of its first cornerSubPix (None where it failed)
+    with their ``(deviation_limit_px, grid_deviation)``, which a caller that falls back to
+    ``_follow_partial`` reuses."""
     corners = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     w = _subpix_window(corners, board, subpix_window_px)
-    corners = _subpix(gray, corners, w)
-    if corners is None:
-        return None
+    first = _subpix(gray, corners, w)
+    if first is None:
+        return None, None
+    corners = first.copy()
     predicted, deviation = grid_deviation(corners, board)
     limit = deviation_limit_px(corners, board, max_grid_deviation)
+    first = (first, limit, deviation)
     bad = deviation > limit
     if bad.any():
         retry = _subpix(gray, predicted[bad], w)
         if retry is None:
-            return None
+            return None, first
         corners[bad] = retry
         _, deviation = grid_deviation(corners, board)
         if (deviation > limit).any():
-            return None
-    return corners.astype(np.float64)
+            return None, first
+    return corners.astype(np.float64), first
 
 
 # Tracking (extract_corners' fast path). Pyramidal Lucas-Kanade (Bouguet 2000) moves the
@@ -453,21 +507,15 @@ TRACK_BORDER_FRAC = SUBPIX_WINDOW_FRAC
 TRACK_HOMOGRAPHY_FRAC = 0.25
 LK_WINDOW_FRAC = 0.5
 LK_WINDOW_MAX_PX = 61
-LK_MIN_SQUARE_PX = 16.0
+LK_MIN_SQUARE_PX = 12.0
 LK_MAX_SHRINK = 3
 LK_WINDOW_SHRUNK_PX = 11
 
 
 def _track_scales(corners_px: np.ndarray, board: dict, shape: tuple[int, int]) -> dict:
     """Pixel thresholds of the tracker for a board of this size in an image of this shape."""
-    nx, ny = board_pattern(board)
-    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
-    d = np.concatenate([
-        np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel(),
-        np.linalg.norm(np.diff(grid, axis=0), axis=-1).ravel(),
-    ])
-    d = d[np.isfinite(d)]
-    spacing = float(np.median(d)) if len(d) else 0.0
+    d = _neighbour_distances(corners_px, board)
+    spacing = _median(d) if len(d) else 0.0
     # Optical flow runs on the image shrunk by 2 ** lk_shrink, so that squares keep at least
     # LK_MIN_SQUARE_PX: its cost grows with the window's area, and the flow only has to land
     # within cornerSubPix's window (refined at full size afterwards).
@@ -487,6 +535,23 @@ def _track_scales(corners_px: np.ndarray, board: dict, shape: tuple[int, int]) -
 # The checkerboard seen through the tracked corners must have this much contrast (grey levels)
 # between its white and black squares, and every square on the right side of the midpoint.
 MIN_PATTERN_CONTRAST = 20.0
+
+
+@functools.lru_cache(maxsize=16)
+def _square_samples(sx: int, sy: int) -> tuple[np.ndarray, np.ndarray]:
+    """``board_squares_pattern_ok``'s sample points in grid coordinates, (3, sx * sy, 9)
+    homogeneous, and which squares are black, (sx * sy,)."""
+    jj, ii = np.mgrid[0:sy, 0:sx]
+    a = np.array([-0.25, 0.0, 0.25])
+    da, db = (g.ravel() for g in np.meshgrid(a, a))
+    # Square (i, j) spans grid x in [i - 1, i], y in [j - 1, j] (corner 0 at (0, 0)).
+    gx = (ii.ravel() - 0.5)[:, None] + da[None]
+    gy = (jj.ravel() - 0.5)[:, None] + db[None]
+    samples = np.stack([gx, gy, np.ones_like(gx)])
+    black = (ii.ravel() + jj.ravel()) % 2 == 0
+    for arr in (samples, black):
+        arr.flags.writeable = False  # cached: shared by every call
+    return samples, black
 
 
 def board_squares_pattern_ok(
@@ -519,13 +584,8 @@ def board_squares_pattern_ok(
     ok : bool
     """
     sx, sy = int(board["squares_x"]), int(board["squares_y"])
-    jj, ii = np.mgrid[0:sy, 0:sx]
-    a = np.array([-0.25, 0.0, 0.25])
-    da, db = (g.ravel() for g in np.meshgrid(a, a))
-    # Square (i, j) spans grid x in [i - 1, i], y in [j - 1, j] (corner 0 at (0, 0)).
-    gx = (ii.ravel() - 0.5)[:, None] + da[None]
-    gy = (jj.ravel() - 0.5)[:, None] + db[None]
-    p = np.einsum("ij,jsk->isk", H_img_grid, np.stack([gx, gy, np.ones_like(gx)]))
+    samples, black_all = _square_samples(sx, sy)
+    p = np.einsum("ij,jsk->isk", H_img_grid, samples)
     with np.errstate(divide="ignore", invalid="ignore"):
         u, v = p[0] / p[2], p[1] / p[2]
     h, w = gray.shape
@@ -544,7 +604,7 @@ def board_squares_pattern_ok(
     if not inside.any():
         return False
     level = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)].mean(axis=1)
-    black = ((ii.ravel() + jj.ravel()) % 2 == 0)[inside]
+    black = black_all[inside]
     if black.all() or not black.any():
         return False
     lo, hi = level[black], level[~black]
@@ -556,9 +616,15 @@ def board_squares_pattern_ok(
 
 def _grid_points(board: dict) -> np.ndarray:
     """Grid coordinates (k % nx, k // nx) of the inner corners, shape (N, 2), float32."""
-    nx, ny = board_pattern(board)
+    return _grid_points_cached(*board_pattern(board))
+
+
+@functools.lru_cache(maxsize=16)
+def _grid_points_cached(nx: int, ny: int) -> np.ndarray:
     k = np.arange(nx * ny)
-    return np.stack([k % nx, k // nx], axis=1).astype(np.float32)
+    grid = np.stack([k % nx, k // nx], axis=1).astype(np.float32)
+    grid.flags.writeable = False  # cached: shared by every call
+    return grid
 
 
 def track_corners(
@@ -647,10 +713,10 @@ def track_corners(
     if not _inside(p, w, h, 0.0).all():
         return _follow_partial(gray, p, _inside(p, w, h, sc["border"]), grid, board,
                                subpix_window_px, sc, max_grid_deviation)
-    corners = refine_corners(gray, p, board, subpix_window_px, max_grid_deviation)
+    corners, first = _refine_corners(gray, p, board, subpix_window_px, max_grid_deviation)
     if corners is None:  # a corner off its neighbours: hidden (a hand) or misplaced
         return _follow_partial(gray, p, np.ones(len(p), bool), grid, board, subpix_window_px,
-                               sc, max_grid_deviation, "partial")
+                               sc, max_grid_deviation, "partial", first)
     inner = _inside(corners, w, h, sc["border"])
     if not inner.all():
         return _follow_partial(gray, corners, inner, grid, board, subpix_window_px, sc,
@@ -675,13 +741,22 @@ _SHRUNK: list = []
 
 
 def _shrunk(gray: np.ndarray, f: int) -> np.ndarray:
-    """``gray`` shrunk by the integer factor ``f`` (area average), from a small cache."""
+    """``gray`` shrunk by the integer factor ``f`` (area average), from a small cache.
+
+    A power of two is halved repeatedly: OpenCV's area resize by 1/2 is ~8x faster than by
+    1/4 (0.12 against 0.95 ms for a 1080x1920 frame), and two 2x2 averages are the 4x4
+    average (up to the rounding of the half-size image to 8 bits).
+    """
     for image, k, small in _SHRUNK:
         if image is gray and k == f:
             return small
-    small = cv2.resize(gray, None, fx=1.0 / f, fy=1.0 / f, interpolation=cv2.INTER_AREA)
+    if f > 2 and f % 2 == 0:
+        small = cv2.resize(_shrunk(gray, f // 2), None, fx=0.5, fy=0.5,
+                           interpolation=cv2.INTER_AREA)
+    else:
+        small = cv2.resize(gray, None, fx=1.0 / f, fy=1.0 / f, interpolation=cv2.INTER_AREA)
     _SHRUNK.append((gray, f, small))
-    del _SHRUNK[:-3]
+    del _SHRUNK[:-6]  # the last three images, at up to two factors each
     return small
 
 
@@ -727,24 +802,30 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     dark = np.where(black_first[:, None], level[:, :half], level[:, half:])
     light = np.where(black_first[:, None], level[:, half:], level[:, :half])
     known = ok & np.isfinite(np.asarray(corners_px)).all(axis=1)
-    contrast = float(np.median(light[known]) - np.median(dark[known])) if known.any() else 0.0
+    contrast = _median(light[known]) - _median(dark[known]) if known.any() else 0.0
     need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
     return ok & (light.min(axis=1) - dark.max(axis=1) >= need)
 
 
 def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
-                    method="out_of_view"):
+                    method="out_of_view", refined=None):
     """Refine the corners ``inner`` of a board partly hidden (image border, a hand), keep those
-    consistent with their neighbours, check the squares they bound; NaN for the others."""
+    consistent with their neighbours, check the squares they bound; NaN for the others.
+    ``refined``: ``_refine_corners``' first cornerSubPix of ``p`` (every corner ``inner``),
+    with its limits and deviations."""
     if inner.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
-    w = _subpix_window(p, board, subpix_window_px)
-    refined = _subpix(gray, p[inner], w)
+    limit = deviation = None
+    if refined is None:
+        w = _subpix_window(p, board, subpix_window_px)
+        refined = _subpix(gray, p[inner], w)
+    else:
+        refined, limit, deviation = refined
     if refined is None:
         return None, "lost"
     out = np.full((len(grid), 2), np.nan)
     out[inner] = refined
-    out = keep_consistent_corners(out, board, max_grid_deviation)
+    out = _keep_consistent(out, board, max_grid_deviation, limit, deviation)
     known = np.isfinite(out).all(axis=1)
     if known.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
@@ -792,8 +873,12 @@ QUICK_MIN_SQUARE_PX = 16.0
 # after the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found within
 # that many frames and the frames before it are tracked backwards).
 SEARCH_EVERY_MAX = 8
-# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) on the 1st frame
-# after the loss and every DEEP_SEARCH_EVERY frames.
+# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) every
+# DEEP_SEARCH_EVERY frames while no board is followed (and on the frames right after the
+# tracker lost one, ``_relocate``). Not on the first frame of a session or restart: there the
+# quick search misses mostly boards that are not there (a hand, the border; ~220 ms per
+# 1280x720 frame for nothing on the realistic renders), and a whole board it misses is found
+# DEEP_SEARCH_EVERY frames later and tracked back.
 DEEP_SEARCH_EVERY = 32
 # Most grey-image bytes kept waiting for a board (memory does not grow with the session:
 # 48 frames at 1920x1080, 340 at 640x480); older waiting frames are decided without it.
@@ -866,11 +951,8 @@ def quick_detect_corners(
 
 def _median_spacing(corners_px: np.ndarray, board: dict) -> float:
     """Median distance between grid neighbours, px (0 when none is known)."""
-    nx, ny = board_pattern(board)
-    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
-    d = np.concatenate([np.linalg.norm(np.diff(grid, axis=a), axis=-1).ravel() for a in (0, 1)])
-    d = d[np.isfinite(d)]
-    return float(np.median(d)) if len(d) else 0.0
+    d = _neighbour_distances(corners_px, board)
+    return _median(d) if len(d) else 0.0
 
 
 class _CornerFollower:
@@ -942,7 +1024,7 @@ class _CornerFollower:
         corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
                                          self.board, self.subpix, self.max_dev,
                                          self._quick_scale())
-        if corners_px is None and (self.lost_for == 1 or self.lost_for % DEEP_SEARCH_EVERY == 0):
+        if corners_px is None and self.lost_for % DEEP_SEARCH_EVERY == 0:
             # Now and then the full detector (on the shrunk image), for the whole boards the
             # quick one misses (low contrast, small squares).
             prev = self.flags if self.flags is not None else VIDEO_SEARCH_FLAGS

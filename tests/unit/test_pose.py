@@ -497,3 +497,52 @@ def test_a_hand_over_the_board_keeps_the_visible_corners_with_true_indices():
         visible = truths[i][:, 0] < hands[i][0, 0] - 20
         assert 0.8 * visible.sum() <= len(rows) < len(truths[i])
         assert (uv_true[:, 0] < hands[i][0, 0]).all()
+
+
+def test_grid_deviation_is_the_displacement_of_a_misplaced_corner():
+    # An exact perspective view of the grid with one corner moved: its neighbours (exact)
+    # predict its true place, so its deviation is its displacement; corners farther than two
+    # grid steps from it are predicted exactly; a NaN corner predicts nothing.
+    from cvsflow.pose import _neighbour_weights, grid_deviation
+
+    board = {"squares_x": 9, "squares_y": 7, "square_m": 0.03}
+    nx, ny = 8, 6
+    k = np.arange(nx * ny)
+    grid = np.stack([k % nx, k // nx], axis=1).astype(np.float64)
+    H = np.array([[38.0, 4.0, 120.0], [-3.0, 35.0, 90.0], [4e-3, -6e-3, 1.0]])
+    uv = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
+    moved = uv.copy()
+    moved[19] += (1.5, -2.0)
+    predicted, dev = grid_deviation(moved, board)
+    assert dev[19] == pytest.approx(2.5, abs=1e-6)
+    np.testing.assert_allclose(predicted[19], uv[19], atol=1e-6)
+    far = _neighbour_weights(nx, ny)[:, 19] == 0
+    far[19] = False
+    assert dev[far].max() < 1e-6
+    assert dev[~far].max() > 1e-3  # its neighbours see it
+    moved[19] = np.nan
+    _, dev = grid_deviation(moved, board)
+    assert np.isinf(dev[19]) and np.delete(dev, 19).max() < 1e-6
+
+
+def test_sort_median_equals_numpy_median():
+    from cvsflow.pose import _median
+
+    rng = np.random.default_rng(3)
+    for n in (1, 2, 7, 48, 101):
+        x = rng.normal(size=n)
+        assert _median(x) == np.median(x)
+    x = rng.normal(size=(6, 4))
+    assert _median(x) == np.median(x)
+
+
+def test_shrunk_by_four_is_the_area_average_by_halvings():
+    from cvsflow.pose import _shrunk
+
+    rng = np.random.default_rng(4)
+    gray = cv2.GaussianBlur(rng.integers(0, 256, (480, 640), dtype=np.uint8), (5, 5), 1.5)
+    small = _shrunk(gray, 4)
+    ref = cv2.resize(gray, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
+    assert small.shape == ref.shape
+    assert np.abs(small.astype(int) - ref.astype(int)).max() <= 1
+    assert _shrunk(gray, 4) is small  # cached for the flow out of this frame
