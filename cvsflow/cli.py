@@ -20,7 +20,7 @@ from cvsflow.errors import CvsflowError, InputError
 log = logging.getLogger(__name__)
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v")
-MOCAP_SUFFIXES = (".csv", ".c3d")
+MOCAP_SUFFIXES = (".csv", ".c3d", ".tsv")
 #: Inner-corner sizes ``cvsflow init`` tries (OpenCV sample, common printed boards, the demo's).
 COMMON_INNER = ((9, 6), (8, 6), (7, 5), (7, 6), (10, 7), (6, 4), (5, 4), (11, 8), (8, 5))
 
@@ -257,7 +257,8 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
     notes : list of str
         What was found and what the user must check.
     """
-    from cvsflow.io.vicon import marker_names, read_vicon
+    from cvsflow.io.mocap_formats import read_mocap
+    from cvsflow.io.vicon import marker_names
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -287,18 +288,24 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
         notes.append(f"{len(videos)} videos found; took the first, check")
     mocap = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MOCAP_SUFFIXES)
     names: list[str] = []
+    system_bodies: list[str] = []
     session["vicon"] = "TODO"
     for p in mocap:
         try:
-            names = marker_names(read_vicon(p))
+            export = read_mocap(p)
         except CvsflowError as exc:
             notes.append(f"{p}: not a motion-capture export ({exc})")
             continue
+        names = marker_names(export.markers)
+        if export.bodies is not None and len(export.bodies):
+            system_bodies = list(dict.fromkeys(export.bodies["body"]))
         session["vicon"] = str(p)
-        notes.append(f"motion capture: {p}, markers {', '.join(names)}")
+        session["mocap"] = {"format": export.format}
+        solved = f", bodies solved by the system: {', '.join(system_bodies)}" if system_bodies else ""
+        notes.append(f"motion capture: {p} ({export.format}), markers {', '.join(names) or 'none'}{solved}")
         break
     if session["vicon"] == "TODO":
-        notes.append("no Nexus CSV or C3D export found: set vicon")
+        notes.append("no Nexus CSV, C3D, Motive CSV or QTM TSV export found: set vicon")
     if inner is None:
         session["board"] = {"squares_x": "TODO", "squares_y": "TODO", "square_m": "TODO"}
         notes.append(f"no chessboard of the sizes {COMMON_INNER} (inner corners) found: set board")
@@ -327,6 +334,19 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
     notes.append("markers.*.layout_m left out: learned from the first still second of the take "
                  "(add your measured layout, m, to use it instead)")
     session["markers"] = {"camera": {"names": cam}, "board": {"names": brd}}
+    if system_bodies and not names:
+        # A 6DOF-only export: the system's own bodies are all there is.
+        session["mocap"]["bodies_from"] = "system"
+        def guess(keys):
+            return next((b for b in system_bodies if any(k in b.lower() for k in keys)), "TODO")
+
+        session["markers"] = {"camera": {"system_body": guess(("cam",))},
+                              "board": {"system_body": guess(("board", "chess"))}}
+        notes[-1] = ("the export has no markers: mocap.bodies_from is system; check "
+                     "markers.*.system_body against the bodies listed above")
+    elif system_bodies:
+        notes.append("the export also has the system's own bodies: set mocap.bodies_from: system "
+                     "and markers.<body>.system_body to use them instead of fitting the markers")
     return session, notes
 
 

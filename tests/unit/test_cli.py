@@ -4,6 +4,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
@@ -158,6 +159,44 @@ def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
     assert cli.main(["init", str(rec), "--out", str(out)]) == 1
     assert out.read_text() == before
     assert "never overwrites" in capsys.readouterr().err
+
+
+def test_init_on_a_6dof_only_qtm_export_uses_the_system_bodies(tmp_path):
+    """A QTM 6D TSV (no markers): init names the format, sets bodies_from: system and guesses each
+    body's system_body from the export's body names; the config validates with the demo config."""
+    from cvsflow.io.qualisys import write_qtm_tsv
+    from cvsflow.mocap import bodies_from_poses
+    from cvsflow.transforms import make_T
+
+    rec = tmp_path / "rec"
+    rec.mkdir()
+    n = 20
+    T = np.broadcast_to(make_T(np.eye(3), [0.1, 0.2, 0.3]), (n, 4, 4))
+    bodies = pd.concat([bodies_from_poses(np.arange(n), np.arange(n) / 100.0, b, T, np.full(n, 1e-4),
+                                          np.full(n, -1)) for b in ("webcam rig", "chessboard")],
+                       ignore_index=True)
+    bodies.attrs["rate_hz"] = 100.0
+    write_qtm_tsv(rec / "take_6D.tsv", bodies=bodies, layout="old")
+    out = tmp_path / "s.yaml"
+    assert cli.main(["init", str(rec), "--out", str(out), "--name", "q"]) == 0
+    cfg = yaml.safe_load(out.read_text())["sessions"]["q"]
+    assert cfg["vicon"].endswith("take_6D.tsv")
+    assert cfg["mocap"] == {"format": "qtm_tsv", "bodies_from": "system"}
+    assert cfg["markers"] == {"camera": {"system_body": "webcam rig"}, "board": {"system_body": "chessboard"}}
+    # with the user's TODOs filled, the session passes the schema and the session checks
+    import copy
+
+    from snakemake.utils import update_config, validate
+
+    from cvsflow.io.mocap_formats import mocap_settings
+
+    root = Path(__file__).resolve().parents[2]
+    cfg.update(calib_dir=str(rec), video=str(rec / "take.mp4"))
+    cfg["board"] = {"squares_x": 6, "squares_y": 5, "square_m": 0.03}
+    config = yaml.safe_load((root / "config" / "config.yaml").read_text())
+    update_config(config, copy.deepcopy({"sessions": {"q": cfg}}))
+    validate(config, str(root / "workflow" / "schemas" / "config.schema.yaml"))
+    assert mocap_settings("q", config["sessions"]["q"])["bodies_from"] == "system"
 
 
 def test_run_passes_arguments_and_picks_profile(tmp_path, monkeypatch):
