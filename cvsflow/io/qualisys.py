@@ -166,18 +166,28 @@ def _frames_and_times(path, values, labels, first, data_lines, rate_hz):
     return frame, frame / rate_hz
 
 
-def _read_3d(path, header, meta, labels, data_lines, first, rate_hz, lines):
-    names = header.get("MARKER_NAMES")
+def _header_names(path, header, lines, kind, what):
+    """The names of a ``{kind}_NAMES`` header line, checked against ``NO_OF_{kind}S``.
+
+    ``kind`` is ``MARKER`` (3D, names must be unique) or ``BODY`` (6D); ``what`` names the
+    export in messages."""
+    key, count_key = f"{kind}_NAMES", f"NO_OF_{kind}S"
+    names = header.get(key)
     if not names:
-        raise InputError(f"{path}: 3D export without a MARKER_NAMES line (expected the marker names)")
-    if "NO_OF_MARKERS" in header and int(float(header["NO_OF_MARKERS"][0])) != len(names):
+        raise InputError(f"{path}: {what} export without a {key} line (expected the {kind.lower()} names)")
+    if count_key in header and int(float(header[count_key][0])) != len(names):
         raise InputError(
-            f"{path}, line {_line_of(lines, 'MARKER_NAMES')}: {len(names)} MARKER_NAMES, "
-            f"NO_OF_MARKERS says {header['NO_OF_MARKERS'][0]}"
+            f"{path}, line {_line_of(lines, key)}: {len(names)} {key}, {count_key} says "
+            f"{header[count_key][0]}"
         )
-    if len(set(names)) != len(names):
+    if kind == "MARKER" and len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
-        raise InputError(f"{path}, line {_line_of(lines, 'MARKER_NAMES')}: duplicate marker names {dup}")
+        raise InputError(f"{path}, line {_line_of(lines, key)}: duplicate marker names {dup}")
+    return names
+
+
+def _read_3d(path, header, meta, labels, data_lines, first, rate_hz, lines):
+    names = _header_names(path, header, lines, "MARKER", "3D")
     if labels:
         meta["layout"] = "current"
         where = {lab: j for j, lab in enumerate(labels)}
@@ -238,14 +248,7 @@ def _body_blocks(path, labels, n_bodies, data_lines, first, i_labels):
 
 
 def _read_6d(path, header, meta, labels, data_lines, first, rate_hz, i_labels, lines):
-    names = header.get("BODY_NAMES")
-    if not names:
-        raise InputError(f"{path}: 6D export without a BODY_NAMES line (expected the body names)")
-    if "NO_OF_BODIES" in header and int(float(header["NO_OF_BODIES"][0])) != len(names):
-        raise InputError(
-            f"{path}, line {_line_of(lines, 'BODY_NAMES')}: {len(names)} BODY_NAMES, NO_OF_BODIES "
-            f"says {header['NO_OF_BODIES'][0]}"
-        )
+    names = _header_names(path, header, lines, "BODY", "6D")
     if labels is None:
         raise InputError(
             f"{path}, line {first + 1}: no column label row (expected 'X Y Z ... Residual Rot[0] "
