@@ -22,6 +22,14 @@ def _find_real_data() -> Path:
 REAL_DATA = _find_real_data()
 
 
+def need_real_file(path) -> Path:
+    """``path`` (under REAL_DATA, or relative to it), or skip the test when that file is absent."""
+    path = REAL_DATA / path
+    if not path.is_file():
+        pytest.skip(f"real data not available ({path})")
+    return path
+
+
 @pytest.fixture(scope="session")
 def real_data():
     """The real sample files made by others (shared/data/real); skip when absent."""

@@ -4,6 +4,7 @@
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import REAL_DATA, need_real_file
 
 from cvsflow.errors import InputError
 from cvsflow.io.mocap_formats import detect_format, read_mocap
@@ -11,23 +12,10 @@ from cvsflow.io.optitrack import read_motive_csv, write_motive_csv
 from cvsflow.io.vicon import marker_columns, marker_names
 from cvsflow.mocap import body_poses, fit_bodies
 
-
-def _real_root():
-    from conftest import REAL_DATA
-
-    return REAL_DATA if REAL_DATA.is_dir() else None
-
-
-ROOT = _real_root()
-MOTIVE = ROOT / "mocap" / "optitrack-motive" if ROOT else None
-RIGID = MOTIVE / "grvc_rigidbody_test" / "test.csv" if ROOT else None
-UNLAB = MOTIVE / "ha5dzs_unlabeled_markers_360hz" / "test_markers_enabled.csv" if ROOT else None
-
-
-def _need(path):
-    if path is None or not path.exists():
-        pytest.skip(f"real OptiTrack export not available ({path})")
-    return path
+MOTIVE = REAL_DATA / "mocap" / "optitrack-motive"
+RIGID = MOTIVE / "grvc_rigidbody_test" / "test.csv"
+UNLAB = MOTIVE / "ha5dzs_unlabeled_markers_360hz" / "test_markers_enabled.csv"
+_need = need_real_file
 
 
 @pytest.fixture(scope="module")
@@ -301,6 +289,4 @@ def test_rigid_body_markers_stand_in_for_missing_markers(tmp_path, caplog):
 )
 def test_detect_format_on_every_real_export(rel, fmt):
     """Each real export is recognised from its content."""
-    if ROOT is None or not (ROOT / rel).exists():
-        pytest.skip(f"{rel} not available")
-    assert detect_format(ROOT / rel) == fmt
+    assert detect_format(need_real_file(rel)) == fmt

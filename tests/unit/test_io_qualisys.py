@@ -4,6 +4,7 @@
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import REAL_DATA, need_real_file
 
 from cvsflow.errors import InputError
 from cvsflow.io.mocap_formats import detect_format, read_mocap
@@ -11,28 +12,17 @@ from cvsflow.io.qualisys import read_qtm_tsv, write_qtm_tsv
 from cvsflow.io.vicon import marker_columns, marker_names
 from cvsflow.mocap import body_poses, fit_bodies
 
-
-def _real_root():
-    from conftest import REAL_DATA
-
-    return REAL_DATA if REAL_DATA.is_dir() else None
-
-
-ROOT = _real_root()
-QTM = ROOT / "mocap" / "qualisys-qtm" if ROOT else None
-SWING_3D = QTM / "imusim_swing_3D" / "swing_3D.tsv" if ROOT else None
-SWING_6D = QTM / "imusim_swing_6D" / "swing_6D.tsv" if ROOT else None
-STAND_6D = QTM / "imusim_stand_6D" / "stand_6D.tsv" if ROOT else None
+QTM = REAL_DATA / "mocap" / "qualisys-qtm"
+SWING_3D = QTM / "imusim_swing_3D" / "swing_3D.tsv"
+SWING_6D = QTM / "imusim_swing_6D" / "swing_6D.tsv"
+STAND_6D = QTM / "imusim_stand_6D" / "stand_6D.tsv"
 NAMES_3D = ["Hip", "Thigh", "Knee Hinge", "Shin", "Ankle"] + [
     f"{b} IMU - {k}" for b in ("Upper Leg", "Foot", "Lower Leg") for k in (1, 2, 3)
 ]
 BODIES = ["Upper Leg IMU", "Foot IMU", "Lower Leg IMU"]
 
 
-def _need(path):
-    if path is None or not path.exists():
-        pytest.skip(f"real QTM export not available ({path})")
-    return path
+_need = need_real_file
 
 
 @pytest.fixture(scope="module")
