@@ -249,12 +249,13 @@ def is_static(T_W_X, tol_m, tol_rad, quantile=STATIC_QUANTILE):
 
     Notes
     -----
-    A quantile, not the maximum: a marker dropout that the repair bridges can throw the raw
-    rigid-body orientation of a 0.17 m camera body by tens of mrad for a few samples, which the
-    1 s moving average spreads into a ~2 mrad bump. On the 20 s demo such a bump at video
-    t = 17-19 s was the take's largest deviation (2.04 mrad against a 2 mrad tolerance): the
-    camera counted as moving, the reference followed the bump and the held-out errors came in a
-    run there (docs/findings.md). A camera that truly moves exceeds the tolerance for far more
+    A quantile, not the maximum: a marker dropout can throw the rigid-body orientation of a
+    0.17 m camera body by tens of mrad for a few samples, which the 1 s moving average spreads
+    into a ~2 mrad bump. On the 20 s demo such a bump at video t = 17-19 s (2.04 mrad against a
+    2 mrad tolerance) made the camera count as moving, the reference followed it and the
+    held-out errors came in a run there. Its cause, a drawn marker layout, is removed upstream
+    (``mocap.refine_layout``, docs/findings.md); the quantile stays for what a layout cannot fix
+    (a swapped or ghost marker). A camera that truly moves exceeds the tolerance for far more
     than 5 % of a take.
     """
     p = T_W_X[:, :3, 3]
