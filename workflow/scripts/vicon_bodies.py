@@ -18,9 +18,9 @@ with stage_logging(snakemake.log[0], "vicon_bodies") as log:
     else:
         source = snakemake.input[0]  # the repaired markers
         markers = read_parquet(source)
-        refine = getattr(snakemake.params, "refine_layout", True)
-        bodies = fit_bodies(markers, specs, refine_layout=refine)
-        specs = resolve_layouts(markers, specs, refine=refine)
+        # layouts resolved (learned / refined) once, for the fit and for its checks
+        specs = resolve_layouts(markers, specs, refine=getattr(snakemake.params, "refine_layout", True))
+        bodies = fit_bodies(markers, specs, refine_layout=False)
     log.info("valid samples: %s", bodies.groupby("body")["valid"].sum().to_dict())
     if bodies["fit_rms_m"].notna().any():  # an export may carry no residual at all
         for warning in check_body_fits(bodies, specs, source, snakemake.params.max_fit_rms_m,
