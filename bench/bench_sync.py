@@ -53,7 +53,8 @@ def run_stages(seed, duration_s, work):
     """
     from cvsflow.calibration import calibrate_camera
     from cvsflow.io.media import iter_video_gray, list_stills, read_gray, video_info
-    from cvsflow.io.vicon import read_vicon, select_markers
+    from cvsflow.io.markers import select_markers
+    from cvsflow.io.mocap_formats import read_markers
     from cvsflow.mocap import fit_bodies, repair_markers
     from cvsflow.pose import estimate_poses, extract_corners
     from cvsflow.synth import render_session
@@ -72,7 +73,7 @@ def run_stages(seed, duration_s, work):
                               subpix_window_px=cfg["corners"]["subpix_window_px"], n_frames=info["n_frames"])
     poses = estimate_poses(corners, np.array(camera["K"]), np.array(camera["dist"]), session["board"], **cfg["pnp"])
     mk = session["markers"]
-    markers = select_markers(read_vicon(data / "vicon.csv"), mk["camera"]["names"] + mk["board"]["names"])
+    markers = select_markers(read_markers(data / "vicon.csv"), mk["camera"]["names"] + mk["board"]["names"])
     filled, _ = repair_markers(markers, mk, cfg["vicon"])
     bodies = fit_bodies(filled, mk)
     poses.to_parquet(f_poses)

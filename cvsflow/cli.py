@@ -258,7 +258,7 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
         What was found and what the user must check.
     """
     from cvsflow.io.mocap_formats import read_mocap
-    from cvsflow.io.vicon import marker_names
+    from cvsflow.io.markers import marker_names
 
     folder = Path(folder)
     if not folder.is_dir():

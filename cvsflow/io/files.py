@@ -7,6 +7,7 @@ target folder and renames it into place, so a failure leaves the old state untou
 from __future__ import annotations
 
 import contextlib
+import io
 import os
 import tempfile
 from pathlib import Path
@@ -65,6 +66,83 @@ def check_frames(path, frames, first, lines, column="Frame") -> None:
             f"{path}, line {first + i + 1}: frame {int(frames[i])} follows frame "
             f"{int(frames[i - 1])} (expected consecutive frames)"
         )
+
+
+def parse_numeric_block(
+    path, lines, first, n_cols, column_names, sep=",", na_values=(), expected=None, pandas_na=False
+) -> np.ndarray:
+    """Parse data lines into a float array of shape (len(lines), n_cols); empty cells are NaN.
+
+    Parameters
+    ----------
+    path : Path
+        For messages.
+    lines : list of str
+        The data lines (no header).
+    first : int
+        0-based index in the file of ``lines[0]`` (messages give 1-based line numbers).
+    n_cols : int
+        Cells used per line; lines with fewer cells are an error (a cut file).
+    column_names : list of str
+        One name per used cell, for messages.
+    sep : str
+    na_values : sequence of str
+        Extra cell texts meaning "not seen" (for example ``NaN`` or ``NULL``).
+    expected : str, optional
+        What the ``n_cols`` cells are, for the message about a short line (default: "as the
+        header says").
+    pandas_na : bool
+        Also read pandas' default missing-value texts (``NaN``, ``NA``, ``null``, ...) as gaps.
+
+    Returns
+    -------
+    values : ndarray, shape (len(lines), n_cols)
+
+    Raises
+    ------
+    InputError
+        A line with fewer than ``n_cols`` cells, or a non-numeric cell: file, 1-based line and
+        column name.
+    """
+    if not lines:
+        raise InputError(f"{path}, line {first + 1}: no data rows after the header")
+    n_cells = np.fromiter((ln.count(sep) + 1 for ln in lines), int, len(lines))
+    short = np.flatnonzero(n_cells < n_cols)
+    if short.size:
+        i = int(short[0])
+        where = "the last row: file cut short" if i == len(lines) - 1 else "a truncated row"
+        raise InputError(
+            f"{path}, line {first + i + 1}: {n_cells[i]} cells, expected {n_cols} "
+            f"{f'({expected})' if expected else 'as the header says'}; {where}"
+        )
+    block = "\n".join(lines)
+    na = ["", *na_values]
+    try:
+        return pd.read_csv(
+            io.StringIO(block), sep=sep, header=None, usecols=range(n_cols), dtype=np.float64,
+            engine="c", skip_blank_lines=False, na_values=na, keep_default_na=pandas_na,
+        ).to_numpy()
+    except (ValueError, TypeError):
+        pass
+    cells = pd.read_csv(
+        io.StringIO(block), sep=sep, header=None, usecols=range(n_cols), dtype=str,
+        keep_default_na=pandas_na, skip_blank_lines=False,
+    ).to_numpy()
+    for i, row in enumerate(cells):
+        for j, cell in enumerate(row):
+            if not isinstance(cell, str):
+                continue  # a gap text pandas read as NaN
+            cell = cell.strip()
+            if cell == "" or cell in na:
+                continue
+            try:
+                float(cell)
+            except ValueError:
+                raise InputError(
+                    f"{path}, line {first + i + 1}, column {column_names[j]}: non-numeric cell "
+                    f"{cell!r} (expected a number, or an empty cell for a gap)"
+                ) from None
+    raise InputError(f"{path}, lines {first + 1}-{first + len(lines)}: unreadable data block")
 
 
 def _to_builtin(obj):

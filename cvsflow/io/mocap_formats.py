@@ -3,7 +3,7 @@
 Four formats are read into the same tables: Vicon Nexus 'Trajectories' CSV (``vicon_csv``),
 C3D (``c3d``), OptiTrack Motive CSV (``motive_csv``, :mod:`cvsflow.io.optitrack`) and Qualisys
 QTM TSV (``qtm_tsv``, :mod:`cvsflow.io.qualisys`). The *marker table* is the wide table of
-:mod:`cvsflow.io.vicon` (``frame``, ``t_s``, ``{name}_{x,y,z}_m`` in metres in the system's world
+:mod:`cvsflow.io.markers` (``frame``, ``t_s``, ``{name}_{x,y,z}_m`` in metres in the system's world
 frame W, NaN where unseen, ``attrs["rate_hz"]``, ``attrs["markers"]``). Where the export also
 holds the system's own rigid-body solution (Motive rigid bodies, QTM 6DOF bodies), the *system
 bodies table* has the ``bodies.parquet`` columns (:data:`cvsflow.mocap.BODY_COLUMNS`) with the
@@ -18,16 +18,18 @@ is, with what was expected.
 
 from __future__ import annotations
 
-import io
 import logging
 import re
-from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-from cvsflow.errors import InputError
+from cvsflow.errors import ConfigError, InputError
+from cvsflow.io.markers import MocapExport, marker_names, select_markers
+from cvsflow.io.optitrack import read_motive_csv
+from cvsflow.io.qualisys import read_qtm_tsv
+from cvsflow.io.vicon import read_c3d, read_nexus_csv
+from cvsflow.mocap import select_system_bodies
 
 log = logging.getLogger(__name__)
 
@@ -45,40 +47,6 @@ EXPECTED = (
 
 _NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _TUM_LINE = re.compile(rf"^\s*{_NUMBER}(?:[ \t]+{_NUMBER}){{7}}\s*$")
-
-
-@dataclass
-class MocapExport:
-    """One motion-capture export, read.
-
-    Attributes
-    ----------
-    path : Path
-    format : str
-        A key of :data:`FORMATS`.
-    rate_hz : float
-        Frame rate of the export, Hz.
-    markers : DataFrame
-        Wide marker table (module docstring); may have no marker columns (a 6DOF-only export).
-    bodies : DataFrame or None
-        System bodies table (module docstring), or None when the export holds no bodies.
-    meta : dict
-        Header values of the export (plain str/int/float), e.g. units, take name.
-    """
-
-    path: Path
-    format: str
-    rate_hz: float
-    markers: pd.DataFrame
-    bodies: pd.DataFrame | None = None
-    meta: dict = field(default_factory=dict)
-
-    @property
-    def body_names(self) -> list[str]:
-        """Names of the system's bodies, in file order (empty without bodies)."""
-        if self.bodies is None:
-            return []
-        return list(pd.unique(self.bodies["body"]))
 
 
 def _head(path: Path, n_bytes: int = 65536) -> bytes:
@@ -211,108 +179,63 @@ def read_mocap(path, format: str = "auto") -> MocapExport:
             f"{FORMATS[found]} ({found}); set the format to {found} or auto, or name the right file"
         )
     if found == "motive_csv":
-        from cvsflow.io.optitrack import read_motive_csv
-
         return read_motive_csv(path)
     if found == "qtm_tsv":
-        from cvsflow.io.qualisys import read_qtm_tsv
-
         return read_qtm_tsv(path)
-    from cvsflow.io.vicon import read_c3d, read_nexus_csv
-
     markers = read_nexus_csv(path) if found == "vicon_csv" else read_c3d(path)
     return MocapExport(path, found, float(markers.attrs["rate_hz"]), markers, None, {})
 
 
-# --------------------------------------------------------------------------- shared parsing
-
-
-def parse_numeric_block(path, lines, first, n_cols, column_names, sep=",", na_values=()) -> np.ndarray:
-    """Parse data lines into a float array of shape (len(lines), n_cols); empty cells are NaN.
+def read_markers(path, names=None, format="auto") -> pd.DataFrame:
+    """Read the markers of a motion-capture export (Vicon, OptiTrack, Qualisys), optionally selecting some.
 
     Parameters
     ----------
-    path : Path
-        For messages.
-    lines : list of str
-        The data lines (no header).
-    first : int
-        0-based index in the file of ``lines[0]`` (messages give 1-based line numbers).
-    n_cols : int
-        Cells used per line; lines with fewer cells are an error (a cut file).
-    column_names : list of str
-        One name per used cell, for messages.
-    sep : str
-    na_values : sequence of str
-        Extra cell texts meaning "not seen" (for example ``NaN`` or ``NULL``).
+    path : str or Path
+        The export: Vicon Nexus Trajectories CSV, C3D, OptiTrack Motive CSV or Qualisys QTM
+        3D TSV. The format is found from the content (:func:`detect_format`),
+        not the suffix.
+    names : sequence of str, optional
+        Marker names to keep (as in the export, e.g. ``Subject:Marker``), in this order. Each
+        must be present and seen in at least one frame.
+    format : str
+        ``auto`` or a format of :data:`FORMATS` (``mocap.format``);
+        a named format the content contradicts is an error.
+
+    Returns
+    -------
+    markers : DataFrame
+        Wide marker table, metres in W (module docstring). A Motive export without plain
+        ``Marker`` columns gives its ``Rigid Body Marker`` positions instead (with a warning).
 
     Raises
     ------
     InputError
-        A line with fewer than ``n_cols`` cells, or a non-numeric cell: file, 1-based line and
-        column name.
+        File missing or of another kind (a Nexus Devices-only export, a TUM pose list: the
+        message says what it is and what was expected); the reader's errors; an export
+        without markers (a QTM 6D file: use ``mocap.bodies_from: system``); a configured
+        marker missing from the file (the message lists the file's markers) or never seen.
     """
-    if not lines:
-        raise InputError(f"{path}, line {first + 1}: no data rows after the header")
-    n_cells = np.fromiter((ln.count(sep) + 1 for ln in lines), int, len(lines))
-    short = np.flatnonzero(n_cells < n_cols)
-    if short.size:
-        i = int(short[0])
-        where = "the last row: file cut short" if i == len(lines) - 1 else "a truncated row"
-        raise InputError(
-            f"{path}, line {first + i + 1}: {n_cells[i]} cells, expected {n_cols} as the header "
-            f"says; {where}"
-        )
-    block = "\n".join(lines)
-    na = ["", *na_values]
-    try:
-        return pd.read_csv(
-            io.StringIO(block), sep=sep, header=None, usecols=range(n_cols), dtype=np.float64,
-            engine="c", skip_blank_lines=False, na_values=na, keep_default_na=False,
-        ).to_numpy()
-    except (ValueError, TypeError):
-        pass
-    cells = pd.read_csv(
-        io.StringIO(block), sep=sep, header=None, usecols=range(n_cols), dtype=str,
-        keep_default_na=False, skip_blank_lines=False,
-    ).to_numpy()
-    for i, row in enumerate(cells):
-        for j, cell in enumerate(row):
-            cell = cell.strip()
-            if cell == "" or cell in na:
-                continue
-            try:
-                float(cell)
-            except ValueError:
-                raise InputError(
-                    f"{path}, line {first + i + 1}, column {column_names[j]}: non-numeric cell "
-                    f"{cell!r} (expected a number, or an empty cell for a gap)"
-                ) from None
-    raise InputError(f"{path}, lines {first + 1}-{first + len(lines)}: unreadable data block")
-
-
-def system_bodies_table(frame, t_s, body, R_W_body, t_W_body_m, residual_m, n_markers) -> pd.DataFrame:
-    """A system bodies table for one body (``bodies.parquet`` columns) from rotations and positions.
-
-    Parameters
-    ----------
-    frame : ndarray of int, shape (N,)
-    t_s : ndarray, shape (N,)
-    body : str
-    R_W_body : ndarray, shape (N, 3, 3)
-        Rotation of the body in W; NaN rows where the system lost the body.
-    t_W_body_m : ndarray, shape (N, 3)
-        Body origin in W, metres; NaN where lost.
-    residual_m : ndarray, shape (N,)
-        The system's residual, metres.
-    n_markers : ndarray of int, shape (N,)
-        Markers used per frame, -1 when unknown.
-    """
-    from cvsflow.mocap import bodies_from_poses
-    from cvsflow.transforms import make_T
-
-    T = make_T(np.asarray(R_W_body, float), np.asarray(t_W_body_m, float))
-    return bodies_from_poses(frame, t_s, body, T, residual_m, n_markers)
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: file not found")
+    export = read_mocap(path, format)
+    df = export.markers
+    if not marker_names(df):
+        solved = export.meta.get("body_markers")
+        if solved is not None and marker_names(solved):
+            log.warning("%s: no Marker columns; using the Rigid Body Marker (solved) positions", path)
+            df = solved
+        else:
+            have = ", ".join(map(repr, export.body_names)) or "none"
+            raise InputError(
+                f"{path}: a {FORMATS[export.format]} without marker positions (its rigid bodies: "
+                f"{have}); expected marker columns, or set the session's mocap.bodies_from: "
+                "system to use the system's own body poses"
+            )
+    if names is not None:
+        df = select_markers(df, names, source=path)
+    return df
 
 
 def read_system_bodies(path, names, format: str = "auto") -> pd.DataFrame:
@@ -342,8 +265,6 @@ def read_system_bodies(path, names, format: str = "auto") -> pd.DataFrame:
         A named body absent from the export (the message lists the export's bodies) or never
         tracked.
     """
-    from cvsflow.mocap import select_system_bodies
-
     export = read_mocap(path, format)
     if export.bodies is None:
         n = len(export.markers.attrs.get("markers", []))
@@ -378,8 +299,6 @@ def mocap_settings(session: str, cfg: dict) -> dict:
         ``bodies_from: system`` with a body lacking ``system_body``, or ``bodies_from: markers``
         with a body lacking ``names``.
     """
-    from cvsflow.errors import ConfigError
-
     out = {"format": "auto", "bodies_from": "markers", **(cfg.get("mocap") or {})}
     need = "system_body" if out["bodies_from"] == "system" else "names"
     for body in ("camera", "board"):

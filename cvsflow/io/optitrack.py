@@ -37,13 +37,14 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from cvsflow.errors import InputError
-from cvsflow.io.files import atomic_output, check_frames, read_text_lines
-from cvsflow.io.mocap_formats import (
+from cvsflow.io.files import atomic_output, check_frames, parse_numeric_block, read_text_lines
+from cvsflow.io.markers import (
     MocapExport,
-    parse_numeric_block,
+    marker_columns,
+    marker_names,
+    marker_table,
     system_bodies_table,
 )
-from cvsflow.io.vicon import _marker_table, marker_columns, marker_names
 
 log = logging.getLogger(__name__)
 
@@ -228,7 +229,7 @@ def _wide(groups, which, values, frame, rate_hz, scale, path, ln_names):
         jq = cols.get(("Marker Quality", ""))
         if jq is not None:
             quality[f"{name}_quality"] = values[:, jq]
-    df = _marker_table(frame, xyz, names, rate_hz)
+    df = marker_table(frame, xyz, names, rate_hz)
     if quality:
         df = pd.concat([df, pd.DataFrame(quality, index=df.index)], axis=1)
         df.attrs["rate_hz"] = float(rate_hz)

@@ -35,13 +35,14 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.errors import InputError
-from cvsflow.io.files import atomic_output, check_frames, read_text_lines
-from cvsflow.io.mocap_formats import (
+from cvsflow.io.files import atomic_output, check_frames, parse_numeric_block, read_text_lines
+from cvsflow.io.markers import (
     MocapExport,
-    parse_numeric_block,
+    marker_columns,
+    marker_names,
+    marker_table,
     system_bodies_table,
 )
-from cvsflow.io.vicon import _marker_table, marker_columns, marker_names
 
 log = logging.getLogger(__name__)
 
@@ -217,7 +218,7 @@ def _read_3d(path, header, meta, labels, data_lines, first, rate_hz, lines):
     meta["n_gap_samples"] = {n: int(gaps[:, k].sum()) for k, n in enumerate(names)}
     if gaps.any():
         log.info("%s: %d marker samples are gaps (empty, NaN or 0,0,0)", path, int(gaps.sum()))
-    markers = _marker_table(frame, xyz, names, rate_hz)
+    markers = marker_table(frame, xyz, names, rate_hz)
     markers.attrs["format"] = "qtm_tsv"
     return MocapExport(path, "qtm_tsv", rate_hz, markers, None, meta)
 
@@ -284,7 +285,7 @@ def _read_6d(path, header, meta, labels, data_lines, first, rate_hz, i_labels, l
     bodies = pd.concat(parts, ignore_index=True)
     bodies.attrs["rate_hz"] = rate_hz
     bodies.attrs["residual"] = "QTM 6DOF residual"
-    markers = _marker_table(frame, np.zeros((len(frame), 0, 3)), [], rate_hz)
+    markers = marker_table(frame, np.zeros((len(frame), 0, 3)), [], rate_hz)
     markers.attrs["format"] = "qtm_tsv"
     return MocapExport(path, "qtm_tsv", rate_hz, markers, bodies, meta)
 

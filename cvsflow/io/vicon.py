@@ -1,18 +1,12 @@
 """Vicon exports: Nexus/Tracker 'Trajectories' CSV (read and write) and C3D (read).
 
-:func:`read_vicon` is the entry point for any motion-capture export: it dispatches on the
+Both give the wide marker table of :mod:`cvsflow.io.markers`. The entry point for any
+motion-capture export is :func:`cvsflow.io.mocap_formats.read_markers`, which dispatches on the
 file's content to these readers or to :mod:`cvsflow.io.optitrack` and :mod:`cvsflow.io.qualisys`.
-
-The in-memory form of a marker recording is a wide DataFrame at the native rate:
-columns ``frame`` (int, 0-based), ``t_s`` (float, frame / rate), then for every marker
-``{name}_x_m``, ``{name}_y_m``, ``{name}_z_m`` in metres in the Vicon world frame W, with NaN
-where the marker was not seen. ``df.attrs["rate_hz"]`` carries the rate and
-``df.attrs["markers"]`` the marker names in file order.
 """
 
 from __future__ import annotations
 
-import io
 import logging
 from pathlib import Path
 
@@ -20,23 +14,10 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.errors import InputError
-from cvsflow.io.files import atomic_output, check_frames, read_text_lines
-
-AXES = ("x", "y", "z")
+from cvsflow.io.files import atomic_output, check_frames, parse_numeric_block, read_text_lines
+from cvsflow.io.markers import marker_columns, marker_names, marker_table
 
 log = logging.getLogger(__name__)
-
-
-def marker_columns(name: str) -> list[str]:
-    """The three column names of one marker in a marker table."""
-    return [f"{name}_{a}_m" for a in AXES]
-
-
-def marker_names(df: pd.DataFrame) -> list[str]:
-    """Marker names of a wide marker table, in column order."""
-    if "markers" in df.attrs:
-        return list(df.attrs["markers"])
-    return [c[: -len("_x_m")] for c in df.columns if c.endswith("_x_m")]
 
 
 def write_nexus_csv(df: pd.DataFrame, path, rate_hz: float, decimals: int = 4) -> None:
@@ -81,19 +62,6 @@ def _strip_trailing(cells: list[str]) -> list[str]:
     while end and cells[end - 1] == "":
         end -= 1
     return cells[:end]
-
-
-def _marker_table(frame0, xyz_m, names, rate_hz) -> pd.DataFrame:
-    """Assemble the wide marker table from 0-based frames and (n_frames, n_markers, 3) metres."""
-    frame0 = np.asarray(frame0, dtype=np.int64)
-    data = {"frame": frame0, "t_s": frame0 / float(rate_hz)}
-    for k, name in enumerate(names):
-        for a, axis in enumerate(AXES):
-            data[f"{name}_{axis}_m"] = xyz_m[:, k, a]
-    df = pd.DataFrame(data)
-    df.attrs["rate_hz"] = float(rate_hz)
-    df.attrs["markers"] = list(names)
-    return df
 
 
 def read_nexus_csv(path) -> pd.DataFrame:
@@ -198,27 +166,11 @@ def read_nexus_csv(path) -> pd.DataFrame:
     if not data_lines:
         raise InputError(f"{path}, line {first + 1}: no data rows after the units row")
     n_cols = 2 + 3 * n_markers
-    n_cells = np.fromiter((ln.count(",") + 1 for ln in data_lines), int, len(data_lines))
-    short = np.flatnonzero(n_cells < n_cols)
-    if short.size:
-        i = int(short[0])
-        where = "the last row: file cut short" if i == len(data_lines) - 1 else "a truncated row"
-        raise InputError(
-            f"{path}, line {first + i + 1}: {n_cells[i]} cells, expected {n_cols} "
-            f"(Frame, Sub Frame and X,Y,Z for {n_markers} markers); {where}"
-        )
-    block = "\n".join(data_lines)
-    try:
-        values = pd.read_csv(
-            io.StringIO(block),
-            header=None,
-            usecols=range(n_cols),
-            dtype=np.float64,
-            engine="c",
-            skip_blank_lines=False,
-        ).to_numpy()
-    except (ValueError, TypeError):
-        raise _locate_bad_cell(path, block, n_cols, first, names) from None
+    col_names = ["Frame", "Sub Frame"] + [f"{n}_{a}" for n in names for a in "XYZ"]
+    values = parse_numeric_block(
+        path, data_lines, first, n_cols, col_names,
+        expected=f"Frame, Sub Frame and X,Y,Z for {n_markers} markers", pandas_na=True,
+    )
     frames = values[:, 0]
     check_frames(path, frames, first, data_lines)
     coords = values[:, 2:]
@@ -233,30 +185,7 @@ def read_nexus_csv(path) -> pd.DataFrame:
         )
         coords = np.where(bad, np.nan, coords)
     xyz_m = (coords * scale).reshape(len(values), n_markers, 3)
-    return _marker_table(frames.astype(np.int64) - 1, xyz_m, names, rate_hz)
-
-
-def _locate_bad_cell(path, block, n_cols, first, names) -> InputError:
-    """Slow path, only on failure: find the first non-numeric cell and describe it."""
-    cells = pd.read_csv(
-        io.StringIO(block), header=None, usecols=range(n_cols), dtype=str, keep_default_na=False
-    ).to_numpy()
-    for i, row in enumerate(cells):
-        for j, cell in enumerate(row):
-            cell = cell.strip()
-            if j >= 2 and cell == "":
-                continue
-            try:
-                float(cell)
-            except ValueError:
-                col = "Frame" if j == 0 else "Sub Frame" if j == 1 else (
-                    f"{names[(j - 2) // 3]}_{'XYZ'[(j - 2) % 3]}"
-                )
-                return InputError(
-                    f"{path}, line {first + i + 1}, column {col}: non-numeric cell {cell!r} "
-                    "(expected a number, or an empty cell for a gap)"
-                )
-    return InputError(f"{path}, lines {first + 1}-{first + len(cells)}: unreadable data block")
+    return marker_table(frames.astype(np.int64) - 1, xyz_m, names, rate_hz)
 
 
 def read_c3d(path) -> pd.DataFrame:
@@ -324,85 +253,6 @@ def read_c3d(path) -> pd.DataFrame:
         xyz[bad] = np.nan
     first = int(c3d["header"]["points"]["first_frame"])
     frame0 = first + np.arange(xyz.shape[0])
-    return _marker_table(frame0, xyz, names, rate_hz)
+    return marker_table(frame0, xyz, names, rate_hz)
 
 
-def read_vicon(path, names=None, format="auto") -> pd.DataFrame:
-    """Read the markers of a motion-capture export (Vicon, OptiTrack, Qualisys), optionally selecting some.
-
-    Parameters
-    ----------
-    path : str or Path
-        The export: Vicon Nexus Trajectories CSV, C3D, OptiTrack Motive CSV or Qualisys QTM
-        3D TSV. The format is found from the content (:func:`cvsflow.io.mocap_formats.detect_format`),
-        not the suffix.
-    names : sequence of str, optional
-        Marker names to keep (as in the export, e.g. ``Subject:Marker``), in this order. Each
-        must be present and seen in at least one frame.
-    format : str
-        ``auto`` or a format of :data:`cvsflow.io.mocap_formats.FORMATS` (``mocap.format``);
-        a named format the content contradicts is an error.
-
-    Returns
-    -------
-    markers : DataFrame
-        Wide marker table, metres in W (module docstring). A Motive export without plain
-        ``Marker`` columns gives its ``Rigid Body Marker`` positions instead (with a warning).
-
-    Raises
-    ------
-    InputError
-        File missing or of another kind (a Nexus Devices-only export, a TUM pose list: the
-        message says what it is and what was expected); the reader's errors; an export
-        without markers (a QTM 6D file: use ``mocap.bodies_from: system``); a configured
-        marker missing from the file (the message lists the file's markers) or never seen.
-    """
-    from cvsflow.io.mocap_formats import FORMATS, read_mocap
-
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: file not found")
-    export = read_mocap(path, format)
-    df = export.markers
-    if not marker_names(df):
-        solved = export.meta.get("body_markers")
-        if solved is not None and marker_names(solved):
-            log.warning("%s: no Marker columns; using the Rigid Body Marker (solved) positions", path)
-            df = solved
-        else:
-            have = ", ".join(map(repr, export.body_names)) or "none"
-            raise InputError(
-                f"{path}: a {FORMATS[export.format]} without marker positions (its rigid bodies: "
-                f"{have}); expected marker columns, or set the session's mocap.bodies_from: "
-                "system to use the system's own body poses"
-            )
-    if names is not None:
-        df = select_markers(df, names, source=path)
-    return df
-
-
-def select_markers(df: pd.DataFrame, names, source="marker table") -> pd.DataFrame:
-    """Keep only the named markers; each must exist and be seen at least once.
-
-    Raises
-    ------
-    InputError
-        A name absent from the table (lists what it has) or a marker empty for the whole take.
-    """
-    have = marker_names(df)
-    missing = [n for n in names if n not in have]
-    if missing:
-        raise InputError(
-            f"{source}: marker(s) {missing} not in the file (it has {len(have)} markers: "
-            f"{', '.join(have)})"
-        )
-    for n in names:
-        if not np.isfinite(df[marker_columns(n)].to_numpy()).any():
-            raise InputError(
-                f"{source}: marker {n!r} is absent for the whole take "
-                f"({len(df)} frames, every cell empty); expected it seen in at least one frame"
-            )
-    out = df[["frame", "t_s"] + [c for n in names for c in marker_columns(n)]].copy()
-    out.attrs = dict(df.attrs)
-    out.attrs["markers"] = list(names)
-    return out

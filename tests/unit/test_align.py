@@ -395,7 +395,7 @@ def rendered(tmp_path_factory):
     import yaml
 
     synth = pytest.importorskip("cvsflow.synth")
-    from cvsflow.io.vicon import read_vicon
+    from cvsflow.io.mocap_formats import read_markers
     from cvsflow.mocap import fill_marker_gaps
 
     cfg_path = Path(__file__).resolve().parents[2] / "config" / "config.yaml"
@@ -405,7 +405,7 @@ def rendered(tmp_path_factory):
     synth.render_session(session_cfg, out)
     truth = yaml.safe_load((out / "truth.yaml").read_text())
     mk = session_cfg["markers"]
-    markers = read_vicon(out / "vicon.csv", names=mk["camera"]["names"] + mk["board"]["names"])
+    markers = read_markers(out / "vicon.csv", names=mk["camera"]["names"] + mk["board"]["names"])
     specs = {
         body: {"names": mk[body]["names"], "layout_m": np.array([truth[key][n] for n in mk[body]["names"]])}
         for body, key in (("camera", "markers_Cm_m"), ("board", "markers_Bm_m"))

@@ -131,7 +131,8 @@ def test_export_trajectory_without_se3_and_bad_tables(tmp_path, capsys):
 
 
 def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
-    from cvsflow.io.vicon import _marker_table, write_nexus_csv
+    from cvsflow.io.markers import marker_table
+    from cvsflow.io.vicon import write_nexus_csv
     from tests.unit.board_images import board_centre_pose, render_board
 
     K = np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]])
@@ -143,7 +144,7 @@ def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
     (rec / "take.mp4").write_bytes(b"")
     names = ["cam:C1", "cam:C2", "board:B1"]
     xyz = np.random.default_rng(1).normal(size=(4, 3, 3))
-    write_nexus_csv(_marker_table(np.arange(4), xyz, names, 100.0), rec / "take.csv", 100.0)
+    write_nexus_csv(marker_table(np.arange(4), xyz, names, 100.0), rec / "take.csv", 100.0)
     out = tmp_path / "session.yaml"
     assert cli.main(["init", str(rec), "--out", str(out), "--name", "s1"]) == 0
     cfg = yaml.safe_load(out.read_text())["sessions"]["s1"]

@@ -9,7 +9,7 @@ from conftest import REAL_DATA, need_real_file
 from cvsflow.errors import InputError
 from cvsflow.io.mocap_formats import detect_format, read_mocap
 from cvsflow.io.optitrack import read_motive_csv, write_motive_csv
-from cvsflow.io.vicon import marker_columns, marker_names
+from cvsflow.io.markers import marker_columns, marker_names
 from cvsflow.mocap import body_poses, fit_bodies
 
 MOTIVE = REAL_DATA / "mocap" / "optitrack-motive"
@@ -257,8 +257,8 @@ def test_mocap_settings_checks_the_bodies():
 
 
 def test_rigid_body_markers_stand_in_for_missing_markers(tmp_path, caplog):
-    """An export with only Rigid Body Marker columns gives those to read_vicon, with a warning."""
-    from cvsflow.io.vicon import read_vicon
+    """An export with only Rigid Body Marker columns gives those to read_markers, with a warning."""
+    from cvsflow.io.mocap_formats import read_markers
 
     rng = np.random.default_rng(8)
     m = _table(rng)
@@ -270,7 +270,7 @@ def test_rigid_body_markers_stand_in_for_missing_markers(tmp_path, caplog):
     e = read_motive_csv(path)
     assert marker_names(e.markers) == []
     with caplog.at_level("WARNING"):
-        got = read_vicon(path, names=["cam:C2"])
+        got = read_markers(path, names=["cam:C2"])
     assert "Rigid Body Marker (solved) positions" in caplog.text
     np.testing.assert_allclose(got["cam:C2_x_m"], m["cam:C2_x_m"], atol=1e-6)
 

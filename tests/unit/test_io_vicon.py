@@ -7,16 +7,9 @@ import pytest
 from conftest import REAL_DATA
 
 from cvsflow.errors import InputError
-from cvsflow.io.mocap_formats import detect_format
-from cvsflow.io.vicon import (
-    marker_columns,
-    marker_names,
-    read_c3d,
-    read_nexus_csv,
-    read_vicon,
-    select_markers,
-    write_nexus_csv,
-)
+from cvsflow.io.markers import marker_columns, marker_names, select_markers
+from cvsflow.io.mocap_formats import detect_format, read_markers
+from cvsflow.io.vicon import read_c3d, read_nexus_csv, write_nexus_csv
 
 REAL = REAL_DATA / "vicon"
 REAL_CSV = REAL / "markers.csv"
@@ -81,14 +74,14 @@ def _synthetic_table(rng, n_frames=50, names=("camera:C1", "board:B1"), rate_hz=
 def real_csv():
     if not REAL_CSV.exists():
         pytest.skip(f"real Vicon export not available at {REAL_CSV}")
-    return read_vicon(REAL_CSV)
+    return read_markers(REAL_CSV)
 
 
 @pytest.fixture(scope="module")
 def real_c3d():
     if not REAL_C3D.exists():
         pytest.skip(f"real Vicon export not available at {REAL_C3D}")
-    return read_vicon(REAL_C3D)
+    return read_markers(REAL_C3D)
 
 
 def test_real_csv_header_and_shape(real_csv):
@@ -186,7 +179,7 @@ def test_parses_a_90s_300hz_file(tmp_path):
     df = _synthetic_table(rng, n_frames=27000, names=names)
     path = tmp_path / "long.csv"
     write_nexus_csv(df, path, rate_hz=300.0)
-    back = read_vicon(path, names=names[::-1])
+    back = read_markers(path, names=names[::-1])
     assert len(back) == 27000
     assert marker_names(back) == names[::-1]
     np.testing.assert_allclose(back["board:B4_z_m"], df["board:B4_z_m"], atol=1e-7)
@@ -208,7 +201,7 @@ def test_file_cut_short_names_last_line(tmp_path):
     raw = path.read_bytes()
     path.write_bytes(raw[: len(raw) - 30])  # cut inside the last row (frame 20, line 25)
     with pytest.raises(InputError, match=r"v\.csv, line 25: .*cut short"):
-        read_vicon(path)
+        read_markers(path)
 
 
 def test_truncated_row_inside_file(tmp_path):
@@ -218,14 +211,14 @@ def test_truncated_row_inside_file(tmp_path):
     lines[9] = ",".join(lines[9].split(",")[:4])  # line 10 = frame 5
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError, match=r"v\.csv, line 10: 4 cells, expected 8"):
-        read_vicon(path)
+        read_markers(path)
 
 
 def test_missing_marker_lists_what_the_file_has(tmp_path):
     """A configured marker absent from the file raises InputError naming it and the file's markers."""
     path = _write_small(tmp_path, np.random.default_rng(5))
     with pytest.raises(InputError, match=r"camera:C9.*not in the file.*camera:C1, board:B1"):
-        read_vicon(path, names=["camera:C1", "camera:C9"])
+        read_markers(path, names=["camera:C1", "camera:C9"])
 
 
 def test_non_numeric_cell_names_line_and_column(tmp_path):
@@ -237,7 +230,26 @@ def test_non_numeric_cell_names_line_and_column(tmp_path):
     lines[11] = ",".join(cells)
     path.write_text("\r\n".join(lines) + "\r\n")
     with pytest.raises(InputError, match=r"line 12, column board:B1_Y: non-numeric cell 'abc'"):
-        read_vicon(path)
+        read_markers(path)
+
+
+def test_nan_text_is_a_gap_and_bad_cell_after_it_is_still_named(tmp_path):
+    """'NaN' written by other tools reads as a gap; a bad cell later in the file is still found."""
+    path = _write_small(tmp_path, np.random.default_rng(6))
+    lines = path.read_text().splitlines()
+    cells = lines[8].split(",")
+    cells[2:5] = ["NaN", "nan", "NULL"]  # camera:C1 at line 9 = frame 4
+    lines[8] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    df = read_markers(path)
+    assert df.loc[3, marker_columns("camera:C1")].isna().all()
+    assert np.isfinite(df.loc[4, marker_columns("camera:C1")].to_numpy(float)).all()
+    cells = lines[14].split(",")
+    cells[5] = "1.2.3"  # board:B1 X at line 15
+    lines[14] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError, match=r"line 15, column board:B1_X: non-numeric cell '1\.2\.3'"):
+        read_markers(path)
 
 
 def test_no_rate_line(tmp_path):
@@ -247,7 +259,7 @@ def test_no_rate_line(tmp_path):
     del lines[1]
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError, match=r"line 2: no rate line"):
-        read_vicon(path)
+        read_markers(path)
 
 
 def test_marker_absent_for_whole_take(tmp_path):
@@ -258,7 +270,7 @@ def test_marker_absent_for_whole_take(tmp_path):
     path = tmp_path / "v.csv"
     write_nexus_csv(df, path, rate_hz=300.0)
     with pytest.raises(InputError, match=r"marker 'board:B1' is absent for the whole take"):
-        read_vicon(path, names=["camera:C1", "board:B1"])
+        read_markers(path, names=["camera:C1", "board:B1"])
 
 
 def test_non_consecutive_frames(tmp_path):
@@ -270,7 +282,7 @@ def test_non_consecutive_frames(tmp_path):
     lines[7] = ",".join(cells)
     path.write_text("\n".join(lines) + "\n")
     with pytest.raises(InputError, match=r"line 8: frame 40 follows frame 2"):
-        read_vicon(path)
+        read_markers(path)
 
 
 def test_unknown_content_and_missing_file(tmp_path):
@@ -278,9 +290,9 @@ def test_unknown_content_and_missing_file(tmp_path):
     path = tmp_path / "x.txt"
     path.write_text("hello,world\n1,2\n")
     with pytest.raises(InputError, match=r"x\.txt, line 1: unrecognised content 'hello,world'.*expected a motion-capture export"):
-        read_vicon(path)
+        read_markers(path)
     with pytest.raises(InputError, match=r"nope\.csv: file not found"):
-        read_vicon(tmp_path / "nope.csv")
+        read_markers(tmp_path / "nope.csv")
     with pytest.raises(InputError, match=r"nope\.c3d: file not found"):
         read_c3d(tmp_path / "nope.c3d")
 
@@ -291,11 +303,11 @@ def test_content_not_suffix_chooses_the_reader(tmp_path):
     renamed = tmp_path / "take.txt"
     renamed.write_bytes(path.read_bytes())
     assert detect_format(renamed) == "vicon_csv"
-    np.testing.assert_array_equal(read_vicon(renamed).to_numpy(), read_vicon(path).to_numpy())
+    np.testing.assert_array_equal(read_markers(renamed).to_numpy(), read_markers(path).to_numpy())
     with pytest.raises(InputError, match=r"config says OptiTrack Motive CSV \(motive_csv\) but the file is a Vicon Nexus"):
-        read_vicon(path, format="motive_csv")
+        read_markers(path, format="motive_csv")
     with pytest.raises(InputError, match=r"unknown format 'optitrak'"):
-        read_vicon(path, format="optitrak")
+        read_markers(path, format="optitrak")
 
 
 def test_real_nexus_devices_export_is_named(real_root):
@@ -305,7 +317,7 @@ def test_real_nexus_devices_export_is_named(real_root):
         pytest.skip(f"{path} not available")
     with pytest.raises(InputError, match=r"analogs\.csv: a Vicon Nexus CSV with only the block\(s\) Devices "
                                          r"\(Devices at 2000 Hz.*no Trajectories block.*Expected the Trajectories"):
-        read_vicon(path)
+        read_markers(path)
 
 
 def test_real_tum_file_is_named(real_root):
@@ -314,7 +326,7 @@ def test_real_tum_file_is_named(real_root):
     if not path.exists():
         pytest.skip(f"{path} not available")
     with pytest.raises(InputError, match=r"a TUM pose list .*not a motion-capture export"):
-        read_vicon(path)
+        read_markers(path)
 
 
 def test_other_wrong_files(tmp_path):
@@ -322,22 +334,22 @@ def test_other_wrong_files(tmp_path):
     empty = tmp_path / "empty.csv"
     empty.write_text("")
     with pytest.raises(InputError, match="empty.csv: empty file"):
-        read_vicon(empty)
+        read_markers(empty)
     trc = tmp_path / "walk.trc"
     trc.write_text("PathFileType\t4\t(X/Y/Z)\twalk.trc\n")
     with pytest.raises(InputError, match="a TRC marker file"):
-        read_vicon(trc)
+        read_markers(trc)
     blob = tmp_path / "x.bin"
     blob.write_bytes(bytes(range(256)) * 4)
     with pytest.raises(InputError, match="binary file that is not C3D"):
-        read_vicon(blob)
+        read_markers(blob)
     six = tmp_path / "take_6d.tsv"
     six.write_text("NO_OF_FRAMES\t1\nNO_OF_BODIES\t1\nFREQUENCY\t100\nDATA_INCLUDED\t6D\nBODY_NAMES\tcam\n"
                    "Frame\tTime\tcam X\tcam Y\tcam Z\tRoll\tPitch\tYaw\tResidual\t"
                    + "\t".join(f"Rot[{k}]" for k in range(9)) + "\n"
                    "1\t0\t1\t2\t3\t0\t0\t0\t0.5\t1\t0\t0\t0\t1\t0\t0\t0\t1\n")
     with pytest.raises(InputError, match=r"without marker positions \(its rigid bodies: 'cam'\).*bodies_from: system"):
-        read_vicon(six)
+        read_markers(six)
 
 
 def test_select_markers_keeps_order_and_attrs():

@@ -17,7 +17,7 @@ import pytest
 
 from cvsflow.io.optitrack import write_motive_csv
 from cvsflow.io.qualisys import write_qtm_tsv
-from cvsflow.io.vicon import read_vicon
+from cvsflow.io.mocap_formats import read_markers
 from cvsflow.mocap import body_poses
 
 from .test_workflow import demo_config, dry_run_jobs, snakemake, write_config
@@ -52,7 +52,7 @@ def test_motive_and_qtm_sessions_match_the_vicon_path(tmp_path):
     config["flights"] = {}
     write_config(tmp_path, config)
     snakemake(tmp_path, "results/demo/bodies.parquet")
-    markers = read_vicon(tmp_path / "data/demo/vicon.csv")
+    markers = read_markers(tmp_path / "data/demo/vicon.csv")
     ref = pd.read_parquet(tmp_path / "results/demo/bodies.parquet")
     ref.attrs["rate_hz"] = markers.attrs["rate_hz"]
     data = tmp_path / "data"

@@ -2,7 +2,7 @@
 
 from cvsflow.io import write_parquet
 from cvsflow.io.logs import stage_logging
-from cvsflow.io.vicon import read_vicon
+from cvsflow.io.mocap_formats import read_markers
 from cvsflow.plausibility import check_marker_scale
 
 with stage_logging(snakemake.log[0], "vicon_import") as log:
@@ -10,7 +10,7 @@ with stage_logging(snakemake.log[0], "vicon_import") as log:
     names = markers["camera"]["names"] + markers["board"]["names"]
     # mocap.format; absent in older callers of this script (tests/unit/test_plausibility.py)
     fmt = getattr(snakemake.params, "mocap_format", "auto")
-    table = read_vicon(snakemake.input[0], names, format=fmt)
+    table = read_markers(snakemake.input[0], names, format=fmt)
     log.info("%d samples at %g Hz", len(table), table.attrs["rate_hz"])
     for warning in check_marker_scale(table, markers, snakemake.input[0], snakemake.params.max_scale_ratio):
         log.warning(warning)
