@@ -17,8 +17,9 @@ corners unchanged; a frame simply has the subset of ids it saw.
 Detection: ``cv2.aruco.CharucoDetector`` finds the markers and puts each corner between its
 two neighbouring markers; the corner is then refined with ``cv2.cornerSubPix`` in a window
 scaled to the squares as the image shows them, kept short of the markers (their edges would
-pull it), and checked against the markers it was placed from. Both markers beside a corner
-must be found, so a finger over a corner usually hides one of them too.
+pull it), and checked against the markers it was placed from and for the point symmetry of
+a corner (a finger over it is not). Both markers beside a corner must be found, so a finger
+over a corner usually hides one of them too.
 """
 
 from __future__ import annotations
@@ -325,9 +326,10 @@ def detect_charuco_corners(
     largest = np.maximum(int(subpix_window_px), np.floor(SUBPIX_WINDOW_FRAC * spacing_px))
     windows = np.clip(np.floor(margin_px - WINDOW_CLEARANCE_PX), MIN_WINDOW_PX,
                       np.maximum(largest, MIN_WINDOW_PX))
+    windows = np.where(keep, windows, MIN_WINDOW_PX).astype(int)  # NaN: no markers, not kept
     h, w = gray.shape
     refined = uv.copy()
-    for win in np.unique(windows[keep]).astype(int):
+    for win in np.unique(windows[keep]):
         sel = keep & (windows == win)
         start = np.ascontiguousarray(uv[sel], dtype=np.float32).reshape(-1, 1, 2)
         refined[sel] = cv2.cornerSubPix(gray, start, (win, win), (-1, -1),
@@ -339,9 +341,8 @@ def detect_charuco_corners(
         dev = np.linalg.norm(refined - predicted, axis=1)
         keep &= dev <= limit
         # cornerSubPix's window must lie inside the image.
-        win = windows
-        keep &= ((refined[:, 0] >= win + 1) & (refined[:, 0] <= w - 2 - win)
-                 & (refined[:, 1] >= win + 1) & (refined[:, 1] <= h - 2 - win))
+        keep &= ((refined[:, 0] >= windows + 1) & (refined[:, 0] <= w - 2 - windows)
+                 & (refined[:, 1] >= windows + 1) & (refined[:, 1] <= h - 2 - windows))
     if not _spread_ok(ids[keep], board):
         return None, "not_found"
     out[ids[keep]] = refined[keep]
