@@ -38,6 +38,9 @@ CALIB_FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 
 CALIB_CORNER_COLUMNS = ["image", "corner", "u_px", "v_px", "X_m", "Y_m"]
 
+# camera.yaml's reason for a still without a board (chessboard, ChArUco).
+NOT_FOUND = {False: "no chessboard found", True: "no ChArUco corners found"}
+
 #: Keys of camera.yaml's ``std`` (the intrinsics' standard deviations; px, then unitless).
 INTRINSIC_STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 
@@ -246,13 +249,38 @@ def _check_gray(name: str, img) -> np.ndarray:
     return img
 
 
-def _duplicate_of(uv: np.ndarray, kept: list[tuple[str, np.ndarray]], duplicate_px: float):
-    """(name, corner RMS difference px) of the first kept view within duplicate_px, or None."""
+def _duplicate_of(uv: np.ndarray, kept: list[tuple[str, np.ndarray]], duplicate_px: float,
+                  ids: np.ndarray | None = None):
+    """(name, corner RMS difference px) of the first kept view within duplicate_px, or None.
+
+    With ``ids`` (a ChArUco view's corners; ``kept`` then holds ``(name, (ids, uv))``) the RMS
+    is over the corners both views have, at least 4 of them."""
     for name, other in kept:
-        d = float(np.sqrt(np.mean(np.sum((uv - other) ** 2, axis=1))))
+        if ids is not None:
+            other_ids, other = other
+            _, mine, theirs = np.intersect1d(ids, other_ids, return_indices=True)
+            if len(mine) < 4:
+                continue
+            d = float(np.sqrt(np.mean(np.sum((uv[mine] - other[theirs]) ** 2, axis=1))))
+        else:
+            d = float(np.sqrt(np.mean(np.sum((uv - other) ** 2, axis=1))))
         if d < duplicate_px:
             return name, d
     return None
+
+
+def _detect_view(gray: np.ndarray, board: dict, subpix_window_px: int, detector):
+    """(corner ids, corners px in board order) of a still, or None: the chessboard's whole grid
+    (``find_board``, ``order_corners``), or the ChArUco corners seen (``detector`` not None)."""
+    if detector is not None:
+        from cvsflow.charuco import find_charuco  # charuco imports this module
+
+        return find_charuco(gray, board, subpix_window_px, detector)
+    corners = find_board(gray, board, subpix_window_px)
+    if corners is None:
+        return None
+    ordered, _ = order_corners(corners, gray, board)
+    return None, ordered
 
 
 def calibration_quality(
@@ -369,7 +397,7 @@ def calibrate_camera(
     min_normal_spread_deg: float = 10.0,
     max_rel_std_f: float = 0.01,
 ) -> tuple[dict, pd.DataFrame]:
-    """Intrinsics and distortion of a camera from chessboard stills.
+    """Intrinsics and distortion of a camera from chessboard (or ChArUco) stills.
 
     Parameters
     ----------
@@ -377,7 +405,9 @@ def calibrate_camera(
         ``(name, gray)`` pairs: the still's file name (used in messages and tables) and its
         8-bit grayscale image, shape (H, W). All stills must have the same size.
     board : dict
-        ``squares_x``, ``squares_y``, ``square_m`` (m).
+        ``squares_x``, ``squares_y``, ``square_m`` (m). With ``type: charuco`` (``marker_m``,
+        ``dictionary``) the corners come from ``cvsflow.charuco.find_charuco`` and a still
+        may show part of the board (each view enters with the corners it has).
     subpix_window_px : int
         cornerSubPix half window (OpenCV ``winSize``), pixels.
     min_images : int
@@ -403,7 +433,8 @@ def calibrate_camera(
         when the views constrain the intrinsics well).
     calib_corners : DataFrame
         ``image, corner, u_px, v_px, X_m, Y_m``: refined corners in board order (see
-        ``order_corners``) with their board-frame positions (m, Z = 0).
+        ``order_corners``; a ChArUco still only the corners it shows) with their board-frame
+        positions (m, Z = 0).
 
     Raises
     ------
@@ -427,10 +458,17 @@ def calibrate_camera(
     if len(images) == 0:
         raise CalibrationError("calibration: no stills given; expected at least one image")
     p_B = board_object_points(board).astype(np.float32)
+    charuco = board.get("type", "chessboard") == "charuco"
+    detector = None
+    if charuco:
+        from cvsflow.charuco import make_detector  # charuco imports this module
+
+        detector = make_detector(board)
+    what = "ChArUco board" if charuco else "{}x{} chessboard".format(*board_pattern(board))
     size_wh = None
     first_name = None
     records = []
-    obj_points, img_points, used_names = [], [], []
+    obj_points, img_points, used_names, view_ids = [], [], [], []
     kept, duplicates = [], []
     for name, img in images:
         gray = _check_gray(name, img)
@@ -442,15 +480,15 @@ def calibrate_camera(
                 f"{name}: image is {w}x{h} px; expected {size_wh[0]}x{size_wh[1]} px like "
                 f"{first_name} (all calibration stills must have the same size)"
             )
-        corners = find_board(gray, board, subpix_window_px)
-        if corners is None:
-            log.warning("%s: no %dx%d chessboard found; skipped", name, *board_pattern(board))
+        view = _detect_view(gray, board, subpix_window_px, detector)
+        if view is None:
+            log.warning("%s: no %s found; skipped", name, what)
             records.append(
-                {"name": name, "used": False, "reason": "no chessboard found", "rms_px": None}
+                {"name": name, "used": False, "reason": NOT_FOUND[charuco], "rms_px": None}
             )
             continue
-        ordered, _ = order_corners(corners, gray, board)
-        dup = _duplicate_of(ordered, kept, duplicate_px)
+        ids, ordered = view
+        dup = _duplicate_of(ordered, kept, duplicate_px, ids)
         if dup is not None:
             log.warning("%s: near-duplicate of %s (corners within %.3f px RMS); skipped",
                         name, *dup)
@@ -464,14 +502,16 @@ def calibrate_camera(
             )
             duplicates.append(f"{name} (of {dup[0]})")
             continue
-        kept.append((name, ordered))
-        obj_points.append(p_B)
+        kept.append((name, ordered if ids is None else (ids, ordered)))
+        # A ChArUco view has the corners it saw; calibrateCamera takes each view's own subset.
+        obj_points.append(p_B if ids is None else p_B[ids])
         img_points.append(ordered.astype(np.float32).reshape(-1, 1, 2))
+        view_ids.append(np.arange(len(p_B)) if ids is None else ids)
         used_names.append(name)
         records.append({"name": name, "used": True, "reason": "ok", "rms_px": None})
 
     if len(used_names) < min_images:
-        skipped = [r["name"] for r in records if r["reason"] == "no chessboard found"]
+        skipped = [r["name"] for r in records if r["reason"] == NOT_FOUND[charuco]]
         dup_text = (
             f"; near-duplicates removed: {', '.join(duplicates)}, within {duplicate_px:g} px"
             if duplicates
@@ -479,7 +519,7 @@ def calibrate_camera(
         )
         raise CalibrationError(
             f"calibration: {len(used_names)} of {len(images)} stills have a usable and "
-            f"distinct {board_pattern(board)[0]}x{board_pattern(board)[1]} chessboard view; "
+            f"distinct {what} view; "
             f"at least {min_images} needed (used: {used_names}; no board found in: "
             f"{skipped}{dup_text})"
         )
@@ -498,8 +538,9 @@ def calibrate_camera(
 
     rms_by_name = {}
     rows = []
-    for name, p_img, rvec, tvec in zip(used_names, img_points, rvecs, tvecs, strict=True):
-        proj, _ = cv2.projectPoints(p_B, rvec, tvec, K, dist)
+    for name, p_obj, p_img, ids, rvec, tvec in zip(used_names, obj_points, img_points, view_ids,
+                                                   rvecs, tvecs, strict=True):
+        proj, _ = cv2.projectPoints(p_obj, rvec, tvec, K, dist)
         err = proj.reshape(-1, 2) - p_img.reshape(-1, 2)
         rms_by_name[name] = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
         uv = p_img.reshape(-1, 2).astype(np.float64)
@@ -507,11 +548,11 @@ def calibrate_camera(
             pd.DataFrame(
                 {
                     "image": name,
-                    "corner": np.arange(len(p_B), dtype=np.int64),
+                    "corner": np.asarray(ids, dtype=np.int64),
                     "u_px": uv[:, 0],
                     "v_px": uv[:, 1],
-                    "X_m": p_B[:, 0].astype(np.float64),
-                    "Y_m": p_B[:, 1].astype(np.float64),
+                    "X_m": p_obj[:, 0].astype(np.float64),
+                    "Y_m": p_obj[:, 1].astype(np.float64),
                 }
             )
         )
@@ -540,6 +581,8 @@ def calibrate_camera(
             "squares_x": int(board["squares_x"]),
             "squares_y": int(board["squares_y"]),
             "square_m": float(board["square_m"]),
+            **({"type": "charuco", "marker_m": float(board["marker_m"]),
+                "dictionary": str(board["dictionary"])} if charuco else {}),
         },
         "quality": quality,
         "warnings": warnings,

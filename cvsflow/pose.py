@@ -39,6 +39,7 @@ from cvsflow.calibration import (
     board_pattern,
     order_corners,
 )
+from cvsflow.charuco import extract_charuco_corners, is_charuco
 from cvsflow.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -1170,7 +1171,9 @@ def extract_corners(
         ``(frame, t_s, gray)``: frame index, video time (s) and 8-bit grayscale image (H, W),
         e.g. ``cvsflow.io.media.iter_video_gray``.
     board : dict
-        ``squares_x``, ``squares_y``, ``square_m`` (m).
+        ``squares_x``, ``squares_y``, ``square_m`` (m); with ``type: charuco`` (and
+        ``marker_m``, ``dictionary``) ``cvsflow.charuco.extract_charuco_corners`` makes the
+        table instead (the tracking arguments do not apply).
     subpix_window_px : int
         Largest cornerSubPix half window, pixels (shrunk for far boards, see ``_subpix_window``).
     n_frames : int, optional
@@ -1221,6 +1224,9 @@ def extract_corners(
     InputError
         A frame that is not a 2-D uint8 image.
     """
+    if is_charuco(board):  # the markers name each corner: every frame detected on its own
+        return extract_charuco_corners(frames, board, subpix_window_px, n_frames, log_every,
+                                       keep_partial)
     n_corners = int(np.prod(board_pattern(board)))
     corner_ids = np.arange(n_corners, dtype=np.int64)
     frame_ids, times, founds, corner_col, uv_blocks = [], [], [], [], []

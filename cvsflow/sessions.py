@@ -86,10 +86,17 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     ------
     ConfigError
         The session names a video without a camera, a Vicon export without markers, or
-        nothing to process.
+        nothing to process; a ChArUco board without a usable marker_m or dictionary.
     """
     s = sessions[name]
     where = f"config: sessions.{name}"
+    if isinstance(s.get("board"), dict) and s["board"].get("type") == "charuco":
+        from cvsflow.charuco import charuco_board  # cv2: only for a ChArUco session
+
+        try:
+            charuco_board(s["board"])
+        except ConfigError as exc:
+            raise ConfigError(f"{where}.{exc}") from exc
     synth = "synth" in s
     cam = camera_session(name, sessions)
     has_video = synth or "video" in s

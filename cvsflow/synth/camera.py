@@ -29,12 +29,26 @@ MAX_RAY_RADIUS = 1.2
 class Board:
     """Chessboard geometry in the board frame B (origin at inner corner 0, z into the board).
 
-    Attributes are metres; ``nx``, ``ny`` count inner corners along x and y.
+    Attributes are metres; ``nx``, ``ny`` count inner corners along x and y. ``kind``
+    ``"charuco"`` adds ArUco markers of side ``marker_m`` from ``dictionary`` to the white
+    squares (``cvsflow.charuco``); the squares and corners are the chessboard's.
     """
 
     squares_x: int
     squares_y: int
     square_m: float
+    kind: str = "chessboard"
+    marker_m: float = 0.0
+    dictionary: str = ""
+
+    def config(self) -> dict:
+        """The board's config block (``board:``): the chessboard's three keys, plus
+        ``type``, ``marker_m`` and ``dictionary`` for a ChArUco board."""
+        out = {"squares_x": self.squares_x, "squares_y": self.squares_y,
+               "square_m": self.square_m}
+        if self.kind == "charuco":
+            out.update(type="charuco", marker_m=self.marker_m, dictionary=self.dictionary)
+        return out
 
     @property
     def nx(self) -> int:
@@ -223,11 +237,43 @@ def make_board_texture(board: Board, ppm=1200.0, n_levels=5, markers_B=None) -> 
     in_x = (ix >= 0) & (ix < board.squares_x)
     in_y = (iy >= 0) & (iy < board.squares_y)
     black = ((iy[:, None] + ix[None, :]) % 2 == 0) & in_y[:, None] & in_x[None, :]
+    if board.kind == "charuco":
+        black |= _charuco_marker_ink(board, xc - x_min, yc - y_min)
     reflectance = np.where(black, INK_REFLECTANCE, PAPER_REFLECTANCE)
     if markers_B is not None:
         reflectance = _draw_markers(reflectance, markers_B, x0, y0, ppm, board.sheet_B())
     level = np.dstack([reflectance * alpha, alpha]).astype(np.float32)
     return texture_pyramid(level, ppm, n_levels, x0, y0)
+
+
+# Pixels per marker bit of the ChArUco image the markers are copied from (many more than
+# texels per bit: the copy's edges are off by at most half a texel).
+CHARUCO_PX_PER_BIT = 24
+
+
+def _charuco_marker_ink(board: Board, x_m, y_m):
+    """(len(y_m), len(x_m)) bool: texel centres (x_m, y_m: metres from the printed squares'
+    outer corner, along B's x and y) on a marker's black bit.
+
+    The markers come from ``cv2.aruco.CharucoBoard.generateImage`` (image row = B's y, square
+    (0, 0) black, markers in the white squares); only marker pixels inside white squares are
+    taken, so the squares, and with them every corner, stay exactly the chessboard's.
+    """
+    from cvsflow.charuco import charuco_board  # here: synth's maths needs it only for ChArUco
+
+    cb = charuco_board(board.config())
+    bits = cb.getDictionary().markerSize + 2  # the marker and its one-bit black border
+    pps = int(np.ceil(CHARUCO_PX_PER_BIT * bits * board.square_m / board.marker_m))
+    image = cb.generateImage((board.squares_x * pps, board.squares_y * pps), marginSize=0,
+                             borderBits=1)
+    s = board.square_m
+    ci = np.floor(np.asarray(x_m) / s * pps).astype(int)
+    ri = np.floor(np.asarray(y_m) / s * pps).astype(int)
+    in_c = (ci >= 0) & (ci < image.shape[1])
+    in_r = (ri >= 0) & (ri < image.shape[0])
+    ink = image[np.clip(ri, 0, image.shape[0] - 1)][:, np.clip(ci, 0, image.shape[1] - 1)] < 128
+    white_square = ((ri[:, None] // pps + ci[None, :] // pps) % 2) == 1
+    return ink & white_square & in_r[:, None] & in_c[None, :]
 
 
 def texture_pyramid(level, ppm, n_levels, x0, y0) -> BoardTexture:

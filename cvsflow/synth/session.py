@@ -7,11 +7,12 @@ their results with ``cvsflow.io.synth_out``.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
 
+from cvsflow.charuco import board_type, charuco_board
 from cvsflow.errors import ConfigError
 from cvsflow.synth.camera import (
     Board,
@@ -133,6 +134,10 @@ def parse_session_config(session_cfg) -> SynthSpec:
         int(_require(board_cfg, "squares_y", "board")),
         float(_require(board_cfg, "square_m", "board")),
     )
+    if board_type(board_cfg) == "charuco":
+        charuco_board(board_cfg)  # checks marker_m and dictionary (ConfigError)
+        board = replace(board, kind="charuco", marker_m=float(board_cfg["marker_m"]),
+                        dictionary=str(board_cfg["dictionary"]))
     duration_s = float(synth.get("duration_s", 20.0))
     if not duration_s > 0.0:
         raise ConfigError(f"session config, synth.duration_s: expected > 0 s, got {duration_s}")
@@ -560,11 +565,7 @@ def truth_document(spec: SynthSpec, rig: Rig, n_frames, stills, extra=None):
         "vicon_rate_hz": VICON_RATE_HZ,
         "markers_Cm_m": dict(zip(spec.camera_names, rig.markers_Cm_m, strict=True)),
         "markers_Bm_m": dict(zip(spec.board_names, rig.markers_Bm_m, strict=True)),
-        "board": {
-            "squares_x": spec.board.squares_x,
-            "squares_y": spec.board.squares_y,
-            "square_m": spec.board.square_m,
-        },
+        "board": spec.board.config(),
         "n_frames": int(n_frames),
         "seed": spec.seed,
         "duration_s": spec.duration_s,
