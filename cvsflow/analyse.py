@@ -15,9 +15,11 @@ import pandas as pd
 from scipy import stats
 
 from cvsflow.errors import InputError
+from cvsflow.metrics import ERROR_DIMS
+from cvsflow.optimise.seed import compute_p_bar
 
-#: The six pose dimensions, in the chapter's order.
-POSE_DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+#: The six pose dimensions, in the chapter's order (:data:`cvsflow.metrics.ERROR_DIMS`).
+POSE_DIMS = ERROR_DIMS
 
 
 def _require(df, cols, where):
@@ -315,8 +317,6 @@ def summary_row(session, method, finit, result, stats, truth=None, pairs=None, t
     dict
         Flat mapping of column name (unit in the name) to value.
     """
-    from cvsflow.optimise.seed import compute_p_bar
-
     row = {"session": session, "method": method, "f_init": finit,
            "n_pairs": int(result.get("n_pairs", stats.get("n", 0))),
            "fx_px": float(result["fx_px"]), "fy_px": float(result["fy_px"]),

@@ -50,7 +50,7 @@ from scipy.stats import t as student_t
 
 from cvsflow import transforms as tf
 from cvsflow.errors import OptimiseError
-from cvsflow.evaluate import ERROR_DIMS, pose_errors
+from cvsflow.metrics import ERROR_DIMS, pose_errors
 
 log = logging.getLogger(__name__)
 
