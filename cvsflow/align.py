@@ -173,6 +173,15 @@ def angular_speed_vicon(bodies, window_s, t_grid_s=None, camera="camera", board=
 def angular_speed_streams(poses_raw, bodies, camera="camera", board="board"):
     """Both angular-speed streams as plotted by :func:`cvsflow.plots.mocap.plot_sync`.
 
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet (``t_s`` video clock, ``valid``, ``rvec_0..2`` of R_C_B).
+    bodies : DataFrame
+        Native-rate bodies.parquet (T_W_Cm and T_W_Bm).
+    camera, board : str
+        Body names of the camera-marker and board-marker bodies.
+
     Returns
     -------
     streams : dict
@@ -210,6 +219,17 @@ def check_take_covers_video(video_span_s, take_span_s, dt_offset_s=None, tol_s=1
         Known offset; with it, the video span mapped to the Vicon clock must lie in the take.
     tol_s : float
         Slack at each end, s.
+    min_share : float
+        Share of the video the take must last when no offset is given, in (0, 1].
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        The take is too short, or the mapped video span falls outside it.
     """
     v0, v1 = video_span_s
     k0, k1 = take_span_s
@@ -773,6 +793,23 @@ def sync_gesture(
 def synchronise(poses_raw, bodies, method="angular_speed", max_offset_s=30.0, min_quality=0.5,
                 min_overlap_share=0.8, **kwargs):
     """Time offset between video and Vicon by the configured method (``sync.method``).
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet (video clock, R_C_B).
+    bodies : DataFrame
+        Native-rate bodies.parquet (Vicon clock, T_W_Cm and T_W_Bm).
+    method : {"angular_speed", "gesture"}
+        ``sync.method``.
+    max_offset_s : float
+        Largest |dt_offset_s| searched, s.
+    min_quality : float
+        Quality (0..1) below which the offset is refused.
+    min_overlap_share : float
+        Share of video frames inside the take below which a warning is given.
+    **kwargs
+        Passed to :func:`sync_angular_speed` or :func:`sync_gesture`.
 
     Returns
     -------

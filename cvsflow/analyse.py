@@ -104,6 +104,13 @@ def normality_tests(errors, prefix="eps"):
 def qq_data(errors, prefix="eps"):
     """Normal Q-Q points of each dimension of eps.
 
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        Per-frame errors with ``{prefix}_{dim}`` columns (m, rad), at least 3 rows.
+    prefix : str
+        ``eps`` (final) or ``eps_orig`` (at the initial focal lengths).
+
     Returns
     -------
     dict
@@ -190,6 +197,15 @@ def vicon_vs_cvs(errors, result):
 def error_covariance(errors, prefix="eps"):
     """6x6 covariance Sigma of eps (seed eq. 1.14) and its correlation matrix, in SI.
 
+    Not :func:`cvsflow.uncertainty.error_covariance` (the propagated covariance of each pose).
+
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        Per-frame errors with ``{prefix}_{dim}`` columns (m, rad), at least 3 rows.
+    prefix : str
+        Column prefix, ``eps`` by default.
+
     Returns
     -------
     Sigma : ndarray, shape (6, 6)
@@ -259,6 +275,15 @@ CONTOUR_PAIRS = (("x_m", "z_m"), ("y_m", "z_m"), ("roll_rad", "pitch_rad"))
 def error_maps(errors, pairs=CONTOUR_PAIRS, bins=12, min_count=3):
     """:func:`binned_error_map` of every error dimension over each pose pair (figure 1.9).
 
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        Per-frame table with ``cvs_{dim}`` and ``eps_{dim}`` columns (m, rad).
+    pairs : sequence of (str, str)
+        Pose-dimension pairs to bin over (default x-z, y-z, roll-pitch).
+    bins, min_count : int
+        As :func:`binned_error_map`.
+
     Returns
     -------
     list of dict
@@ -270,6 +295,13 @@ def error_maps(errors, pairs=CONTOUR_PAIRS, bins=12, min_count=3):
 
 def error_statistics(errors, prefix="eps"):
     """``stats.json``-ready summary of eps: plain floats and lists, SI units.
+
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        Per-frame errors with ``{prefix}_{dim}`` columns (m, rad), at least 3 rows.
+    prefix : str
+        Column prefix, ``eps`` by default.
 
     Returns
     -------

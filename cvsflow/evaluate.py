@@ -561,7 +561,19 @@ def mark_seed_divergence(comparison, seed_heldout):
     ``rms_ratio_se3_to_seed_not_measurements`` (the top-level key is None), when any fold's fit
     diverged (``diverged`` column of :func:`cross_validate_seed`) or a held-out translation
     error std exceeds ``cvsflow.optimise.seed.DIVERGED_EPS_STD_M``. Otherwise the section gets
-    ``diverged: false``. Edits ``comparison`` in place and returns it.
+    ``diverged: false``.
+
+    Parameters
+    ----------
+    comparison : dict
+        :func:`compare_methods` output with a ``seed`` section (edited in place).
+    seed_heldout : DataFrame
+        :func:`cross_validate_seed` output (``fold``, ``diverged``, ``diverged_reason``).
+
+    Returns
+    -------
+    comparison : dict
+        The same mapping.
     """
     sec = comparison["seed"]
     reasons = []

@@ -212,9 +212,26 @@ def resolve_layouts(markers, body_specs, still_s=1.0, still_tol_m=0.001, refine=
 
     ``refine`` replaces each layout by :func:`refine_layout` (the layout the markers show).
 
+    Parameters
+    ----------
+    markers : DataFrame
+        Wide marker table (``{marker}_x_m ..`` in W, metres; ``attrs["rate_hz"]``).
+    body_specs : dict
+        Body name -> ``{"names": [...], "layout_m": (M, 3) or None}`` (body frame, metres).
+    still_s, still_tol_m : float
+        Still window to learn a missing layout from (s) and its tolerance (m)
+        (:func:`learn_layout`).
+    refine : bool
+        Replace every layout by the one the markers show (:func:`refine_layout`).
+
+    Returns
+    -------
+    specs : dict
+        Body name -> ``{"names": list, "layout_m": ndarray (M, 3)}``, metres.
+
     Raises
     ------
-    ConfigError-like MocapError
+    MocapError
         A layout whose shape does not match its names, or no still window to learn one.
     """
     out = {}
@@ -555,9 +572,17 @@ def _body_frame(frame, t_s, body, T, rms, n_markers, n_filled):
 def body_poses(bodies, body):
     """Times, transforms and validity of one body from a bodies table.
 
+    Parameters
+    ----------
+    bodies : DataFrame
+        bodies.parquet (long): ``frame, t_s, body, valid, x_m .. qw``.
+    body : str
+        ``"camera"`` (T_W_Cm) or ``"board"`` (T_W_Bm).
+
     Returns
     -------
     t_s : ndarray, shape (N,)
+        Sample times, seconds, in frame order.
     T_W_body : ndarray, shape (N, 4, 4)
         NaN where invalid; metres.
     valid : ndarray of bool, shape (N,)
