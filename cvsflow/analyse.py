@@ -15,7 +15,7 @@ import pandas as pd
 from scipy import stats
 
 from cvsflow.errors import InputError
-from cvsflow.metrics import ERROR_DIMS
+from cvsflow.metrics import ERROR_DIMS, error_moments
 from cvsflow.optimise.seed import compute_p_bar
 
 #: The six pose dimensions, in the chapter's order (:data:`cvsflow.metrics.ERROR_DIMS`).
@@ -90,9 +90,10 @@ def normality_tests(errors, prefix="eps"):
         x = e[:, i]
         k2, p = stats.normaltest(x)
         ad = stats.anderson(x, dist="norm", method="interpolate")
+        mean, std, rms = error_moments(x)
         rows.append({
-            "dim": d, "n": int(x.size), "mean": float(x.mean()), "std": float(x.std(ddof=1)),
-            "rms": float(np.sqrt(np.mean(x * x))), "min": float(x.min()), "max": float(x.max()),
+            "dim": d, "n": int(x.size), "mean": mean, "std": std,
+            "rms": rms, "min": float(x.min()), "max": float(x.max()),
             "skew": float(stats.skew(x)), "kurtosis": float(stats.kurtosis(x)),
             "dagostino_k2": float(k2), "dagostino_p": float(p),
             "anderson_stat": float(ad.statistic), "anderson_p": float(ad.pvalue),

@@ -27,6 +27,7 @@ from cvsflow.metrics import (  # noqa: F401
     ERROR_DIMS,
     FRAMES,
     error_columns,
+    error_moments,
     frame_errors,
     pose_errors,
     poses_from_table,
@@ -446,12 +447,13 @@ def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, lev
         boot = bootstrap_error_stats(E, min(block_len, len(E)), n_boot=n_boot, seed=seed, level=level)
         per_dim = {}
         for j, d in enumerate(ERROR_DIMS):
+            mean, std, rms = error_moments(E[:, j])
             per_dim[d] = {
-                "mean": float(E[:, j].mean()), "mean_lo": float(boot["mean_lo"][j]),
+                "mean": mean, "mean_lo": float(boot["mean_lo"][j]),
                 "mean_hi": float(boot["mean_hi"][j]),
-                "std": float(E[:, j].std(ddof=1)), "std_lo": float(boot["std_lo"][j]),
+                "std": std, "std_lo": float(boot["std_lo"][j]),
                 "std_hi": float(boot["std_hi"][j]),
-                "rms": float(np.sqrt(np.mean(E[:, j] ** 2))),
+                "rms": rms,
             }
         out[method] = {"n": int(len(E)), "per_dim": per_dim}
     if {"seed", "se3"} <= set(out):

@@ -32,6 +32,26 @@ def error_columns():
     return [f"err_{d}" for d in ERROR_DIMS]
 
 
+def error_moments(x):
+    """Mean, standard deviation and RMS of one error dimension: the one definition.
+
+    Parameters
+    ----------
+    x : ndarray, shape (N,)
+        Per-frame errors of one dimension (m or rad), N >= 2.
+
+    Returns
+    -------
+    mean : float
+        Same unit as ``x``.
+    std : float
+        Sample standard deviation (ddof 1).
+    rms : float
+        sqrt(mean(x^2)): the error about zero, not about the mean.
+    """
+    return float(x.mean()), float(x.std(ddof=1)), float(np.sqrt(np.mean(x * x)))
+
+
 def poses_from_table(frames, prefix):
     """Stack of transforms from the pose columns of a table.
 
