@@ -7,7 +7,7 @@ Skew is taken as zero. Points are in the camera optical frame C (x right, y down
 
 :func:`project_points` evaluates the radial factor in Horner form, :func:`project_points_jac`
 term by term, exactly as the two copies in ``cvsflow.optimise.se3`` that they replace next
-round do (so that the optimiser's numbers stay bit-identical); they agree to ~1e-13 px.
+round do (so that the optimiser's numbers stay bit-identical); they agree to ~1e-12 px.
 """
 
 from __future__ import annotations
@@ -72,9 +72,10 @@ def project_points_jac(p_C, K, dist):
 
     Notes
     -----
-    With p_C = R p_B + t, the derivative w.r.t. a left perturbation exp([w]x) R is
-    ``d_uv_d_p @ -skew(R p_B)`` and w.r.t. t it is ``d_uv_d_p``; these are the first six
-    columns of ``cv2.projectPoints``' Jacobian only for w = 0 (OpenCV differentiates its rvec).
+    With p_C = R p_B + t, the derivative w.r.t. t is ``d_uv_d_p`` (``cv2.projectPoints``'
+    tvec columns) and w.r.t. a left perturbation exp([w]x) R it is ``d_uv_d_p @ -skew(R p_B)``,
+    which equals OpenCV's rvec columns only at rvec = 0 (OpenCV differentiates the Rodrigues
+    vector itself). ``d_uv_d_intr`` equals OpenCV's columns 6..14 (f, c, then k1 k2 p1 p2 k3).
     """
     p_C = np.asarray(p_C, float)
     fx, fy = K[0, 0], K[1, 1]
