@@ -217,3 +217,17 @@ def test_maths_modules_load_no_io_at_run_time():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=PACKAGE.parent)
     assert out.stdout.strip() == "[]"
+
+
+def test_reach_check_finds_an_import_hidden_in_a_function(monkeypatch):
+    """The reach check is not vacuous: a made-up ``import cvsflow.io.files`` inside a function
+    of cvsflow.metrics is found, through evaluate, which imports metrics."""
+    real = _imports
+
+    def fake(module):
+        extra = (("cvsflow.io.files", 99, True),) if module == "cvsflow.metrics" else ()
+        return real(module) + extra
+
+    monkeypatch.setitem(globals(), "_imports", fake)
+    chain = _reach("cvsflow.evaluate")
+    assert chain is not None and "cvsflow.metrics" in chain and chain[-1].startswith("cvsflow.io.files")
