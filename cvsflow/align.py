@@ -24,16 +24,20 @@ from scipy.signal import correlate, correlation_lags
 from scipy.spatial.transform import Rotation
 
 from cvsflow.errors import InputError, NoUsableRowsError, SyncError
-from cvsflow.mocap import _interp_T, body_poses
-from cvsflow.plausibility import OVERLAP_FLOOR, check_overlap
-from cvsflow.transforms import (
+from cvsflow.geometry import (
+    R_from_rvec,
+    interpolate_quats,
+    interpolate_T,
     invert_T,
     make_T,
+    mean_rotation,
     pose6_from_T,
     quat_from_R,
     rotation_angle,
     wrap_angle,
 )
+from cvsflow.mocap import body_poses
+from cvsflow.plausibility import OVERLAP_FLOOR, check_overlap
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +51,7 @@ def _cvs_rotations(poses_raw):
     rvec = p[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
     valid = p["valid"].to_numpy(bool) & np.isfinite(rvec).all(axis=1)
     rvec = np.where(valid[:, None], p[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float), 0.0)
-    return p["t_s"].to_numpy(float), Rotation.from_rotvec(rvec).as_matrix(), valid
+    return p["t_s"].to_numpy(float), R_from_rvec(rvec), valid
 
 
 def _vicon_relative(bodies, camera="camera", board="board"):
@@ -132,8 +136,8 @@ def angular_speed_cvs(poses_raw):
 
 def _omega_vicon_between(t_v, T_v, valid_v, t0, t1):
     """Angular speed (rad/s) of the Vicon relative rotation between times t0 and t1 (SLERP)."""
-    T0, ok0, _ = _interp_T(t_v, T_v, valid_v, t0)
-    T1, ok1, _ = _interp_T(t_v, T_v, valid_v, t1)
+    T0, ok0, _ = interpolate_T(t_v, T_v, valid_v, t0)
+    T1, ok1, _ = interpolate_T(t_v, T_v, valid_v, t1)
     ok = ok0 & ok1
     R0 = np.where(ok[:, None, None], T0[:, :3, :3], np.eye(3))
     R1 = np.where(ok[:, None, None], T1[:, :3, :3], np.eye(3))
@@ -168,6 +172,15 @@ def angular_speed_vicon(bodies, window_s, t_grid_s=None, camera="camera", board=
 
 def angular_speed_streams(poses_raw, bodies, camera="camera", board="board"):
     """Both angular-speed streams as plotted by :func:`cvsflow.plots.mocap.plot_sync`.
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet (``t_s`` video clock, ``valid``, ``rvec_0..2`` of R_C_B).
+    bodies : DataFrame
+        Native-rate bodies.parquet (T_W_Cm and T_W_Bm).
+    camera, board : str
+        Body names of the camera-marker and board-marker bodies.
 
     Returns
     -------
@@ -206,6 +219,17 @@ def check_take_covers_video(video_span_s, take_span_s, dt_offset_s=None, tol_s=1
         Known offset; with it, the video span mapped to the Vicon clock must lie in the take.
     tol_s : float
         Slack at each end, s.
+    min_share : float
+        Share of the video the take must last when no offset is given, in (0, 1].
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        The take is too short, or the mapped video span falls outside it.
     """
     v0, v1 = video_span_s
     k0, k1 = take_span_s
@@ -285,18 +309,6 @@ def _smooth_rotations(t_s, R, valid, sigma_s):
     ok &= norm > 0.0
     q = np.where(ok[:, None], num / np.where(norm > 0.0, norm, 1.0)[:, None], [0.0, 0.0, 0.0, 1.0])
     return q, ok
-
-
-def _slerp_quats(t_s, q, valid, tq):
-    """SLERP of sign-continuous quaternions (N, 4) at times tq; validity as the two neighbours."""
-    n = len(t_s)
-    i0 = np.clip(np.searchsorted(t_s, tq, side="right") - 1, 0, n - 2)
-    i1 = i0 + 1
-    ok = (tq >= t_s[0]) & (tq <= t_s[-1]) & valid[i0] & valid[i1]
-    f = np.clip(np.where(ok, (tq - t_s[i0]) / (t_s[i1] - t_s[i0]), 0.0), 0.0, 1.0)
-    R0 = Rotation.from_quat(q[i0])
-    d = (R0.inv() * Rotation.from_quat(q[i1])).as_rotvec()
-    return (R0 * Rotation.from_rotvec(f[:, None] * d)).as_quat(), ok
 
 
 def _relative_angles(q, I, J):
@@ -401,7 +413,7 @@ def refine_offset_rotations(
     a_c = _relative_angles(q_c, I, J)
 
     def residuals(dt, sel=slice(None)):
-        q, _ = _slerp_quats(t_vicon_s, q_v, ok_v, t_video_s + dt)
+        q, _ = interpolate_quats(t_vicon_s, q_v, ok_v, t_video_s + dt)
         return a_c[sel] - _relative_angles(q, I[sel], J[sel])
 
     def scales(r):  # robust standard deviation of each baseline's differences
@@ -670,7 +682,7 @@ def _tilt_onset(t, R, valid, still_s, low_rad, high_rad):
     start = idx[t_ok <= t_ok[0] + still_s]
     if start.size < 2:
         return None
-    R_ref = Rotation.from_matrix(R[start]).mean().as_matrix()
+    R_ref = mean_rotation(R[start])
     ang = np.full(len(t), np.nan)
     ang[idx] = rotation_angle(R_ref.T @ R[idx])
     above = np.flatnonzero(np.nan_to_num(ang, nan=0.0) > high_rad)
@@ -782,6 +794,23 @@ def synchronise(poses_raw, bodies, method="angular_speed", max_offset_s=30.0, mi
                 min_overlap_share=0.8, **kwargs):
     """Time offset between video and Vicon by the configured method (``sync.method``).
 
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet (video clock, R_C_B).
+    bodies : DataFrame
+        Native-rate bodies.parquet (Vicon clock, T_W_Cm and T_W_Bm).
+    method : {"angular_speed", "gesture"}
+        ``sync.method``.
+    max_offset_s : float
+        Largest |dt_offset_s| searched, s.
+    min_quality : float
+        Quality (0..1) below which the offset is refused.
+    min_overlap_share : float
+        Share of video frames inside the take below which a warning is given.
+    **kwargs
+        Passed to :func:`sync_angular_speed` or :func:`sync_gesture`.
+
     Returns
     -------
     sync : dict
@@ -889,8 +918,8 @@ def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", b
     elif mode == "interp":
         share, warnings = check_overlap(t_video, dt_offset_s, (t_b[0], t_b[-1]),
                                         min_share=min_overlap_share, source="pairs")
-        T_W_Cm, ok_c, _ = _interp_T(t_b, T_W_Cm_all, v_c, t_vic)
-        T_W_Bm, ok_b, _ = _interp_T(t_b, T_W_Bm_all, v_b, t_vic)
+        T_W_Cm, ok_c, _ = interpolate_T(t_b, T_W_Cm_all, v_c, t_vic)
+        T_W_Bm, ok_b, _ = interpolate_T(t_b, T_W_Bm_all, v_b, t_vic)
         ok_v = ok_c & ok_b
     else:
         raise InputError(f"build_pairs: mode {mode!r}, expected 'block' or 'interp'")
@@ -910,7 +939,7 @@ def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", b
     p = p[keep]
     T_W_Cm, T_W_Bm = T_W_Cm[keep], T_W_Bm[keep]
     rvec = p[rvec_cols].to_numpy(float, copy=True)
-    T_C_B = make_T(Rotation.from_rotvec(rvec).as_matrix(), p[tvec_cols].to_numpy(float))
+    T_C_B = make_T(R_from_rvec(rvec), p[tvec_cols].to_numpy(float))
     cvs6 = pose6_from_T(T_C_B)
     P_star = pose6_from_T(T_W_Bm) - pose6_from_T(T_W_Cm)  # seed eq. 1.5
     P_star[:, 3:] = wrap_angle(P_star[:, 3:])

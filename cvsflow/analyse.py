@@ -15,9 +15,11 @@ import pandas as pd
 from scipy import stats
 
 from cvsflow.errors import InputError
+from cvsflow.metrics import ERROR_DIMS, error_moments
+from cvsflow.optimise.seed import compute_p_bar
 
-#: The six pose dimensions, in the chapter's order.
-POSE_DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+#: The six pose dimensions, in the chapter's order (:data:`cvsflow.metrics.ERROR_DIMS`).
+POSE_DIMS = ERROR_DIMS
 
 
 def _require(df, cols, where):
@@ -88,9 +90,10 @@ def normality_tests(errors, prefix="eps"):
         x = e[:, i]
         k2, p = stats.normaltest(x)
         ad = stats.anderson(x, dist="norm", method="interpolate")
+        mean, std, rms = error_moments(x)
         rows.append({
-            "dim": d, "n": int(x.size), "mean": float(x.mean()), "std": float(x.std(ddof=1)),
-            "rms": float(np.sqrt(np.mean(x * x))), "min": float(x.min()), "max": float(x.max()),
+            "dim": d, "n": int(x.size), "mean": mean, "std": std,
+            "rms": rms, "min": float(x.min()), "max": float(x.max()),
             "skew": float(stats.skew(x)), "kurtosis": float(stats.kurtosis(x)),
             "dagostino_k2": float(k2), "dagostino_p": float(p),
             "anderson_stat": float(ad.statistic), "anderson_p": float(ad.pvalue),
@@ -101,6 +104,13 @@ def normality_tests(errors, prefix="eps"):
 
 def qq_data(errors, prefix="eps"):
     """Normal Q-Q points of each dimension of eps.
+
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        Per-frame errors with ``{prefix}_{dim}`` columns (m, rad), at least 3 rows.
+    prefix : str
+        ``eps`` (final) or ``eps_orig`` (at the initial focal lengths).
 
     Returns
     -------
@@ -188,6 +198,15 @@ def vicon_vs_cvs(errors, result):
 def error_covariance(errors, prefix="eps"):
     """6x6 covariance Sigma of eps (seed eq. 1.14) and its correlation matrix, in SI.
 
+    Not :func:`cvsflow.uncertainty.error_covariance` (the propagated covariance of each pose).
+
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        Per-frame errors with ``{prefix}_{dim}`` columns (m, rad), at least 3 rows.
+    prefix : str
+        Column prefix, ``eps`` by default.
+
     Returns
     -------
     Sigma : ndarray, shape (6, 6)
@@ -257,6 +276,15 @@ CONTOUR_PAIRS = (("x_m", "z_m"), ("y_m", "z_m"), ("roll_rad", "pitch_rad"))
 def error_maps(errors, pairs=CONTOUR_PAIRS, bins=12, min_count=3):
     """:func:`binned_error_map` of every error dimension over each pose pair (figure 1.9).
 
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        Per-frame table with ``cvs_{dim}`` and ``eps_{dim}`` columns (m, rad).
+    pairs : sequence of (str, str)
+        Pose-dimension pairs to bin over (default x-z, y-z, roll-pitch).
+    bins, min_count : int
+        As :func:`binned_error_map`.
+
     Returns
     -------
     list of dict
@@ -268,6 +296,13 @@ def error_maps(errors, pairs=CONTOUR_PAIRS, bins=12, min_count=3):
 
 def error_statistics(errors, prefix="eps"):
     """``stats.json``-ready summary of eps: plain floats and lists, SI units.
+
+    Parameters
+    ----------
+    errors : pandas.DataFrame
+        Per-frame errors with ``{prefix}_{dim}`` columns (m, rad), at least 3 rows.
+    prefix : str
+        Column prefix, ``eps`` by default.
 
     Returns
     -------
@@ -315,8 +350,6 @@ def summary_row(session, method, finit, result, stats, truth=None, pairs=None, t
     dict
         Flat mapping of column name (unit in the name) to value.
     """
-    from cvsflow.optimise.seed import compute_p_bar
-
     row = {"session": session, "method": method, "f_init": finit,
            "n_pairs": int(result.get("n_pairs", stats.get("n", 0))),
            "fx_px": float(result["fx_px"]), "fy_px": float(result["fy_px"]),

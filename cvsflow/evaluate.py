@@ -1,7 +1,7 @@
 """Pose errors done right: composed SE(3) errors, held-out time blocks, block bootstrap.
 
-- :func:`pose_errors`: per-axis errors from the composed transform (not from subtracting
-  6-vectors), in a named frame.
+- :func:`pose_errors` (defined in :mod:`cvsflow.metrics`, re-exported here): per-axis errors
+  from the composed transform (not from subtracting 6-vectors), in a named frame.
 - :func:`make_time_blocks` and :func:`cross_validate_se3`: fit on some contiguous time
   blocks, score on the others; the held-out figures are the ones to state.
 - :func:`bootstrap_error_stats`: moving-block bootstrap confidence intervals of the mean,
@@ -17,116 +17,25 @@ import logging
 import numpy as np
 import pandas as pd
 
-from cvsflow import transforms as tf
+from cvsflow import geometry as geo
+from cvsflow import uncertainty as un
+from cvsflow.calibration import board_object_points
 from cvsflow.errors import OptimiseError
 
+# The error definitions live in cvsflow.metrics; they stay importable from here.
+from cvsflow.metrics import (  # noqa: F401
+    ERROR_DIMS,
+    FRAMES,
+    error_columns,
+    error_moments,
+    frame_errors,
+    pose_errors,
+    poses_from_table,
+)
+from cvsflow.optimise.se3 import apply_se3, board_points_B, corner_arrays, optimise_se3
+from cvsflow.optimise.seed import DIVERGED_EPS_STD_M, compute_eps, optimise_seed
+
 log = logging.getLogger(__name__)
-
-#: The six error dimensions, in the chapter's order [x y z roll pitch yaw] (m, rad).
-ERROR_DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
-FRAMES = ("C", "B")
-
-
-def pose_errors(T_C_B_ref, T_C_B_est, frame="C"):
-    """Per-axis errors of estimated board poses from the composed transform.
-
-    Parameters
-    ----------
-    T_C_B_ref : ndarray, shape (N, 4, 4)
-        Reference (true) board pose in the camera, metres.
-    T_C_B_est : ndarray, shape (N, 4, 4)
-        Estimated board pose in the camera, metres.
-    frame : {"C", "B"}
-        Frame the error is expressed in. ``"C"`` (default): translation t_est - t_ref in C
-        and the rotation error dR = R_est R_ref^T, a rotation about the axes of C.
-        ``"B"``: the composed error dT = T_ref^-1 T_est itself, translation
-        R_ref^T (t_est - t_ref) and rotation R_ref^T R_est, both in the reference board frame.
-
-    Returns
-    -------
-    errors : DataFrame
-        ``err_x_m, err_y_m, err_z_m`` (m), ``err_roll_rad, err_pitch_rad, err_yaw_rad`` (rad,
-        Euler angles of dR, R = Rz(yaw) Ry(pitch) Rx(roll)), ``err_angle_rad`` (rotation
-        angle of dR, in [0, pi]) and ``err_dist_m`` (length of the translation error).
-
-    Raises
-    ------
-    OptimiseError
-        Shapes differ or are not (N, 4, 4), or ``frame`` is unknown.
-
-    Notes
-    -----
-    A pure yaw error of 1 degree about C's z axis gives err_yaw 1 degree and err_angle
-    1 degree; a 6-vector difference of Euler angles (the chapter's eq. 1.11) instead mixes
-    axes whenever roll or pitch are not small.
-    """
-    ref = np.asarray(T_C_B_ref, float)
-    est = np.asarray(T_C_B_est, float)
-    if ref.shape != est.shape or ref.ndim != 3 or ref.shape[1:] != (4, 4):
-        raise OptimiseError(
-            f"pose_errors: reference {ref.shape} and estimate {est.shape}; expected (N, 4, 4)"
-        )
-    if frame not in FRAMES:
-        raise OptimiseError(f"pose_errors: frame {frame!r}; expected one of {FRAMES}")
-    R_ref, R_est = ref[:, :3, :3], est[:, :3, :3]
-    dt_C = est[:, :3, 3] - ref[:, :3, 3]
-    if frame == "C":
-        dt = dt_C
-        dR = R_est @ np.swapaxes(R_ref, 1, 2)
-    else:
-        dT = tf.pose_difference(ref, est)  # T_ref^-1 T_est
-        dt, dR = dT[:, :3, 3], dT[:, :3, :3]
-    rpy = tf.euler_from_R(dR).reshape(-1, 3)
-    return pd.DataFrame(
-        {
-            "err_x_m": dt[:, 0],
-            "err_y_m": dt[:, 1],
-            "err_z_m": dt[:, 2],
-            "err_roll_rad": rpy[:, 0],
-            "err_pitch_rad": rpy[:, 1],
-            "err_yaw_rad": rpy[:, 2],
-            "err_angle_rad": tf.rotation_angle(dR).reshape(-1),
-            "err_dist_m": np.linalg.norm(dt_C, axis=1),
-        }
-    )
-
-
-def error_columns():
-    """Names of the six per-axis error columns written by :func:`pose_errors`."""
-    return [f"err_{d}" for d in ERROR_DIMS]
-
-
-def frame_errors(frames, frame="C"):
-    """Composed and chapter-style errors of a per-frame table of CVS and reference poses.
-
-    Parameters
-    ----------
-    frames : DataFrame
-        Output of :func:`cvsflow.optimise.se3.apply_se3`: ``cvs_`` and ``ref_`` pose columns
-        (``x_m, y_m, z_m, qx, qy, qz, qw``).
-    frame : {"C", "B"}
-        See :func:`pose_errors`.
-
-    Returns
-    -------
-    errors : DataFrame
-        ``frames`` with the :func:`pose_errors` columns and, for comparison, the chapter's
-        6-vector differences ``d6_x_m .. d6_yaw_rad`` (pose6(cvs) - pose6(ref), angles
-        wrapped to (-pi, pi]); column ``error_frame`` names the frame.
-    """
-    from cvsflow.optimise.se3 import poses_from_table
-
-    T_ref = poses_from_table(frames, "ref_")
-    T_cvs = poses_from_table(frames, "cvs_")
-    err = pose_errors(T_ref, T_cvs, frame=frame)
-    d6 = tf.pose6_from_T(T_cvs) - tf.pose6_from_T(T_ref)
-    d6[:, 3:] = tf.wrap_angle(d6[:, 3:])
-    out = pd.concat([frames.reset_index(drop=True), err], axis=1)
-    for j, d in enumerate(ERROR_DIMS):
-        out[f"d6_{d}"] = d6[:, j]
-    out["error_frame"] = frame
-    return out
-
 
 def make_time_blocks(t_s, block_s, n_folds, seed):
     """Assign frames to folds by contiguous time blocks, the blocks shuffled by a seed.
@@ -200,8 +109,6 @@ def cross_validate_se3(
     fits : list of dict
         ``result`` of each fold's fit, with ``fold`` added.
     """
-    from cvsflow.optimise.se3 import apply_se3, board_points_B, corner_arrays, optimise_se3
-
     frame_ids, t_video, _ = corner_arrays(corners, len(board_points_B(board)))
     fold = make_time_blocks(t_video, block_s, n_folds, seed)
     parts, fits = [], []
@@ -320,9 +227,7 @@ def bootstrap_error_stats(errors, block_len, n_boot=1000, seed=0, level=0.95):
 
 def _pose6_block(frames, prefix):
     """(N, 6) pose6 [x, y, z, roll, pitch, yaw] of the ``prefix`` pose columns (m, rad)."""
-    from cvsflow.optimise.se3 import poses_from_table
-
-    return tf.pose6_from_T(poses_from_table(frames, prefix))
+    return geo.pose6_from_T(poses_from_table(frames, prefix))
 
 
 def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C"):
@@ -356,8 +261,6 @@ def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C"):
         and the RMS translation error at the start and at the optimum
         (``norm_normalised_init_m``, ``norm_normalised_final_m``).
     """
-    from cvsflow.optimise.se3 import apply_se3
-
     result = dict(fit.result)
     final = frame_errors(apply_se3(result, corners, bodies, board), frame=frame)
     errors = pd.DataFrame({"frame": final["frame"].to_numpy(), "t_s": final["t_s"].to_numpy()})
@@ -419,8 +322,6 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
         ``frame, t_s, fold, fx_px, fy_px``, ``eps_{dim}`` (6-vector errors, m and rad), and
         ``diverged``, ``diverged_reason`` of the fold's fit (:func:`optimise_seed`).
     """
-    from cvsflow.optimise.seed import compute_eps, optimise_seed
-
     t_s = pairs["t_s"].to_numpy(float)
     if folds is None:
         fold = make_time_blocks(t_s, block_s, n_folds, seed)
@@ -485,19 +386,17 @@ def crossfit_error_model(heldout, features, cov_err=None):
     mu : ndarray, shape (N, 6)
         Predicted bias of every row.
     """
-    from cvsflow.uncertainty import fit_error_model, predict_error_sigma, score_error_model
-
     fold = heldout["fold"].to_numpy()
     sigma = np.full((len(heldout), 6), np.nan)
     mu = np.full((len(heldout), 6), np.nan)
     folds = []
     for k in np.unique(fold):
         train, test = fold != k, fold == k
-        model = fit_error_model(features[train].reset_index(drop=True),
+        model = un.fit_error_model(features[train].reset_index(drop=True),
                                 heldout[train].reset_index(drop=True))
         f_test = features[test].reset_index(drop=True)
-        sigma[test], mu[test] = predict_error_sigma(model, f_test)
-        s = score_error_model(model, f_test, heldout[test].reset_index(drop=True),
+        sigma[test], mu[test] = un.predict_error_sigma(model, f_test)
+        s = un.score_error_model(model, f_test, heldout[test].reset_index(drop=True),
                               None if cov_err is None else cov_err[test])
         s["fold"] = int(k)
         folds.append(s)
@@ -548,12 +447,13 @@ def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, lev
         boot = bootstrap_error_stats(E, min(block_len, len(E)), n_boot=n_boot, seed=seed, level=level)
         per_dim = {}
         for j, d in enumerate(ERROR_DIMS):
+            mean, std, rms = error_moments(E[:, j])
             per_dim[d] = {
-                "mean": float(E[:, j].mean()), "mean_lo": float(boot["mean_lo"][j]),
+                "mean": mean, "mean_lo": float(boot["mean_lo"][j]),
                 "mean_hi": float(boot["mean_hi"][j]),
-                "std": float(E[:, j].std(ddof=1)), "std_lo": float(boot["std_lo"][j]),
+                "std": std, "std_lo": float(boot["std_lo"][j]),
                 "std_hi": float(boot["std_hi"][j]),
-                "rms": float(np.sqrt(np.mean(E[:, j] ** 2))),
+                "rms": rms,
             }
         out[method] = {"n": int(len(E)), "per_dim": per_dim}
     if {"seed", "se3"} <= set(out):
@@ -611,9 +511,6 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     sigma, mu : ndarray, shape (N, 6)
         Predicted standard deviation and bias of every se3 held-out frame.
     """
-    from cvsflow.calibration import board_object_points
-    from cvsflow.uncertainty import error_features
-
     se3 = se3_heldout.copy()
     se3["t_s"] = se3["t_s"].astype(float)
     for d in ERROR_DIMS:
@@ -623,8 +520,6 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
                                  block_len=max(1, int(round(boot_block_s * fps))),
                                  n_boot=n_boot, seed=seed)
     if corners is not None:
-        from cvsflow import uncertainty as un
-
         feats = un.measurement_features(se3, corners, board, fits=fold_fits, frame=frame,
                                         bodies=bodies)
         score, cov, mu = un.crossfit_transfer(feats, se3)
@@ -648,7 +543,7 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
         comparison["error_frame"] = frame
         mark_seed_divergence(comparison, seed_heldout)
         return comparison, se3, sigma, mu
-    features, cov_err = error_features(
+    features, cov_err = un.error_features(
         se3, board_object_points(board), np.asarray(se3_result["K"], float),
         np.asarray(se3_result["dist"], float), float(np.median(se3["sigma_px"])), frame=frame,
         fits=fold_fits,
@@ -668,10 +563,20 @@ def mark_seed_divergence(comparison, seed_heldout):
     ``rms_ratio_se3_to_seed_not_measurements`` (the top-level key is None), when any fold's fit
     diverged (``diverged`` column of :func:`cross_validate_seed`) or a held-out translation
     error std exceeds ``cvsflow.optimise.seed.DIVERGED_EPS_STD_M``. Otherwise the section gets
-    ``diverged: false``. Edits ``comparison`` in place and returns it.
-    """
-    from cvsflow.optimise.seed import DIVERGED_EPS_STD_M
+    ``diverged: false``.
 
+    Parameters
+    ----------
+    comparison : dict
+        :func:`compare_methods` output with a ``seed`` section (edited in place).
+    seed_heldout : DataFrame
+        :func:`cross_validate_seed` output (``fold``, ``diverged``, ``diverged_reason``).
+
+    Returns
+    -------
+    comparison : dict
+        The same mapping.
+    """
     sec = comparison["seed"]
     reasons = []
     if "diverged" in seed_heldout and seed_heldout["diverged"].astype(bool).any():

@@ -21,7 +21,15 @@ from scipy.signal import butter, filtfilt
 from scipy.spatial.transform import Rotation
 
 from cvsflow.errors import InputError, MocapError
-from cvsflow.transforms import euler_from_R, make_T, quat_from_R, transform_points
+from cvsflow.geometry import (
+    block_mean_quats,
+    euler_from_R,
+    fit_rigid,
+    interpolate_T,
+    make_T,
+    quat_from_R,
+    transform_points,
+)
 
 log = logging.getLogger(__name__)
 
@@ -76,66 +84,8 @@ def _runs(mask):
     return np.flatnonzero(d == 1), np.flatnonzero(d == -1)
 
 
-# --------------------------------------------------------------------------- rigid fit
-
-
-def fit_rigid(P_body, Q_world, weights=None):
-    """Least-squares rigid transforms mapping body-frame points onto observed points, per frame.
-
-    Parameters
-    ----------
-    P_body : ndarray, shape (M, 3) or (N, M, 3)
-        Marker layout in the body frame, metres.
-    Q_world : ndarray, shape (N, M, 3)
-        Observed marker positions in W, metres; NaN rows are ignored.
-    weights : ndarray, shape (N, M), optional
-        Non-negative weights; default 1 where ``Q_world`` is finite, else 0.
-
-    Returns
-    -------
-    T_W_body : ndarray, shape (N, 4, 4)
-        Fitted transforms (NaN where fewer than three non-collinear markers are usable).
-    rms_m : ndarray, shape (N,)
-        RMS distance between observed and fitted markers over the used markers, metres.
-    n_used : ndarray of int, shape (N,)
-        Markers used per frame.
-
-    Notes
-    -----
-    Kabsch/Umeyama without scale (Umeyama 1991, eqs. 38-41), vectorised with numpy's batched
-    SVD. The sign correction ``diag(1, 1, det(V U^T))`` guards against reflections.
-    """
-    Q = np.asarray(Q_world, dtype=float)
-    N, M = Q.shape[:2]
-    P = np.broadcast_to(np.asarray(P_body, dtype=float), (N, M, 3))
-    finite = np.isfinite(Q).all(axis=2)
-    w = finite.astype(float) if weights is None else np.where(finite, weights, 0.0)
-    Qz = np.where(finite[..., None], Q, 0.0)
-    n_used = (w > 0).sum(axis=1)
-    wsum = np.maximum(w.sum(axis=1), 1e-300)[:, None]
-    cP = (w[..., None] * P).sum(axis=1) / wsum
-    cQ = (w[..., None] * Qz).sum(axis=1) / wsum
-    Pc = P - cP[:, None]
-    Qc = Qz - cQ[:, None]
-    H = np.einsum("nm,nmi,nmj->nij", w, Pc, Qc)  # Umeyama eq. 38 (cross-covariance)
-    U, S, Vt = np.linalg.svd(H)
-    d = np.sign(np.linalg.det(np.swapaxes(Vt, 1, 2) @ np.swapaxes(U, 1, 2)))
-    d[d == 0] = 1.0
-    D = np.zeros((N, 3, 3))
-    D[:, 0, 0] = 1.0
-    D[:, 1, 1] = 1.0
-    D[:, 2, 2] = d
-    R = np.swapaxes(Vt, 1, 2) @ D @ np.swapaxes(U, 1, 2)  # Umeyama eq. 40
-    t = cQ - np.einsum("nij,nj->ni", R, cP)  # Umeyama eq. 41
-    resid = Qz - (np.einsum("nij,nmj->nmi", R, P) + t[:, None])
-    rms = np.sqrt((w * (resid**2).sum(axis=2)).sum(axis=1) / wsum[:, 0])
-    # three markers on a line fix no rotation about that line
-    scale = np.maximum(S[:, 0], 1e-300)
-    ok = (n_used >= 3) & (S[:, 1] > 1e-8 * scale) & np.isfinite(R).all(axis=(1, 2))
-    T = make_T(R, t)
-    T[~ok] = np.nan
-    rms[~ok] = np.nan
-    return T, rms, n_used
+# The rigid fit (fit_rigid), the quaternion block mean and pose interpolation are
+# cvsflow.geometry's; fit_rigid stays importable from here.
 
 
 # --------------------------------------------------------------------------- layouts
@@ -262,9 +212,26 @@ def resolve_layouts(markers, body_specs, still_s=1.0, still_tol_m=0.001, refine=
 
     ``refine`` replaces each layout by :func:`refine_layout` (the layout the markers show).
 
+    Parameters
+    ----------
+    markers : DataFrame
+        Wide marker table (``{marker}_x_m ..`` in W, metres; ``attrs["rate_hz"]``).
+    body_specs : dict
+        Body name -> ``{"names": [...], "layout_m": (M, 3) or None}`` (body frame, metres).
+    still_s, still_tol_m : float
+        Still window to learn a missing layout from (s) and its tolerance (m)
+        (:func:`learn_layout`).
+    refine : bool
+        Replace every layout by the one the markers show (:func:`refine_layout`).
+
+    Returns
+    -------
+    specs : dict
+        Body name -> ``{"names": list, "layout_m": ndarray (M, 3)}``, metres.
+
     Raises
     ------
-    ConfigError-like MocapError
+    MocapError
         A layout whose shape does not match its names, or no still window to learn one.
     """
     out = {}
@@ -605,9 +572,17 @@ def _body_frame(frame, t_s, body, T, rms, n_markers, n_filled):
 def body_poses(bodies, body):
     """Times, transforms and validity of one body from a bodies table.
 
+    Parameters
+    ----------
+    bodies : DataFrame
+        bodies.parquet (long): ``frame, t_s, body, valid, x_m .. qw``.
+    body : str
+        ``"camera"`` (T_W_Cm) or ``"board"`` (T_W_Bm).
+
     Returns
     -------
     t_s : ndarray, shape (N,)
+        Sample times, seconds, in frame order.
     T_W_body : ndarray, shape (N, 4, 4)
         NaN where invalid; metres.
     valid : ndarray of bool, shape (N,)
@@ -680,13 +655,7 @@ def block_average_bodies(bodies, factor):
         pos = T[sl, :3, 3].reshape(nb, factor, 3).mean(axis=1)
         Rn = np.where(valid[sl, None, None], T[sl, :3, :3], np.eye(3))
         q = Rotation.from_matrix(Rn).as_quat().reshape(nb, factor, 4)
-        # one hemisphere per block, so q and -q do not cancel
-        sign = np.sign(np.einsum("bfi,bi->bf", q, q[:, 0]))
-        sign[sign == 0] = 1.0
-        q = q * sign[..., None]
-        M = np.einsum("bfi,bfj->bij", q, q)
-        _, vecs = np.linalg.eigh(M)
-        q_mean = vecs[:, :, -1]
+        q_mean = block_mean_quats(q)
         Tb = make_T(Rotation.from_quat(q_mean).as_matrix(), pos)
         Tb[~vb] = np.nan
         rms_b = np.sqrt(np.mean(rms[sl].reshape(shape) ** 2, axis=1))
@@ -726,30 +695,9 @@ def interpolate_bodies(bodies, t_query_s):
     for body in pd.unique(bodies["body"]):
         t, T, valid = body_poses(bodies, body)
         rms, n_m, n_f = _body_aux(bodies, body)
-        T_at, ok, near = _interp_T(t, T, valid, tq)
+        T_at, ok, near = interpolate_T(t, T, valid, tq)
         parts.append(_body_frame(np.arange(len(tq)), tq, body, T_at, rms[near], n_m[near], n_f[near]))
     return pd.concat(parts, ignore_index=True)
-
-
-def _interp_T(t, T, valid, tq):
-    """SLERP/linear interpolation of (N, 4, 4) transforms at tq; NaN outside or near invalid."""
-    n = len(t)
-    if n < 2:
-        raise MocapError(f"interpolation needs at least 2 samples, got {n}")
-    i0 = np.clip(np.searchsorted(t, tq, side="right") - 1, 0, n - 2)
-    i1 = i0 + 1
-    frac = (tq - t[i0]) / (t[i1] - t[i0])
-    inside = (tq >= t[0]) & (tq <= t[-1])
-    ok = inside & valid[i0] & valid[i1]
-    frac = np.clip(np.where(ok, frac, 0.0), 0.0, 1.0)
-    R0 = Rotation.from_matrix(np.where(ok[:, None, None], T[i0, :3, :3], np.eye(3)))
-    R1 = Rotation.from_matrix(np.where(ok[:, None, None], T[i1, :3, :3], np.eye(3)))
-    R = R0 * Rotation.from_rotvec(frac[:, None] * (R0.inv() * R1).as_rotvec())  # SLERP
-    p = (1.0 - frac)[:, None] * T[i0, :3, 3] + frac[:, None] * T[i1, :3, 3]
-    out = make_T(R.as_matrix(), p)
-    out[~ok] = np.nan
-    near = np.where(frac < 0.5, i0, i1)
-    return out, ok, near
 
 
 def downsample_bodies(bodies, fps, mode="block", rate_hz=None):

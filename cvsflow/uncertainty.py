@@ -49,8 +49,10 @@ from scipy.stats import chi2
 from scipy.stats import t as student_t
 
 from cvsflow import transforms as tf
+from cvsflow.calibration import board_object_points
 from cvsflow.errors import OptimiseError
-from cvsflow.evaluate import ERROR_DIMS, pose_errors
+from cvsflow.metrics import ERROR_DIMS, pose_errors
+from cvsflow.optimise.se3 import corner_arrays
 
 log = logging.getLogger(__name__)
 
@@ -708,8 +710,6 @@ def _seen_corners(corners, frame_ids, n_corners):
     """Observed pixels (N, P, 2) of the given frames (NaN where unseen), each frame's image
     speed (N,), px per frame period (the mean travel of its corners between its neighbours),
     and each corner's image velocity (N, P, 2), px/s (NaN where not seen in the neighbours)."""
-    from cvsflow.optimise.se3 import corner_arrays
-
     fr, t, uv = corner_arrays(corners, n_corners, min_corners=1)
     idx = np.searchsorted(fr, frame_ids)
     idx = np.clip(idx, 0, len(fr) - 1)
@@ -820,8 +820,6 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
         times each corner's image velocity and its row after the mean row, through PnP, in
         the error's units; zero for a global shutter); ``parcov_{a}{b}`` with ``fits``.
     """
-    from cvsflow.calibration import board_object_points
-
     p_B = board_object_points(board)
     need = ["frame", *[f"cvs_rvec_{j}" for j in range(3)], "cvs_x_m", "cvs_y_m", "cvs_z_m",
             "reproj_rms_px"]

@@ -5,31 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from cvsflow.transforms import invert_T, make_T, transform_points
+from cvsflow.geometry import fit_rigid_pair, invert_T, transform_points
 
-
-def fit_rigid(p_src, p_dst):
-    """Least-squares rigid transform T_dst_src with p_dst ~ T_dst_src p_src (Kabsch).
-
-    Parameters
-    ----------
-    p_src, p_dst : ndarray, shape (M, 3)
-        Corresponding points, metres, M >= 3 not collinear.
-
-    Returns
-    -------
-    T_dst_src : ndarray, shape (4, 4)
-
-    Notes
-    -----
-    Umeyama (1991) without scale; the reflection case is excluded by the sign fix.
-    """
-    c_src, c_dst = p_src.mean(axis=0), p_dst.mean(axis=0)
-    H = (p_src - c_src).T @ (p_dst - c_dst)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return make_T(R, c_dst - R @ c_src)
+#: Former name of :func:`cvsflow.geometry.fit_rigid_pair`, kept for its callers.
+fit_rigid = fit_rigid_pair
 
 
 def true_mounting(T_body_obj_design, layout_m, placement_error_m):
@@ -57,7 +36,7 @@ def true_mounting(T_body_obj_design, layout_m, placement_error_m):
     """
     layout_m = np.asarray(layout_m, dtype=float)
     real_design = layout_m + placement_error_m
-    T_design_true = fit_rigid(layout_m, real_design)
+    T_design_true = fit_rigid_pair(layout_m, real_design)
     markers_body_m = transform_points(invert_T(T_design_true), real_design)
     return invert_T(T_design_true) @ T_body_obj_design, markers_body_m
 

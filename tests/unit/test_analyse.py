@@ -1,7 +1,6 @@
 """Tests of cvsflow.analyse (statistics by hand) and cvsflow.plots.results (figure structure)."""
 
 import json
-import sys
 
 import numpy as np
 import pandas as pd
@@ -151,16 +150,6 @@ def test_too_few_rows_and_missing_columns_raise():
         analyse.normality_tests(df.iloc[:2])
     with pytest.raises(InputError, match="eps_roll_rad"):
         analyse.error_covariance(df.drop(columns="eps_roll_rad"))
-
-
-def test_analyse_imports_no_plotting():
-    """The maths module does not pull in matplotlib or snakemake."""
-    import subprocess
-
-    code = ("import sys, cvsflow.analyse, cvsflow.optimise.seed; "
-            "print(any(m.startswith(('matplotlib', 'snakemake')) for m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "False"
 
 
 # ------------------------------------------------------------------ figures (structure only)

@@ -204,21 +204,6 @@ def test_video_range_reads_the_frames_of_a_full_read(tmp_path, sequence):
     assert [f for f, _, _ in src(38, None)] == [38, 39]
 
 
-def test_fast_path_imports_no_io_plots_or_snakemake():
-    """cvsflow.pose and cvsflow.corners_fast stay maths: they import neither cvsflow.io,
-    matplotlib nor snakemake (frames come in through a frame source)."""
-    import subprocess
-    import sys
-
-    code = (
-        "import sys, cvsflow.corners_fast; "
-        "bad=[m for m in sys.modules if m.startswith(('matplotlib','snakemake','cvsflow.io'))]; "
-        "print(bad)"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
-    assert out.stdout.strip() == "[]"
-
-
 # --- realistic renders at 1080p (issue 13): few frames, rendered in memory -------------------
 
 REALISTIC_YAML = Path(__file__).resolve().parents[2] / "config" / "realistic.yaml"

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -367,21 +366,6 @@ def test_reference_from_poses_raw():
     T = F.T_from_traj(ref)
     np.testing.assert_allclose(T[0, :3, :3], Rotation.from_rotvec(rv[0]).as_matrix(), atol=1e-12)
     assert list(ref["pos_valid"]) == [True, False] and list(ref["frame"]) == [0, 1]
-
-
-def test_maths_module_has_no_io_or_plotting_imports():
-    """cvsflow.flight imports neither matplotlib, cvsflow.io, cvsflow.plots nor snakemake."""
-    import importlib
-    import subprocess
-
-    code = (
-        "import sys, cvsflow.flight, cvsflow.flight_synth; "
-        "bad=[m for m in sys.modules if m.startswith(('matplotlib','snakemake','cvsflow.io',"
-        "'cvsflow.plots'))]; print(bad); sys.exit(1 if bad else 0)"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.returncode == 0, out.stdout + out.stderr
-    importlib.import_module("cvsflow.flight")
 
 
 def test_tum_export_reproduces_ape_without_alignment(demo, tmp_path):

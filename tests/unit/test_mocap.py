@@ -363,20 +363,6 @@ def test_figures_have_units_and_data():
     plt.close(fig)
 
 
-def test_maths_module_imports_no_plotting_or_io():
-    """cvsflow.mocap and cvsflow.align import neither matplotlib, snakemake nor cvsflow.io."""
-    import subprocess
-    import sys
-
-    code = (
-        "import sys, cvsflow.mocap, cvsflow.align;"
-        "bad=[m for m in ('matplotlib','snakemake','cvsflow.io','ezc3d') if m in sys.modules];"
-        "print(bad); sys.exit(1 if bad else 0)"
-    )
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert res.returncode == 0, res.stdout + res.stderr
-
-
 def test_repair_markers_follows_config():
     """repair_markers fills as fill_marker_gaps and low-passes only when filter.enabled."""
     df, _, _ = synthetic_markers(duration_s=1.0, noise_m=0.001, seed=13)

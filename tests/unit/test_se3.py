@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import sys
-
 import cv2
 import numpy as np
 import pandas as pd
@@ -36,21 +34,6 @@ def _pose_err(T_true, T_est):
     """(translation error m, rotation error rad) of an estimate."""
     d = tf.invert_T(T_true) @ T_est
     return float(np.linalg.norm(T_est[:3, 3] - T_true[:3, 3])), float(tf.rotation_angle(d[:3, :3]))
-
-
-def test_maths_module_imports_no_io_or_plotting():
-    """se3 imports neither matplotlib, snakemake nor cvsflow.io (package boundaries)."""
-    import importlib
-    import subprocess
-
-    code = (
-        "import sys, cvsflow.optimise.se3; "
-        "bad=[m for m in ('matplotlib','snakemake','cvsflow.io') if m in sys.modules]; "
-        "print(bad); sys.exit(1 if bad else 0)"
-    )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
-    assert out.returncode == 0, out.stdout + out.stderr
-    assert importlib.util.find_spec("cvsflow.optimise.se3") is not None
 
 
 def test_project_points_equals_opencv():

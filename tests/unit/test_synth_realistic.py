@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import sys
 from pathlib import Path
 
 import cv2
@@ -370,10 +369,3 @@ def test_timeline_regular_without_jitter():
     tl = make_timeline(90, 30.0, 0.0, 0.0, np.random.default_rng(1))
     np.testing.assert_array_equal(tl.pts, np.arange(90) * 1000)
     assert len(tl.dropped) == 0
-
-
-def test_effects_module_imports_no_io():
-    """The effects maths does not import io, plots, matplotlib or snakemake."""
-    import cvsflow.synth.effects as eff
-
-    assert "cvsflow.io" not in eff.__dict__ and "matplotlib" not in sys.modules.get(eff.__name__).__dict__

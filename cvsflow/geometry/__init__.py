@@ -1,0 +1,46 @@
+"""The one home of geometry: every other module calls these, none re-implements them.
+
+- :mod:`cvsflow.geometry.transforms`: SO(3)/SE(3): make, invert, compose (``@``), apply,
+  exp/log (rvec), skew, Euler, quaternions, pose6, rotation means, composed differences.
+- :mod:`cvsflow.geometry.rigid`: the batched least-squares rigid fit (Kabsch/Umeyama).
+- :mod:`cvsflow.geometry.interpolate`: pose interpolation in time (linear + SLERP).
+- :mod:`cvsflow.geometry.camera`: the camera model (OpenCV's 5-term distortion) and its
+  Jacobian.
+
+Pure numpy/scipy: nothing here imports I/O, plotting or another cvsflow stage.
+"""
+
+from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points, project_points_jac
+from cvsflow.geometry.interpolate import bracket, interpolate_quats, interpolate_T, slerp
+from cvsflow.geometry.rigid import fit_rigid, fit_rigid_pair
+from cvsflow.geometry.transforms import (
+    EULER_SEQ,
+    R_from_euler,
+    R_from_quat,
+    R_from_rvec,
+    T_from_pose6,
+    T_from_rvec_tvec,
+    block_mean_quats,
+    euler_from_R,
+    invert_T,
+    make_T,
+    mean_rotation,
+    pose6_from_T,
+    pose_difference,
+    quat_from_R,
+    rotation_angle,
+    rvec_from_R,
+    rvec_tvec_from_T,
+    skew,
+    transform_points,
+    wrap_angle,
+)
+
+__all__ = [
+    "EULER_SEQ", "INTRINSIC_NAMES", "R_from_euler", "R_from_quat", "R_from_rvec", "T_from_pose6",
+    "T_from_rvec_tvec", "block_mean_quats", "bracket", "euler_from_R", "fit_rigid",
+    "fit_rigid_pair", "interpolate_T", "interpolate_quats", "invert_T", "make_T",
+    "mean_rotation", "pose6_from_T", "pose_difference", "project_points", "project_points_jac",
+    "quat_from_R", "rotation_angle", "rvec_from_R", "rvec_tvec_from_T", "skew", "slerp",
+    "transform_points", "wrap_angle",
+]
