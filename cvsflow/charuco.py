@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.calibration import SUBPIX_CRITERIA, board_object_points, board_pattern
+from cvsflow.board import SUBPIX_CRITERIA, board_object_points, board_pattern
 from cvsflow.errors import ConfigError, InputError
 
 log = logging.getLogger(__name__)
@@ -76,6 +76,17 @@ MIN_CORNER_CONTRAST = 20.0
 def board_type(board: dict) -> str:
     """``board["type"]``, ``"chessboard"`` when absent.
 
+    Parameters
+    ----------
+    board : dict
+        The session's ``board`` block (``type``, ``squares_x``, ``squares_y``, ``square_m``,
+        ``marker_m``, ``dictionary``).
+
+    Returns
+    -------
+    kind : str
+        A key of ``BOARD_TYPES``.
+
     Raises
     ------
     ConfigError
@@ -88,7 +99,18 @@ def board_type(board: dict) -> str:
 
 
 def is_charuco(board: dict) -> bool:
-    """True for a ``type: charuco`` board."""
+    """True for a ``type: charuco`` board.
+
+    Parameters
+    ----------
+    board : dict
+        The session's ``board`` block (``type``, ``squares_x``, ``squares_y``, ``square_m``,
+        ``marker_m``, ``dictionary``).
+
+    Returns
+    -------
+    charuco : bool
+    """
     return board_type(board) == "charuco"
 
 
@@ -201,6 +223,12 @@ def _corner_markers_cached(key: tuple) -> tuple[np.ndarray, np.ndarray]:
 def corner_markers(board: dict) -> tuple[np.ndarray, np.ndarray]:
     """The two markers beside each inner corner.
 
+    Parameters
+    ----------
+    board : dict
+        The session's ``board`` block (``type``, ``squares_x``, ``squares_y``, ``square_m``,
+        ``marker_m``, ``dictionary``).
+
     Returns
     -------
     marker_ids : ndarray, shape (nx * ny, 2), int
@@ -218,6 +246,16 @@ def make_detector(board: dict) -> cv2.aruco.CharucoDetector:
     corner from a homography extrapolated past its own edge. Marker corners are refined
     (``CORNER_REFINE_SUBPIX``) so the corners' starting points and the marker check below
     are sub-pixel.
+
+    Parameters
+    ----------
+    board : dict
+        The session's ``board`` block (``type``, ``squares_x``, ``squares_y``, ``square_m``,
+        ``marker_m``, ``dictionary``).
+
+    Returns
+    -------
+    detector : cv2.aruco.CharucoDetector
     """
     params = cv2.aruco.DetectorParameters()
     params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 
+from cvsflow.charuco import charuco_board
 from cvsflow.errors import ConfigError
 
 logger = logging.getLogger(__name__)
@@ -91,8 +92,6 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     s = sessions[name]
     where = f"config: sessions.{name}"
     if isinstance(s.get("board"), dict) and s["board"].get("type") == "charuco":
-        from cvsflow.charuco import charuco_board  # cv2: only for a ChArUco session
-
         try:
             charuco_board(s["board"])
         except ConfigError as exc:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from cvsflow.charuco import charuco_board
 from cvsflow.transforms import invert_T
 
 A1_SHEET_M = (0.841, 0.594)  # printed sheet, width x height, metres
@@ -259,8 +260,6 @@ def _charuco_marker_ink(board: Board, x_m, y_m):
     (0, 0) black, markers in the white squares); only marker pixels inside white squares are
     taken, so the squares, and with them every corner, stay exactly the chessboard's.
     """
-    from cvsflow.charuco import charuco_board  # here: synth's maths needs it only for ChArUco
-
     cb = charuco_board(board.config())
     bits = cb.getDictionary().markerSize + 2  # the marker and its one-bit black border
     pps = int(np.ceil(CHARUCO_PX_PER_BIT * bits * board.square_m / board.marker_m))
