@@ -1074,10 +1074,12 @@ def optimise_se3(
     followed sample by sample, smoothed over ``camera_moving_smooth_s`` (by default the
     board's few samples). The 1 s window that tests stillness is never used for a moving
     camera's reference: a centred box keeps sinc(f * 1 s) of a motion of f Hz (64 % at 0.5 Hz),
-    which bent the reference by centimetres and pulled fx, T_Cm_C and dt off by tens of their
-    standard errors on a hand-held camera (tests/unit/test_se3.py). Its cost: the camera
-    body's mrad-level orientation noise now enters every frame's reference (about as the
-    board's does, times the lever arm) instead of averaging over the take.
+    which bent the reference by centimetres (a rendered 15 s hand-held session: corner RMS
+    10 px, fx 14 px, T_Cm_C 55 mm and dt 50 ms off, held-out errors 104 mm; with the local
+    quadratic 0.42 px, 0.2 px, 0.35 mm, 0.13 ms, within 2.4 standard errors, held-out 2.6 mm
+    against 1.5 mm for the same video with a fixed camera). The cost of following the
+    camera: its body's mrad-level orientation noise (markers 0.17 m apart) enters every
+    frame's reference instead of averaging over the take.
 
     Exposure and rolling shutter. The video time stamp t_i is taken as the mid-exposure time
     of row 0 (the renderer's convention, cvsflow.synth.effects); a constant exposure midpoint
