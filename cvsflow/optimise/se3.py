@@ -242,7 +242,7 @@ def smooth_track(t_s, T_W_X, valid, window_s):
     return tf.make_T(R_ref @ tf.R_from_rvec(r), p)
 
 
-def smooth_track_local(t_s, T_W_X, valid, window_s, order=2):
+def smooth_track_local(t_s, T_W_X, valid, window_s, order=2, chunk_s=1.0):
     """Local polynomial (Savitzky-Golay) smoothing of a body track, for a moving body.
 
     Parameters
@@ -257,13 +257,17 @@ def smooth_track_local(t_s, T_W_X, valid, window_s, order=2):
     order : int
         Degree of the polynomial fitted by weighted least squares over each centred window
         (the valid samples only).
+    chunk_s : float
+        Length (s) of the pieces of the take that share one reference rotation.
 
     Returns
     -------
     T_W_X_smooth : ndarray, shape (N, 4, 4)
         The fitted polynomial at each sample: positions, and rotations as rotation vectors
-        about the take's chordal mean rotation (a rotation within ~150 degrees of it); the
-        input pose where fewer than ``order + 2`` valid samples lie in the window.
+        about the chordal mean rotation of each ``chunk_s`` piece of the take and its window
+        margins (so a body may turn without bound, e.g. a robot circling the board, as long
+        as it turns by less than ~150 degrees within one piece); the input pose where fewer
+        than ``order + 2`` valid samples lie in the window.
 
     Notes
     -----
@@ -284,11 +288,25 @@ def smooth_track_local(t_s, T_W_X, valid, window_s, order=2):
     half = int(round(0.5 * window_s * rate))
     if half < 1:
         return T_W_X.copy()
+    valid = np.asarray(valid, bool)
+    n = len(t_s)
+    step = max(int(round(chunk_s * rate)), 2 * half + 1)
+    out = T_W_X.copy()
+    for a in range(0, n, step):  # each piece with the margins its windows reach
+        lo, hi = max(a - half, 0), min(a + step + half, n)
+        if valid[lo:hi].any():
+            piece = _local_poly(T_W_X[lo:hi], valid[lo:hi], half, order)
+            out[a : min(a + step, n)] = piece[a - lo : a - lo + min(step, n - a)]
+    return out
+
+
+def _local_poly(T_W_X, valid, half, order):
+    """:func:`smooth_track_local` on one piece, about the piece's mean rotation."""
     w = valid.astype(float)
     R_ref = tf.mean_rotation(T_W_X[valid, :3, :3])
     rv = tf.rvec_from_R(R_ref.T @ T_W_X[:, :3, :3])
     y = np.concatenate([T_W_X[:, :3, 3], rv], axis=1) * w[:, None]  # (N, 6), 0 where invalid
-    n, m = len(t_s), order + 1
+    n, m = len(T_W_X), order + 1
     pad = np.pad(w, half)
     ypad = np.pad(y, ((half, half), (0, 0)))
     S = np.zeros((n, 2 * order + 1))  # sum_k w k^p, p = 0 .. 2 order
