@@ -38,6 +38,7 @@ from cvsflow.synth.session import (
     FrameEffects,
     Lighting,
     Renderer,
+    camera_track,
     exposure_times,
     make_rig,
     parse_session_config,
@@ -150,7 +151,7 @@ def render_session(session_cfg: dict, out_dir) -> dict:
     lighting = Lighting(random_sine_sum(rngs["lighting"], 4, 3, 0.01, 0.1, std=[1.0] * 4))
     truth = video_truth(spec, motion, exposure_s)
     vicon_df, _, n_dropouts = vicon_recording(spec, rig, motion, rngs["vicon"])
-    frames_df, corners_df = truth_tables(spec, truth)
+    frames_df, corners_df = truth_tables(spec, truth, _camera_truth(spec, rig, motion, truth.t_s))
 
     out_dir = Path(out_dir)
     stills_truth = {}
@@ -205,6 +206,13 @@ def render_session(session_cfg: dict, out_dir) -> dict:
         out_dir,
     )
     return summary
+
+
+def _camera_truth(spec, rig, motion, t_s):
+    """T_W_C (N, 4, 4) of the video frames for a moving camera, else None (no truth columns)."""
+    if not spec.camera_motion.moving:
+        return None
+    return camera_track(spec, rig, motion, t_s) @ rig.T_Cm_C
 
 
 def realistic_truth(spec, rngs, motion):
@@ -270,7 +278,7 @@ def _render_realistic(spec, rngs, rig, renderer, T_C_B_stills, motion, out_dir, 
     e = spec.effects
     truth, timeline, lighting, hand_textures = realistic_truth(spec, rngs, motion)
     vicon_df, _, n_dropouts = vicon_recording(spec, rig, motion, rngs["vicon"])
-    frames_df, corners_df = truth_tables(spec, truth)
+    frames_df, corners_df = truth_tables(spec, truth, _camera_truth(spec, rig, motion, truth.t_s))
     n_frames = len(truth.t_s)
     out_dir = Path(out_dir)
     stills_truth = {}

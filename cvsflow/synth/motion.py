@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cvsflow.synth.camera import project_points
-from cvsflow.transforms import R_from_euler, R_from_rvec, make_T
+from cvsflow.transforms import R_from_euler, R_from_rvec, invert_T, make_T
 
 # The chapter's session: board held still, then tilted forward (the sync gesture), then free.
 HOLD_S = 1.5
@@ -369,3 +369,76 @@ def still_poses(
                 poses.append(T_C_B)
                 break
     return np.array(poses)
+
+
+# Camera motion (config ``synth.camera_motion``). The image of every frame depends only on the
+# relative pose T_C_B(t) (``board_poses``), so a moving camera changes the Vicon recording and
+# the truth, never the video: a moving-camera session and the fixed-camera one of the same
+# seed see the same images.
+CAMERA_MOTION_TYPES = ("static", "handheld", "orbit")
+
+
+@dataclass(frozen=True)
+class CameraMotion:
+    """How the camera moves in the Vicon world W (see ``camera_poses``).
+
+    ``static``: on its chair (the demo). ``handheld``: hand-held around a fixed board; the
+    board stands where it is at video time 0 and the camera makes the whole relative motion.
+    ``orbit``: on a robot swinging it about a vertical axis ``radius_m`` ahead of the lens by
+    ``amplitude_rad * sin(2 pi t / period_s)``, rising and falling by ``lift_m`` at twice that
+    rate; the board is hand-held as in the demo, so it is carried round with the camera
+    (both bodies move in W).
+    """
+
+    type: str = "static"
+    radius_m: float = 2.0
+    amplitude_rad: float = 0.35
+    period_s: float = 8.0
+    lift_m: float = 0.1
+
+    @property
+    def moving(self) -> bool:
+        return self.type != "static"
+
+    def as_dict(self):
+        """The config form (for truth.yaml)."""
+        return {"type": self.type, "radius_m": self.radius_m, "amplitude_rad": self.amplitude_rad,
+                "period_s": self.period_s, "lift_m": self.lift_m}  # fmt: skip
+
+
+def camera_poses(camera_motion: CameraMotion, hand: HandMotion, T_W_C0, t_s):
+    """True camera optical frame in W, T_W_C, at video times ``t_s``.
+
+    Parameters
+    ----------
+    camera_motion : CameraMotion
+    hand : HandMotion
+        The relative motion (``board_poses``); a hand-held camera carries all of it.
+    T_W_C0 : ndarray, shape (4, 4)
+        The camera's pose when static (the rig on its chair), metres.
+    t_s : ndarray, shape (N,)
+        Video time, s (negative before the video, while the Vicon records).
+
+    Returns
+    -------
+    T_W_C : ndarray, shape (N, 4, 4)
+        Metres; ``T_W_C0`` at every time for a static camera. For ``handheld``,
+        T_W_C(t) = T_W_C0 T_C_B(0) inv(T_C_B(t)) (the board still at T_W_C0 T_C_B(0)); for
+        ``orbit``, T_W_C0 turned about the vertical through the pivot and lifted.
+    """
+    t_s = np.atleast_1d(np.asarray(t_s, dtype=float))
+    T_W_C0 = np.asarray(T_W_C0, dtype=float)
+    if camera_motion.type == "static":
+        return np.repeat(T_W_C0[None], len(t_s), axis=0)
+    if camera_motion.type == "handheld":
+        T_W_B = T_W_C0 @ board_poses(hand, np.zeros(1))[0]
+        return T_W_B @ invert_T(board_poses(hand, t_s))
+    if camera_motion.type == "orbit":
+        phase = 2.0 * np.pi * t_s / camera_motion.period_s
+        theta = camera_motion.amplitude_rad * np.sin(phase)
+        pivot_W = T_W_C0[:3, 3] + camera_motion.radius_m * T_W_C0[:3, 2]
+        Rz = R_from_euler(np.stack([np.zeros_like(theta), np.zeros_like(theta), theta], axis=1))
+        p_W = pivot_W + np.einsum("nij,j->ni", Rz, T_W_C0[:3, 3] - pivot_W)
+        p_W[:, 2] += camera_motion.lift_m * np.sin(2.0 * phase)
+        return make_T(Rz @ T_W_C0[:3, :3], p_W)
+    raise ValueError(f"camera motion type {camera_motion.type!r}; expected {CAMERA_MOTION_TYPES}")

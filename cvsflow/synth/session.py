@@ -31,7 +31,14 @@ from cvsflow.synth.camera import (
 )
 from cvsflow.synth.effects import SKIN_BGR, Effects, parse_effects
 from cvsflow.synth.markers import add_dropouts, marker_table, true_mounting
-from cvsflow.synth.motion import HandMotion, board_poses, random_sine_sum
+from cvsflow.synth.motion import (
+    CAMERA_MOTION_TYPES,
+    CameraMotion,
+    HandMotion,
+    board_poses,
+    camera_poses,
+    random_sine_sum,
+)
 from cvsflow.transforms import (
     T_from_pose6,
     euler_from_R,
@@ -79,6 +86,7 @@ class SynthSpec:
     image_noise_sigma: float
     video_quality: int
     effects: Effects
+    camera_motion: CameraMotion = CameraMotion()
 
     @property
     def realistic(self) -> bool:
@@ -167,7 +175,41 @@ def parse_session_config(session_cfg) -> SynthSpec:
         image_noise_sigma=image_noise_sigma,
         video_quality=video_quality,
         effects=parse_effects(synth, image_noise_sigma, video_quality),
+        camera_motion=parse_camera_motion(synth.get("camera_motion")),
     )
+
+
+def parse_camera_motion(cfg) -> CameraMotion:
+    """``synth.camera_motion`` (absent: a static camera), checked.
+
+    Raises
+    ------
+    ConfigError
+        Unknown type or key, or a value out of its range; the message names the key.
+    """
+    if cfg is None:
+        return CameraMotion()
+    if not isinstance(cfg, dict):
+        raise ConfigError(f"session config, synth.camera_motion: expected a mapping, got {cfg!r}")
+    known = set(CameraMotion.__dataclass_fields__)
+    unknown = sorted(set(cfg) - known)
+    if unknown:
+        raise ConfigError(
+            f"session config, synth.camera_motion: unknown keys {unknown} (expected {sorted(known)})"
+        )
+    kind = cfg.get("type", "static")
+    if kind not in CAMERA_MOTION_TYPES:
+        raise ConfigError(
+            f"session config, synth.camera_motion.type: {kind!r}; expected one of {CAMERA_MOTION_TYPES}"
+        )
+    values = {k: float(v) for k, v in cfg.items() if k != "type"}
+    for key in ("radius_m", "period_s"):
+        if key in values and not values[key] > 0.0:
+            raise ConfigError(f"session config, synth.camera_motion.{key}: expected > 0, got {values[key]}")
+    for key in ("amplitude_rad", "lift_m"):
+        if key in values and not values[key] >= 0.0:
+            raise ConfigError(f"session config, synth.camera_motion.{key}: expected >= 0, got {values[key]}")
+    return CameraMotion(type=kind, **values)
 
 
 def random_streams(seed):
@@ -465,8 +507,21 @@ class Renderer:
         return self.compose(layer, self.background, gain, offset, grad_u, grad_v, depth_m, rng)
 
 
+def camera_track(spec: SynthSpec, rig: Rig, motion: HandMotion, t_s):
+    """True camera-marker body poses T_W_Cm (N, 4, 4) at video times ``t_s`` (s), metres.
+
+    ``rig.T_W_Cm`` at every time for a static camera; else ``camera_poses`` (the chair's pose
+    as the start, or the orbit's centre) with the true mounting T_Cm_C.
+    """
+    T_W_C0 = rig.T_W_Cm @ rig.T_Cm_C
+    return camera_poses(spec.camera_motion, motion, T_W_C0, t_s) @ invert_T(rig.T_Cm_C)
+
+
 def vicon_recording(spec: SynthSpec, rig: Rig, motion: HandMotion, rng):
     """The Vicon export of the session: board and camera markers at 300 Hz in W.
+
+    Both bodies get the same marker noise and dropouts; with ``spec.camera_motion`` moving,
+    the camera markers follow ``camera_track`` and the board T_W_Cm(t) T_Cm_C T_C_B(t).
 
     Parameters
     ----------
@@ -487,9 +542,14 @@ def vicon_recording(spec: SynthSpec, rig: Rig, motion: HandMotion, rng):
     n = int(np.ceil((spec.duration_s + VICON_TAIL_S + rig.dt_offset_s) * VICON_RATE_HZ))
     t_vicon_s = np.arange(n) / VICON_RATE_HZ
     T_C_B = board_poses(motion, t_vicon_s - rig.dt_offset_s)
-    T_W_Bm = rig.T_W_Cm @ rig.T_Cm_C @ T_C_B @ invert_T(rig.T_Bm_B)
+    if spec.camera_motion.moving:
+        T_W_Cm = camera_track(spec, rig, motion, t_vicon_s - rig.dt_offset_s)
+        T_W_Bm = T_W_Cm @ rig.T_Cm_C @ T_C_B @ invert_T(rig.T_Bm_B)
+        camera_W = transform_points(T_W_Cm[:, None], rig.markers_Cm_m[None])
+    else:  # the demo's path, unchanged
+        T_W_Bm = rig.T_W_Cm @ rig.T_Cm_C @ T_C_B @ invert_T(rig.T_Bm_B)
+        camera_W = np.broadcast_to(transform_points(rig.T_W_Cm, rig.markers_Cm_m), (n, 4, 3))
     board_W = transform_points(T_W_Bm[:, None], rig.markers_Bm_m[None])
-    camera_W = np.broadcast_to(transform_points(rig.T_W_Cm, rig.markers_Cm_m), (n, 4, 3))
     xyz = np.concatenate([camera_W, board_W], axis=1)
     xyz = xyz + rng.normal(0.0, spec.marker_noise_sigma_m, xyz.shape)
     xyz, n_dropouts = add_dropouts(
@@ -499,8 +559,13 @@ def vicon_recording(spec: SynthSpec, rig: Rig, motion: HandMotion, rng):
     return marker_table(xyz, names, VICON_RATE_HZ), T_W_Bm, n_dropouts
 
 
-def truth_tables(spec: SynthSpec, truth: VideoTruth):
-    """``truth_frames`` and ``truth_corners`` tables (docs/contracts.md)."""
+def truth_tables(spec: SynthSpec, truth: VideoTruth, T_W_C=None):
+    """``truth_frames`` and ``truth_corners`` tables (docs/contracts.md).
+
+    ``T_W_C`` (N, 4, 4): the true camera in W per frame, given for a moving camera; it adds
+    ``cam_x_m, cam_y_m, cam_z_m, cam_qx, cam_qy, cam_qz, cam_qw`` (T_W_C, metres) to
+    ``truth_frames``.
+    """
     n = len(truth.t_s)
     rpy = euler_from_R(truth.T_C_B[:, :3, :3])
     q = quat_from_R(truth.T_C_B[:, :3, :3])
@@ -523,6 +588,12 @@ def truth_tables(spec: SynthSpec, truth: VideoTruth):
             "exposure_s": truth.exposure_s,
         }
     )
+    if T_W_C is not None:
+        q_W_C = quat_from_R(T_W_C[:, :3, :3])
+        for j, ax in enumerate("xyz"):
+            frames[f"cam_{ax}_m"] = T_W_C[:, j, 3]
+        for j, ax in enumerate(("qx", "qy", "qz", "qw")):
+            frames[f"cam_{ax}"] = q_W_C[:, j]
     n_corners = truth.corners_px.shape[1]
     corners = pd.DataFrame(
         {
@@ -573,6 +644,8 @@ def truth_document(spec: SynthSpec, rig: Rig, n_frames, stills, extra=None):
         "T_Bm_B_design": spec.T_Bm_B_design,
         "stills": stills,
     }
+    if spec.camera_motion.moving:  # T_W_Cm above is its pose at video time 0
+        doc["camera_motion"] = spec.camera_motion.as_dict()
     if extra:
         doc.update(extra)
     return doc

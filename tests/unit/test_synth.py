@@ -463,3 +463,91 @@ def test_files_agree_vicon_and_video_truth(rendered):
         assert np.rad2deg(rotation_angle(T_C_B_vicon[:3, :3].T @ T_C_B[:3, :3])) < 0.2
         checked += 1
     assert checked > 8
+
+
+# --------------------------------------------------------------------------- moving camera
+
+
+def _moving_spec(spec, **camera_motion):
+    from dataclasses import replace
+
+    from cvsflow.synth.session import parse_camera_motion
+
+    return replace(spec, marker_noise_sigma_m=0.0, dropout_rate_hz=0.0,
+                   camera_motion=parse_camera_motion(camera_motion))  # fmt: skip
+
+
+def _fitted_bodies(df, spec):
+    """Rigid fits T_W_Cm, T_W_Bm (N, 4, 4) of the noise-free marker table, every 97th sample."""
+    idx = np.arange(0, len(df), 97)
+    out = []
+    for names, layout in ((spec.camera_names, spec.camera_layout_m),
+                          (spec.board_names, spec.board_layout_m)):  # fmt: skip
+        xyz = np.stack([df[[f"{n}_{a}_m" for a in "xyz"]].to_numpy()[idx] for n in names], axis=1)
+        out.append(np.stack([fit_rigid(layout, xyz[k]) for k in range(len(idx))]))
+    return df["t_s"].to_numpy()[idx], out[0], out[1]
+
+
+@pytest.mark.parametrize("kind", ["handheld", "orbit"])
+def test_moving_camera_vicon_gives_the_same_relative_motion(spec, kind):
+    """A moving camera changes the Vicon, not the video: the noise-free markers of both bodies
+    give inv(T_W_Cm T_Cm_C) T_W_Bm T_Bm_B = board_poses (the images' T_C_B) to 0.1 mm and
+    0.1 mrad, the camera body follows camera_track and travels; handheld: the board body
+    stands still; orbit: the lens keeps its horizontal distance to the pivot."""
+    from cvsflow.synth.session import camera_track
+
+    moving = _moving_spec(spec, type=kind)
+    rngs = random_streams(7)
+    rig = make_rig(moving, rngs["mounting"])
+    motion = make_hand_motion(rngs["motion"], moving.K, IMAGE_SIZE, moving.board.center_B())
+    df, _, _ = vicon_recording(moving, rig, motion, rngs["vicon"])
+    t_vicon, T_W_Cm, T_W_Bm = _fitted_bodies(df, moving)
+    t_video = t_vicon - rig.dt_offset_s
+    T_C_B = invert_T(T_W_Cm @ rig.T_Cm_C) @ T_W_Bm @ rig.T_Bm_B
+    expected = board_poses(motion, t_video)
+    assert np.abs(T_C_B[:, :3, 3] - expected[:, :3, 3]).max() < 1e-4
+    assert rotation_angle(np.swapaxes(T_C_B[:, :3, :3], 1, 2) @ expected[:, :3, :3]).max() < 1e-4
+    track = camera_track(moving, rig, motion, t_video)
+    assert np.abs(T_W_Cm[:, :3, 3] - track[:, :3, 3]).max() < 1e-4
+    np.testing.assert_allclose(camera_track(moving, rig, motion, np.zeros(1))[0], rig.T_W_Cm,
+                               atol=1e-12)  # fmt: skip
+    assert np.ptp(T_W_Cm[:, :3, 3], axis=0).max() > 0.1
+    if kind == "handheld":
+        assert np.ptp(T_W_Bm[:, :3, 3], axis=0).max() < 1e-4
+    else:
+        T_W_C = track @ rig.T_Cm_C
+        T_W_C0 = rig.T_W_Cm @ rig.T_Cm_C
+        pivot = T_W_C0[:3, 3] + moving.camera_motion.radius_m * T_W_C0[:3, 2]
+        d_xy = np.linalg.norm((T_W_C[:, :3, 3] - pivot)[:, :2], axis=1)
+        np.testing.assert_allclose(d_xy, np.linalg.norm((T_W_C0[:3, 3] - pivot)[:2]), atol=1e-9)
+
+
+def test_moving_camera_truth_tables_and_config(spec):
+    """truth_frames gains T_W_C per frame (cam_x_m .. cam_qw) and truth.yaml the motion only
+    for a moving camera; a static one keeps the demo's columns and keys; bad config named."""
+    from cvsflow.synth.session import (
+        camera_track,
+        parse_camera_motion,
+        truth_document,
+        truth_tables,
+    )
+
+    rngs = random_streams(7)
+    rig = make_rig(spec, rngs["mounting"])
+    motion = make_hand_motion(rngs["motion"], spec.K, IMAGE_SIZE, spec.board.center_B())
+    truth = video_truth(spec, motion, np.full(90, 0.014))
+    static_frames, _ = truth_tables(spec, truth)
+    assert not any(c.startswith("cam_") for c in static_frames.columns)
+    assert "camera_motion" not in truth_document(spec, rig, 90, {})
+    moving = _moving_spec(spec, type="handheld")
+    T_W_C = camera_track(moving, rig, motion, truth.t_s) @ rig.T_Cm_C
+    frames, _ = truth_tables(moving, truth, T_W_C)
+    assert list(frames.columns[: len(static_frames.columns)]) == list(static_frames.columns)
+    np.testing.assert_allclose(frames[["cam_x_m", "cam_y_m", "cam_z_m"]], T_W_C[:, :3, 3])
+    assert truth_document(moving, rig, 90, {})["camera_motion"]["type"] == "handheld"
+    with pytest.raises(ConfigError, match="camera_motion.type"):
+        parse_camera_motion({"type": "drone"})
+    with pytest.raises(ConfigError, match="unknown keys"):
+        parse_camera_motion({"type": "orbit", "radius": 2.0})
+    with pytest.raises(ConfigError, match="period_s"):
+        parse_camera_motion({"type": "orbit", "period_s": 0.0})
