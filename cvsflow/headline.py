@@ -15,6 +15,8 @@ import math
 import numpy as np
 import pandas as pd
 
+from cvsflow.transforms import pose6_from_T
+
 #: Columns of headline.csv.
 COLUMNS = ["session", "group", "quantity", "value", "std", "truth", "unit", "text", "source"]
 #: Display name, unit and SI-to-display factor of the error dimensions.
@@ -68,8 +70,6 @@ class _Rows:
 
 
 def _pose6(T):
-    from cvsflow.transforms import pose6_from_T
-
     return pose6_from_T(np.asarray(T, dtype=float))
 
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from cvsflow.errors import ConfigError
 from cvsflow.synth.camera import Board, BoardTexture, texture_pyramid
+from cvsflow.synth.motion import random_sine_sum
 
 log = logging.getLogger(__name__)
 
@@ -391,8 +392,6 @@ def auto_exposure(rng, t_s, effects: Effects):
     light, exposure_s, gain : ndarray, shape (N,)
         Relative scene light, exposure time (s), analog gain (1 at the reference exposure).
     """
-    from cvsflow.synth.motion import random_sine_sum
-
     drift = random_sine_sum(rng, 1, 3, 0.02, 0.15, std=[1.0])
     t_s = np.asarray(t_s, float)
     light = 1.0 + effects.light_drift * np.tanh(drift(t_s)[:, 0])
@@ -407,8 +406,6 @@ def auto_exposure(rng, t_s, effects: Effects):
 
 def white_balance(rng, t_s, effects: Effects):
     """Per-channel (B, G, R) gains at times ``t_s``, shape (N, 3): 1 + drift x slow sines, G fixed."""
-    from cvsflow.synth.motion import random_sine_sum
-
     d = random_sine_sum(rng, 2, 3, 0.02, 0.12, std=[1.0, 1.0])(np.asarray(t_s, float))
     g = np.ones((len(t_s), 3))
     g[:, 0] = 1.0 + effects.wb_drift * np.tanh(d[:, 0])

@@ -40,8 +40,6 @@ SYNTH_INIT = (
 REACHES_IO_YET = {f"cvsflow.synth.{m}": SYNTH_INIT for m in ("camera", "effects", "markers", "motion", "session")}
 INNER_IMPORTS_YET = {
     "cvsflow.flight": "imports cvsflow.optimise.se3 and cvsflow.uncertainty inside functions (not owned this round)",
-    "cvsflow.headline": "imports cvsflow.transforms inside a function (not owned this round)",
-    "cvsflow.synth.effects": "imports cvsflow.synth.motion inside functions (synth/ not owned this round)",
 }
 
 
