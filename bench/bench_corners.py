@@ -61,7 +61,7 @@ def _render(cache: Path, name: str, duration_s: float) -> Path:
     """Render session ``name`` for ``duration_s`` into cache/name unless it is there."""
     import yaml
 
-    from cvsflow.synth import render_session
+    from cvsflow.synth.render import render_session
 
     out = cache / name
     stamp = out / "bench_duration.json"

@@ -57,7 +57,7 @@ def run_stages(seed, duration_s, work):
     from cvsflow.io.mocap_formats import read_markers
     from cvsflow.mocap import fit_bodies, repair_markers
     from cvsflow.pose import estimate_poses, extract_corners
-    from cvsflow.synth import render_session
+    from cvsflow.synth.render import render_session
 
     work = Path(work)
     f_poses, f_bodies, f_truth = work / "poses_raw.parquet", work / "bodies.parquet", work / "data" / "truth.yaml"

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import yaml
 
-from cvsflow.synth import render_session
+from cvsflow.synth.render import render_session
 
 REPO = Path(__file__).resolve().parents[1]
 

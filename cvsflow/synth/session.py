@@ -1,6 +1,6 @@
 """The demo session as data: configuration, true poses, images and the Vicon recording.
 
-Pure functions of the session config (no file I/O); ``cvsflow.synth.render_session`` writes
+Pure functions of the session config (no file I/O); ``cvsflow.synth.render.render_session`` writes
 their results with ``cvsflow.io.synth_out``.
 """
 

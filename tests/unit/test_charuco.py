@@ -23,7 +23,7 @@ from cvsflow.errors import ConfigError
 from cvsflow.optimise.se3 import corner_arrays
 from cvsflow.pose import CORNER_COLUMNS, estimate_poses, extract_corners
 from cvsflow.sessions import check_sessions
-from cvsflow.synth import realistic_truth, render_stills
+from cvsflow.synth.render import realistic_truth, render_stills
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.effects import Grip, make_hand_texture, occluded_corners
 from cvsflow.synth.motion import make_hand_motion
@@ -283,7 +283,7 @@ def test_rendered_charuco_session_end_to_end(tmp_path):
 
     from cvsflow.corners_fast import extract_corners_parallel
     from cvsflow.io.media import iter_video_gray
-    from cvsflow.synth import render_session
+    from cvsflow.synth.render import render_session
 
     out = tmp_path / "s"
     render_session(charuco_cfg(preset="realistic", seed=7, duration_s=1.0, n_stills=3,

@@ -27,7 +27,7 @@ import yaml
 
 from cvsflow.io.media import iter_video_gray
 from cvsflow.pose import extract_corners
-from cvsflow.synth import render_session
+from cvsflow.synth.render import render_session
 
 pytest.importorskip("av")
 

@@ -20,7 +20,7 @@ NOT_YET = {
     "io/files", "io/flightlog", "io/logs", "io/markers", "io/media", "io/optitrack", "io/poses",
     "io/qualisys", "io/synth_out", "io/vicon", "io/visp", "optimise/se3", "optimise/seed",
     "plausibility", "plots/mocap", "plots/results", "plots/se3", "plots/summary", "pose",
-    "sessions", "synth/__init__", "synth/camera", "synth/effects", "synth/motion",
+    "sessions", "synth/render", "synth/camera", "synth/effects", "synth/motion",
     "synth/session", "uncertainty",
 }
 

@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 from cvsflow.errors import ConfigError
-from cvsflow.synth import render_session
+from cvsflow.synth.render import render_session
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.effects import (
     PRESETS,

@@ -32,7 +32,7 @@ def plain_snakemake(workdir: Path, *args: str) -> subprocess.CompletedProcess:
 
 def demo_stills(n: int = 6) -> list:
     """The demo session's first n rendered stills, (name, gray)."""
-    from cvsflow.synth import render_stills
+    from cvsflow.synth.render import render_stills
 
     session = demo_config()["sessions"]["demo"]
     session["synth"]["n_stills"] = n

@@ -3,7 +3,7 @@
 from pathlib import Path
 
 from cvsflow.io.logs import stage_logging
-from cvsflow.synth import render_session
+from cvsflow.synth.render import render_session
 
 with stage_logging(snakemake.log[0], "synth") as log:
     summary = render_session(snakemake.params.session, Path(snakemake.output.truth).parent)
