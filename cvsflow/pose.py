@@ -108,13 +108,36 @@ def _median(values: np.ndarray) -> float:
     return float(0.5 * (s[(n - 1) // 2] + s[n // 2]))
 
 
+@functools.lru_cache(maxsize=16)
+def _neighbour_pairs(nx: int, ny: int) -> tuple:
+    """Grid neighbour pairs (corner a, corner b = its right, then lower neighbour), in the
+    order of ``np.diff`` along rows, then columns; the number of row pairs; ``local_spacing``'s
+    scatter indices (every pair's a and b for the rows, then for the columns) and its
+    neighbour counts."""
+    k = np.arange(nx * ny).reshape(ny, nx)
+    ax, bx = k[:, :-1].ravel(), k[:, 1:].ravel()
+    ay, by = k[:-1, :].ravel(), k[1:, :].ravel()
+    a, b = np.concatenate([ax, ay]), np.concatenate([bx, by])
+    nr = len(ax)
+    # For corner k the sums run right, left, down, up neighbour, as local_spacing's did.
+    scatter = np.concatenate([ax, bx, ay, by])
+    count = np.bincount(scatter, minlength=nx * ny).astype(np.float64)
+    for arr in (a, b, scatter, count):
+        arr.flags.writeable = False  # cached: shared by every call
+    return a, b, nr, scatter, count
+
+
+def _pair_distances(corners_px: np.ndarray, board: dict) -> np.ndarray:
+    """Distances between grid neighbours (rows, then columns), px; NaN where unknown."""
+    a, b = _neighbour_pairs(*board_pattern(board))[:2]
+    uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+    e = uv[b] - uv[a]
+    return np.sqrt((e * e).sum(axis=-1))
+
+
 def _neighbour_distances(corners_px: np.ndarray, board: dict) -> np.ndarray:
     """Finite distances between grid neighbours (rows, then columns), px."""
-    nx, ny = board_pattern(board)
-    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
-    a, b = np.diff(grid, axis=1), np.diff(grid, axis=0)
-    d = np.concatenate([np.sqrt((a * a).sum(axis=-1)).ravel(),
-                        np.sqrt((b * b).sum(axis=-1)).ravel()])
+    d = _pair_distances(corners_px, board)
     return d[np.isfinite(d)]
 
 
@@ -134,23 +157,16 @@ def local_spacing(corners_px: np.ndarray, board: dict) -> np.ndarray:
         over the grid where a corner has no known neighbour.
     """
     nx, ny = board_pattern(board)
-    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
-    dx = np.linalg.norm(np.diff(grid, axis=1), axis=-1)  # (ny, nx - 1)
-    dy = np.linalg.norm(np.diff(grid, axis=0), axis=-1)  # (ny - 1, nx)
-    total = np.zeros((ny, nx))
-    count = np.zeros((ny, nx))
-    for d, sl_a, sl_b in (
-        (dx, (slice(None), slice(0, nx - 1)), (slice(None), slice(1, nx))),
-        (dy, (slice(0, ny - 1), slice(None)), (slice(1, ny), slice(None))),
-    ):
-        ok = np.isfinite(d)
-        dd = np.where(ok, d, 0.0)
-        total[sl_a] += dd
-        total[sl_b] += dd
-        count[sl_a] += ok
-        count[sl_b] += ok
+    _, _, nr, scatter, count = _neighbour_pairs(nx, ny)
+    d = _pair_distances(corners_px, board)
+    both = np.concatenate([d[:nr], d[:nr], d[nr:], d[nr:]])
+    ok = np.isfinite(both)
+    if ok.all():
+        return np.bincount(scatter, both, nx * ny) / count
+    total = np.bincount(scatter, np.where(ok, both, 0.0), nx * ny)
+    count = np.bincount(scatter, ok, nx * ny)
     with np.errstate(divide="ignore", invalid="ignore"):
-        spacing = (total / count).ravel()
+        spacing = total / count
     finite = np.isfinite(spacing)
     fill = _median(spacing[finite]) if finite.any() else 1.0
     return np.where(finite, spacing, fill)
@@ -219,59 +235,93 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     """
     nx, ny = board_pattern(board)
     uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
-    weights = _neighbour_weights(nx, ny)  # (N, N): 1 where corner j helps predict corner k
-    xy1, mono = _grid_monomials(nx, ny)
     known = np.isfinite(uv).all(axis=1)  # NaN corners (dropped, hidden) predict nothing
-    if not known.all():
+    all_known = bool(known.all())
+    weights, xy1, mono, a_inv_x, det_a = _deviation_constants(nx, ny)
+    if not all_known:
         weights = weights * known[None, :]
         uv = np.where(known[:, None], uv, 0.0)
     # Conditioning as in Hartley's normalised DLT: centre and scale the pixels.
     if known.any():
-        centre = uv[known].mean(axis=0)
-        scale = np.sqrt(2.0) / max(np.sqrt(((uv[known] - centre) ** 2).sum(axis=1)).mean(),
-                                   1e-9)
+        seen = uv if all_known else uv[known]
+        centre = seen.mean(axis=0)
+        d = seen - centre
+        scale = np.sqrt(2.0) / max(np.sqrt((d * d).sum(axis=1)).mean(), 1e-9)
     else:
         centre, scale = np.zeros(2), 1.0
     u, v = ((uv - centre) * scale).T
     # Corner k's DLT system keeps only its neighbours' rows: the sum of their outer products
-    # (normal equations, 9x9 per corner). With X = (x, y, 1) a neighbour's two rows are
-    # (X, 0, -u X) and (0, X, -v X), so the sum has the blocks [[A, 0, -U], [0, A, -V],
-    # [-U, -V, S]] of A = sum X X', U = sum u X X', V = sum v X X', S = sum (u^2 + v^2) X X':
-    # one (N, N) @ (N, 36) product. Its homography is taken with h33 = 1 (the board's
-    # origin is in front of the camera, so h33, its projective depth, is not 0): an 8x8 solve
-    # per corner, a tenth of the time of the eigenvector of the smallest eigenvalue, and the
-    # same homography on exact points.
+    # (normal equations). With X = (x, y, 1) a neighbour's two rows are (X, 0, -u X) and
+    # (0, X, -v X), so the sum has the blocks [[A, 0, -U], [0, A, -V], [-U, -V, S]] of
+    # A = sum X X', U = sum u X X', V = sum v X X', S = sum (u^2 + v^2) X X': one
+    # (N, N) @ (N, 27) product. Its homography (h1, h2, h3) is taken with h33 = 1 (the
+    # board's origin is in front of the camera, so h33, its projective depth, is not 0).
+    # The first two block rows give h1 = A^-1 U h3, h2 = A^-1 V h3; the third, the 3x3 Schur
+    # complement M = S - U A^-1 U - V A^-1 V with M h3 = 0, of which the first two rows fix
+    # (h31, h32): the same solution as the 8x8 solve, at a fraction of its cost. A holds
+    # grid coordinates only (the same for every frame with the same corners known), and is
+    # singular exactly (integer entries) when the neighbours lie on a line: no prediction.
     n = len(u)
     sums = weights @ np.concatenate(
-        [mono, u[:, None] * mono, v[:, None] * mono, (u * u + v * v)[:, None] * mono], axis=1
+        [u[:, None] * mono, v[:, None] * mono, (u * u + v * v)[:, None] * mono], axis=1
     )
-    blocks = sums.reshape(n, 4, 3, 3)
-    normal = np.zeros((n, 9, 9))
-    normal[:, 0:3, 0:3] = blocks[:, 0]
-    normal[:, 3:6, 3:6] = blocks[:, 0]
-    normal[:, 0:3, 6:9] = normal[:, 6:9, 0:3] = -blocks[:, 1]
-    normal[:, 3:6, 6:9] = normal[:, 6:9, 3:6] = -blocks[:, 2]
-    normal[:, 6:9, 6:9] = blocks[:, 3]
-    h = np.ones((n, 9))
-    n_near = weights.sum(axis=1)
-    enough = n_near >= 4  # fewer known neighbours: no prediction (below)
-    a = normal[:, :8, :8]
-    a[~enough] = np.eye(8)
-    try:
-        h[:, :8] = np.linalg.solve(a, -normal[:, :8, 8:9])[..., 0]
-    except np.linalg.LinAlgError:  # neighbours all on a line: singular, no prediction
-        h[:, :8] = np.nan
-        for k in np.flatnonzero(enough):
-            with contextlib.suppress(np.linalg.LinAlgError):
-                h[k, :8] = np.linalg.solve(a[k], -normal[k, :8, 8])
-    p = np.einsum("kij,kj->ki", h.reshape(-1, 3, 3), xy1)
+    if not all_known:
+        a_inv_x, det_a = _grid_moment_inverse(weights @ mono, xy1)
+    blocks = sums.reshape(n, 3, 3, 3)
+    UV, S = blocks[:, :2], blocks[:, 2]  # (n, 2, 3, 3): U and V; (n, 3, 3)
+    # A^-1 (and A^-1 X_k) from the grid moments' adjugate, a_inv_x = (A^-1, A^-1 X_k).
+    UVA = UV @ a_inv_x[:, None, :, :3]
+    M = S - (UVA @ UV).sum(axis=1)
+    m = M[:, :2].reshape(n, 6)
+    m00, m01, m02, m10, m11, m12 = m.T
+    det_m = m00 * m11 - m01 * m10
+    # No prediction with fewer than four neighbours, or neighbours on a line (A singular), or
+    # three of four on a line (M's 2x2 singular up to rounding: the homography is not fixed).
+    well_posed = np.abs(det_m) > 1e-9 * (np.abs(m00 * m11) + np.abs(m01 * m10))
+    enough = (weights.sum(axis=1) >= 4) & (det_a != 0) & well_posed
     with np.errstate(divide="ignore", invalid="ignore"):
-        predicted = p[:, :2] / p[:, 2:3] / scale + centre
+        h3 = np.stack([m01 * m12 - m11 * m02, m10 * m02 - m00 * m12, det_m], axis=1)
+        # The prediction at X_k: (X_k' A^-1 U h3, X_k' A^-1 V h3) / (X_k' h3), h3 scaled by
+        # det M (it cancels).
+        puv = ((UV @ h3[:, None, :, None])[..., 0] * a_inv_x[:, None, :, 3]).sum(axis=2)
+        predicted = puv / (xy1 * h3).sum(axis=1)[:, None] / scale + centre
     d = predicted - uv
     deviation = np.sqrt((d * d).sum(axis=1))
     # Fewer than four known neighbours leave the homography undetermined.
     ok = np.isfinite(deviation) & known & enough
     return predicted, np.where(ok, deviation, np.inf)
+
+
+def _grid_moment_inverse(a_flat: np.ndarray, xy1: np.ndarray):
+    """Per corner, A^-1 and A^-1 X_k side by side, (N, 3, 4), and det A, (N,), from the grid
+    moments A = sum X X' flattened, (N, 9) (integers: the determinant is exact). Singular
+    rows (det 0) hold zeros."""
+    a = a_flat.reshape(-1, 3, 3)
+    adj = np.empty_like(a)
+    for i in range(3):
+        for j in range(3):
+            r = [x for x in range(3) if x != j]
+            c = [x for x in range(3) if x != i]
+            minor = a[:, r[0], c[0]] * a[:, r[1], c[1]] - a[:, r[0], c[1]] * a[:, r[1], c[0]]
+            adj[:, i, j] = minor if (i + j) % 2 == 0 else -minor
+    det = (a[:, 0, :] * adj[:, :, 0]).sum(axis=1)
+    safe = np.where(det != 0, det, 1.0)
+    inv = np.where((det != 0)[:, None, None], adj / safe[:, None, None], 0.0)
+    out = np.concatenate([inv, (inv @ xy1[:, :, None])], axis=2)
+    return out, det
+
+
+@functools.lru_cache(maxsize=16)
+def _deviation_constants(nx: int, ny: int):
+    """``grid_deviation``'s constants: neighbour weights (N, N), grid points (N, 3), their
+    X X' (N, 9), and for every corner known the grid moments' inverse with A^-1 X_k (N, 3, 4)
+    and determinant (N,)."""
+    xy1, mono = _grid_monomials(nx, ny)
+    weights = _neighbour_weights(nx, ny)
+    a_inv_x, det = _grid_moment_inverse(weights @ mono, xy1)
+    for arr in (a_inv_x, det):
+        arr.flags.writeable = False  # cached: shared by every call
+    return weights, xy1, mono, a_inv_x, det
 
 
 def keep_consistent_corners(corners_px: np.ndarray, board: dict,
