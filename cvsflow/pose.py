@@ -294,21 +294,18 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
 
 def _grid_moment_inverse(a_flat: np.ndarray, xy1: np.ndarray):
     """Per corner, A^-1 and A^-1 X_k side by side, (N, 3, 4), and det A, (N,), from the grid
-    moments A = sum X X' flattened, (N, 9) (integers: the determinant is exact). Singular
-    rows (det 0) hold zeros."""
-    a = a_flat.reshape(-1, 3, 3)
-    adj = np.empty_like(a)
-    for i in range(3):
-        for j in range(3):
-            r = [x for x in range(3) if x != j]
-            c = [x for x in range(3) if x != i]
-            minor = a[:, r[0], c[0]] * a[:, r[1], c[1]] - a[:, r[0], c[1]] * a[:, r[1], c[0]]
-            adj[:, i, j] = minor if (i + j) % 2 == 0 else -minor
-    det = (a[:, 0, :] * adj[:, :, 0]).sum(axis=1)
-    safe = np.where(det != 0, det, 1.0)
-    inv = np.where((det != 0)[:, None, None], adj / safe[:, None, None], 0.0)
-    out = np.concatenate([inv, (inv @ xy1[:, :, None])], axis=2)
-    return out, det
+    moments A = sum X X' flattened, (N, 9). A is symmetric with integer entries, so its
+    adjugate and determinant are exact; singular rows (det 0) hold zeros."""
+    a, b, c, _, d, e, _, _, f = a_flat.T
+    adj = np.stack([d * f - e * e, c * e - b * f, b * e - c * d,
+                    c * e - b * f, a * f - c * c, b * c - a * e,
+                    b * e - c * d, b * c - a * e, a * d - b * b], axis=1)
+    det = a * adj[:, 0] + b * adj[:, 1] + c * adj[:, 2]
+    singular = det == 0
+    inv = adj / np.where(singular, 1.0, det)[:, None]
+    inv[singular] = 0.0
+    inv = inv.reshape(-1, 3, 3)
+    return np.concatenate([inv, inv @ xy1[:, :, None]], axis=2), det
 
 
 @functools.lru_cache(maxsize=16)
@@ -507,10 +504,12 @@ def refine_corners(
     return _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation)[0]
 
 
-def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation):
+def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation,
+                    no_retry=None):
     """``refine_corners``, and the corners of its first cornerSubPix (None where it failed)
     with their ``(deviation_limit_px, grid_deviation)``, which a caller that falls back to
-    ``_follow_partial`` reuses."""
+    ``_follow_partial`` reuses. ``no_retry``: (N,) bool, corners whose deviation after the
+    first cornerSubPix fails the refinement at once (no second cornerSubPix)."""
     corners = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     w = _subpix_window(corners, board, subpix_window_px)
     first = _subpix(gray, corners, w)
@@ -522,6 +521,8 @@ def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviatio
     first = (first, limit, deviation)
     bad = deviation > limit
     if bad.any():
+        if no_retry is not None and (bad & no_retry).any():
+            return None, first
         retry = _subpix(gray, predicted[bad], w)
         if retry is None:
             return None, first
@@ -641,16 +642,10 @@ def board_squares_pattern_ok(
     h, w = gray.shape
     inside = np.all((u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1) & (p[2] > 0), axis=1)
     if corner_known is not None:
-        nx, ny = sx - 1, sy - 1
-        seen = np.ones((sy, sx), bool)
-        known = np.asarray(corner_known, bool).reshape(ny, nx)
-        # Square (i, j) has corners (i-1..i, j-1..j) where they exist.
-        for di in (0, 1):
-            for dj in (0, 1):
-                pad = np.ones((sy, sx), bool)
-                pad[dj:dj + ny, di:di + nx] = known
-                seen &= pad
-        inside &= seen.ravel()
+        # Square (i, j) has corners (i-1..i, j-1..j) where they exist (the index nx * ny,
+        # always known, stands for those that do not).
+        known = np.append(np.asarray(corner_known, bool), True)
+        inside &= known[_square_corners(sx, sy)].all(axis=1)
     if not inside.any():
         return False
     level = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)].mean(axis=1)
@@ -658,10 +653,28 @@ def board_squares_pattern_ok(
     if black.all() or not black.any():
         return False
     lo, hi = level[black], level[~black]
-    if hi.mean() - lo.mean() < min_contrast:
+    lo_mean, hi_mean = lo.mean(), hi.mean()
+    if hi_mean - lo_mean < min_contrast:
         return False
-    mid = 0.5 * (hi.mean() + lo.mean())
+    mid = 0.5 * (hi_mean + lo_mean)
     return bool(lo.max() < mid < hi.min())
+
+
+@functools.lru_cache(maxsize=16)
+def _square_corners(sx: int, sy: int) -> np.ndarray:
+    """(sx * sy, 4): the inner corners of each square (``_square_samples``' order), nx * ny
+    where a square of the outer ring has none."""
+    nx, ny = sx - 1, sy - 1
+    jj, ii = np.mgrid[0:sy, 0:sx]
+    out = []
+    for di in (0, 1):
+        for dj in (0, 1):
+            ci, cj = ii.ravel() - 1 + di, jj.ravel() - 1 + dj
+            ok = (ci >= 0) & (ci < nx) & (cj >= 0) & (cj < ny)
+            out.append(np.where(ok, cj * nx + ci, nx * ny))
+    idx = np.stack(out, axis=1)
+    idx.flags.writeable = False  # cached: shared by every call
+    return idx
 
 
 def _grid_points(board: dict) -> np.ndarray:
@@ -684,6 +697,7 @@ def track_corners(
     board: dict,
     subpix_window_px: int = 5,
     max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
+    hidden: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, str]:
     """Board corners of a frame from those of an earlier frame (optical flow, then checks).
 
@@ -701,6 +715,11 @@ def track_corners(
         Largest cornerSubPix half window, pixels.
     max_grid_deviation : float
         As in ``detect_corners``.
+    hidden : ndarray of bool, shape (nx * ny,), optional
+        Corners a hand hid in the earlier frame. Where one of them is still off its grid
+        neighbours after the first cornerSubPix, the hand is taken to be there still: the
+        frame goes straight to the partial check, without the second cornerSubPix that
+        rescues a corner the flow put a little off (it cannot rescue one under a hand).
 
     Returns
     -------
@@ -763,7 +782,8 @@ def track_corners(
     if not _inside(p, w, h, 0.0).all():
         return _follow_partial(gray, p, _inside(p, w, h, sc["border"]), grid, board,
                                subpix_window_px, sc, max_grid_deviation)
-    corners, first = _refine_corners(gray, p, board, subpix_window_px, max_grid_deviation)
+    corners, first = _refine_corners(gray, p, board, subpix_window_px, max_grid_deviation,
+                                     hidden)
     if corners is None:  # a corner off its neighbours: hidden (a hand) or misplaced
         return _follow_partial(gray, p, np.ones(len(p), bool), grid, board, subpix_window_px,
                                sc, max_grid_deviation, "partial", first)
@@ -888,12 +908,13 @@ def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_
     if not saddle[known].all():
         out[~saddle] = np.nan
         out = keep_consistent_corners(out, board, max_grid_deviation)
-    known = np.isfinite(out).all(axis=1)
-    if known.sum() < MIN_TRACKED_CORNERS:
-        return None, "lost"
-    H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
-    if H is None:
-        return None, "lost"
+        known = np.isfinite(out).all(axis=1)
+        if known.sum() < MIN_TRACKED_CORNERS:
+            return None, "lost"
+        H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
+        if H is None:
+            return None, "lost"
+    # (else the corners are those H was fitted to)
     fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
     rms = np.sqrt(np.mean(np.sum((fit[known] - out[known]) ** 2, axis=1)))
     if rms > sc["homography_rms"] or not board_squares_pattern_ok(
@@ -1005,6 +1026,14 @@ def _median_spacing(corners_px: np.ndarray, board: dict) -> float:
     return _median(d) if len(d) else 0.0
 
 
+def _hand_hidden(corners_px, method):
+    """The corners a hand hid in a frame followed as ``"partial"`` (for ``track_corners``'
+    ``hidden``), else None."""
+    if method != "partial" or corners_px is None:
+        return None
+    return ~np.isfinite(corners_px).all(axis=1)
+
+
 class _CornerFollower:
     """extract_corners' per-frame decisions: track, search quickly (backing off), or detect.
 
@@ -1041,7 +1070,9 @@ class _CornerFollower:
             return None, fail_method
 
     def _reset(self):
-        self.state = None  # (gray, corners_px, frame) of the last frame the board was followed
+        # (gray, corners_px, frame, hidden) of the last frame the board was followed; hidden:
+        # the corners a hand hid there (``track_corners``), None unless it was partial.
+        self.state = None
         self.last_found = None  # (corners_px, frame): continuity for detect_corners
         self.lost_for = 0  # frames since the board was last followed (the search's back-off)
         self.spacing = 0.0  # median square size (px) of the board when last followed
@@ -1119,8 +1150,8 @@ class _CornerFollower:
         self.pending_bytes = 0
         return out
 
-    def _keep(self, gray, corners_px, frame, found):
-        self.state = (gray, corners_px, frame)
+    def _keep(self, gray, corners_px, frame, found, method=None):
+        self.state = (gray, corners_px, frame, _hand_hidden(corners_px, method))
         self.lost_for = 0
         self.spacing = _median_spacing(corners_px, self.board) or self.spacing
         if found:
@@ -1129,11 +1160,11 @@ class _CornerFollower:
     def _track(self, frame, t_s, gray, ref):
         corners_px, method = self._guard(
             track_corners, "lost", frame, ref[0], gray, ref[1], self.board, self.subpix,
-            self.max_dev
+            self.max_dev, ref[3]
         )
         if method == "lost":
             return self._relocate(frame, t_s, gray)
-        self._keep(gray, corners_px, frame, found=method == "tracked")
+        self._keep(gray, corners_px, frame, found=method == "tracked", method=method)
         return frame, t_s, self._published(corners_px, method), method
 
     def _relocate(self, frame, t_s, gray):
@@ -1173,16 +1204,16 @@ class _CornerFollower:
         that fails, the detector once (the board may have been whole there), then nothing."""
         pending, self.pending = list(self.pending), collections.deque()
         self.pending_bytes = 0
-        ref = (gray, corners_px, frame)
+        ref = (gray, corners_px, frame, None)
         out = []
         tried_detect = False
         for f, t_s, g, searched in reversed(pending):
             result = None
             if ref[2] - f <= self.max_gap:
                 px, method = self._guard(track_corners, "lost", f, ref[0], g, ref[1],
-                                         self.board, self.subpix, self.max_dev)
+                                         self.board, self.subpix, self.max_dev, ref[3])
                 if method != "lost":
-                    ref = (g, px, f)
+                    ref = (g, px, f, _hand_hidden(px, method))
                     result = (f, t_s, self._published(px, method), method + "_back")
                 elif not tried_detect:
                     tried_detect = True
@@ -1191,7 +1222,7 @@ class _CornerFollower:
                                              self.flags or VIDEO_SEARCH_FLAGS, self.max_dev,
                                              False)
                     if px is not None:
-                        ref = (g, px, f)
+                        ref = (g, px, f, None)
                     result = (f, t_s, px, method)
             if result is None:
                 result = (f, t_s, None, "not_found" if searched else "not_searched")
