@@ -237,9 +237,11 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     known = np.isfinite(uv).all(axis=1)  # NaN corners (dropped, hidden) predict nothing
     all_known = bool(known.all())
-    weights, xy1, mono, a_inv_x, det_a = _deviation_constants(nx, ny)
-    if not all_known:
-        weights = weights * known[None, :]
+    if all_known:
+        weights, xy1, mono, a_inv_x, det_a = _deviation_constants(nx, ny)
+    else:
+        weights, xy1, mono, a_inv_x, det_a = _deviation_constants_known(nx, ny,
+                                                                         known.tobytes())
         uv = np.where(known[:, None], uv, 0.0)
     # Conditioning as in Hartley's normalised DLT: centre and scale the pixels.
     if known.any():
@@ -265,8 +267,6 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     sums = weights @ np.concatenate(
         [u[:, None] * mono, v[:, None] * mono, (u * u + v * v)[:, None] * mono], axis=1
     )
-    if not all_known:
-        a_inv_x, det_a = _grid_moment_inverse(weights @ mono, xy1)
     blocks = sums.reshape(n, 3, 3, 3)
     UV, S = blocks[:, :2], blocks[:, 2]  # (n, 2, 3, 3): U and V; (n, 3, 3)
     # A^-1 (and A^-1 X_k) from the grid moments' adjugate, a_inv_x = (A^-1, A^-1 X_k).
@@ -317,6 +317,20 @@ def _deviation_constants(nx: int, ny: int):
     weights = _neighbour_weights(nx, ny)
     a_inv_x, det = _grid_moment_inverse(weights @ mono, xy1)
     for arr in (a_inv_x, det):
+        arr.flags.writeable = False  # cached: shared by every call
+    return weights, xy1, mono, a_inv_x, det
+
+
+@functools.lru_cache(maxsize=64)
+def _deviation_constants_known(nx: int, ny: int, known_bytes: bytes):
+    """``_deviation_constants`` with only the corners ``known`` (a bool mask's bytes) as
+    neighbours: a board partly out of view or under a hand keeps the same mask for a few
+    frames, and ``keep_consistent_corners`` revisits masks."""
+    weights, xy1, mono, _, _ = _deviation_constants(nx, ny)
+    known = np.frombuffer(known_bytes, dtype=bool)
+    weights = weights * known[None, :]
+    a_inv_x, det = _grid_moment_inverse(weights @ mono, xy1)
+    for arr in (weights, a_inv_x, det):
         arr.flags.writeable = False  # cached: shared by every call
     return weights, xy1, mono, a_inv_x, det
 
@@ -852,18 +866,16 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     colours: square (x+1, y+1) black when x + y is even), sampled along the diagonals at
     ``SADDLE_RADII`` squares from the corner, every sample of a quadrant on its side."""
     h, w = gray.shape
-    off = np.array([[r * a, r * b] for a, b in ((1, 1), (-1, -1), (1, -1), (-1, 1))
-                    for r in SADDLE_RADII])  # dark-or-light pairs: first 2 radii x 2 = 4
-    n_off = len(off)
-    pts = grid[:, None, :] + off[None]  # (N, M, 2)
-    ref = cv2.perspectiveTransform(grid.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
-    q = cv2.perspectiveTransform(pts.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
+    grid_pts, pts = _saddle_points(grid.tobytes(), grid.shape)
+    n_off = pts.shape[0] // grid_pts.shape[0]
+    ref = cv2.perspectiveTransform(grid_pts, H_img_grid)
+    q = cv2.perspectiveTransform(pts, H_img_grid)
     q = q.reshape(-1, n_off, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
-    ok = np.isfinite(q).all(axis=(1, 2))
-    qi = np.rint(np.nan_to_num(q)).astype(int)
-    ok &= (qi[..., 0] >= 0).all(1) & (qi[..., 0] < w).all(1) & (qi[..., 1] >= 0).all(1) & (
-        qi[..., 1] < h
-    ).all(1)
+    finite = np.isfinite(q)
+    ok = finite.all(axis=(1, 2))
+    # (Rows with a non-finite sample fail whatever their levels.)
+    qi = np.rint(np.where(finite, q, 0.0)).astype(int)
+    ok &= ((qi >= 0) & (qi < np.array([w, h]))).all(axis=(1, 2))
     qi[..., 0] = np.clip(qi[..., 0], 0, w - 1)
     qi[..., 1] = np.clip(qi[..., 1], 0, h - 1)
     level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, M)
@@ -875,6 +887,20 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     contrast = _median(light[known]) - _median(dark[known]) if known.any() else 0.0
     need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
     return ok & (light.min(axis=1) - dark.max(axis=1) >= need)
+
+
+@functools.lru_cache(maxsize=16)
+def _saddle_points(grid_bytes: bytes, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """``_saddle_ok``'s grid points, (N, 1, 2), and its sample points around each, (N * M, 1,
+    2): dark-or-light pairs along the diagonals, the (1, 1) and (-1, -1) ones first."""
+    grid = np.frombuffer(grid_bytes, dtype=np.float32).reshape(shape)
+    off = np.array([[r * a, r * b] for a, b in ((1, 1), (-1, -1), (1, -1), (-1, 1))
+                    for r in SADDLE_RADII])  # dark-or-light pairs: first 2 radii x 2 = 4
+    pts = grid[:, None, :] + off[None]  # (N, M, 2)
+    out = (grid.reshape(-1, 1, 2).astype(np.float64), pts.reshape(-1, 1, 2).astype(np.float64))
+    for arr in out:
+        arr.flags.writeable = False  # cached: shared by every call
+    return out
 
 
 def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
