@@ -22,7 +22,6 @@ bench/bench_corners.py measures it per resolution against the renderer's truth.
 from __future__ import annotations
 
 import collections
-import contextlib
 import functools
 import logging
 import time
