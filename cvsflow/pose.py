@@ -22,7 +22,6 @@ bench/bench_corners.py measures it per resolution against the renderer's truth.
 from __future__ import annotations
 
 import collections
-import contextlib
 import functools
 import logging
 import time
@@ -109,13 +108,36 @@ def _median(values: np.ndarray) -> float:
     return float(0.5 * (s[(n - 1) // 2] + s[n // 2]))
 
 
+@functools.lru_cache(maxsize=16)
+def _neighbour_pairs(nx: int, ny: int) -> tuple:
+    """Grid neighbour pairs (corner a, corner b = its right, then lower neighbour), in the
+    order of ``np.diff`` along rows, then columns; the number of row pairs; ``local_spacing``'s
+    scatter indices (every pair's a and b for the rows, then for the columns) and its
+    neighbour counts."""
+    k = np.arange(nx * ny).reshape(ny, nx)
+    ax, bx = k[:, :-1].ravel(), k[:, 1:].ravel()
+    ay, by = k[:-1, :].ravel(), k[1:, :].ravel()
+    a, b = np.concatenate([ax, ay]), np.concatenate([bx, by])
+    nr = len(ax)
+    # For corner k the sums run right, left, down, up neighbour, as local_spacing's did.
+    scatter = np.concatenate([ax, bx, ay, by])
+    count = np.bincount(scatter, minlength=nx * ny).astype(np.float64)
+    for arr in (a, b, scatter, count):
+        arr.flags.writeable = False  # cached: shared by every call
+    return a, b, nr, scatter, count
+
+
+def _pair_distances(corners_px: np.ndarray, board: dict) -> np.ndarray:
+    """Distances between grid neighbours (rows, then columns), px; NaN where unknown."""
+    a, b = _neighbour_pairs(*board_pattern(board))[:2]
+    uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+    e = uv[b] - uv[a]
+    return np.sqrt((e * e).sum(axis=-1))
+
+
 def _neighbour_distances(corners_px: np.ndarray, board: dict) -> np.ndarray:
     """Finite distances between grid neighbours (rows, then columns), px."""
-    nx, ny = board_pattern(board)
-    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
-    a, b = np.diff(grid, axis=1), np.diff(grid, axis=0)
-    d = np.concatenate([np.sqrt((a * a).sum(axis=-1)).ravel(),
-                        np.sqrt((b * b).sum(axis=-1)).ravel()])
+    d = _pair_distances(corners_px, board)
     return d[np.isfinite(d)]
 
 
@@ -135,23 +157,16 @@ def local_spacing(corners_px: np.ndarray, board: dict) -> np.ndarray:
         over the grid where a corner has no known neighbour.
     """
     nx, ny = board_pattern(board)
-    grid = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
-    dx = np.linalg.norm(np.diff(grid, axis=1), axis=-1)  # (ny, nx - 1)
-    dy = np.linalg.norm(np.diff(grid, axis=0), axis=-1)  # (ny - 1, nx)
-    total = np.zeros((ny, nx))
-    count = np.zeros((ny, nx))
-    for d, sl_a, sl_b in (
-        (dx, (slice(None), slice(0, nx - 1)), (slice(None), slice(1, nx))),
-        (dy, (slice(0, ny - 1), slice(None)), (slice(1, ny), slice(None))),
-    ):
-        ok = np.isfinite(d)
-        dd = np.where(ok, d, 0.0)
-        total[sl_a] += dd
-        total[sl_b] += dd
-        count[sl_a] += ok
-        count[sl_b] += ok
+    _, _, nr, scatter, count = _neighbour_pairs(nx, ny)
+    d = _pair_distances(corners_px, board)
+    both = np.concatenate([d[:nr], d[:nr], d[nr:], d[nr:]])
+    ok = np.isfinite(both)
+    if ok.all():
+        return np.bincount(scatter, both, nx * ny) / count
+    total = np.bincount(scatter, np.where(ok, both, 0.0), nx * ny)
+    count = np.bincount(scatter, ok, nx * ny)
     with np.errstate(divide="ignore", invalid="ignore"):
-        spacing = (total / count).ravel()
+        spacing = total / count
     finite = np.isfinite(spacing)
     fill = _median(spacing[finite]) if finite.any() else 1.0
     return np.where(finite, spacing, fill)
@@ -220,59 +235,104 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     """
     nx, ny = board_pattern(board)
     uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
-    weights = _neighbour_weights(nx, ny)  # (N, N): 1 where corner j helps predict corner k
-    xy1, mono = _grid_monomials(nx, ny)
     known = np.isfinite(uv).all(axis=1)  # NaN corners (dropped, hidden) predict nothing
-    if not known.all():
-        weights = weights * known[None, :]
+    all_known = bool(known.all())
+    if all_known:
+        weights, xy1, mono, a_inv_x, det_a = _deviation_constants(nx, ny)
+    else:
+        weights, xy1, mono, a_inv_x, det_a = _deviation_constants_known(nx, ny,
+                                                                         known.tobytes())
         uv = np.where(known[:, None], uv, 0.0)
     # Conditioning as in Hartley's normalised DLT: centre and scale the pixels.
     if known.any():
-        centre = uv[known].mean(axis=0)
-        scale = np.sqrt(2.0) / max(np.sqrt(((uv[known] - centre) ** 2).sum(axis=1)).mean(),
-                                   1e-9)
+        seen = uv if all_known else uv[known]
+        centre = seen.mean(axis=0)
+        d = seen - centre
+        scale = np.sqrt(2.0) / max(np.sqrt((d * d).sum(axis=1)).mean(), 1e-9)
     else:
         centre, scale = np.zeros(2), 1.0
     u, v = ((uv - centre) * scale).T
     # Corner k's DLT system keeps only its neighbours' rows: the sum of their outer products
-    # (normal equations, 9x9 per corner). With X = (x, y, 1) a neighbour's two rows are
-    # (X, 0, -u X) and (0, X, -v X), so the sum has the blocks [[A, 0, -U], [0, A, -V],
-    # [-U, -V, S]] of A = sum X X', U = sum u X X', V = sum v X X', S = sum (u^2 + v^2) X X':
-    # one (N, N) @ (N, 36) product. Its homography is taken with h33 = 1 (the board's
-    # origin is in front of the camera, so h33, its projective depth, is not 0): an 8x8 solve
-    # per corner, a tenth of the time of the eigenvector of the smallest eigenvalue, and the
-    # same homography on exact points.
+    # (normal equations). With X = (x, y, 1) a neighbour's two rows are (X, 0, -u X) and
+    # (0, X, -v X), so the sum has the blocks [[A, 0, -U], [0, A, -V], [-U, -V, S]] of
+    # A = sum X X', U = sum u X X', V = sum v X X', S = sum (u^2 + v^2) X X': one
+    # (N, N) @ (N, 27) product. Its homography (h1, h2, h3) is taken with h33 = 1 (the
+    # board's origin is in front of the camera, so h33, its projective depth, is not 0).
+    # The first two block rows give h1 = A^-1 U h3, h2 = A^-1 V h3; the third, the 3x3 Schur
+    # complement M = S - U A^-1 U - V A^-1 V with M h3 = 0, of which the first two rows fix
+    # (h31, h32): the same solution as the 8x8 solve, at a fraction of its cost. A holds
+    # grid coordinates only (the same for every frame with the same corners known), and is
+    # singular exactly (integer entries) when the neighbours lie on a line: no prediction.
     n = len(u)
     sums = weights @ np.concatenate(
-        [mono, u[:, None] * mono, v[:, None] * mono, (u * u + v * v)[:, None] * mono], axis=1
+        [u[:, None] * mono, v[:, None] * mono, (u * u + v * v)[:, None] * mono], axis=1
     )
-    blocks = sums.reshape(n, 4, 3, 3)
-    normal = np.zeros((n, 9, 9))
-    normal[:, 0:3, 0:3] = blocks[:, 0]
-    normal[:, 3:6, 3:6] = blocks[:, 0]
-    normal[:, 0:3, 6:9] = normal[:, 6:9, 0:3] = -blocks[:, 1]
-    normal[:, 3:6, 6:9] = normal[:, 6:9, 3:6] = -blocks[:, 2]
-    normal[:, 6:9, 6:9] = blocks[:, 3]
-    h = np.ones((n, 9))
-    n_near = weights.sum(axis=1)
-    enough = n_near >= 4  # fewer known neighbours: no prediction (below)
-    a = normal[:, :8, :8]
-    a[~enough] = np.eye(8)
-    try:
-        h[:, :8] = np.linalg.solve(a, -normal[:, :8, 8:9])[..., 0]
-    except np.linalg.LinAlgError:  # neighbours all on a line: singular, no prediction
-        h[:, :8] = np.nan
-        for k in np.flatnonzero(enough):
-            with contextlib.suppress(np.linalg.LinAlgError):
-                h[k, :8] = np.linalg.solve(a[k], -normal[k, :8, 8])
-    p = np.einsum("kij,kj->ki", h.reshape(-1, 3, 3), xy1)
+    blocks = sums.reshape(n, 3, 3, 3)
+    UV, S = blocks[:, :2], blocks[:, 2]  # (n, 2, 3, 3): U and V; (n, 3, 3)
+    # A^-1 (and A^-1 X_k) from the grid moments' adjugate, a_inv_x = (A^-1, A^-1 X_k).
+    UVA = UV @ a_inv_x[:, None, :, :3]
+    M = S - (UVA @ UV).sum(axis=1)
+    m = M[:, :2].reshape(n, 6)
+    m00, m01, m02, m10, m11, m12 = m.T
+    det_m = m00 * m11 - m01 * m10
+    # No prediction with fewer than four neighbours, or neighbours on a line (A singular), or
+    # three of four on a line (M's 2x2 singular up to rounding: the homography is not fixed).
+    well_posed = np.abs(det_m) > 1e-9 * (np.abs(m00 * m11) + np.abs(m01 * m10))
+    enough = (weights.sum(axis=1) >= 4) & (det_a != 0) & well_posed
     with np.errstate(divide="ignore", invalid="ignore"):
-        predicted = p[:, :2] / p[:, 2:3] / scale + centre
+        h3 = np.stack([m01 * m12 - m11 * m02, m10 * m02 - m00 * m12, det_m], axis=1)
+        # The prediction at X_k: (X_k' A^-1 U h3, X_k' A^-1 V h3) / (X_k' h3), h3 scaled by
+        # det M (it cancels).
+        puv = ((UV @ h3[:, None, :, None])[..., 0] * a_inv_x[:, None, :, 3]).sum(axis=2)
+        predicted = puv / (xy1 * h3).sum(axis=1)[:, None] / scale + centre
     d = predicted - uv
     deviation = np.sqrt((d * d).sum(axis=1))
     # Fewer than four known neighbours leave the homography undetermined.
     ok = np.isfinite(deviation) & known & enough
     return predicted, np.where(ok, deviation, np.inf)
+
+
+def _grid_moment_inverse(a_flat: np.ndarray, xy1: np.ndarray):
+    """Per corner, A^-1 and A^-1 X_k side by side, (N, 3, 4), and det A, (N,), from the grid
+    moments A = sum X X' flattened, (N, 9). A is symmetric with integer entries, so its
+    adjugate and determinant are exact; singular rows (det 0) hold zeros."""
+    a, b, c, _, d, e, _, _, f = a_flat.T
+    adj = np.stack([d * f - e * e, c * e - b * f, b * e - c * d,
+                    c * e - b * f, a * f - c * c, b * c - a * e,
+                    b * e - c * d, b * c - a * e, a * d - b * b], axis=1)
+    det = a * adj[:, 0] + b * adj[:, 1] + c * adj[:, 2]
+    singular = det == 0
+    inv = adj / np.where(singular, 1.0, det)[:, None]
+    inv[singular] = 0.0
+    inv = inv.reshape(-1, 3, 3)
+    return np.concatenate([inv, inv @ xy1[:, :, None]], axis=2), det
+
+
+@functools.lru_cache(maxsize=16)
+def _deviation_constants(nx: int, ny: int):
+    """``grid_deviation``'s constants: neighbour weights (N, N), grid points (N, 3), their
+    X X' (N, 9), and for every corner known the grid moments' inverse with A^-1 X_k (N, 3, 4)
+    and determinant (N,)."""
+    xy1, mono = _grid_monomials(nx, ny)
+    weights = _neighbour_weights(nx, ny)
+    a_inv_x, det = _grid_moment_inverse(weights @ mono, xy1)
+    for arr in (a_inv_x, det):
+        arr.flags.writeable = False  # cached: shared by every call
+    return weights, xy1, mono, a_inv_x, det
+
+
+@functools.lru_cache(maxsize=64)
+def _deviation_constants_known(nx: int, ny: int, known_bytes: bytes):
+    """``_deviation_constants`` with only the corners ``known`` (a bool mask's bytes) as
+    neighbours: a board partly out of view or under a hand keeps the same mask for a few
+    frames, and ``keep_consistent_corners`` revisits masks."""
+    weights, xy1, mono, _, _ = _deviation_constants(nx, ny)
+    known = np.frombuffer(known_bytes, dtype=bool)
+    weights = weights * known[None, :]
+    a_inv_x, det = _grid_moment_inverse(weights @ mono, xy1)
+    for arr in (weights, a_inv_x, det):
+        arr.flags.writeable = False  # cached: shared by every call
+    return weights, xy1, mono, a_inv_x, det
 
 
 def keep_consistent_corners(corners_px: np.ndarray, board: dict,
@@ -458,10 +518,12 @@ def refine_corners(
     return _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation)[0]
 
 
-def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation):
+def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation,
+                    no_retry=None):
     """``refine_corners``, and the corners of its first cornerSubPix (None where it failed)
     with their ``(deviation_limit_px, grid_deviation)``, which a caller that falls back to
-    ``_follow_partial`` reuses."""
+    ``_follow_partial`` reuses. ``no_retry``: (N,) bool, corners whose deviation after the
+    first cornerSubPix fails the refinement at once (no second cornerSubPix)."""
     corners = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     w = _subpix_window(corners, board, subpix_window_px)
     first = _subpix(gray, corners, w)
@@ -473,6 +535,8 @@ def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviatio
     first = (first, limit, deviation)
     bad = deviation > limit
     if bad.any():
+        if no_retry is not None and (bad & no_retry).any():
+            return None, first
         retry = _subpix(gray, predicted[bad], w)
         if retry is None:
             return None, first
@@ -592,16 +656,10 @@ def board_squares_pattern_ok(
     h, w = gray.shape
     inside = np.all((u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1) & (p[2] > 0), axis=1)
     if corner_known is not None:
-        nx, ny = sx - 1, sy - 1
-        seen = np.ones((sy, sx), bool)
-        known = np.asarray(corner_known, bool).reshape(ny, nx)
-        # Square (i, j) has corners (i-1..i, j-1..j) where they exist.
-        for di in (0, 1):
-            for dj in (0, 1):
-                pad = np.ones((sy, sx), bool)
-                pad[dj:dj + ny, di:di + nx] = known
-                seen &= pad
-        inside &= seen.ravel()
+        # Square (i, j) has corners (i-1..i, j-1..j) where they exist (the index nx * ny,
+        # always known, stands for those that do not).
+        known = np.append(np.asarray(corner_known, bool), True)
+        inside &= known[_square_corners(sx, sy)].all(axis=1)
     if not inside.any():
         return False
     level = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)].mean(axis=1)
@@ -609,10 +667,28 @@ def board_squares_pattern_ok(
     if black.all() or not black.any():
         return False
     lo, hi = level[black], level[~black]
-    if hi.mean() - lo.mean() < min_contrast:
+    lo_mean, hi_mean = lo.mean(), hi.mean()
+    if hi_mean - lo_mean < min_contrast:
         return False
-    mid = 0.5 * (hi.mean() + lo.mean())
+    mid = 0.5 * (hi_mean + lo_mean)
     return bool(lo.max() < mid < hi.min())
+
+
+@functools.lru_cache(maxsize=16)
+def _square_corners(sx: int, sy: int) -> np.ndarray:
+    """(sx * sy, 4): the inner corners of each square (``_square_samples``' order), nx * ny
+    where a square of the outer ring has none."""
+    nx, ny = sx - 1, sy - 1
+    jj, ii = np.mgrid[0:sy, 0:sx]
+    out = []
+    for di in (0, 1):
+        for dj in (0, 1):
+            ci, cj = ii.ravel() - 1 + di, jj.ravel() - 1 + dj
+            ok = (ci >= 0) & (ci < nx) & (cj >= 0) & (cj < ny)
+            out.append(np.where(ok, cj * nx + ci, nx * ny))
+    idx = np.stack(out, axis=1)
+    idx.flags.writeable = False  # cached: shared by every call
+    return idx
 
 
 def _grid_points(board: dict) -> np.ndarray:
@@ -635,6 +711,7 @@ def track_corners(
     board: dict,
     subpix_window_px: int = 5,
     max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
+    hidden: np.ndarray | None = None,
 ) -> tuple[np.ndarray | None, str]:
     """Board corners of a frame from those of an earlier frame (optical flow, then checks).
 
@@ -652,6 +729,11 @@ def track_corners(
         Largest cornerSubPix half window, pixels.
     max_grid_deviation : float
         As in ``detect_corners``.
+    hidden : ndarray of bool, shape (nx * ny,), optional
+        Corners a hand hid in the earlier frame. Where one of them is still off its grid
+        neighbours after the first cornerSubPix, the hand is taken to be there still: the
+        frame goes straight to the partial check, without the second cornerSubPix that
+        rescues a corner the flow put a little off (it cannot rescue one under a hand).
 
     Returns
     -------
@@ -714,7 +796,8 @@ def track_corners(
     if not _inside(p, w, h, 0.0).all():
         return _follow_partial(gray, p, _inside(p, w, h, sc["border"]), grid, board,
                                subpix_window_px, sc, max_grid_deviation)
-    corners, first = _refine_corners(gray, p, board, subpix_window_px, max_grid_deviation)
+    corners, first = _refine_corners(gray, p, board, subpix_window_px, max_grid_deviation,
+                                     hidden)
     if corners is None:  # a corner off its neighbours: hidden (a hand) or misplaced
         return _follow_partial(gray, p, np.ones(len(p), bool), grid, board, subpix_window_px,
                                sc, max_grid_deviation, "partial", first)
@@ -783,18 +866,16 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     colours: square (x+1, y+1) black when x + y is even), sampled along the diagonals at
     ``SADDLE_RADII`` squares from the corner, every sample of a quadrant on its side."""
     h, w = gray.shape
-    off = np.array([[r * a, r * b] for a, b in ((1, 1), (-1, -1), (1, -1), (-1, 1))
-                    for r in SADDLE_RADII])  # dark-or-light pairs: first 2 radii x 2 = 4
-    n_off = len(off)
-    pts = grid[:, None, :] + off[None]  # (N, M, 2)
-    ref = cv2.perspectiveTransform(grid.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
-    q = cv2.perspectiveTransform(pts.reshape(-1, 1, 2).astype(np.float64), H_img_grid)
+    grid_pts, pts = _saddle_points(grid.tobytes(), grid.shape)
+    n_off = pts.shape[0] // grid_pts.shape[0]
+    ref = cv2.perspectiveTransform(grid_pts, H_img_grid)
+    q = cv2.perspectiveTransform(pts, H_img_grid)
     q = q.reshape(-1, n_off, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
-    ok = np.isfinite(q).all(axis=(1, 2))
-    qi = np.rint(np.nan_to_num(q)).astype(int)
-    ok &= (qi[..., 0] >= 0).all(1) & (qi[..., 0] < w).all(1) & (qi[..., 1] >= 0).all(1) & (
-        qi[..., 1] < h
-    ).all(1)
+    finite = np.isfinite(q)
+    ok = finite.all(axis=(1, 2))
+    # (Rows with a non-finite sample fail whatever their levels.)
+    qi = np.rint(np.where(finite, q, 0.0)).astype(int)
+    ok &= ((qi >= 0) & (qi < np.array([w, h]))).all(axis=(1, 2))
     qi[..., 0] = np.clip(qi[..., 0], 0, w - 1)
     qi[..., 1] = np.clip(qi[..., 1], 0, h - 1)
     level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, M)
@@ -806,6 +887,20 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     contrast = _median(light[known]) - _median(dark[known]) if known.any() else 0.0
     need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
     return ok & (light.min(axis=1) - dark.max(axis=1) >= need)
+
+
+@functools.lru_cache(maxsize=16)
+def _saddle_points(grid_bytes: bytes, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """``_saddle_ok``'s grid points, (N, 1, 2), and its sample points around each, (N * M, 1,
+    2): dark-or-light pairs along the diagonals, the (1, 1) and (-1, -1) ones first."""
+    grid = np.frombuffer(grid_bytes, dtype=np.float32).reshape(shape)
+    off = np.array([[r * a, r * b] for a, b in ((1, 1), (-1, -1), (1, -1), (-1, 1))
+                    for r in SADDLE_RADII])  # dark-or-light pairs: first 2 radii x 2 = 4
+    pts = grid[:, None, :] + off[None]  # (N, M, 2)
+    out = (grid.reshape(-1, 1, 2).astype(np.float64), pts.reshape(-1, 1, 2).astype(np.float64))
+    for arr in out:
+        arr.flags.writeable = False  # cached: shared by every call
+    return out
 
 
 def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
@@ -839,12 +934,13 @@ def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_
     if not saddle[known].all():
         out[~saddle] = np.nan
         out = keep_consistent_corners(out, board, max_grid_deviation)
-    known = np.isfinite(out).all(axis=1)
-    if known.sum() < MIN_TRACKED_CORNERS:
-        return None, "lost"
-    H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
-    if H is None:
-        return None, "lost"
+        known = np.isfinite(out).all(axis=1)
+        if known.sum() < MIN_TRACKED_CORNERS:
+            return None, "lost"
+        H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
+        if H is None:
+            return None, "lost"
+    # (else the corners are those H was fitted to)
     fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
     rms = np.sqrt(np.mean(np.sum((fit[known] - out[known]) ** 2, axis=1)))
     if rms > sc["homography_rms"] or not board_squares_pattern_ok(
@@ -956,6 +1052,14 @@ def _median_spacing(corners_px: np.ndarray, board: dict) -> float:
     return _median(d) if len(d) else 0.0
 
 
+def _hand_hidden(corners_px, method):
+    """The corners a hand hid in a frame followed as ``"partial"`` (for ``track_corners``'
+    ``hidden``), else None."""
+    if method != "partial" or corners_px is None:
+        return None
+    return ~np.isfinite(corners_px).all(axis=1)
+
+
 class _CornerFollower:
     """extract_corners' per-frame decisions: track, search quickly (backing off), or detect.
 
@@ -992,7 +1096,9 @@ class _CornerFollower:
             return None, fail_method
 
     def _reset(self):
-        self.state = None  # (gray, corners_px, frame) of the last frame the board was followed
+        # (gray, corners_px, frame, hidden) of the last frame the board was followed; hidden:
+        # the corners a hand hid there (``track_corners``), None unless it was partial.
+        self.state = None
         self.last_found = None  # (corners_px, frame): continuity for detect_corners
         self.lost_for = 0  # frames since the board was last followed (the search's back-off)
         self.spacing = 0.0  # median square size (px) of the board when last followed
@@ -1070,8 +1176,8 @@ class _CornerFollower:
         self.pending_bytes = 0
         return out
 
-    def _keep(self, gray, corners_px, frame, found):
-        self.state = (gray, corners_px, frame)
+    def _keep(self, gray, corners_px, frame, found, method=None):
+        self.state = (gray, corners_px, frame, _hand_hidden(corners_px, method))
         self.lost_for = 0
         self.spacing = _median_spacing(corners_px, self.board) or self.spacing
         if found:
@@ -1080,11 +1186,11 @@ class _CornerFollower:
     def _track(self, frame, t_s, gray, ref):
         corners_px, method = self._guard(
             track_corners, "lost", frame, ref[0], gray, ref[1], self.board, self.subpix,
-            self.max_dev
+            self.max_dev, ref[3]
         )
         if method == "lost":
             return self._relocate(frame, t_s, gray)
-        self._keep(gray, corners_px, frame, found=method == "tracked")
+        self._keep(gray, corners_px, frame, found=method == "tracked", method=method)
         return frame, t_s, self._published(corners_px, method), method
 
     def _relocate(self, frame, t_s, gray):
@@ -1124,16 +1230,16 @@ class _CornerFollower:
         that fails, the detector once (the board may have been whole there), then nothing."""
         pending, self.pending = list(self.pending), collections.deque()
         self.pending_bytes = 0
-        ref = (gray, corners_px, frame)
+        ref = (gray, corners_px, frame, None)
         out = []
         tried_detect = False
         for f, t_s, g, searched in reversed(pending):
             result = None
             if ref[2] - f <= self.max_gap:
                 px, method = self._guard(track_corners, "lost", f, ref[0], g, ref[1],
-                                         self.board, self.subpix, self.max_dev)
+                                         self.board, self.subpix, self.max_dev, ref[3])
                 if method != "lost":
-                    ref = (g, px, f)
+                    ref = (g, px, f, _hand_hidden(px, method))
                     result = (f, t_s, self._published(px, method), method + "_back")
                 elif not tried_detect:
                     tried_detect = True
@@ -1142,7 +1248,7 @@ class _CornerFollower:
                                              self.flags or VIDEO_SEARCH_FLAGS, self.max_dev,
                                              False)
                     if px is not None:
-                        ref = (g, px, f)
+                        ref = (g, px, f, None)
                     result = (f, t_s, px, method)
             if result is None:
                 result = (f, t_s, None, "not_found" if searched else "not_searched")

@@ -546,3 +546,86 @@ def test_shrunk_by_four_is_the_area_average_by_halvings():
     assert small.shape == ref.shape
     assert np.abs(small.astype(int) - ref.astype(int)).max() <= 1
     assert _shrunk(gray, 4) is small  # cached for the flow out of this frame
+
+
+def test_grid_deviation_equals_a_least_squares_homography_per_corner():
+    # Each corner's prediction is the h33 = 1 least-squares DLT homography of its known
+    # neighbours within two grid steps (normalised pixels), solved here row by row with lstsq;
+    # a corner whose known neighbours lie on a line gets no prediction (inf).
+    from cvsflow.pose import _neighbour_weights, grid_deviation
+
+    board = {"squares_x": 9, "squares_y": 7, "square_m": 0.03}
+    nx, ny = 8, 6
+    k = np.arange(nx * ny)
+    grid = np.stack([k % nx, k // nx], axis=1).astype(np.float64)
+    H = np.array([[31.0, 5.0, 140.0], [-4.0, 29.0, 70.0], [3e-3, -5e-3, 1.0]])
+    rng = np.random.default_rng(11)
+    uv = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
+    uv += rng.normal(scale=0.4, size=uv.shape)
+    uv[[5, 17, 18, 30, 44]] = np.nan
+    predicted, dev = grid_deviation(uv, board)
+    known = np.isfinite(uv).all(axis=1)
+    centre = uv[known].mean(axis=0)
+    scale = np.sqrt(2.0) / np.linalg.norm(uv[known] - centre, axis=1).mean()
+    un = (uv - centre) * scale
+    near = _neighbour_weights(nx, ny) > 0
+    for c in np.flatnonzero(known):
+        rows, rhs = [], []
+        for j in np.flatnonzero(near[c] & known):
+            x, y = grid[j]
+            u, v = un[j]
+            rows += [[x, y, 1, 0, 0, 0, -u * x, -u * y], [0, 0, 0, x, y, 1, -v * x, -v * y]]
+            rhs += [u, v]
+        h = np.append(np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)[0], 1.0)
+        p = h.reshape(3, 3) @ np.append(grid[c], 1.0)
+        expected = p[:2] / p[2] / scale + centre
+        np.testing.assert_allclose(predicted[c], expected, atol=1e-6)
+        assert dev[c] == pytest.approx(np.linalg.norm(expected - uv[c]), abs=1e-6)
+    assert np.isinf(dev[~known]).all()
+    line = np.full_like(uv, np.nan)
+    line[:nx] = uv[:nx] if np.isfinite(uv[:nx]).all() else grid[:nx] * 30.0
+    assert np.isinf(grid_deviation(line, board)[1]).all()
+
+
+def test_local_spacing_is_the_mean_distance_to_known_neighbours():
+    from cvsflow.pose import local_spacing
+
+    board = {"squares_x": 6, "squares_y": 5, "square_m": 0.03}
+    nx, ny = 5, 4
+    rng = np.random.default_rng(12)
+    uv = rng.normal(scale=40.0, size=(nx * ny, 2))
+    uv[[0, 1, 5, 12]] = np.nan
+    got = local_spacing(uv, board)
+    expected = np.full(nx * ny, np.nan)
+    for c in range(nx * ny):
+        i, j = c % nx, c // nx
+        d = [np.linalg.norm(uv[c] - uv[jj * nx + ii])
+             for ii, jj in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1))
+             if 0 <= ii < nx and 0 <= jj < ny]
+        d = [x for x in d if np.isfinite(x)]
+        if d:
+            expected[c] = np.mean(d)
+    expected[np.isnan(expected)] = np.median(expected[np.isfinite(expected)])
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+
+
+def test_a_corner_hidden_before_and_still_off_skips_the_second_refinement():
+    # A corner put a quarter of a square off: cornerSubPix from there cannot reach it, the
+    # second refinement (from where its neighbours put it) can. Marked as hidden by a hand in
+    # the earlier frame, it fails the refinement at once instead (the partial check follows).
+    from cvsflow.pose import _refine_corners
+
+    T = board_centre_pose([0.0, 0.0, 0.0], [0.0, 0.0, 1.2])
+    gray, uv = render_board(T, K_CENTRED, seed=5)
+    start = uv.copy()
+    step = np.linalg.norm(uv[1] - uv[0])
+    start[7] += (0.25 * step, 0.1 * step)
+    hidden = np.zeros(len(uv), bool)
+    rescued, first = _refine_corners(gray, start, BOARD, 5, 0.08)
+    assert rescued is not None and np.abs(rescued - uv).max() < 0.5
+    assert first[2][7] > first[1][7]  # off its neighbours after the first cornerSubPix
+    hidden[3] = True  # another corner hidden before: the retry still runs
+    assert _refine_corners(gray, start, BOARD, 5, 0.08, hidden)[0] is not None
+    hidden[7] = True
+    corners, again = _refine_corners(gray, start, BOARD, 5, 0.08, hidden)
+    assert corners is None and np.array_equal(again[0], first[0])
