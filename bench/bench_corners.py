@@ -86,7 +86,7 @@ def _lenient_stills():
     lens: 11 of 15 in view), by repeating the last one found. The stills come from their own
     random stream, so the video is the one the session's config gives; the bench uses no
     stills."""
-    import cvsflow.synth as synth
+    import cvsflow.synth.render as synth
 
     original = synth.still_poses
 

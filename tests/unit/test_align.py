@@ -394,7 +394,7 @@ def rendered(tmp_path_factory):
 
     import yaml
 
-    synth = pytest.importorskip("cvsflow.synth")
+    synth = pytest.importorskip("cvsflow.synth.render")
     from cvsflow.io.mocap_formats import read_markers
     from cvsflow.mocap import fill_marker_gaps
 

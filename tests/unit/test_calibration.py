@@ -261,7 +261,7 @@ def test_rendered_stills_give_true_focal_lengths(tmp_path):
     """The renderer's 15 stills (cvsflow.synth, demo camera with distortion) calibrate to fx
     and fy within 1 % of the truth (measured 0.07 % and 0.05 %), RMS < 0.5 px (measured
     0.05 px), all stills used."""
-    synth = pytest.importorskip("cvsflow.synth")
+    synth = pytest.importorskip("cvsflow.synth.render")
     from cvsflow.io import read_yaml
     from cvsflow.io.media import list_stills, read_gray
 

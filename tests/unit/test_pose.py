@@ -346,7 +346,7 @@ def synth_session_cfg(duration_s, seed=7):
 @pytest.fixture(scope="module")
 def rendered_session(tmp_path_factory):
     """A 4 s rendered session (120 frames) with its truth, corners and PnP poses (true K)."""
-    synth = pytest.importorskip("cvsflow.synth")
+    synth = pytest.importorskip("cvsflow.synth.render")
     from cvsflow.io import read_parquet, read_yaml
     from cvsflow.io.media import iter_video_gray
 
