@@ -1300,6 +1300,7 @@ def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
     obj = np.asarray(p_B, np.float64)
     K = np.asarray(K, np.float64)
     dist = np.asarray(dist, np.float64).ravel()
+    rvec, tvec = np.array(rvec, np.float64), np.array(tvec, np.float64)  # writable copies
     delta = np.zeros((len(uv_px), 6))
     d_ssr = np.full(len(uv_px), np.inf)
 
