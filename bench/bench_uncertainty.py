@@ -10,7 +10,9 @@ tables and writes the scores to results/bench_uncertainty/loso.yaml. Render the 
     PYTHONPATH=. .venv/bin/python bench/bench_uncertainty.py [session ...]
 
 Default sessions: every session of bench/uncertainty_sessions.yaml plus ``demo`` when
-results/demo/heldout exists.
+results/demo/heldout exists. ``--worst NAME`` instead prints, for session NAME scored by the
+model fitted on the other sessions given, what its worst 5 % of frames (Mahalanobis
+distance) look like and which term of model (T) dominates them (docs/findings.md).
 """
 
 from __future__ import annotations
@@ -119,5 +121,56 @@ def main(names):
     print(f"\nwritten {out.relative_to(ROOT)}")
 
 
+def worst_frames(names, held):
+    """The worst held-out frames of ``held`` under the model fitted on the other ``names``."""
+    import pandas as pd
+
+    from cvsflow import flight as fl
+    from cvsflow.calibration import board_object_points
+
+    b = boards()
+    S = {n: load(n, b[n]) for n in names}
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    tr = [n for n in names if n != held]
+    m = un.fit_transfer_model(pd.concat([S[n]["features"] for n in tr], ignore_index=True),
+                              pd.concat([S[n]["errors"] for n in tr], ignore_index=True))
+    f, e = S[held]["features"], S[held]["errors"]
+    Sig = un.transfer_covariance(m, f)
+    E = e[cols].to_numpy() - un.transfer_mean(m, f)
+    m2 = np.einsum("ni,nij,nj->n", E, np.linalg.inv(Sig), E)
+    U, P, _, speed, reproj, _ = un._transfer_terms(f)
+    var_px = m["s0_px"] ** 2 + (m["s_speed"] * speed) ** 2 + (m["s_reproj"] * reproj) ** 2
+    t_noise = np.einsum("nii->n", var_px[:, None, None] * U)
+    t_cal = np.einsum("nii->n", m["c_cal"] ** 2 * P)
+    res = ROOT / "results" / held
+    fits = read_yaml(res / "heldout" / "se3_folds.yaml")["folds"]
+    p_B = board_object_points(b[held])
+    uv, _, _ = un._seen_corners(read_parquet(res / "corners.parquet"), e["frame"].to_numpy(),
+                                len(p_B))  # fmt: skip
+    rv = e[[f"cvs_rvec_{j}" for j in range(3)]].to_numpy()
+    tv = e[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy()
+    w = np.zeros(len(e))
+    for fd in fits:
+        sel = e["fold"].to_numpy() == int(fd["fold"])
+        _, d_ssr = fl.pnp_flip_term(uv[sel], rv[sel], tv[sel], p_B, np.array(fd["K"]),
+                                    np.array(fd["dist"]))  # fmt: skip
+        w[sel] = 1.0 / (1.0 + np.exp(np.clip(d_ssr / (2.0 * var_px[sel]), -50, 50)))
+    order = np.argsort(m2)[::-1]
+    top = order[: max(10, len(order) // 20)]
+    print(f"{held}: NEES {m2.mean():.2f}; the worst 5 % carry {m2[top].sum() / m2.sum():.0%}")
+    for label, idx in (("worst 5 %", top), ("all", order)):
+        ff = f.iloc[idx]
+        share = np.median(t_noise[idx] / (t_noise[idx] + t_cal[idx]))
+        print(f"  {label}: distance {ff.distance_m.median():.2f} m, tilt "
+              f"{np.rad2deg(ff.tilt_rad.median()):.1f} deg, corners {ff.n_corners.median():.0f}, "
+              f"speed {ff.speed_px.median():.1f} px/frame, reproj {ff.reproj_rms_px.median():.3f} px, "
+              f"gap-filled {ff.get('vicon_filled', pd.Series([0.0])).mean():.2f}, noise share of "
+              f"the trace {share:.2f}, flip weight > 0.01 on {np.mean(w[idx] > 0.01):.2f}")
+
+
 if __name__ == "__main__":
-    main(sys.argv[1:])
+    args = sys.argv[1:]
+    if args[:1] == ["--worst"]:
+        worst_frames(args[2:] or ["u_demo", "u_wide", "u_tele", "u_rs", "u_far"], args[1])
+    else:
+        main(args)

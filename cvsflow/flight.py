@@ -1160,7 +1160,8 @@ def check_against_truth(result, onboard, truth, T_L_C, clock, max_gap_s=0.05):
 
     The injected error is seen through the evaluation's own fitted alignment (a fitted
     alignment absorbs a constant part of it), then compared with the recovered error in units
-    of the reference's stated standard deviation.
+    of the reference's stated standard deviation: what is left is the reference's own error
+    per frame, which its stated covariance claims to hold.
 
     Parameters
     ----------
@@ -1179,7 +1180,12 @@ def check_against_truth(result, onboard, truth, T_L_C, clock, max_gap_s=0.05):
     -------
     dict
         ``z_rms`` per axis (RMS of (recovered - injected) / sigma: 1 when the stated
-        uncertainty is right), ``inside_3sigma`` per axis, ``n``.
+        uncertainty is right), ``inside_3sigma`` per axis, ``n``; ``z_rms_truth_alignment``:
+        the same with the injected error seen through the alignment (same method) fitted to the
+        true body poses instead, i.e. against what the evaluation would recover from a perfect
+        reference: there the part of the reference's error the alignment absorbs (a
+        principal-point error turns C about its origin) cancels, and the error the reference's
+        noise puts into the fitted alignment shows.
     """
     fr = result.errors["frame"].to_numpy()
     if "frame" not in truth.columns:
@@ -1187,14 +1193,26 @@ def check_against_truth(result, onboard, truth, T_L_C, clock, max_gap_s=0.05):
     truth = truth.set_index("frame").loc[fr].reset_index()
     T_true_C_Q = invert_T(np.asarray(T_L_C, float)) @ T_from_traj(truth)
     est = interpolate_trajectory(onboard, clock.to_log(truth["t_s"].to_numpy(float)), max_gap_s)
-    seen = axis_errors(T_true_C_Q, T_from_traj(est), result.alignment)
-    z = (result.errors[ERR_COLS].to_numpy(float) - seen) / result.errors[SIG_COLS].to_numpy(float)
+    T_est = T_from_traj(est)
+    al = result.alignment
+    rec = result.errors[ERR_COLS].to_numpy(float)
+    sig = result.errors[SIG_COLS].to_numpy(float)
+    z = (rec - axis_errors(T_true_C_Q, T_est, al)) / sig
     ok = np.isfinite(z).all(axis=1)
-    return {
+    out = {
         "n": int(ok.sum()),
         "z_rms": {a: float(np.sqrt(np.mean(z[ok, i] ** 2))) for i, a in enumerate(AXES)},
         "inside_3sigma": {a: float(np.mean(np.abs(z[ok, i]) < 3.0)) for i, a in enumerate(AXES)},
     }
+    if al.method != "given":
+        fin = np.isfinite(T_est[:, :3, 3]).all(axis=1)
+        al_true = align_trajectories(T_true_C_Q[fin, :3, 3], T_est[fin, :3, 3], al.method,
+                                     al.T_ref_est[:3, 2])  # fmt: skip
+        z_t = (rec - axis_errors(T_true_C_Q, T_est, al_true)) / sig
+        ok_t = np.isfinite(z_t).all(axis=1)
+        out["z_rms_truth_alignment"] = {a: float(np.sqrt(np.mean(z_t[ok_t, i] ** 2)))
+                                        for i, a in enumerate(AXES)}  # fmt: skip
+    return out
 
 
 def corner_noise_per_axis(reproj_rms_px, n_corners):
@@ -1249,7 +1267,71 @@ def _intrinsics_std(calib):
     return np.array([sd[n] for n in INTRINSIC_NAMES])
 
 
-def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None):
+def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
+    """The other solution of each frame's planar PnP and how much worse it fits its corners.
+
+    A planar board seen small or nearly face-on has two poses that fit its corners almost
+    equally (IPPE's two solutions: the board tilted one way or mirrored about the line of
+    sight); noise can make the PnP pick the wrong one, an error of up to twice the tilt that
+    no first-order covariance holds. Each IPPE solution is refined (LM); the alternative is the
+    one farther in rotation from the measured pose.
+
+    Parameters
+    ----------
+    uv_px : ndarray, shape (N, P, 2)
+        Observed corners, NaN where unseen.
+    rvec, tvec : ndarray, shape (N, 3)
+        The measured poses T_C_B.
+    p_B : ndarray, shape (P, 3)
+    K, dist : ndarray
+        The intrinsics of the PnP.
+
+    Returns
+    -------
+    delta : ndarray, shape (N, 6)
+        Measured minus alternative, ``[dt m, dtheta rad]`` in C (module docstring); 0 where
+        the two solutions coincide.
+    d_ssr : ndarray, shape (N,)
+        Sum of squared reprojection residuals of the alternative minus the measured pose's,
+        px^2 (inf where there is no distinct alternative).
+    """
+    import cv2
+
+    obj = np.asarray(p_B, np.float64)
+    K = np.asarray(K, np.float64)
+    dist = np.asarray(dist, np.float64).ravel()
+    rvec, tvec = np.array(rvec, np.float64), np.array(tvec, np.float64)  # writable copies
+    delta = np.zeros((len(uv_px), 6))
+    d_ssr = np.full(len(uv_px), np.inf)
+
+    def ssr(o, img, r, t):
+        proj, _ = cv2.projectPoints(o, r, t, K, dist)
+        return float(np.sum((proj.reshape(-1, 2) - img.reshape(-1, 2)) ** 2))
+
+    for i in range(len(uv_px)):
+        seen = np.isfinite(uv_px[i]).all(axis=1)
+        if seen.sum() < 4:
+            continue
+        o = np.ascontiguousarray(obj[seen]).reshape(-1, 1, 3)
+        img = np.ascontiguousarray(uv_px[i, seen], np.float64).reshape(-1, 1, 2)
+        n, rvs, tvs, _ = cv2.solvePnPGeneric(o, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
+        R_m = Rotation.from_rotvec(rvec[i])
+        best = None
+        for r0, t0 in zip(rvs[:n], tvs[:n], strict=True):
+            r1, t1 = cv2.solvePnPRefineLM(o, img, K, dist, r0.copy(), t0.copy())
+            ang = (Rotation.from_rotvec(r1.ravel()) * R_m.inv()).magnitude()
+            if best is None or ang > best[0]:
+                best = (ang, r1.ravel(), t1.ravel())
+        if best is None or best[0] < 1e-6:
+            continue
+        _, r_alt, t_alt = best
+        d_ssr[i] = ssr(o, img, r_alt, t_alt) - ssr(o, img, rvec[i], tvec[i])
+        delta[i, :3] = tvec[i] - t_alt
+        delta[i, 3:] = (R_m * Rotation.from_rotvec(r_alt).inv()).as_rotvec()
+    return delta, d_ssr
+
+
+def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, flips=True):
     """Reference covariance per frame of a flight from the error model (T) of the se3 stage.
 
     The camera reference of a flight is the PnP pose of the board: its error is what model (T)
@@ -1259,7 +1341,11 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None):
     intrinsics uncertainty through PnP (one draw for the whole flight: correlated; the principal
     point's is left out, the alignment absorbs it), and, with a
     rolling shutter (``calib["line_delay_s"]``), the outer product of the pose error its shear
-    predicts (the reference does not correct it).
+    predicts (the reference does not correct it), and (``flips``) the planar PnP's two-fold
+    ambiguity: ``w delta delta^T`` with ``delta`` the measured pose minus the other IPPE
+    solution (:func:`pnp_flip_term`) and ``w = 1 / (1 + exp(d_ssr / (2 sigma_px^2)))`` the
+    chance that the other one is the true pose given how much worse it fits the corners (the
+    covariance of the two-solution mixture about the measured pose).
 
     Parameters
     ----------
@@ -1276,6 +1362,8 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None):
         standard deviation take ``DEFAULT_INTRINSIC_STD``; their correlations are left out.
     model : dict, optional
         Model (T); default :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`.
+    flips : bool
+        Add the PnP ambiguity term.
 
     Returns
     -------
@@ -1319,6 +1407,11 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None):
     from cvsflow.uncertainty import error_covariance
 
     cal = error_covariance(rv, tv, cov_rt, frame="C")
-    Sigma[valid] = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
-                    + shear[:, :, None] * shear[:, None, :])  # fmt: skip
+    S = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
+         + shear[:, :, None] * shear[:, None, :])  # fmt: skip
+    if flips:
+        delta, d_ssr = pnp_flip_term(uv, rv, tv, p_B, K, dist)
+        w = 1.0 / (1.0 + np.exp(np.clip(d_ssr / (2.0 * var_px), -50.0, 50.0)))
+        S = S + w[:, None, None] * delta[:, :, None] * delta[:, None, :]
+    Sigma[valid] = S
     return Sigma

@@ -6,9 +6,15 @@ towards the camera). From it:
 
 - the on-board estimate ``T_L_Q`` with bias, drift (random walk), white noise, sampled on
   its own clock: ``t_ref_s = dt_offset_s + (1 + skew) * t_log_s``;
-- the camera reference ``T_C_B`` at the video frames (camera clock = true time) as truth plus
-  reference noise drawn from a per-frame covariance (the distance model
-  :func:`cvsflow.flight.reference_covariance_model`, or a given array);
+- the camera reference ``T_C_B`` at the video frames (camera clock = true time). With
+  ``reference="pnp"`` it is measured as the CVS measures it: the board's corners projected
+  with the camera model, corner noise added, the CVS's PnP (:func:`cvsflow.pose.estimate_poses`)
+  with a calibration that is off the true lens by a draw of its stated std; its stated
+  covariance is model (T)'s (:func:`cvsflow.flight.reference_covariance_transfer`), so the
+  truth check tests that model and not the noise it drew. ``reference="model"`` (the
+  default, the demo flight's; or a given ``Sigma_ref``) draws the noise from a covariance
+  instead (the distance model :func:`cvsflow.flight.reference_covariance_model`, or the given
+  array), which the truth check then only echoes;
 - the injected error, i.e. what a perfect reference would measure at each video frame.
 
 Every random choice comes from ``numpy.random.default_rng(seed)``.
@@ -39,6 +45,19 @@ T_Q_B_DEFAULT = make_T(R_Q_B_DEFAULT, [-0.15, -0.2, -0.15])
 
 
 MIN_HEIGHT_M = 0.5  # the body never flies lower above the ground (metres)
+
+#: The demo's camera (its lens, bench/uncertainty_sessions.yaml u_demo), 640 x 480 px.
+CAMERA_DEMO = {"fx_px": 702.0, "fy_px": 698.0, "cx_px": 331.5, "cy_px": 247.0,
+               "dist": [-0.12, 0.09, 0.0009, -0.0007, -0.02], "width_px": 640, "height_px": 480}
+#: The board on the body: 6 x 5 squares of 12.5 cm, 20 inner corners over 0.5 x 0.375 m (the
+#: distance model's 0.5 m and 20 corners).
+BOARD_DEFAULT = {"squares_x": 6, "squares_y": 5, "square_m": 0.125}
+#: 1-sigma of the flight camera's calibration (a camera.yaml ``std``: fx fy cx cy px, k1..k3);
+#: the reference's PnP uses a calibration off the true lens by one draw of it per flight.
+CALIB_STD_DEFAULT = {"fx": 0.5, "fy": 0.5, "cx": 0.5, "cy": 0.5, "k1": 0.002, "k2": 0.01,
+                     "p1": 1e-4, "p2": 1e-4, "k3": 0.02}  # fmt: skip
+#: Corners nearer the image border than this are not detected (px).
+BORDER_PX = 2.0
 
 
 @dataclass
@@ -80,6 +99,114 @@ def _sines(rng, n_terms, f_lo, f_hi, amp):
     ph = rng.uniform(0, 2 * np.pi, n_terms)
     a = amp * np.sqrt(2.0 / n_terms) * np.ones(n_terms)
     return lambda t: np.sum(a * np.sin(2 * np.pi * f * np.asarray(t)[:, None] + ph), axis=1)
+
+
+def _K_dist(camera):
+    K = np.array([[camera["fx_px"], 0.0, camera["cx_px"]], [0.0, camera["fy_px"], camera["cy_px"]],
+                  [0.0, 0.0, 1.0]])  # fmt: skip
+    return K, np.asarray(camera["dist"], float).ravel()
+
+
+def corner_noise(rng, n_frames, board, sigma_px, shared_px=0.0, shared_squares=1.0):
+    """Detection error of every corner of ``n_frames`` frames, px, shape (n_frames, P, 2).
+
+    Per image axis: iid N(0, sigma_px^2) plus a field shared by neighbouring corners, with
+    covariance ``shared_px^2 exp(-g^2 / (2 shared_squares^2))`` between corners ``g`` squares
+    apart on the board (a detector's error is partly common to nearby corners: the same blur,
+    the same pixel grid phase, overlapping refinement windows).
+    """
+    from cvsflow.calibration import board_pattern
+
+    nx, ny = board_pattern(board)
+    k = np.arange(nx * ny)
+    g = np.column_stack([k % nx, k // nx]).astype(float)
+    out = sigma_px * rng.standard_normal((n_frames, len(k), 2))
+    if shared_px > 0:
+        d2 = np.sum((g[:, None] - g[None]) ** 2, axis=-1)
+        C = shared_px**2 * np.exp(-d2 / (2.0 * shared_squares**2))
+        L = np.linalg.cholesky(C + 1e-12 * np.eye(len(k)))
+        out += np.einsum("pq,nqa->npa", L, rng.standard_normal((n_frames, len(k), 2)))
+    return out
+
+
+def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0.3,
+                      shared_px=0.0, shared_squares=1.0, calib_std=None):
+    """The camera reference of a flight as the CVS measures it, at corner level.
+
+    The board's corners are projected with the true camera (``camera``), those inside the
+    image (``BORDER_PX``) on frames ``seen`` are detected with :func:`corner_noise`, and the
+    CVS's PnP (:func:`cvsflow.pose.estimate_poses`, RANSAC + LM) solves them with a
+    calibration drawn once about the true lens from ``calib_std``. The covariance stated is
+    :func:`cvsflow.flight.reference_covariance_transfer` with that calibration and its std.
+
+    Parameters
+    ----------
+    T_C_B : ndarray, shape (N, 4, 4)
+        True board poses in the camera, m.
+    t_s : ndarray, shape (N,)
+        Frame times, s.
+    seen : ndarray of bool, shape (N,)
+        Frames on which the detector finds the board (if enough corners are in the image).
+    rng : numpy.random.Generator
+    camera : dict, optional
+        ``fx_px, fy_px, cx_px, cy_px, dist, width_px, height_px``; default ``CAMERA_DEMO``.
+    board : dict, optional
+        ``squares_x, squares_y, square_m``; default ``BOARD_DEFAULT``.
+    sigma_px, shared_px, shared_squares : float
+        Corner noise (:func:`corner_noise`).
+    calib_std : dict, optional
+        1-sigma of fx, fy, cx, cy, k1, k2, p1, p2, k3; default ``CALIB_STD_DEFAULT``.
+
+    Returns
+    -------
+    T_meas : ndarray, shape (N, 4, 4)
+        Measured T_C_B, NaN where not valid.
+    valid : ndarray of bool, shape (N,)
+    Sigma_ref : ndarray, shape (N, 6, 6)
+        Stated covariance ([dt m, dtheta rad] in C), NaN where not valid.
+    poses, corners : DataFrame
+        The poses_raw and corners tables of the measurement.
+    """
+    from cvsflow.calibration import board_object_points
+    from cvsflow.flight import reference_covariance_transfer
+    from cvsflow.optimise.se3 import INTRINSIC_NAMES, K_from_intrinsics, project_points
+    from cvsflow.pose import estimate_poses
+
+    camera = CAMERA_DEMO if camera is None else camera
+    board = BOARD_DEFAULT if board is None else board
+    calib_std = CALIB_STD_DEFAULT if calib_std is None else calib_std
+    K, dist = _K_dist(camera)
+    p_B = board_object_points(board)
+    p_C = np.einsum("nij,pj->npi", T_C_B[:, :3, :3], p_B) + T_C_B[:, None, :3, 3]
+    uv = project_points(p_C, K, dist) + corner_noise(rng, len(T_C_B), board, sigma_px,
+                                                     shared_px, shared_squares)
+    w, h = float(camera.get("width_px", 640)), float(camera.get("height_px", 480))
+    inside = ((p_C[..., 2] > 0) & (uv[..., 0] >= BORDER_PX) & (uv[..., 0] <= w - 1 - BORDER_PX)
+              & (uv[..., 1] >= BORDER_PX) & (uv[..., 1] <= h - 1 - BORDER_PX))  # fmt: skip
+    found = np.asarray(seen, bool) & (inside.sum(axis=1) >= 6)
+    # the calibration the CVS uses: the true lens plus one draw of its stated error
+    true_intr = np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist]
+    sd = np.array([float(calib_std.get(n, 0.0)) for n in INTRINSIC_NAMES])
+    intr = true_intr + sd * rng.standard_normal(len(sd))
+    K_cal, dist_cal = K_from_intrinsics(*intr[:4]), intr[4:]
+    fr, ci = np.nonzero(found[:, None] & inside)
+    rows = [pd.DataFrame({"frame": fr, "t_s": np.asarray(t_s, float)[fr], "found": True,
+                          "corner": ci, "u_px": uv[fr, ci, 0], "v_px": uv[fr, ci, 1]})]
+    lost = np.flatnonzero(~found)
+    rows.append(pd.DataFrame({"frame": lost, "t_s": np.asarray(t_s, float)[lost], "found": False,
+                              "corner": -1, "u_px": np.nan, "v_px": np.nan}))
+    corners = pd.concat(rows).sort_values(["frame", "corner"], kind="stable").reset_index(drop=True)
+    corners = corners.astype({"frame": np.int64, "corner": np.int64, "found": bool})
+    poses = estimate_poses(corners, K_cal, dist_cal, board)
+    valid = poses["valid"].to_numpy(bool)
+    T_meas = np.full_like(np.asarray(T_C_B, float), np.nan)
+    rv = poses[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
+    T_meas[valid] = make_T(Rotation.from_rotvec(rv[valid]).as_matrix(),
+                           poses.loc[valid, ["x_m", "y_m", "z_m"]].to_numpy(float))
+    calib = {"K": K_cal.tolist(), "dist": dist_cal.tolist(),
+             "std": {n: float(v) for n, v in zip(INTRINSIC_NAMES, sd, strict=True)}}
+    Sigma = reference_covariance_transfer(poses, corners, p_B, calib)
+    return T_meas, valid, Sigma, poses, corners
 
 
 def camera_pose(height_m: float = 1.0, tilt_up_rad: float = np.deg2rad(8.0)) -> np.ndarray:
@@ -146,6 +273,12 @@ def render_flight(
     missed_frame_rate: float = 0.02,
     Sigma_ref=None,
     T_Q_B=None,
+    reference: str = "model",
+    camera=None,
+    board=None,
+    corner_shared_px: float = 0.0,
+    corner_shared_squares: float = 1.0,
+    calib_std=None,
 ) -> FlightDemo:
     """Render a flight: truth, on-board estimate on its own clock, camera reference.
 
@@ -166,13 +299,28 @@ def render_flight(
     pos_bias_m, pos_rw_m_sqrt_s, pos_noise_m : on-board position error: constant bias (m, in
         L), random-walk intensity (m / sqrt(s)), white noise (m), per axis.
     att_bias_rad, att_rw_rad_sqrt_s, att_noise_rad : the same for roll, pitch, yaw (rad).
-    f_px, board_m, sigma_px, n_corners : parameters of the reference covariance model.
+    f_px, board_m, n_corners : parameters of the distance model (``reference="model"``).
+    sigma_px : float
+        Corner noise per image axis, px: iid part of the detected corners (``"pnp"``), or of
+        the distance model (``"model"``).
     missed_frame_rate : float
         Share of video frames where the board is not found (reference invalid).
     Sigma_ref : ndarray, shape (N_frames, 6, 6), optional
-        Reference covariance per frame; None: the distance model.
+        Reference covariance per frame to draw the reference noise from (overrides
+        ``reference``).
     T_Q_B : ndarray, shape (4, 4), optional
         Board mounting; default ``T_Q_B_DEFAULT``.
+    reference : {"pnp", "model"}
+        ``"pnp"``: the reference is measured from noisy corners (:func:`measure_reference`)
+        and states model (T)'s covariance; ``"model"``: its noise is drawn from the distance
+        model, which it states.
+    camera, board : dict, optional
+        The reference camera (``CAMERA_DEMO``) and the board on the body (``BOARD_DEFAULT``),
+        ``"pnp"`` only.
+    corner_shared_px, corner_shared_squares : float
+        The part of the corner noise shared by neighbouring corners (:func:`corner_noise`).
+    calib_std : dict, optional
+        The calibration's 1-sigma (``CALIB_STD_DEFAULT``), ``"pnp"`` only.
 
     Returns
     -------
@@ -181,7 +329,8 @@ def render_flight(
     Raises
     ------
     ConfigError
-        Non-positive durations or rates, a range outside (0, inf), skew of 1 % or more.
+        Non-positive durations or rates, a range outside (0, inf), skew of 1 % or more, an
+        unknown ``reference``.
     """
     if duration_s <= 0 or fps <= 0 or log_rate_hz <= 0:
         raise ConfigError(
@@ -192,6 +341,8 @@ def render_flight(
         raise ConfigError(f"flight demo: range_m={range_m}; expected 0 < near < far (m)")
     if abs(skew) >= 1e-2:
         raise ConfigError(f"flight demo: skew={skew}; expected |skew| < 0.01")
+    if reference not in ("pnp", "model"):
+        raise ConfigError(f"flight demo: reference={reference!r}; expected 'pnp' or 'model'")
     rng = np.random.default_rng(seed)
     T_L_C = camera_pose()
     T_Q_B = T_Q_B_DEFAULT if T_Q_B is None else np.asarray(T_Q_B, float)
@@ -204,24 +355,30 @@ def render_flight(
     t_cam = frame / fps
     T_L_Q_cam = f(t_cam)
     T_C_B = invert_T(T_L_C) @ T_L_Q_cam @ T_Q_B
-    if Sigma_ref is None:
-        Sigma_ref = reference_covariance_model(T_C_B, f_px, board_m, sigma_px, n_corners)
-    Sigma_ref = np.asarray(Sigma_ref, float)
-    if Sigma_ref.shape != (n_fr, 6, 6):
-        raise ConfigError(
-            f"flight demo: Sigma_ref shape {Sigma_ref.shape}; expected ({n_fr}, 6, 6)"
-        )
-    L = np.linalg.cholesky(Sigma_ref + 1e-30 * np.eye(6))
-    d = (L @ rng.standard_normal((n_fr, 6, 1)))[..., 0]
-    T_meas = T_C_B.copy()
-    T_meas[:, :3, 3] += d[:, :3]
-    T_meas[:, :3, :3] = Rotation.from_rotvec(d[:, 3:]).as_matrix() @ T_C_B[:, :3, :3]
-    seen = rng.random(n_fr) >= missed_frame_rate
-    T_meas[~seen] = np.nan
-    reference = traj_from_T(
+    if Sigma_ref is None and reference == "pnp":
+        seen = rng.random(n_fr) >= missed_frame_rate
+        T_meas, seen, Sigma_ref, _, _ = measure_reference(
+            T_C_B, t_cam, seen, rng, camera, board, sigma_px, corner_shared_px,
+            corner_shared_squares, calib_std)  # fmt: skip
+    else:
+        if Sigma_ref is None:
+            Sigma_ref = reference_covariance_model(T_C_B, f_px, board_m, sigma_px, n_corners)
+        Sigma_ref = np.asarray(Sigma_ref, float)
+        if Sigma_ref.shape != (n_fr, 6, 6):
+            raise ConfigError(
+                f"flight demo: Sigma_ref shape {Sigma_ref.shape}; expected ({n_fr}, 6, 6)"
+            )
+        L = np.linalg.cholesky(Sigma_ref + 1e-30 * np.eye(6))
+        d = (L @ rng.standard_normal((n_fr, 6, 1)))[..., 0]
+        T_meas = T_C_B.copy()
+        T_meas[:, :3, 3] += d[:, :3]
+        T_meas[:, :3, :3] = Rotation.from_rotvec(d[:, 3:]).as_matrix() @ T_C_B[:, :3, :3]
+        seen = rng.random(n_fr) >= missed_frame_rate  # drawn after the noise (as it was)
+        T_meas[~seen] = np.nan
+    reference_df = traj_from_T(
         t_cam, T_meas, seen, seen, {"source": "flight_synth", "frames": "T_C_B"}
     )
-    reference.insert(0, "frame", frame)
+    reference_df.insert(0, "frame", frame)
 
     # on-board log on its own clock
     t_log0 = clock.to_log(-log_margin_s)
@@ -256,4 +413,4 @@ def render_flight(
     injected.insert(0, "t_s", t_cam)
     injected.insert(0, "frame", frame)
     truth = traj_from_T(t_cam, T_L_Q_cam, attrs={"frames": "T_L_Q (true)"})
-    return FlightDemo(reference, Sigma_ref, onboard, truth, injected, T_L_C, T_Q_B, clock)
+    return FlightDemo(reference_df, Sigma_ref, onboard, truth, injected, T_L_C, T_Q_B, clock)
