@@ -28,14 +28,18 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
+from cvsflow.calibration import board_object_points, board_pattern
 from cvsflow.errors import ConfigError
 from cvsflow.flight import (
     ERR_COLS,
     Clock,
     interpolate_trajectory,
     reference_covariance_model,
+    reference_covariance_transfer,
     traj_from_T,
 )
+from cvsflow.optimise.se3 import INTRINSIC_NAMES, K_from_intrinsics, project_points
+from cvsflow.pose import estimate_poses
 from cvsflow.transforms import R_from_euler, euler_from_R, invert_T, make_T, wrap_angle
 
 # Board mounting: board x = body right (y_Q), board y = body down (z_Q), board z (into the
@@ -115,7 +119,6 @@ def corner_noise(rng, n_frames, board, sigma_px, shared_px=0.0, shared_squares=1
     apart on the board (a detector's error is partly common to nearby corners: the same blur,
     the same pixel grid phase, overlapping refinement windows).
     """
-    from cvsflow.calibration import board_pattern
 
     nx, ny = board_pattern(board)
     k = np.arange(nx * ny)
@@ -167,10 +170,6 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
     poses, corners : DataFrame
         The poses_raw and corners tables of the measurement.
     """
-    from cvsflow.calibration import board_object_points
-    from cvsflow.flight import reference_covariance_transfer
-    from cvsflow.optimise.se3 import INTRINSIC_NAMES, K_from_intrinsics, project_points
-    from cvsflow.pose import estimate_poses
 
     camera = CAMERA_DEMO if camera is None else camera
     board = BOARD_DEFAULT if board is None else board
