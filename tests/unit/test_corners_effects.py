@@ -121,29 +121,14 @@ def test_board_kept_where_opencv_finds_it_and_where_wholly_visible(scored):
         assert share >= 0.95, f"{scored['name']}: kept {share:.1%} of {len(whole)} wholly visible frames"
 
 
-#: Known shortfall: the stage's cornerSubPix window is 0.15 of the square spacing (at least
-#: subpix_window_px), which under strong defocus (blur sigma of several px) leaves corners at
-#: twice the error of a quarter-square window (0.49 against 0.26 px median); a quarter-square
-#: window everywhere lets a hand's edge pull the corners beside it (up to 2 px). Strict: these
-#: flip to failures once the window follows the blur.
-DEFOCUS_WINDOW = "subpix window does not follow the blur yet (0.49 vs 0.26 px under defocus)"
-
-
-def _xfail_defocus(scored, request):
-    if scored["name"] == "defocus":
-        request.applymarker(pytest.mark.xfail(strict=True, reason=DEFOCUS_WINDOW))
-
-
-def test_every_kept_corner_is_its_true_corner(scored, request):
-    _xfail_defocus(scored, request)
+def test_every_kept_corner_is_its_true_corner(scored):
     # every kept row has a truth row (no corner index outside the board)
     assert scored["n_merged"] == scored["n_kept_rows"], scored["name"]
     worst = scored["err_px"].max()
     assert worst < 1.0, f"{scored['name']}: a kept corner {worst:.2f} px from its true corner"
 
 
-def test_corner_error_no_worse_than_scaled_cornersubpix(scored, request):
-    _xfail_defocus(scored, request)
+def test_corner_error_no_worse_than_scaled_cornersubpix(scored):
     ours, ref = np.median(scored["err_px"]), np.median(scored["ref_err_px"])
     assert ours <= 1.1 * ref + 0.01, (
         f"{scored['name']}: median corner error {ours:.3f} px against cornerSubPix's {ref:.3f} px "

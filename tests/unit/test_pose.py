@@ -629,3 +629,22 @@ def test_a_corner_hidden_before_and_still_off_skips_the_second_refinement():
     hidden[7] = True
     corners, again = _refine_corners(gray, start, BOARD, 5, 0.08, hidden)
     assert corners is None and np.array_equal(again[0], first[0])
+
+
+@pytest.mark.parametrize("sigma_px", [1.0, 2.0, 3.5])
+def test_edge_blur_px_measures_a_known_gaussian_blur(sigma_px):
+    """A chessboard blurred by a known Gaussian: the edge-profile estimate is within 15 %."""
+    from cvsflow.pose import edge_blur_px
+
+    board = {"squares_x": 7, "squares_y": 6, "square_m": 0.03}
+    sq, x0, y0 = 40, 60, 50  # square size and the outer corner of square (0, 0), px
+    img = np.full((360, 400), 220.0)
+    for j in range(6):
+        for i in range(7):
+            if (i + j) % 2 == 0:
+                img[y0 + j * sq:y0 + (j + 1) * sq, x0 + i * sq:x0 + (i + 1) * sq] = 30.0
+    gray = cv2.GaussianBlur(img, (0, 0), sigma_px).round().astype(np.uint8)
+    k = np.arange(6 * 5)
+    corners = np.column_stack([x0 + sq * (1 + k % 6), y0 + sq * (1 + k // 6)]).astype(float) - 0.5
+    got = edge_blur_px(gray, corners, board)
+    assert abs(got - sigma_px) < 0.15 * sigma_px, got
