@@ -31,13 +31,16 @@ from __future__ import annotations
 import logging
 from dataclasses import dataclass, field
 
+import cv2
 import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 from scipy.signal import correlate, correlation_lags
 from scipy.spatial.transform import Rotation, Slerp
 
+from cvsflow import uncertainty as un
 from cvsflow.errors import InputError, OptimiseError, SyncError
+from cvsflow.optimise.se3 import DEFAULT_INTRINSIC_STD, INTRINSIC_NAMES
 from cvsflow.transforms import (
     R_from_quat,
     euler_from_R,
@@ -48,6 +51,7 @@ from cvsflow.transforms import (
     rotation_angle,
     wrap_angle,
 )
+from cvsflow.uncertainty import error_covariance, pnp_covariance
 
 log = logging.getLogger(__name__)
 
@@ -1241,7 +1245,6 @@ def reference_covariance_from_pnp(poses_raw, p_B, K, dist, sigma_px):
     Sigma_ref : ndarray, shape (N, 6, 6)
         ``[dt, dtheta]`` in C (module docstring) per row of ``poses_raw``; NaN where not valid.
     """
-    from cvsflow.uncertainty import error_covariance, pnp_covariance
 
     valid = poses_raw["valid"].to_numpy(bool)
     Sigma = np.full((len(poses_raw), 6, 6), np.nan)
@@ -1255,7 +1258,6 @@ def reference_covariance_from_pnp(poses_raw, p_B, K, dist, sigma_px):
 
 def _intrinsics_std(calib):
     """1-sigma of [fx, fy, cx, cy, k1, k2, p1, p2, k3] from an se3 result or a camera.yaml."""
-    from cvsflow.optimise.se3 import DEFAULT_INTRINSIC_STD, INTRINSIC_NAMES
 
     sd = dict(DEFAULT_INTRINSIC_STD)
     std = calib.get("std") if isinstance(calib.get("std"), dict) else {}
@@ -1295,8 +1297,6 @@ def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
         Sum of squared reprojection residuals of the alternative minus the measured pose's,
         px^2 (inf where there is no distinct alternative).
     """
-    import cv2
-
     obj = np.asarray(p_B, np.float64)
     K = np.asarray(K, np.float64)
     dist = np.asarray(dist, np.float64).ravel()
@@ -1370,9 +1370,6 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     Sigma_ref : ndarray, shape (N, 6, 6)
         ``[dt, dtheta]`` in C per row of ``poses_raw``; NaN where not valid.
     """
-    import cv2
-
-    from cvsflow import uncertainty as un
 
     model = un.RENDERED_TRANSFER_MODEL if model is None else model
     valid = poses_raw["valid"].to_numpy(bool)
@@ -1404,7 +1401,6 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
         Jp, JK = jac[:, :6], jac[:, 6:15]
         A = -np.linalg.lstsq(Jp.T @ Jp, Jp.T @ JK, rcond=None)[0]
         cov_rt[i] = (A * sd**2) @ A.T
-    from cvsflow.uncertainty import error_covariance
 
     cal = error_covariance(rv, tv, cov_rt, frame="C")
     S = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
