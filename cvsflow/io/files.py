@@ -21,7 +21,22 @@ from cvsflow.errors import InputError
 
 @contextlib.contextmanager
 def atomic_output(path, suffix=None):
-    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success.
+
+    Parameters
+    ----------
+    path : str or Path
+        The final output file; its parent directory is created.
+    suffix : str, optional
+        Suffix of the temporary file (writers that pick the format by suffix need it);
+        default ``path``'s suffix, or ``.tmp``.
+
+    Returns
+    -------
+    contextmanager of Path
+        Yields the temporary path to write; on an exception it is deleted and ``path`` is left
+        as it was (no partial output).
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(
@@ -39,7 +54,20 @@ def atomic_output(path, suffix=None):
 
 def read_text_lines(path, kind="CSV") -> list[str]:
     """The lines of a UTF-8 text export (a BOM is dropped); InputError naming ``path`` when it is
-    missing or not text (``kind`` names what was expected, e.g. "CSV", "TSV")."""
+    missing or not text (``kind`` names what was expected, e.g. "CSV", "TSV").
+
+    Parameters
+    ----------
+    path : str or Path
+        The text file.
+    kind : str, default "CSV"
+        What the file should be, for the error message.
+
+    Returns
+    -------
+    list of str
+        The lines without their line ends (CRLF or LF).
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig", errors="strict")
@@ -51,7 +79,30 @@ def read_text_lines(path, kind="CSV") -> list[str]:
 
 
 def check_frames(path, frames, first, lines, column="Frame") -> None:
-    """Frame numbers must be integers, one step apart; else InputError naming the line."""
+    """Frame numbers must be integers, one step apart; else InputError naming the line.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file read, for the message.
+    frames : ndarray of float, shape (N,)
+        The frame column as read (NaN where the cell was empty).
+    first : int
+        0-based index in the file of the first data line (so data row i is line first + i + 1).
+    lines : sequence of str
+        The data lines, ``lines[i]`` holding ``frames[i]``, to quote the bad cell.
+    column : str, default "Frame"
+        Column name for the message.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        A non-integer or missing frame number, or a step other than 1 (gap, repeat, reorder).
+    """
     bad = np.isnan(frames) | (frames != np.round(frames))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
@@ -165,13 +216,36 @@ def _to_builtin(obj):
 
 
 def write_yaml(data, path):
-    """Write a mapping as YAML, atomically. Numpy values become plain lists and floats."""
+    """Write a mapping as YAML, atomically. Numpy values become plain lists and floats.
+
+    Parameters
+    ----------
+    data : dict
+        The mapping; key order is kept.
+    path : str or Path
+        Output file.
+
+    Returns
+    -------
+    None
+    """
     with atomic_output(path) as tmp, open(tmp, "w") as fh:
         yaml.safe_dump(_to_builtin(data), fh, sort_keys=False, default_flow_style=None)
 
 
 def read_yaml(path):
-    """Read a YAML mapping; a missing or malformed file is an InputError naming it."""
+    """Read a YAML mapping; a missing or malformed file is an InputError naming it.
+
+    Parameters
+    ----------
+    path : str or Path
+        The YAML file.
+
+    Returns
+    -------
+    dict
+        The top-level mapping (anything else is an InputError).
+    """
     path = Path(path)
     try:
         with open(path) as fh:
@@ -186,13 +260,37 @@ def read_yaml(path):
 
 
 def write_parquet(df: pd.DataFrame, path):
-    """Write a DataFrame as Parquet (no index), atomically."""
+    """Write a DataFrame as Parquet (no index), atomically.
+
+    Parameters
+    ----------
+    df : DataFrame
+        The table.
+    path : str or Path
+        Output file.
+
+    Returns
+    -------
+    None
+    """
     with atomic_output(path) as tmp:
         df.to_parquet(tmp, index=False)
 
 
 def read_parquet(path, columns=None) -> pd.DataFrame:
-    """Read a Parquet table; a missing file is an InputError naming it."""
+    """Read a Parquet table; a missing file is an InputError naming it.
+
+    Parameters
+    ----------
+    path : str or Path
+        The Parquet file.
+    columns : list of str, optional
+        Read only these columns; default all.
+
+    Returns
+    -------
+    DataFrame
+    """
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: file not found")
@@ -200,7 +298,21 @@ def read_parquet(path, columns=None) -> pd.DataFrame:
 
 
 def save_figure(fig, path, dpi: int = 120) -> None:
-    """Save a matplotlib Figure atomically and release its memory."""
+    """Save a matplotlib Figure atomically and release its memory.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+        The figure; closed afterwards.
+    path : str or Path
+        Output file; its suffix picks the format (default png).
+    dpi : int, default 120
+        Resolution of raster formats.
+
+    Returns
+    -------
+    None
+    """
     import matplotlib.pyplot as plt
 
     with atomic_output(path) as tmp:

@@ -17,6 +17,19 @@ def stage_logging(log_path, stage: str):
 
     A ``CvsflowError`` is logged as one line (its message already says where and what) and
     re-raised so that Snakemake marks the job failed and removes its outputs.
+
+    Parameters
+    ----------
+    log_path : str or Path
+        The stage's log file; its parent directory is created, the file overwritten.
+    stage : str
+        Stage name, used in the logger name ``cvsflow.stage.{stage}`` and the messages.
+
+    Returns
+    -------
+    contextmanager of logging.Logger
+        Used as ``with stage_logging(path, "sync") as log:``; yields the stage's logger. On
+        exit the handlers are removed and the elapsed wall time is logged (on success).
     """
     log_path = Path(log_path)
     log_path.parent.mkdir(parents=True, exist_ok=True)

@@ -25,19 +25,59 @@ AXES = ("x", "y", "z")
 
 
 def marker_columns(name: str) -> list[str]:
-    """The three column names of one marker in a marker table."""
+    """The three column names of one marker in a marker table.
+
+    Parameters
+    ----------
+    name : str
+        Marker name.
+
+    Returns
+    -------
+    list of str
+        ``[name_x_m, name_y_m, name_z_m]``.
+    """
     return [f"{name}_{a}_m" for a in AXES]
 
 
 def marker_names(df: pd.DataFrame) -> list[str]:
-    """Marker names of a wide marker table, in column order."""
+    """Marker names of a wide marker table, in column order.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Wide marker table.
+
+    Returns
+    -------
+    list of str
+        ``df.attrs["markers"]`` when set, else the prefixes of the ``*_x_m`` columns.
+    """
     if "markers" in df.attrs:
         return list(df.attrs["markers"])
     return [c[: -len("_x_m")] for c in df.columns if c.endswith("_x_m")]
 
 
 def marker_table(frame0, xyz_m, names, rate_hz) -> pd.DataFrame:
-    """Assemble the wide marker table from 0-based frames and (n_frames, n_markers, 3) metres."""
+    """Assemble the wide marker table from 0-based frames and (n_frames, n_markers, 3) metres.
+
+    Parameters
+    ----------
+    frame0 : array_like of int, shape (N,)
+        0-based frame numbers.
+    xyz_m : ndarray, shape (N, M, 3)
+        Marker positions in the system's world W, metres; NaN where not seen.
+    names : sequence of str, length M
+        Marker names, in file order.
+    rate_hz : float
+        Native frame rate, Hz.
+
+    Returns
+    -------
+    markers : DataFrame
+        ``frame``, ``t_s`` = frame / rate_hz (s), ``{name}_{x,y,z}_m``; ``attrs["rate_hz"]``
+        and ``attrs["markers"]`` set.
+    """
     frame0 = np.asarray(frame0, dtype=np.int64)
     data = {"frame": frame0, "t_s": frame0 / float(rate_hz)}
     for k, name in enumerate(names):
@@ -51,6 +91,21 @@ def marker_table(frame0, xyz_m, names, rate_hz) -> pd.DataFrame:
 
 def select_markers(df: pd.DataFrame, names, source="marker table") -> pd.DataFrame:
     """Keep only the named markers; each must exist and be seen at least once.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Wide marker table.
+    names : sequence of str
+        Markers to keep, in the order wanted.
+    source : str, default "marker table"
+        What the table was read from (file name), for the error messages.
+
+    Returns
+    -------
+    markers : DataFrame
+        A copy with ``frame``, ``t_s`` and the named markers' columns; ``attrs`` copied with
+        ``attrs["markers"]`` = ``names``.
 
     Raises
     ------
@@ -126,6 +181,12 @@ def system_bodies_table(frame, t_s, body, R_W_body, t_W_body_m, residual_m, n_ma
         The system's residual, metres.
     n_markers : ndarray of int, shape (N,)
         Markers used per frame, -1 when unknown.
+
+    Returns
+    -------
+    bodies : DataFrame
+        The ``bodies.parquet`` columns (T_W_body as ``x_m .. qw``), ``valid`` False on the
+        NaN rows; see :func:`cvsflow.mocap.bodies_from_poses`.
     """
     T = make_T(np.asarray(R_W_body, float), np.asarray(t_W_body_m, float))
     return bodies_from_poses(frame, t_s, body, T, residual_m, n_markers)

@@ -17,7 +17,23 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
 def list_stills(folder) -> list[Path]:
-    """Image files of a calibration folder, sorted by name."""
+    """Image files of a calibration folder, sorted by name.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The calibration folder (``calib_dir``).
+
+    Returns
+    -------
+    list of Path
+        Files with a suffix in :data:`IMAGE_SUFFIXES` (any case), sorted; may be empty.
+
+    Raises
+    ------
+    InputError
+        ``folder`` is a file or does not exist.
+    """
     folder = Path(folder)
     if folder.is_file():
         raise InputError(f"{folder}: is a file, expected a folder of stills (calib_dir)")
@@ -27,7 +43,17 @@ def list_stills(folder) -> list[Path]:
 
 
 def read_gray(path) -> np.ndarray:
-    """An image as 8-bit grayscale; an unreadable file is an InputError naming it."""
+    """An image as 8-bit grayscale; an unreadable file is an InputError naming it.
+
+    Parameters
+    ----------
+    path : str or Path
+        The image file.
+
+    Returns
+    -------
+    ndarray of uint8, shape (H, W)
+    """
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if img is None:
         raise InputError(f"{path}: cannot be read as an image")
@@ -136,6 +162,23 @@ def video_info(path) -> dict:
     ``n_frames`` is the number of frames that demux (``video_timing``), not the header's
     count (``n_frames_header``), which a truncated or variable-rate file may get wrong;
     ``fps`` is 1 / the median frame period.
+
+    Parameters
+    ----------
+    path : str or Path
+        The video file.
+
+    Returns
+    -------
+    dict
+        ``n_frames`` (demuxed), ``n_frames_header``, ``n_dropped`` (frames missing from the
+        timestamp gaps), ``fps`` (Hz; the stream's average rate when the period is unknown),
+        ``width``, ``height`` (px).
+
+    Raises
+    ------
+    InputError
+        Not a readable video, or a stream without a frame size.
     """
     timing = video_timing(path)
     container = _open_av(path)
@@ -165,6 +208,22 @@ def iter_video_gray(path, start=0, stop=None) -> Iterator[tuple[int, float, np.n
     presentation timestamp (pts * time_base) from the stream's start, so variable frame rate
     and dropped frames show in the times, not in the indices. ``start`` > 0 seeks to the key
     frame before it and decodes up to it: exact, whatever the codec.
+
+    Parameters
+    ----------
+    path : str or Path
+        The video file.
+    start : int, default 0
+        First frame index (presentation order) to yield.
+    stop : int, optional
+        Frame index to stop before; default the end of the stream.
+
+    Returns
+    -------
+    iterator of (int, float, ndarray)
+        ``(frame, t_s, gray)``: frame index, PTS time in s from the stream start, and the
+        8-bit grey image of shape (H, W). Nothing when ``start`` is past the last frame; a
+        decoding error ends the iteration early with a WARNING.
 
     Raises
     ------

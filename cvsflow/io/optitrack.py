@@ -296,7 +296,14 @@ def write_motive_csv(path, markers, bodies=None, rate_hz=None, units="Meters", t
     rate_hz : float, optional
         Default ``markers.attrs["rate_hz"]``.
     units : {"Meters", "Centimeters", "Millimeters"}
+        Length Units of the file; positions are scaled from metres to them.
     take : str
+        Take Name written in the first header line.
+
+    Returns
+    -------
+    None
+        The file is written atomically (CRLF line ends); ``Time`` = frame / rate_hz in s.
     """
     rate_hz = float(rate_hz or markers.attrs["rate_hz"])
     k = 1.0 / _UNITS[units.lower()]

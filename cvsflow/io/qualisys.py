@@ -308,6 +308,18 @@ def write_qtm_tsv(path, markers=None, bodies=None, rate_hz=None, layout="current
     rate_hz : float, optional
         Default the table's ``attrs["rate_hz"]``.
     layout : {"current", "old"}
+        ``current`` writes FILE_VERSION, TRAJECTORY_TYPES and a label row; ``old`` the bare
+        header of older QTM versions.
+
+    Returns
+    -------
+    None
+        The file is written atomically; positions and residuals in mm, angles in degrees.
+
+    Raises
+    ------
+    ValueError
+        Both or neither of ``markers`` and ``bodies`` given.
     """
     if (markers is None) == (bodies is None):
         raise ValueError("write_qtm_tsv: give exactly one of markers and bodies")

@@ -24,6 +24,21 @@ def write_nexus_csv(df: pd.DataFrame, path, rate_hz: float, decimals: int = 4) -
     """Write a marker table as a Vicon Nexus 'Trajectories' CSV (mm, CRLF, empty cells for gaps).
 
     Frames are written 1-based as Nexus does; ``Sub Frame`` is always 0.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Wide marker table (``frame`` 0-based, ``{name}_{x,y,z}_m`` in metres in W, NaN gaps).
+    path : str or Path
+        Output CSV, written atomically.
+    rate_hz : float
+        Frame rate written on the rate line, Hz.
+    decimals : int, default 4
+        Decimals of the millimetre coordinates.
+
+    Returns
+    -------
+    None
     """
     names = marker_names(df)
     n_cols = 2 + 3 * len(names)
