@@ -99,6 +99,23 @@ def write_opencv_yaml(camera: dict, path) -> None:
     Keys ``image_width``, ``image_height`` (px), ``camera_matrix`` (3x3 ``!!opencv-matrix``, px),
     ``distortion_coefficients`` (5x1: k1 k2 p1 p2 k3), ``avg_reprojection_error`` (px) when known.
     Written with ``cv2.FileStorage`` itself; read back with ``cv2.FileStorage(path, READ)``.
+
+    Parameters
+    ----------
+    camera : dict
+        A ``camera.yaml`` mapping: ``K`` (3x3, px), ``dist`` (k1 k2 p1 p2 k3), ``width``,
+        ``height`` (px); ``rms_px`` and ``board`` used when present.
+    path : str or Path
+        Output file, written atomically.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        ``camera`` lacks K, dist, width or height, or they have the wrong shapes.
     """
     K, dist, width, height = _camera_arrays(camera)
     path = Path(path)
@@ -129,6 +146,16 @@ def write_kalibr_camchain(camera: dict, path, topic: str = "/camera/image_raw") 
     Kalibr's radtan model has four coefficients (k1 k2 p1 p2): k3 is dropped. The largest pixel
     shift that causes over the image is computed (``k3_drop_shift_px``), written in the file's
     comment, logged, and warned about when above ``K3_WARN_PX``.
+
+    Parameters
+    ----------
+    camera : dict
+        A ``camera.yaml`` mapping: ``K`` (3x3, px), ``dist`` (k1 k2 p1 p2 k3), ``width``,
+        ``height`` (px); ``rms_px`` and ``board`` used when present.
+    path : str or Path
+        Output file.
+    topic : str, default "/camera/image_raw"
+        The ``rostopic`` Kalibr records for ``cam0``.
 
     Returns
     -------
@@ -166,6 +193,20 @@ def write_ros_camera_info(camera: dict, path, camera_name: str = "camera") -> No
     """ROS camera_info YAML as camera_calibration_parsers reads it (plumb_bob, 5 coefficients).
 
     ``projection_matrix`` is ``[K | 0]`` (monocular, unrectified); ``rectification_matrix`` identity.
+
+    Parameters
+    ----------
+    camera : dict
+        A ``camera.yaml`` mapping: ``K`` (3x3, px), ``dist`` (k1 k2 p1 p2 k3), ``width``,
+        ``height`` (px); ``rms_px`` and ``board`` used when present.
+    path : str or Path
+        Output file.
+    camera_name : str, default "camera"
+        The ``camera_name`` field.
+
+    Returns
+    -------
+    None
     """
     K, dist, width, height = _camera_arrays(camera)
     P = np.c_[K, np.zeros(3)]
@@ -187,14 +228,48 @@ WRITERS = {"opencv": write_opencv_yaml, "kalibr": write_kalibr_camchain, "ros": 
 
 
 def write_camera_format(camera: dict, fmt: str, path) -> None:
-    """Write ``camera`` in format ``fmt`` (``opencv``, ``kalibr`` or ``ros``) to ``path``."""
+    """Write ``camera`` in format ``fmt`` (``opencv``, ``kalibr`` or ``ros``) to ``path``.
+
+    Parameters
+    ----------
+    camera : dict
+        A ``camera.yaml`` mapping: ``K`` (3x3, px), ``dist`` (k1 k2 p1 p2 k3), ``width``,
+        ``height`` (px); ``rms_px`` and ``board`` used when present.
+    fmt : {"opencv", "kalibr", "ros"}
+        Key of :data:`WRITERS`.
+    path : str or Path
+        Output file.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        An unknown ``fmt``, or a malformed ``camera``.
+    """
     if fmt not in WRITERS:
         raise InputError(f"camera export format {fmt!r}: expected one of {sorted(WRITERS)}")
     WRITERS[fmt](camera, path)
 
 
 def write_all_formats(camera: dict, folder) -> dict[str, Path]:
-    """Write every interchange file into ``folder`` (names in ``FORMAT_FILES``); return the paths."""
+    """Write every interchange file into ``folder`` (names in ``FORMAT_FILES``); return the paths.
+
+    Parameters
+    ----------
+    camera : dict
+        A ``camera.yaml`` mapping: ``K`` (3x3, px), ``dist`` (k1 k2 p1 p2 k3), ``width``,
+        ``height`` (px); ``rms_px`` and ``board`` used when present.
+    folder : str or Path
+        Output folder (created when missing).
+
+    Returns
+    -------
+    dict of str to Path
+        Format name (``opencv``, ``kalibr``, ``ros``) -> the file written.
+    """
     folder = Path(folder)
     out = {}
     for fmt, name in FORMAT_FILES.items():

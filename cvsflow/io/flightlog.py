@@ -150,6 +150,11 @@ def write_tum(df: pd.DataFrame, path, only_valid: bool = True) -> None:
         Output file; readable by evo (``evo_ape tum ref.txt est.txt``).
     only_valid : bool
         Drop rows whose position or orientation is not valid (TUM has no validity flag).
+
+    Returns
+    -------
+    None
+        One ``#`` header line, then one line per row, 9 decimals (s, m).
     """
     d = df
     if only_valid and {"pos_valid", "rot_valid"} <= set(df.columns):
@@ -317,6 +322,22 @@ def _time_field(data):
 
 def read_ulog_topic(path, topic: str, multi_id: int = 0) -> pd.DataFrame:
     """All fields of one ULog topic series as a DataFrame, plus ``t_s`` (µs since boot / 1e6).
+
+    Parameters
+    ----------
+    path : str or Path
+        PX4 ``.ulg`` file.
+    topic : str
+        uORB topic name, e.g. ``vehicle_attitude``.
+    multi_id : int, default 0
+        Instance of a topic logged more than once.
+
+    Returns
+    -------
+    DataFrame
+        ``t_s`` (s since boot, from the topic's timestamp field) then every field as logged
+        (PX4 units and frames, no conversion); ``attrs``: ``path``, ``topic``, ``multi_id``,
+        ``time_field``.
 
     Raises
     ------
@@ -496,7 +517,19 @@ def write_flight_demo(demo, out_dir) -> None:
     """Write a rendered flight (:class:`cvsflow.flight_synth.FlightDemo`) as the files a real
     flight session has, plus its truth: ``reference.parquet`` (T_C_B per video frame with its
     covariance columns S00..S55), ``onboard.tum`` (the log), ``truth.parquet`` (true T_L_Q at
-    the frames), ``injected.parquet`` and ``truth.yaml`` (T_L_C, T_Q_B, clock)."""
+    the frames), ``injected.parquet`` and ``truth.yaml`` (T_L_C, T_Q_B, clock).
+
+    Parameters
+    ----------
+    demo : FlightDemo
+        The rendered flight.
+    out_dir : str or Path
+        The flight's data folder, ``data/flights/{flight}``.
+
+    Returns
+    -------
+    None
+    """
     from cvsflow.flight import sigma_columns
     from cvsflow.io.files import write_parquet, write_yaml
 
@@ -512,7 +545,30 @@ def write_flight_demo(demo, out_dir) -> None:
 
 
 def read_flight_log(path, fmt, ulog_source="local_position", csv_spec=None) -> pd.DataFrame:
-    """An on-board log in the common form, by declared format: ``ulog``, ``csv`` or ``tum``."""
+    """An on-board log in the common form, by declared format: ``ulog``, ``csv`` or ``tum``.
+
+    Parameters
+    ----------
+    path : str or Path
+        The log file.
+    fmt : {"ulog", "csv", "tum"}
+        Its format (declared in the config, not guessed).
+    ulog_source : {"local_position", "odometry"}, default "local_position"
+        ULog only: see :func:`read_ulog`.
+    csv_spec : dict, optional
+        CSV only: the column/unit spec of :func:`read_csv_log`.
+
+    Returns
+    -------
+    DataFrame
+        Common trajectory form ``t_s, x_m, y_m, z_m, qx, qy, qz, qw, pos_valid, rot_valid``
+        (T_L_Q, s and m), plus the reader's extra columns and ``attrs``.
+
+    Raises
+    ------
+    InputError
+        An unknown ``fmt``, or the reader's own errors.
+    """
     if fmt == "ulog":
         return read_ulog(path, source=ulog_source)
     if fmt == "csv":

@@ -65,7 +65,19 @@ def _table(names, t_s, p_m, q_xyzw, origins, pos_valid=True, rot_valid=True) -> 
 
 
 def pose_table_T(table: pd.DataFrame) -> np.ndarray:
-    """The poses of a pose table as transforms ``T_W_X``, shape (N, 4, 4); NaN where invalid."""
+    """The poses of a pose table as transforms ``T_W_X``, shape (N, 4, 4); NaN where invalid.
+
+    Parameters
+    ----------
+    table : DataFrame
+        Pose table (``x_m, y_m, z_m`` metres, ``qx..qw`` scalar-last, ``pos_valid``,
+        ``rot_valid``).
+
+    Returns
+    -------
+    T_W_X : ndarray, shape (N, 4, 4)
+        Homogeneous transforms, metres; all-NaN where the position or rotation is not valid.
+    """
     q = table[["qx", "qy", "qz", "qw"]].to_numpy(float)
     p = table[["x_m", "y_m", "z_m"]].to_numpy(float)
     ok = table["pos_valid"].to_numpy(bool) & table["rot_valid"].to_numpy(bool)
@@ -81,7 +93,18 @@ def pose_table_T(table: pd.DataFrame) -> np.ndarray:
 
 
 def T_from_pose_vector(pose6) -> np.ndarray:
-    """Transforms from ViSP pose vectors ``[tx, ty, tz, tux, tuy, tuz]`` (m, rad), (..., 6)."""
+    """Transforms from ViSP pose vectors ``[tx, ty, tz, tux, tuy, tuz]`` (m, rad), (..., 6).
+
+    Parameters
+    ----------
+    pose6 : array_like, shape (..., 6)
+        Translation (m) then the theta-u rotation vector (rad, = Rodrigues vector).
+
+    Returns
+    -------
+    T : ndarray, shape (..., 4, 4)
+        The transforms the vectors encode (for a ViSP ``cMo``, ``T_C_O``).
+    """
     pose6 = np.asarray(pose6, float)
     return tf.make_T(tf.R_from_rvec(pose6[..., 3:6]), pose6[..., :3])
 
@@ -173,6 +196,23 @@ def read_visp_poses(paths) -> pd.DataFrame:
     """Pose table of ViSP pose-vector files (each may hold one or more poses), in the given order.
 
     The ``name`` of a pose is its file's stem (with ``#k`` appended when a file holds several).
+
+    Parameters
+    ----------
+    paths : iterable of str or Path
+        The vpPoseVector YAML files, in the order wanted.
+
+    Returns
+    -------
+    poses : DataFrame
+        Pose table (module docstring): ``name, t_s, x_m, y_m, z_m, qx, qy, qz, qw,
+        pos_valid, rot_valid, origin``, T_W_X in metres, scalar-last quaternion;
+        ``t_s`` NaN (the format has no time), every pose valid.
+
+    Raises
+    ------
+    InputError
+        No files, or a file that is not a vpPoseVector (file named).
     """
     frames = []
     for path in map(Path, paths):
@@ -203,6 +243,18 @@ def _file_order(t_file_s: np.ndarray) -> np.ndarray:
 
 def read_tum_poses(path) -> pd.DataFrame:
     """Pose table of a TUM file (``timestamp tx ty tz qx qy qz qw``), in file order.
+
+    Parameters
+    ----------
+    path : str or Path
+        The TUM file.
+
+    Returns
+    -------
+    poses : DataFrame
+        Pose table (module docstring): ``name, t_s, x_m, y_m, z_m, qx, qy, qz, qw,
+        pos_valid, rot_valid, origin``, T_W_X in metres, scalar-last quaternion;
+        ``name`` empty, ``t_s`` the timestamps (s), ``origin`` "file, line n".
 
     Raises
     ------
@@ -236,6 +288,14 @@ def read_csv_poses(path, spec: dict) -> pd.DataFrame:
         ``pos_cols``, ``pos_unit``, ``rot`` = quat_xyzw / quat_wxyz / euler_rpy, ``rot_cols``,
         ``angle_unit``, ...) plus optional ``name_col``: the column naming each row's still.
 
+    Returns
+    -------
+    poses : DataFrame
+        Pose table (module docstring): ``name, t_s, x_m, y_m, z_m, qx, qy, qz, qw,
+        pos_valid, rot_valid, origin``, T_W_X in metres, scalar-last quaternion;
+        ``name`` the ``name_col`` cell (empty without one), ``origin`` "file, line n"
+        (line 2 is the first data row).
+
     Raises
     ------
     InputError
@@ -266,12 +326,39 @@ def read_csv_poses(path, spec: dict) -> pd.DataFrame:
 
 
 def natural_key(text: str):
-    """Sort key that orders embedded integers by value (image-2 before image-10)."""
+    """Sort key that orders embedded integers by value (image-2 before image-10).
+
+    Parameters
+    ----------
+    text : str
+        The name to sort.
+
+    Returns
+    -------
+    list of int and str
+        The text split into runs of digits (as int) and the rest (lower-cased).
+    """
     return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", str(text))]
 
 
 def expand_pose_glob(pattern) -> list[Path]:
-    """Files matching ``pattern`` (a glob, or one path), in natural order; an error if none."""
+    """Files matching ``pattern`` (a glob, or one path), in natural order; an error if none.
+
+    Parameters
+    ----------
+    pattern : str or Path
+        A glob pattern or a single file path.
+
+    Returns
+    -------
+    list of Path
+        The matches, sorted by :func:`natural_key` of their names; never empty.
+
+    Raises
+    ------
+    InputError
+        Nothing matches.
+    """
     paths = sorted((Path(p) for p in glob.glob(str(pattern))), key=lambda p: natural_key(p.name))
     if not paths:
         raise InputError(f"{pattern}: no pose file matches")
@@ -279,7 +366,20 @@ def expand_pose_glob(pattern) -> list[Path]:
 
 
 def sniff_pose_format(path) -> str | None:
-    """``visp``, ``tum`` or ``csv`` when the start of a file looks like one, else None."""
+    """``visp``, ``tum`` or ``csv`` when the start of a file looks like one, else None.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file; its first 4096 characters are looked at.
+
+    Returns
+    -------
+    str or None
+        ``visp`` (rows/cols/data keys), ``tum`` (the first lines hold 8 numbers), ``csv`` (a
+        non-numeric comma-separated header then a comma-separated line); None when the file
+        cannot be read, is empty or matches none.
+    """
     try:
         with open(path, errors="replace") as fh:
             head = [ln.strip() for ln in fh.read(4096).splitlines() if ln.strip()]
@@ -311,6 +411,28 @@ def read_pose_list(pattern, fmt: str, csv_spec: dict | None = None) -> pd.DataFr
     Several files are read in natural order of their names and concatenated. ``auto`` takes
     the format from the first file (:func:`sniff_pose_format`). A file that fails to read in
     the named format but looks like another says so in the error.
+
+    Parameters
+    ----------
+    pattern : str or Path
+        Glob or path of the pose file(s).
+    fmt : {"visp", "tum", "csv", "auto"}
+        Their format.
+    csv_spec : dict, optional
+        Column/unit spec for ``csv`` (:func:`read_csv_poses`); required for that format.
+
+    Returns
+    -------
+    poses : DataFrame
+        Pose table (module docstring): ``name, t_s, x_m, y_m, z_m, qx, qy, qz, qw,
+        pos_valid, rot_valid, origin``, T_W_X in metres, scalar-last quaternion;
+        the files' rows concatenated in natural file order.
+
+    Raises
+    ------
+    InputError
+        Unknown ``fmt``, no match, an unrecognised format under ``auto``, ``csv`` without a
+        spec, or a reader's error (naming the format the file looks like, if another).
     """
     if fmt not in (*POSE_FORMATS, "auto"):
         raise InputError(f"pose format {fmt!r}; expected one of {list(POSE_FORMATS)} or auto")

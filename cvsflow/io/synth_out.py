@@ -36,6 +36,17 @@ def staged_session_dir(out_dir):
     and Snakemake's ``.snakemake_timestamp``), so that a mistyped path never deletes a
     user's own recordings.
 
+    Parameters
+    ----------
+    out_dir : str or Path
+        The session folder to (re)write, ``data/{session}``.
+
+    Returns
+    -------
+    contextmanager of Path
+        Yields the temporary folder to write into; on success it is renamed onto ``out_dir``
+        (the old one removed), on an exception it is deleted and ``out_dir`` is left as it was.
+
     Raises
     ------
     ConfigError
@@ -74,7 +85,26 @@ def staged_session_dir(out_dir):
 
 
 def write_still(folder, name, image):
-    """Write one calibration still (uint8 grey, lossless PNG) as ``folder/calib/name``."""
+    """Write one calibration still (uint8 grey, lossless PNG) as ``folder/calib/name``.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The (staged) session folder.
+    name : str
+        File name, e.g. ``calib_000.png``; its suffix picks the format.
+    image : ndarray of uint8, shape (H, W)
+        The still.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        OpenCV could not write the file.
+    """
     path = Path(folder) / "calib" / name
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), image):
@@ -118,7 +148,27 @@ class VideoSink:
 
 
 def write_session_tables(folder, vicon_df, vicon_rate_hz, truth, truth_frames, truth_corners):
-    """Write ``vicon.csv`` (Nexus format), ``truth.yaml`` and the two truth Parquet tables."""
+    """Write ``vicon.csv`` (Nexus format), ``truth.yaml`` and the two truth Parquet tables.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The (staged) session folder.
+    vicon_df : DataFrame
+        Wide marker table of both bodies' markers (metres in W, NaN gaps), written in mm.
+    vicon_rate_hz : float
+        Motion-capture rate, Hz.
+    truth : dict
+        The ``truth.yaml`` mapping (docs/contracts.md).
+    truth_frames : DataFrame
+        ``truth_frames.parquet``: true T_C_B per video frame.
+    truth_corners : DataFrame
+        ``truth_corners.parquet``: ``frame, corner, u_px, v_px`` true distorted corners.
+
+    Returns
+    -------
+    None
+    """
     folder = Path(folder)
     write_nexus_csv(vicon_df, folder / "vicon.csv", rate_hz=vicon_rate_hz)
     write_yaml(truth, folder / "truth.yaml")
