@@ -118,6 +118,26 @@ def corner_noise(rng, n_frames, board, sigma_px, shared_px=0.0, shared_squares=1
     covariance ``shared_px^2 exp(-g^2 / (2 shared_squares^2))`` between corners ``g`` squares
     apart on the board (a detector's error is partly common to nearby corners: the same blur,
     the same pixel grid phase, overlapping refinement windows).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The seeded generator.
+    n_frames : int
+        Number of frames.
+    board : dict
+        Board config; P = nx * ny inner corners, corner k at square (k % nx, k // nx).
+    sigma_px : float
+        Standard deviation of the independent part per axis, px.
+    shared_px : float, default 0.0
+        Standard deviation of the shared field per axis, px; 0 for none.
+    shared_squares : float, default 1.0
+        Correlation length of the shared field, board squares.
+
+    Returns
+    -------
+    ndarray, shape (n_frames, P, 2)
+        The error (du, dv) of every corner, px.
     """
 
     nx, ny = board_pattern(board)
@@ -212,6 +232,18 @@ def camera_pose(height_m: float = 1.0, tilt_up_rad: float = np.deg2rad(8.0)) -> 
     """T_L_C of a camera on a tripod ``height_m`` above the ground, looking north, tilted up.
 
     Optical axes in NED: z_C north, x_C east, y_C down, then pitched up by ``tilt_up_rad``.
+
+    Parameters
+    ----------
+    height_m : float, default 1.0
+        Height of the optical centre above the ground, m (z = -height_m in NED).
+    tilt_up_rad : float, default 8 deg
+        Upward tilt of the optical axis, rad.
+
+    Returns
+    -------
+    T_L_C : ndarray, shape (4, 4)
+        Camera pose in the estimator's world frame L (NED), m.
     """
     R_level = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # columns x_C y_C z_C
     R_tilt = Rotation.from_rotvec([tilt_up_rad, 0.0, 0.0]).as_matrix()  # about x_C: z_C goes up
@@ -219,7 +251,28 @@ def camera_pose(height_m: float = 1.0, tilt_up_rad: float = np.deg2rad(8.0)) -> 
 
 
 def true_flight(seed: int, duration_s: float, range_m=(3.0, 20.0), T_L_C=None):
-    """The true body trajectory as a function ``f(t_s) -> T_L_Q`` (N, 4, 4) (seeded)."""
+    """The true body trajectory as a function ``f(t_s) -> T_L_Q`` (N, 4, 4) (seeded).
+
+    The body stays in front of the camera: range from the camera between ``range_m``, bearing
+    and elevation wobbling a few degrees around its optical axis (and above
+    ``MIN_HEIGHT_M``), with sinusoidal roll, pitch and yaw of some degrees.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the random sinusoid amplitudes, frequencies and phases.
+    duration_s : float
+        Flight length, s; the range sweeps out and back once over it.
+    range_m : (float, float), default (3.0, 20.0)
+        Nearest and farthest distance from the camera centre, m.
+    T_L_C : ndarray, shape (4, 4), optional
+        Camera pose in L; default :func:`camera_pose`.
+
+    Returns
+    -------
+    callable
+        ``f(t_s)``: array of times (N,) in s -> T_L_Q, shape (N, 4, 4), m (L NED, Q FRD).
+    """
     rng = np.random.default_rng(seed)
     T_L_C = camera_pose() if T_L_C is None else T_L_C
     r_lo, r_hi = range_m

@@ -95,19 +95,66 @@ def _check_mode(mode):
 
 
 def carrier_chain(T_W_X, mode):
-    """``A_i`` of ``T_C_B,i = inv(H) A_i G``: inv(T_W_Cm) eye-in-hand, T_W_Bm eye-to-hand."""
+    """``A_i`` of ``T_C_B,i = inv(H) A_i G``: inv(T_W_Cm) eye-in-hand, T_W_Bm eye-to-hand.
+
+    Parameters
+    ----------
+    T_W_X : array_like, shape (..., 4, 4)
+        Carrier pose(s) in W, m.
+    mode : {"eye_in_hand", "eye_to_hand"}
+        Which body the carrier X is: the camera's (Cm) or the board's (Bm).
+
+    Returns
+    -------
+    A : ndarray, shape (..., 4, 4)
+        ``T_Cm_W`` (eye-in-hand) or ``T_W_Bm`` (eye-to-hand), m.
+
+    Raises
+    ------
+    InputError
+        An unknown ``mode``.
+    """
     _check_mode(mode)
     T_W_X = np.asarray(T_W_X, float)
     return tf.invert_T(T_W_X) if mode == "eye_in_hand" else T_W_X
 
 
 def predict_T_C_B(T_W_X, T_H, T_G, mode):
-    """Board in camera per still, (N, 4, 4), from carrier poses and the two unknowns."""
+    """Board in camera per still, (N, 4, 4), from carrier poses and the two unknowns.
+
+    Parameters
+    ----------
+    T_W_X : ndarray, shape (N, 4, 4)
+        Carrier pose in the pose source's world W per still (T_W_Cm or T_W_Bm), m.
+    T_H : ndarray, shape (4, 4)
+        The hand-eye transform H: ``T_Cm_C`` (eye-in-hand) or ``T_W_C`` (eye-to-hand), m.
+    T_G : ndarray, shape (4, 4)
+        The target G: ``T_W_B`` (eye-in-hand) or ``T_Bm_B`` (eye-to-hand), m.
+    mode : {"eye_in_hand", "eye_to_hand"}
+        Which body the carrier X is: the camera's (Cm) or the board's (Bm).
+
+    Returns
+    -------
+    T_C_B : ndarray, shape (N, 4, 4)
+        ``inv(H) @ A_i @ G`` per still, m.
+    """
     return tf.invert_T(T_H) @ carrier_chain(T_W_X, mode) @ T_G
 
 
 def mean_transform(T):
-    """Chordal mean rotation and mean translation of transforms (N, 4, 4)."""
+    """Chordal mean rotation and mean translation of transforms (N, 4, 4).
+
+    Parameters
+    ----------
+    T : array_like, shape (N, 4, 4)
+        Transforms between the same two frames (estimates of one transform), m.
+
+    Returns
+    -------
+    ndarray, shape (4, 4)
+        Rotation: the chordal (Frobenius) mean projected onto SO(3); translation: the
+        arithmetic mean, m.
+    """
     T = np.asarray(T, float)
     return tf.make_T(tf.mean_rotation(T[:, :3, :3]), T[:, :3, 3].mean(axis=0))
 
@@ -120,6 +167,16 @@ def motion_axis_spread_deg(T_W_X) -> float:
 
     The motions are those from the first pose to each other pose; rotations under 2 deg give
     no usable axis. A hand-eye rotation needs two motions about non-parallel axes (Tsai 1989).
+
+    Parameters
+    ----------
+    T_W_X : array_like, shape (N, 4, 4)
+        Carrier pose in W per still, m.
+
+    Returns
+    -------
+    float
+        The spread, deg; 0.0 when fewer than two motions rotate by more than 2 deg.
     """
     T_W_X = np.asarray(T_W_X, float)
     R_rel = np.swapaxes(T_W_X[:1, :3, :3], 1, 2) @ T_W_X[1:, :3, :3]
@@ -201,7 +258,20 @@ def closed_form_hand_eye(T_W_X, T_C_B, mode="eye_in_hand", method="park"):
 
 
 def p_G_of(T_G, p_B):
-    """The board corners in G's parent frame (W eye-in-hand, Bm eye-to-hand), (P, 3)."""
+    """The board corners in G's parent frame (W eye-in-hand, Bm eye-to-hand), (P, 3).
+
+    Parameters
+    ----------
+    T_G : ndarray, shape (4, 4)
+        The target G (``T_W_B`` or ``T_Bm_B``), m.
+    p_B : ndarray, shape (P, 3)
+        The corners in B, m.
+
+    Returns
+    -------
+    ndarray, shape (P, 3)
+        ``T_G`` applied to ``p_B``, m.
+    """
     return p_B @ T_G[:3, :3].T + T_G[:3, 3]
 
 
@@ -485,6 +555,30 @@ def leave_one_out_rms(uv_px, p_B, T_W_X, camera, fit, mode, free_intrinsics=()):
 
     A still with a grossly wrong carrier pose pulls an all-stills fit towards itself and
     spreads its error over the others; fitted without it, it stands out.
+
+    Parameters
+    ----------
+    uv_px : ndarray, shape (N, P, 2)
+        Corners of each still in board order, px.
+    p_B : ndarray, shape (P, 3)
+        The corners in B, m.
+    T_W_X : ndarray, shape (N, 4, 4)
+        Carrier pose in the pose source's world W per still (T_W_Cm or T_W_Bm), m.
+    camera : dict
+        ``K`` (3x3, px), ``dist`` (5 values): the start and the fixed intrinsics.
+    fit : dict
+        The all-stills fit of :func:`refine_hand_eye` (``T_H``, ``T_G``, ``intrinsics``,
+        ...); each refit starts from it.
+    mode : {"eye_in_hand", "eye_to_hand"}
+        Which body the carrier X is: the camera's (Cm) or the board's (Bm).
+    free_intrinsics : sequence of str, default ()
+        Intrinsics refined with H and G (names in ``INTRINSIC_NAMES``).
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Reprojection RMS of still i under the fit without it (pose noise off: the carrier
+        poses exact), px.
     """
     n = len(uv_px)
     out = np.empty(n)
@@ -519,6 +613,33 @@ def jackknife_std(uv_px, p_B, T_W_X, camera, fit, mode, free_intrinsics, **kw):
 
     ``sqrt((n-1)/n sum_i (theta_(i) - mean theta_(.))^2)`` (Efron and Tibshirani 1993, eq.
     11.5), each refit started at the full fit; None with fewer than 5 stills.
+
+    Parameters
+    ----------
+    uv_px : ndarray, shape (N, P, 2)
+        Corners of each still in board order, px.
+    p_B : ndarray, shape (P, 3)
+        The corners in B, m.
+    T_W_X : ndarray, shape (N, 4, 4)
+        Carrier pose in the pose source's world W per still (T_W_Cm or T_W_Bm), m.
+    camera : dict
+        ``K`` (3x3, px), ``dist`` (5 values): the start and the fixed intrinsics.
+    fit : dict
+        The all-stills fit of :func:`refine_hand_eye` (``T_H``, ``T_G``, ``intrinsics``,
+        ...); each refit starts from it.
+    mode : {"eye_in_hand", "eye_to_hand"}
+        Which body the carrier X is: the camera's (Cm) or the board's (Bm).
+    free_intrinsics : sequence of str
+        Intrinsics refined with H and G (names in ``INTRINSIC_NAMES``).
+    **kw
+        Passed to :func:`refine_hand_eye` (``pose_noise``, ``pose_sigma_m``, ...).
+
+    Returns
+    -------
+    ndarray, shape (12 + n_free,) or None
+        Standard errors of H's rotation (rad, about its child axes) and translation (m), then
+        G's likewise, then the free intrinsics (px, or unitless for distortion); None with
+        fewer than ``MIN_STILLS + 2`` stills.
     """
     n = len(uv_px)
     if n < MIN_STILLS + 2:
@@ -818,6 +939,20 @@ def pair_stills_with_poses(still_names, pose_names):
     Rules, in order: names equal (a CSV ``name_col`` naming the still's file or stem); the
     last integer in the names (``franka_image-3.png`` with ``franka_pose_rPe_3.yaml``) when it
     is unique on both sides; else position, which needs as many poses as stills.
+
+    Parameters
+    ----------
+    still_names : sequence of str
+        File names of the stills, in their order.
+    pose_names : sequence of str
+        The pose table's ``name`` column (empty strings when the format has no names).
+
+    Returns
+    -------
+    index : list of int
+        Per still, the row of its pose in ``pose_names``, -1 when it has none.
+    rule : str
+        ``"by name"``, ``"by the number in the file names"`` or ``"by position"``.
 
     Raises
     ------

@@ -210,7 +210,22 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
 
 
 def flight_headline(flight, stats):
-    """The headline rows of one flight from its ``stats.yaml`` (APE, clock)."""
+    """The headline rows of one flight from its ``stats.yaml`` (APE, clock).
+
+    Parameters
+    ----------
+    flight : str
+        Flight name; the rows' session is ``flight {flight}``.
+    stats : dict
+        The loaded ``results/flights/{flight}/stats.yaml`` (SI: m, rad, s); missing keys give
+        NaN values (shown as n/a).
+
+    Returns
+    -------
+    list of dict
+        Rows with :data:`COLUMNS`: APE translation RMSE (mm), APE rotation RMSE (deg), clock
+        offset (s) and quality, number of pairs.
+    """
     r = _Rows(f"flight {flight}")
     src = f"results/flights/{flight}/stats.yaml"
     ape_t, ape_r = stats.get("ape_trans") or {}, stats.get("ape_rot") or {}
@@ -227,7 +242,18 @@ def flight_headline(flight, stats):
 
 
 def headline_table(rows):
-    """The rows as a DataFrame with :data:`COLUMNS` (headline.csv)."""
+    """The rows as a DataFrame with :data:`COLUMNS` (headline.csv).
+
+    Parameters
+    ----------
+    rows : list of dict
+        Rows of :func:`session_headline` / :func:`flight_headline`.
+
+    Returns
+    -------
+    DataFrame
+        One row per quantity, columns :data:`COLUMNS` in that order.
+    """
     return pd.DataFrame(rows, columns=COLUMNS)
 
 
@@ -241,6 +267,17 @@ def headline_rst(rows):
 
     Columns: quantity, value (± standard error), truth (rendered sessions only), unit,
     file: key. The text is meant to be inlined into the report's landing page.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Rows of :func:`session_headline` / :func:`flight_headline`, in display order.
+
+    Returns
+    -------
+    str
+        The reStructuredText, ending in a newline; the truth column only for sessions with a
+        finite truth somewhere.
     """
     table = headline_table(rows)
     out = []
