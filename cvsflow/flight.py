@@ -69,6 +69,20 @@ SIG_COLS = ["sx_m", "sy_m", "sz_m", "sroll_rad", "spitch_rad", "syaw_rad"]
 def check_trajectory(df: pd.DataFrame, name: str = "trajectory") -> pd.DataFrame:
     """Validate the common trajectory form; add missing validity columns (True where finite).
 
+    Parameters
+    ----------
+    df : DataFrame
+        A trajectory with at least ``TRAJ_COLS`` (``t_s`` s, ``x_m..z_m`` m, ``qx..qw``
+        scalar-last).
+    name : str, default "trajectory"
+        What it is (file, role), for the error messages.
+
+    Returns
+    -------
+    DataFrame
+        A copy (``attrs`` kept) with ``pos_valid`` / ``rot_valid`` added where absent: True
+        where the position / quaternion is all finite.
+
     Raises
     ------
     InputError
@@ -94,7 +108,19 @@ def check_trajectory(df: pd.DataFrame, name: str = "trajectory") -> pd.DataFrame
 
 
 def T_from_traj(df: pd.DataFrame) -> np.ndarray:
-    """Transforms of a trajectory's rows, shape (N, 4, 4); invalid parts stay NaN."""
+    """Transforms of a trajectory's rows, shape (N, 4, 4); invalid parts stay NaN.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Common trajectory form (e.g. T_L_Q or T_C_B rows), m and scalar-last quaternions.
+
+    Returns
+    -------
+    T : ndarray, shape (N, 4, 4)
+        The row poses, m; the rotation block is NaN where the quaternion is not finite, the
+        translation NaN where the position is (validity flags are not applied).
+    """
     q = df[["qx", "qy", "qz", "qw"]].to_numpy(dtype=float)
     p = df[["x_m", "y_m", "z_m"]].to_numpy(dtype=float)
     R = np.full((len(df), 3, 3), np.nan)
@@ -106,7 +132,26 @@ def T_from_traj(df: pd.DataFrame) -> np.ndarray:
 
 def trajectory_frame(t_s, p_m, q_xyzw, pos_valid, rot_valid, **extra) -> pd.DataFrame:
     """The common trajectory form from times (N,), positions (N, 3, metres) and scalar-last
-    quaternions (N, 4) with their validity flags; ``extra`` columns are appended."""
+    quaternions (N, 4) with their validity flags; ``extra`` columns are appended.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (N,)
+        Times, s.
+    p_m : array_like, shape (N, 3)
+        Positions, m.
+    q_xyzw : array_like, shape (N, 4)
+        Orientations, scalar-last quaternions.
+    pos_valid, rot_valid : bool or array_like of bool, shape (N,)
+        Validity flags (a scalar is broadcast).
+    **extra
+        Further columns, each of length N.
+
+    Returns
+    -------
+    DataFrame
+        ``t_s, x_m, y_m, z_m, qx, qy, qz, qw, pos_valid, rot_valid`` then ``extra``.
+    """
     p = np.asarray(p_m, dtype=float)
     q = np.asarray(q_xyzw, dtype=float)
     n = len(p)
@@ -123,7 +168,24 @@ def trajectory_frame(t_s, p_m, q_xyzw, pos_valid, rot_valid, **extra) -> pd.Data
 
 
 def traj_from_T(t_s, T, pos_valid=None, rot_valid=None, attrs=None) -> pd.DataFrame:
-    """Common trajectory form from times (N,) and transforms (N, 4, 4)."""
+    """Common trajectory form from times (N,) and transforms (N, 4, 4).
+
+    Parameters
+    ----------
+    t_s : array_like, shape (N,)
+        Times, s.
+    T : array_like, shape (N, 4, 4)
+        Poses, m; NaN rotation or translation blocks where unknown.
+    pos_valid, rot_valid : array_like of bool, shape (N,), optional
+        Validity flags; default: the translation / rotation is finite.
+    attrs : dict, optional
+        Copied into the result's ``attrs``.
+
+    Returns
+    -------
+    DataFrame
+        Common trajectory form; the quaternion NaN where the rotation is not finite.
+    """
     T = np.asarray(T, dtype=float)
     R = T[:, :3, :3]
     ok = np.isfinite(R).all((1, 2))
@@ -441,7 +503,29 @@ def align_yaw(p_ref, p_est, z_est_in_ref=(0.0, 0.0, 1.0)) -> Alignment:
 
 
 def align_trajectories(p_ref, p_est, method: str = "se3", z_est_in_ref=(0.0, 0.0, 1.0)):
-    """Dispatch to :func:`umeyama` (``se3``, ``sim3``) or :func:`align_yaw` (``yaw``)."""
+    """Dispatch to :func:`umeyama` (``se3``, ``sim3``) or :func:`align_yaw` (``yaw``).
+
+    Parameters
+    ----------
+    p_ref, p_est : ndarray, shape (N, 3)
+        Associated positions of the reference and the estimate, each in its own world, m.
+    method : {"se3", "sim3", "yaw"}, default "se3"
+        Rigid, rigid plus scale, or rotation about the vertical plus translation.
+    z_est_in_ref : array_like, shape (3,), default (0, 0, 1)
+        ``yaw`` only: the estimate world's z axis in the reference world.
+
+    Returns
+    -------
+    Alignment
+        ``p_ref ≈ s R p_est + t`` (s = 1 unless ``sim3``).
+
+    Raises
+    ------
+    InputError
+        An unknown ``method``.
+    OptimiseError
+        Too few pairs or degenerate points (from the solvers).
+    """
     if method == "se3":
         return umeyama(p_ref, p_est, False)
     if method == "sim3":
@@ -457,7 +541,19 @@ def align_trajectories(p_ref, p_est, method: str = "se3", z_est_in_ref=(0.0, 0.0
 
 
 def error_stats(e) -> dict:
-    """evo's statistics of an error series: rmse, mean, median, std, min, max, sse (and n)."""
+    """evo's statistics of an error series: rmse, mean, median, std, min, max, sse (and n).
+
+    Parameters
+    ----------
+    e : array_like
+        Errors (any unit); non-finite values are left out.
+
+    Returns
+    -------
+    dict
+        ``rmse, mean, median, std`` (population, ddof 0), ``min, max, sse`` as floats in the
+        unit of ``e``, and ``n`` the finite count; all NaN with ``n`` 0 when none is finite.
+    """
     e = np.asarray(e, dtype=float)
     e = e[np.isfinite(e)]
     if len(e) == 0:
@@ -477,12 +573,38 @@ def error_stats(e) -> dict:
 
 
 def ape_translation(p_ref, p_est_aligned) -> np.ndarray:
-    """Absolute position error per pair, metres, shape (N,): |p_ref - p_est| (evo APE, trans)."""
+    """Absolute position error per pair, metres, shape (N,): |p_ref - p_est| (evo APE, trans).
+
+    Parameters
+    ----------
+    p_ref : array_like, shape (N, 3)
+        Reference positions, m.
+    p_est_aligned : array_like, shape (N, 3)
+        Estimated positions after alignment into the reference's world, m.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Euclidean distance per pair, m (NaN where either is NaN).
+    """
     return np.linalg.norm(np.asarray(p_ref, float) - np.asarray(p_est_aligned, float), axis=1)
 
 
 def ape_rotation(R_ref, R_est_aligned) -> np.ndarray:
-    """Absolute rotation error angle per pair, radians, of R_ref^T R_est (N, 3, 3) -> (N,)."""
+    """Absolute rotation error angle per pair, radians, of R_ref^T R_est (N, 3, 3) -> (N,).
+
+    Parameters
+    ----------
+    R_ref : array_like, shape (N, 3, 3)
+        Reference rotations.
+    R_est_aligned : array_like, shape (N, 3, 3)
+        Estimated rotations after alignment into the reference's world.
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        Angle of ``R_ref^T R_est`` in [0, pi], rad.
+    """
     R_ref = np.asarray(R_ref, float)
     return rotation_angle(np.swapaxes(R_ref, -1, -2) @ np.asarray(R_est_aligned, float))
 
@@ -1144,14 +1266,41 @@ def evaluate_flight(
 
 
 def sigma_columns(Sigma):
-    """Flatten (N, 6, 6) covariances into a DataFrame of columns ``S00 .. S55`` (SI)."""
+    """Flatten (N, 6, 6) covariances into a DataFrame of columns ``S00 .. S55`` (SI).
+
+    Parameters
+    ----------
+    Sigma : array_like, shape (N, 6, 6)
+        Covariances of ``[dt (m), dtheta (rad)]`` in C (module docstring).
+
+    Returns
+    -------
+    DataFrame
+        N rows, 36 columns ``S{i}{j}`` (row-major), in m^2, m rad and rad^2.
+    """
     Sigma = np.asarray(Sigma, float)
     columns = [f"S{i}{j}" for i in range(6) for j in range(6)]
     return pd.DataFrame(Sigma.reshape(len(Sigma), 36), columns=columns)
 
 
 def sigma_from_columns(df):
-    """Inverse of :func:`sigma_columns`: (N, 6, 6) from columns ``S00 .. S55``."""
+    """Inverse of :func:`sigma_columns`: (N, 6, 6) from columns ``S00 .. S55``.
+
+    Parameters
+    ----------
+    df : DataFrame
+        A table with the 36 columns ``S00 .. S55`` (e.g. ``reference.parquet``).
+
+    Returns
+    -------
+    Sigma : ndarray, shape (N, 6, 6)
+        Covariances of ``[dt (m), dtheta (rad)]`` in C.
+
+    Raises
+    ------
+    InputError
+        A column is missing.
+    """
     cols = [f"S{i}{j}" for i in range(6) for j in range(6)]
     missing = [c for c in cols if c not in df.columns]
     if missing:
@@ -1221,7 +1370,20 @@ def check_against_truth(result, onboard, truth, T_L_C, clock, max_gap_s=0.05):
 
 def corner_noise_per_axis(reproj_rms_px, n_corners):
     """Corner noise per image axis (px) from PnP's 2-D reprojection RMS over ``n_corners``:
-    the RMS of the residual length over sqrt(2), corrected for the 6 pose parameters fitted."""
+    the RMS of the residual length over sqrt(2), corrected for the 6 pose parameters fitted.
+
+    Parameters
+    ----------
+    reproj_rms_px : float
+        RMS over the corners of the reprojection residual length, px.
+    n_corners : int
+        Corners in the PnP fit.
+
+    Returns
+    -------
+    float
+        ``reproj_rms_px / sqrt(2) * sqrt(2n / (2n - 6))``, px per axis.
+    """
     n_res = 2 * int(n_corners)
     return float(reproj_rms_px) / np.sqrt(2.0) * np.sqrt(n_res / max(n_res - 6, 1))
 
