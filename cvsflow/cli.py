@@ -57,6 +57,29 @@ def _parse_inner(text: str) -> tuple[int, int]:
 
 
 def cmd_calibrate(args) -> int:
+    """``cvsflow calibrate``: calibrate a camera from a folder of chessboard stills.
+
+    Writes ``camera.yaml``, ``calib_corners.parquet`` (docs/contracts.md) and the OpenCV,
+    Kalibr and ROS camera files into ``args.out``, and prints the intrinsics (px) and RMS.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``dir`` (stills folder), ``inner`` ((nx, ny) inner corners), ``square_m`` (square
+        side, m), ``out`` (output folder), ``subpix_window_px``, ``min_images``.
+
+    Returns
+    -------
+    int
+        Exit code, 0 (errors are raised as :class:`CvsflowError` and reported by :func:`main`).
+
+    Raises
+    ------
+    InputError
+        No images in ``dir`` (or an unreadable one).
+    CalibrationError
+        Too few stills with a board, or the calibration failed.
+    """
     import cv2
 
     from cvsflow.calibration import calibrate_camera
@@ -101,6 +124,24 @@ def _camera_yaml_path(src) -> Path:
 
 
 def cmd_export_camera(args) -> int:
+    """``cvsflow export camera``: a camera.yaml as OpenCV, Kalibr or ROS file.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``src`` (a results/<session> folder or a camera.yaml), ``format`` (opencv, kalibr,
+        ros), ``out`` (output file).
+
+    Returns
+    -------
+    int
+        Exit code, 0 (errors are raised as :class:`CvsflowError` and reported by :func:`main`).
+
+    Raises
+    ------
+    InputError
+        No camera.yaml at ``src``, or a malformed one.
+    """
     from cvsflow.io import read_yaml
     from cvsflow.io.camera_formats import write_camera_format
 
@@ -158,6 +199,29 @@ def session_trajectories(pairs, se3_result=None):
 
 
 def cmd_export_trajectory(args) -> int:
+    """``cvsflow export trajectory``: a session's CVS and Vicon trajectories as TUM files.
+
+    Writes ``cvs_T_C_B.tum``, ``vicon_T_Cm_Bm.tum`` and, when an se3 result.yaml is found,
+    ``vicon_T_C_B.tum`` (see :func:`session_trajectories`): video clock (s), m, scalar-last
+    quaternions, unaligned.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``results`` (a results/<session> folder or its pairs.parquet), ``out_dir``, ``se3``
+        (a result.yaml, or None for ``RESULTS/se3/calib/result.yaml`` when present).
+
+    Returns
+    -------
+    int
+        Exit code, 0 (errors are raised as :class:`CvsflowError` and reported by :func:`main`).
+
+    Raises
+    ------
+    InputError
+        No pairs.parquet, missing pairs columns, a given ``se3`` file missing, or one without
+        ``T_Cm_C`` and ``T_Bm_B``.
+    """
     from cvsflow.io import read_parquet, read_yaml
     from cvsflow.io.flightlog import write_tum
 
@@ -199,12 +263,43 @@ def cmd_export_trajectory(args) -> int:
 
 
 def profile_dir(root: Path) -> Path:
-    """``profiles/default`` at the repository root if present, else ``workflow/profiles/default``."""
+    """``profiles/default`` at the repository root if present, else ``workflow/profiles/default``.
+
+    Parameters
+    ----------
+    root : Path
+        The repository root (the folder ``cvsflow run`` is run from).
+
+    Returns
+    -------
+    Path
+        The Snakemake profile folder (not checked to exist in the fallback case).
+    """
     top = root / "profiles" / "default"
     return top if top.is_dir() else root / "workflow" / "profiles" / "default"
 
 
 def cmd_run(args, extra) -> int:
+    """``cvsflow run``: run ``python -m snakemake`` with the workstation profile.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        The parsed ``run`` command (only ``verbose``; nothing else is parsed).
+    extra : list of str
+        Every argument after ``run``, passed to snakemake unchanged; ``--profile
+        <profile_dir>`` is added unless it has ``--profile`` or ``--workflow-profile``.
+
+    Returns
+    -------
+    int
+        Snakemake's exit code.
+
+    Raises
+    ------
+    InputError
+        No Snakefile in the current folder or its ``workflow/``.
+    """
     root = Path.cwd()
     if not (root / "Snakefile").is_file() and not (root / "workflow" / "Snakefile").is_file():
         raise InputError(f"{root}: no Snakefile here (run `cvsflow run` from the cvsflow repository)")
@@ -248,6 +343,12 @@ def _try_inner_sizes(still: Path):
 
 def build_session_config(folder) -> tuple[dict, list[str]]:
     """Session config guessed from a recording folder, and notes for the user to check.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The recording folder, searched recursively for a stills folder (3 or more images),
+        a video (``VIDEO_SUFFIXES``) and a motion-capture export (``MOCAP_SUFFIXES``).
 
     Returns
     -------
@@ -351,6 +452,28 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
 
 
 def cmd_init(args) -> int:
+    """``cvsflow init``: write a session config guessed from a recording folder.
+
+    The YAML (``sessions: {name: ...}``) is preceded by comment lines with the notes of
+    :func:`build_session_config`; the notes are printed too.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``dir`` (recording folder), ``out`` (file to write, default
+        ``DIR/cvsflow_session.yaml``), ``name`` (session name, default the folder's name;
+        characters other than letters, digits, _ and - become _).
+
+    Returns
+    -------
+    int
+        Exit code, 0 (errors are raised as :class:`CvsflowError` and reported by :func:`main`).
+
+    Raises
+    ------
+    InputError
+        ``out`` exists (never overwritten), or ``dir`` is not a folder.
+    """
     import yaml
 
     from cvsflow.io import atomic_output
@@ -382,6 +505,32 @@ def cmd_init(args) -> int:
 
 
 def cmd_handeye(args) -> int:
+    """``cvsflow handeye``: hand-eye calibration from stills with one carrier pose each.
+
+    Writes ``OUT/handeye.yaml`` (the result of :func:`cvsflow.handeye.calibrate_hand_eye`
+    plus the command's inputs and the pairing rule) and prints ``T_Cm_C`` (eye-in-hand) or
+    ``T_W_C`` (eye-to-hand) with its standard errors (mm, deg).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``stills``, ``poses`` (file or glob), ``pose_format``, ``csv_spec``, ``inner``,
+        ``square_m`` (m), ``camera`` (known intrinsics file), ``out``, ``eye_to_hand``,
+        ``method``, ``free_intrinsics`` (comma separated), ``exact_poses``,
+        ``pose_sigma_mm``, ``pose_sigma_deg``, ``subpix_window_px``.
+
+    Returns
+    -------
+    int
+        Exit code, 0 (errors are raised as :class:`CvsflowError` and reported by :func:`main`).
+
+    Raises
+    ------
+    InputError
+        No images, unreadable poses or camera, stills and poses that cannot be paired.
+    CalibrationError
+        Too few usable stills or motions, or the fit failed.
+    """
     import cv2
 
     from cvsflow.handeye import calibrate_hand_eye, pair_stills_with_poses
@@ -473,6 +622,15 @@ def _add_handeye_parser(sub) -> None:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``cvsflow`` command and its subcommands.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        Subcommands ``calibrate``, ``export camera``, ``export trajectory``, ``run``,
+        ``init``, ``handeye``; each sets ``func`` to its ``cmd_*`` handler (None for ``run``,
+        which :func:`main` handles).
+    """
     p = argparse.ArgumentParser(
         prog="cvsflow",
         description="Webcam + chessboard pose accuracy against Vicon: calibrate, export, run, init.",
@@ -553,7 +711,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    """Entry point of the ``cvsflow`` command; returns the exit code."""
+    """Entry point of the ``cvsflow`` command; returns the exit code.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after the program name; default ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        0 on success, 1 on a :class:`CvsflowError` (one line ``cvsflow: error: ...`` on
+        stderr), snakemake's code for ``run``; usage errors exit 2 through argparse.
+    """
     argv = list(sys.argv[1:] if argv is None else argv)
     # `run` passes everything after it to snakemake, unparsed.
     if "run" in argv and all(a.startswith("-") for a in argv[: argv.index("run")]):

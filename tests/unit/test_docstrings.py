@@ -16,8 +16,6 @@ PACKAGE = Path(__file__).resolve().parents[2] / "cvsflow"
 
 #: Modules still lacking sections (issue 18 lists them; their owners complete them).
 NOT_YET = {
-    "cli",
-   
     "io/visp", "optimise/se3", "optimise/seed",
     "plausibility", "plots/mocap", "plots/results", "plots/se3", "plots/summary", "pose",
     "sessions", "synth/render", "synth/camera", "synth/effects", "synth/motion",
