@@ -18,10 +18,10 @@ PACKAGE = Path(__file__).resolve().parents[2] / "cvsflow"
 NOT_YET = {
     "cli", "flight", "flight_synth", "handeye", "headline", "io/camera_formats",
     "io/files", "io/flightlog", "io/logs", "io/markers", "io/media", "io/optitrack", "io/poses",
-    "io/qualisys", "io/synth_out", "io/vicon", "io/visp", "optimise/se3", "optimise/seed",
-    "plausibility", "plots/mocap", "plots/results", "plots/se3", "plots/summary", "pose",
+    "io/qualisys", "io/synth_out", "io/vicon", "io/visp",
+    "plausibility", "plots/mocap", "plots/results", "plots/se3", "plots/summary",
     "sessions", "synth/render", "synth/camera", "synth/effects", "synth/motion",
-    "synth/session", "uncertainty",
+    "synth/session",
 }
 
 
