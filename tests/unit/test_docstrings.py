@@ -18,9 +18,9 @@ PACKAGE = Path(__file__).resolve().parents[2] / "cvsflow"
 NOT_YET = {
     "cli", "flight", "flight_synth", "handeye", "headline", "io/camera_formats",
     "io/files", "io/flightlog", "io/logs", "io/markers", "io/media", "io/optitrack", "io/poses",
-    "io/qualisys", "io/synth_out", "io/vicon", "io/visp",
-    "plausibility", "plots/mocap", "plots/results", "plots/se3", "plots/summary",
-    "sessions", "synth/render", "synth/camera", "synth/effects", "synth/motion",
+    "io/qualisys", "io/synth_out", "io/vicon",
+    "plots/mocap", "plots/results", "plots/se3", "plots/summary",
+    "synth/render", "synth/camera", "synth/effects", "synth/motion",
     "synth/session",
 }
 
