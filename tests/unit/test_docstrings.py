@@ -19,7 +19,7 @@ NOT_YET = {
     "cli", "flight", "flight_synth", "handeye", "headline", "io/camera_formats",
     "io/files", "io/flightlog", "io/logs", "io/markers", "io/media", "io/optitrack", "io/poses",
     "io/qualisys", "io/synth_out", "io/vicon",
-    "plots/mocap", "plots/results", "plots/se3", "plots/summary",
+    
     "synth/render", "synth/camera", "synth/effects", "synth/motion",
     "synth/session",
 }
