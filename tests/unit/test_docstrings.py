@@ -20,8 +20,8 @@ NOT_YET = {
     "io/files", "io/flightlog", "io/logs", "io/markers", "io/media", "io/optitrack", "io/poses",
     "io/qualisys", "io/synth_out", "io/vicon",
     
-    "synth/render", "synth/camera", "synth/effects", "synth/motion",
-    "synth/session",
+    "synth/camera", "synth/effects",
+    
 }
 
 
