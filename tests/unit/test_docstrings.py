@@ -20,7 +20,7 @@ NOT_YET = {
     "io/files", "io/flightlog", "io/logs", "io/markers", "io/media", "io/optitrack", "io/poses",
     "io/qualisys", "io/synth_out", "io/vicon",
     
-    "synth/camera", "synth/effects",
+    "synth/effects",
     
 }
 
