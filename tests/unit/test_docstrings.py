@@ -19,9 +19,6 @@ NOT_YET = {
     "cli", "flight", "flight_synth", "handeye", "headline", "io/camera_formats",
     "io/files", "io/flightlog", "io/logs", "io/markers", "io/media", "io/optitrack", "io/poses",
     "io/qualisys", "io/synth_out", "io/vicon",
-    
-    "synth/effects",
-    
 }
 
 
