@@ -264,12 +264,20 @@ def check_sync_inputs(poses, bodies, method="angular_speed", source_poses="poses
         Native-rate bodies table (``body``, ``valid``).
     method : str
         ``sync.method``; the motion check applies to ``angular_speed``.
+    source_poses, source_bodies : str
+        Names of the two tables in the error messages.
     min_frames : int
         Fewest video frames with a pose.
     min_motion_deg_s, min_turn_deg : float
         The board moved when the 95th percentile of its angular speed between consecutive
         valid frames reaches ``min_motion_deg_s`` (deg/s) and it turned by at least
         ``min_turn_deg`` (deg) from its median attitude over the take.
+
+    Returns
+    -------
+    warnings : list of str
+        Always empty: a failed check raises (the list keeps the signature of the checks that
+        also warn).
 
     Raises
     ------
@@ -315,7 +323,23 @@ def check_sync_inputs(poses, bodies, method="angular_speed", source_poses="poses
 
 
 def overlap_share(t_video_s, dt_offset_s, take_span_s):
-    """Share of video frames whose Vicon time t + dt lies inside the take [t0, t1]."""
+    """Share of video frames whose Vicon time t + dt lies inside the take [t0, t1].
+
+    Parameters
+    ----------
+    t_video_s : array_like, shape (N,)
+        Video frame times, video clock, s.
+    dt_offset_s : float
+        t_vicon_s = t_video_s + dt_offset_s, s.
+    take_span_s : (float, float)
+        First and last Vicon sample times (inclusive), s.
+
+    Returns
+    -------
+    share : float
+        Share of the frames inside the take, 0..1; 0.0 for no frames. A NaN time counts as
+        outside.
+    """
     t = np.asarray(t_video_s, dtype=float) + dt_offset_s
     if t.size == 0:
         return 0.0
@@ -388,6 +412,14 @@ def check_pair_distances(pairs, source="pairs", max_gap_m=1.0, max_ratio=3.0):
         Largest plausible difference of the medians, metres.
     max_ratio : float
         Largest plausible ratio of the medians; an error needs both limits exceeded.
+    source : str
+        Name of the table in the error messages.
+
+    Returns
+    -------
+    warnings : list of str
+        Always empty: a failed check raises (the list keeps the signature of the checks that
+        also warn).
 
     Raises
     ------
@@ -445,6 +477,14 @@ def check_se3_result(result, K_calib, max_offset_s=30.0, where="se3 result", foc
         fx, fy within [f / factor, f * factor] of the calibrated values.
     max_mount_m : float
         Largest translation of T_Cm_C and T_Bm_B, metres.
+    where : str
+        Name of the result in the error messages.
+
+    Returns
+    -------
+    warnings : list of str
+        Always empty: a failed check raises (the list keeps the signature of the checks that
+        also warn).
 
     Raises
     ------
@@ -477,6 +517,26 @@ def check_seed_result(result, K_calib, where="seed result", focal_factor=4.0):
     built on (README); such a run is flagged ``diverged`` by the optimiser and reported as such,
     so its focal range is left to that flag. Non-finite values are an error either way.
 
+    Parameters
+    ----------
+    result : dict
+        seed ``result.yaml`` content: ``fx_px``, ``fy_px`` (px), optionally ``diverged``
+        (bool) and ``P_bar`` (dict or list of the mean pose error per dimension, m and rad;
+        every entry must be finite).
+    K_calib : array_like, shape (3, 3)
+        The calibrated camera matrix (camera.yaml), px.
+    where : str
+        Name of the result in the error messages.
+    focal_factor : float
+        fx, fy within [f / factor, f * factor] of the calibrated values (not applied when
+        ``result["diverged"]``).
+
+    Returns
+    -------
+    warnings : list of str
+        Always empty: a failed check raises (the list keeps the signature of the checks that
+        also warn).
+
     Raises
     ------
     ResultRangeError
@@ -495,6 +555,21 @@ def check_seed_result(result, K_calib, where="seed result", focal_factor=4.0):
 
 def check_rows(table, source, what="rows"):
     """A table with zero rows is an error naming it (a stage never succeeds on nothing).
+
+    Parameters
+    ----------
+    table : DataFrame or sized
+        The table (anything with ``len``).
+    source : str
+        Its name (file or stage) in the error message.
+    what : str
+        What a row is, in the error message (``"rows"``, ``"pairs"``, ...).
+
+    Returns
+    -------
+    warnings : list of str
+        Always empty: a failed check raises (the list keeps the signature of the checks that
+        also warn).
 
     Raises
     ------

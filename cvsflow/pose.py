@@ -199,7 +199,24 @@ def _subpix_window(corners_px: np.ndarray, board: dict, max_window_px: int) -> i
 
 def deviation_limit_px(corners_px: np.ndarray, board: dict,
                        max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC) -> np.ndarray:
-    """Per-corner limit of ``grid_deviation``: a share of the local spacing, pixels, shape (N,)."""
+    """Per-corner limit of ``grid_deviation``: a share of the local spacing, pixels, shape (N,).
+
+    Parameters
+    ----------
+    corners_px : ndarray, shape (nx * ny, 2)
+        Corners in grid order, pixels (NaN where unknown).
+    board : dict
+        Board description: ``squares_x``, ``squares_y`` (int) and ``square_m`` (m), see
+        :func:`cvsflow.board.board_pattern`.
+    max_grid_deviation : float
+        Limit as a share of the local grid spacing (:func:`local_spacing`), dimensionless.
+
+    Returns
+    -------
+    limit_px : ndarray, shape (nx * ny,)
+        ``max(MIN_GRID_DEVIATION_PX, max_grid_deviation * local_spacing)``, pixels. A corner
+        without known neighbours gets the share of the median spacing over the grid.
+    """
     return np.maximum(MIN_GRID_DEVIATION_PX,
                       max_grid_deviation * local_spacing(corners_px, board))
 

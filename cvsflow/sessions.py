@@ -131,5 +131,21 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
 
 
 def check_sessions(sessions: dict) -> dict[str, tuple[str, ...]]:
-    """`session_stages` of every session; the first inconsistent one raises ConfigError."""
+    """`session_stages` of every session; the first inconsistent one raises ConfigError.
+
+    Parameters
+    ----------
+    sessions : dict
+        ``config["sessions"]``, validated against the schema: session name to its block.
+
+    Returns
+    -------
+    dict of str to tuple of str
+        Session name to its stages (:func:`session_stages`), in the order of ``sessions``.
+
+    Raises
+    ------
+    ConfigError
+        The first session (in order) whose inputs are inconsistent.
+    """
     return {name: session_stages(name, sessions) for name in sessions}

@@ -570,6 +570,19 @@ def band_multipliers(model):
 
     A normal model: 1 and 1.96. A Student-t model (``nu``): its quantiles over its standard
     deviation sqrt(nu / (nu - 2)) (narrower at 68 %, wider in the tails).
+
+    Parameters
+    ----------
+    model : dict
+        An error model (:func:`fit_error_model` or :func:`fit_transfer_model` output, or just
+        ``{"nu": nu}``); its ``nu`` key, Student-t degrees of freedom (> 2), picks the
+        distribution. Absent, None or non-finite: normal.
+
+    Returns
+    -------
+    multipliers : dict
+        ``{"68": k68, "95": k95}``: half-width of each two-sided band, in units of the
+        predicted standard deviation (dimensionless; a band is ``mu +- k * sigma``).
     """
     nu = model.get("nu")
     if nu is None or not np.isfinite(nu):
@@ -880,7 +893,22 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
 def corner_noise_from_reproj(reproj_rms_px, n_corners):
     """Corner noise per image axis (px) that a PnP reprojection RMS over n corners implies:
     the residual length's RMS over sqrt(2), times sqrt(2n / (2n - 6)) for the 6 pose
-    parameters fitted (iid noise: its expectation is the noise)."""
+    parameters fitted (iid noise: its expectation is the noise).
+
+    Parameters
+    ----------
+    reproj_rms_px : float or array_like, shape (N,)
+        RMS over the corners of the PnP reprojection residual length, px.
+    n_corners : int or array_like, shape (N,)
+        Corners the PnP used (two residuals each); broadcast against ``reproj_rms_px``. At
+        three or fewer corners the correction's denominator is held at 1.
+
+    Returns
+    -------
+    sigma_px : ndarray, shape (N,) (or () for scalars)
+        Standard deviation of the corner noise per image axis, px (NaN where
+        ``reproj_rms_px`` is NaN).
+    """
     n_res = 2.0 * np.asarray(n_corners, float)
     return np.asarray(reproj_rms_px, float) / np.sqrt(2.0) * np.sqrt(n_res / np.maximum(n_res - 6, 1))
 
@@ -891,7 +919,25 @@ FILL_WINDOW_S = 0.01
 
 
 def vicon_filled(bodies, t_vicon_s, body="board"):
-    """1.0 where a marker of ``body`` was gap-filled within FILL_WINDOW_S of each time, else 0."""
+    """1.0 where a marker of ``body`` was gap-filled within FILL_WINDOW_S of each time, else 0.
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        bodies.parquet (long, docs/contracts.md): needs ``body``, ``t_s`` (Vicon clock, s) and
+        ``n_filled`` (markers gap-filled in the sample).
+    t_vicon_s : array_like, shape (N,)
+        Query times on the Vicon clock, s (e.g. the held-out frames' ``t_vicon_s``).
+    body : str
+        ``"board"`` (T_W_Bm) or ``"camera"`` (T_W_Cm).
+
+    Returns
+    -------
+    filled : ndarray of float, shape (N,)
+        1.0 where at least one sample of ``body`` with ``n_filled > 0`` lies within
+        ``FILL_WINDOW_S`` (s) of the time, else 0.0 (also 0.0 for a time with no sample
+        nearby or a NaN time).
+    """
     b = bodies[bodies["body"] == body].sort_values("t_s")
     t = b["t_s"].to_numpy(float)
     c = np.r_[0, np.cumsum(b["n_filled"].to_numpy(float) > 0)]
@@ -1046,13 +1092,45 @@ def _q_from_model(model):
 
 
 def transfer_covariance(model, features):
-    """Model (T)'s predicted 6x6 error covariance of each frame, SI (m, rad), (N, 6, 6)."""
+    """Model (T)'s predicted 6x6 error covariance of each frame, SI (m, rad), (N, 6, 6).
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output (the ``TRANSFER_PARAMS`` and ``nu``).
+    features : DataFrame
+        :func:`measurement_features` of the frames: ``unitcov_{a}{b}``, ``speed_px``,
+        ``reproj_rms_px``, ``n_corners``, and optionally ``parcov_{a}{b}``, ``rs_err_{dim}``
+        and ``vicon_filled`` (absent ones count as zero).
+
+    Returns
+    -------
+    cov : ndarray, shape (N, 6, 6)
+        Covariance of the pose error ``[x, y, z, roll, pitch, yaw]`` of each frame (the
+        ``err_{dim}`` columns, ``dim`` in ``ERROR_DIMS``), m^2, m rad and rad^2. It is
+        the Student-t's covariance, not its scale matrix.
+    """
     _, S = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
     return S * np.outer(_UNIT, _UNIT)
 
 
 def transfer_mean(model, features):
-    """Model (T)'s predicted error of each frame (the rolling shutter's shear), SI, (N, 6)."""
+    """Model (T)'s predicted error of each frame (the rolling shutter's shear), SI, (N, 6).
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output.
+    features : DataFrame
+        :func:`measurement_features` of the frames, as for :func:`transfer_covariance`.
+
+    Returns
+    -------
+    mu : ndarray, shape (N, 6)
+        Predicted pose error ``[x, y, z, roll, pitch, yaw]`` of each frame, m and rad: the
+        ``rs_err_{dim}`` columns times the model's shear scale, zero without those columns
+        (a global shutter).
+    """
     mu, _ = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
     return mu * _UNIT
 
@@ -1063,6 +1141,14 @@ def cramer_rao_sigma(features, sigma_px):
     The PnP pose is the ML estimate under iid Gaussian corner noise of ``sigma_px`` per axis,
     whose covariance is bounded below by sigma_px^2 (J^T J)^-1 (the Fisher information of the
     corners the frame saw), pushed to the error dimensions: the physical floor of a frame.
+
+    Parameters
+    ----------
+    features : DataFrame
+        :func:`measurement_features` of the frames (their ``unitcov_{a}{b}`` columns, the
+        error covariance per px^2 of corner noise).
+    sigma_px : float or array_like, shape (N,)
+        Corner noise per image axis, px: one value for all frames or one per frame.
 
     Returns
     -------
@@ -1115,7 +1201,26 @@ def score_covariance(cov, errors, nu=None, mean=None):
 
 def nees_values(cov, errors, mean=None):
     """Per-frame NEES e^T Sigma^-1 e (N,) of errors ``err_{dim}`` (minus ``mean``) under
-    covariances (N, 6, 6)."""
+    covariances (N, 6, 6).
+
+    Parameters
+    ----------
+    cov : ndarray, shape (N, 6, 6)
+        Predicted error covariance of each frame, SI (m^2, m rad, rad^2), e.g.
+        :func:`transfer_covariance`.
+    errors : DataFrame
+        ``err_{dim}`` for ``dim`` in ``ERROR_DIMS`` (``x_m, y_m, z_m`` in m, ``roll_rad,
+        pitch_rad, yaw_rad`` in rad) of the same N frames, in the same order.
+    mean : ndarray, shape (N, 6), optional
+        Predicted error subtracted first (e.g. :func:`transfer_mean`), SI; None: zero.
+
+    Returns
+    -------
+    nees : ndarray, shape (N,)
+        Normalised estimation error squared, dimensionless (chi-square with 6 degrees of
+        freedom for a calibrated normal prediction, mean 6). NaN for a frame whose error has
+        a NaN.
+    """
     E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
     E = (E if mean is None else E - mean) / _UNIT
     S = cov / np.outer(_UNIT, _UNIT)

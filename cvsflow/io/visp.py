@@ -226,6 +226,13 @@ def _read_opencv_storage(path: Path) -> dict:
 def read_known_camera(path) -> dict:
     """Known intrinsics from ViSP XML (``.xml``), cvsflow camera.yaml or OpenCV FileStorage YAML.
 
+    Parameters
+    ----------
+    path : str or Path
+        The camera file. ``.xml``: ViSP XML, or OpenCV FileStorage XML when its first 400
+        characters hold ``<opencv_storage>``; other suffixes: OpenCV YAML when it starts with
+        ``%YAML``, else a cvsflow camera.yaml.
+
     Returns
     -------
     dict

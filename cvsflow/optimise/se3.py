@@ -135,7 +135,20 @@ board_points_B = board_object_points  # the board's inner corners in B (m)
 
 
 def K_from_intrinsics(fx, fy, cx, cy):
-    """Camera matrix (3, 3) from focal lengths and principal point, px."""
+    """Camera matrix (3, 3) from focal lengths and principal point, px.
+
+    Parameters
+    ----------
+    fx, fy : float
+        Focal lengths along the image x and y axes, px.
+    cx, cy : float
+        Principal point, px (image origin at the top-left pixel's centre, OpenCV convention).
+
+    Returns
+    -------
+    K : ndarray, shape (3, 3)
+        ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``, float.
+    """
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
@@ -336,6 +349,13 @@ def is_static(T_W_X, tol_m, tol_rad, quantile=STATIC_QUANTILE):
         Largest deviation of the position (m) and rotation angle (rad) from the mean.
     quantile : float
         Share of the samples that must lie within the tolerances (1: every one).
+
+    Returns
+    -------
+    bool
+        True when the ``quantile`` of the distances of the positions from their mean is at most
+        ``tol_m`` and the same quantile of the rotation angles from the mean rotation is at
+        most ``tol_rad``.
 
     Notes
     -----
@@ -1534,7 +1554,22 @@ def apply_se3(params, corners, bodies, board, frames=None):
 
 
 def poses_from_table(frames, prefix):
-    """Stack of T_C_B (F, 4, 4) from the ``{prefix}x_m .. {prefix}qw`` columns of a table."""
+    """Stack of T_C_B (F, 4, 4) from the ``{prefix}x_m .. {prefix}qw`` columns of a table.
+
+    Parameters
+    ----------
+    frames : DataFrame
+        Table with ``{prefix}x_m, {prefix}y_m, {prefix}z_m`` (m) and ``{prefix}qx ..
+        {prefix}qw`` (scalar-last quaternion) columns, one row per frame.
+    prefix : str
+        Column prefix, e.g. ``"cvs_"`` or ``"ref_"``.
+
+    Returns
+    -------
+    T_C_B : ndarray, shape (F, 4, 4)
+        One transform per row (the board B in the camera C), metres. A NaN in a row's
+        columns gives NaN entries in that row's transform.
+    """
     q = frames[[f"{prefix}qx", f"{prefix}qy", f"{prefix}qz", f"{prefix}qw"]].to_numpy(float)
     t = frames[[f"{prefix}x_m", f"{prefix}y_m", f"{prefix}z_m"]].to_numpy(float)
     return tf.make_T(tf.R_from_quat(q).reshape(-1, 3, 3), t)

@@ -426,6 +426,18 @@ def objective_value(eps_xyz_m, objective="sum_squares"):
 def normalised_error_norm(eps_xyz_m):
     """RMS over frames of the translation error norm, sqrt(mean_i ||eps_i[x,y,z]||^2), metres.
 
+    Parameters
+    ----------
+    eps_xyz_m : array_like, shape (N, 3)
+        Per-frame translation errors (x, y, z) of the camera estimate against the reference,
+        metres (the first three columns of the 6-vector pose errors). A NaN in any row makes
+        the result NaN.
+
+    Returns
+    -------
+    float
+        ``sqrt(mean_i ||eps_i||^2)``, metres.
+
     Notes
     -----
     The chapter reports a "normalised" error two-norm (1.15 before, 0.81 after) without

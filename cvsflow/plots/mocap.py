@@ -144,7 +144,28 @@ def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict) -> Figu
 
 def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None = None,
                       method: str | None = None) -> Figure:
-    """:func:`plot_sync` from precomputed streams (:func:`cvsflow.align.angular_speed_streams`)."""
+    """:func:`plot_sync` from precomputed streams (:func:`cvsflow.align.angular_speed_streams`).
+
+    Parameters
+    ----------
+    streams : dict
+        ``t_cvs_s``, ``omega_cvs_rad_s`` (video clock, s and rad/s) and ``t_vicon_s``,
+        ``omega_vicon_rad_s`` (Vicon clock, native samples); NaN speeds are left out of the
+        difference.
+    dt_offset_s : float
+        t_vicon_s = t_video_s + dt_offset_s, s: the shift applied to the video stream.
+    quality : float, optional
+        Sync quality shown in the title; None: not shown.
+    method : str, optional
+        ``sync.method`` shown in the title; None: not shown.
+
+    Returns
+    -------
+    Figure
+        Top: |omega| in deg/s of the video (shifted by the offset) and of the Vicon over the
+        video's span plus 1 s each side. Bottom: their difference in deg/s at the video
+        samples (NaN, not drawn, outside the Vicon samples).
+    """
     t_c = streams["t_cvs_s"] + dt_offset_s
     w_c = np.degrees(streams["omega_cvs_rad_s"])
     t_v = streams["t_vicon_s"]

@@ -150,7 +150,21 @@ def _short(text, n=110):
 
 
 def mark_diverged(fig, reason):
-    """Add "DIVERGED: reason" in red under a figure's title (a diverged seed run); returns fig."""
+    """Add "DIVERGED: reason" in red under a figure's title (a diverged seed run); returns fig.
+
+    Parameters
+    ----------
+    fig : Figure
+        The figure, changed in place.
+    reason : str or None
+        The optimiser's divergence reason (shortened for the title); empty or None: the
+        figure is left as it is.
+
+    Returns
+    -------
+    Figure
+        ``fig`` itself.
+    """
     if reason:
         title = fig.get_suptitle()
         fig.suptitle((title + "\n" if title else "") + "DIVERGED: " + _short(reason),
@@ -163,6 +177,16 @@ def break_gaps(t, *columns, factor=1.5):
 
     Matplotlib joins consecutive points; a NaN between two samples stops the line there, so a
     missing stretch (no board, no Vicon) shows as a gap instead of a straight line across it.
+
+    Parameters
+    ----------
+    t : array_like, shape (N,)
+        Sample times, increasing, s (any unit: only ratios of steps matter).
+    *columns : array_like, shape (N,)
+        Values at those times, one array per series.
+    factor : float
+        A step longer than ``factor`` times the median positive step is a gap. Fewer than
+        three samples, or no positive step: nothing is inserted.
 
     Returns
     -------

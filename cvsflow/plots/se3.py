@@ -114,7 +114,19 @@ def plot_parameter_correlation(result: dict) -> Figure:
 
 
 def plot_solver_convergence(iterations: pd.DataFrame) -> Figure:
-    """The se3 solver's steps: robust cost, reprojection RMS (px), fx, fy (px) and time offset (ms)."""
+    """The se3 solver's steps: robust cost, reprojection RMS (px), fx, fy (px) and time offset (ms).
+
+    Parameters
+    ----------
+    iterations : DataFrame
+        One row per solver step: ``iteration``, ``cost`` (robust cost, > 0: drawn on a log
+        axis), ``rms_px``, ``fx_px``, ``fy_px`` (px) and ``dt_offset_s`` (s).
+
+    Returns
+    -------
+    Figure
+        2 x 2 axes against the solver step: cost, reprojection RMS, fx and fy, time offset.
+    """
     fig = Figure(figsize=(10.0, 6.0), layout="constrained")
     ax = fig.subplots(2, 2).ravel()
     it = iterations["iteration"].to_numpy()

@@ -25,6 +25,13 @@ def plot_sweep(summary):
     focal lengths per method beside the start and the truth, and says that one start was run.
     Diverged runs (the seed method's own check) are marked with a red cross.
 
+    Parameters
+    ----------
+    summary : DataFrame
+        One row per (session, method, start): ``session``, ``method``, ``fx_init_px``,
+        ``fx_px``, ``fy_px`` (px), ``norm_final_mm`` (mm, RMS), optionally ``fx_true_px``
+        (px; NaN or absent: no truth line) and ``diverged`` (bool; absent: none diverged).
+
     Returns
     -------
     Figure
@@ -91,6 +98,13 @@ def plot_sessions(summary):
 
     The axes are logarithmic: se3 errors are millimetres, a diverged seed run's are metres.
     Bars of a diverged run are hatched and labelled "diverged": not measurements.
+
+    Parameters
+    ----------
+    summary : DataFrame
+        Rows with ``session``, ``method``, the :data:`STD_COLUMNS` (``std_{x,y,z}_mm`` in mm,
+        ``std_{roll,pitch,yaw}_deg`` in deg) and optionally ``diverged`` (bool); only the
+        first row of each (session, method) is drawn (the first focal initialisation).
 
     Returns
     -------

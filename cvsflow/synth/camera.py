@@ -85,7 +85,20 @@ class Board:
 
 
 def rectangle_outline_B(extent, n_per_edge=8) -> np.ndarray:
-    """Points along the board-plane rectangle ``extent`` = (x0, x1, y0, y1), shape (4 n, 3)."""
+    """Points along the board-plane rectangle ``extent`` = (x0, x1, y0, y1), shape (4 n, 3).
+
+    Parameters
+    ----------
+    extent : (float, float, float, float)
+        ``(x0, x1, y0, y1)`` of the rectangle in the board frame B, metres.
+    n_per_edge : int
+        Points per edge, evenly spaced, each edge's start included and its end left out.
+
+    Returns
+    -------
+    points_B : ndarray, shape (4 * n_per_edge, 3)
+        The outline in B (z = 0), metres, walked from (x0, y0) towards (x1, y0) and round.
+    """
     x0, x1, y0, y1 = extent
     u = np.linspace(0.0, 1.0, n_per_edge, endpoint=False)
     edges = [
@@ -99,7 +112,21 @@ def rectangle_outline_B(extent, n_per_edge=8) -> np.ndarray:
 
 
 def camera_from_config(camera_cfg):
-    """Camera matrix K (3, 3) px and distortion (5,) [k1, k2, p1, p2, k3] from the synth config."""
+    """Camera matrix K (3, 3) px and distortion (5,) [k1, k2, p1, p2, k3] from the synth config.
+
+    Parameters
+    ----------
+    camera_cfg : dict
+        ``synth.camera``: ``fx_px``, ``fy_px``, ``cx_px``, ``cy_px`` (px) and ``dist``
+        (OpenCV order; its length is not checked here).
+
+    Returns
+    -------
+    K : ndarray, shape (3, 3)
+        Camera matrix, px.
+    dist : ndarray
+        Distortion coefficients as given, float.
+    """
     K = np.array(
         [
             [camera_cfg["fx_px"], 0.0, camera_cfg["cx_px"]],
@@ -111,7 +138,20 @@ def camera_from_config(camera_cfg):
 
 
 def distort_normalised(xy, dist):
-    """OpenCV's 5-term lens model on normalised rays ``xy`` (..., 2); returns (..., 2)."""
+    """OpenCV's 5-term lens model on normalised rays ``xy`` (..., 2); returns (..., 2).
+
+    Parameters
+    ----------
+    xy : ndarray, shape (..., 2)
+        Undistorted normalised image coordinates (x / z, y / z in the camera frame C).
+    dist : array_like, shape (5,)
+        ``[k1, k2, p1, p2, k3]``.
+
+    Returns
+    -------
+    xy_d : ndarray, shape (..., 2)
+        Distorted normalised coordinates (pixels are ``K @ [xd, yd, 1]``).
+    """
     k1, k2, p1, p2, k3 = dist
     x, y = xy[..., 0], xy[..., 1]
     r2 = x * x + y * y
@@ -215,6 +255,12 @@ def make_board_texture(board: Board, ppm=1200.0, n_levels=5, markers_B=None) -> 
     markers_B : ndarray, shape (M, 3), optional
         Vicon markers stuck on the sheet (frame B, metres); those over the sheet are drawn
         as grey discs of ``MARKER_RADIUS_M`` seen face-on (their relief is ignored).
+
+    Returns
+    -------
+    BoardTexture
+        ``n_levels`` levels, the finest at ``ppm`` texels per metre, with texel edges on the
+        square edges and one empty texel ring round the sheet.
     """
     s = board.square_m
     x_min, _, y_min, _ = board.printed_B()
@@ -276,7 +322,25 @@ def _charuco_marker_ink(board: Board, x_m, y_m):
 
 
 def texture_pyramid(level, ppm, n_levels, x0, y0) -> BoardTexture:
-    """A BoardTexture of ``n_levels`` halvings (area-averaged) of a (rows, cols, 2) level."""
+    """A BoardTexture of ``n_levels`` halvings (area-averaged) of a (rows, cols, 2) level.
+
+    Parameters
+    ----------
+    level : ndarray, shape (rows, cols, 2), float32
+        Finest level: premultiplied reflectance and coverage (see :class:`BoardTexture`).
+        ``rows`` and ``cols`` should divide by ``2 ** (n_levels - 1)``.
+    ppm : float
+        Texels per metre of ``level``.
+    n_levels : int
+        Levels in all, ``level`` included.
+    x0, y0 : float
+        Board-frame B position of the texture's top-left texel corner, metres.
+
+    Returns
+    -------
+    BoardTexture
+        Level l at ``ppm / 2**l`` texels per metre.
+    """
     levels, ppms = [level], [ppm]
     for _ in range(n_levels - 1):
         level = cv2.resize(level, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
@@ -322,7 +386,21 @@ def _texel_from_ray(T_C_B, texture: BoardTexture, level: int):
 
 
 def choose_level(T_C_B, K, texture: BoardTexture) -> int:
-    """Finest pyramid level with at most ~1.4 texels per pixel at the board centre."""
+    """Finest pyramid level with at most ~1.4 texels per pixel at the board centre.
+
+    Parameters
+    ----------
+    T_C_B : ndarray, shape (4, 4)
+        Board in camera, metres; its origin's depth (held at >= 1 mm) sets the scale.
+    K : ndarray, shape (3, 3)
+        Camera matrix, px (``fx`` is used).
+    texture : BoardTexture
+
+    Returns
+    -------
+    int
+        Level index, 0 (finest) to ``len(texture.levels) - 1``.
+    """
     depth_m = max(float(T_C_B[2, 3]), 1e-3)
     px_per_m = K[0, 0] / depth_m
     level = 0
@@ -363,7 +441,26 @@ def render_board(T_C_B, texture: BoardTexture, xy_n, K, dist, roi=None):
 
 
 def render_board_region(T_C_B, texture: BoardTexture, xy_n, K, roi):
-    """``render_board`` inside the pixel box ``roi`` = (x0, y0, x1, y1) only: shape (y1-y0, x1-x0, 2)."""
+    """``render_board`` inside the pixel box ``roi`` = (x0, y0, x1, y1) only: shape (y1-y0, x1-x0, 2).
+
+    Parameters
+    ----------
+    T_C_B : ndarray, shape (4, 4)
+        Board in camera, metres.
+    texture : BoardTexture
+    xy_n : ndarray, shape (H, W, 2)
+        ``undistortion_grid`` of the camera.
+    K : ndarray, shape (3, 3)
+        Camera matrix, px (only used to choose the level).
+    roi : (int, int, int, int)
+        ``(x0, y0, x1, y1)``, pixels, end-exclusive, inside the image.
+
+    Returns
+    -------
+    layer : ndarray, shape (y1 - y0, x1 - x0, 2), float32
+        Channel 0 reflectance times coverage, channel 1 coverage (0..1); 0 where the pixel's
+        ray misses the sheet or meets the board plane behind the camera.
+    """
     x0, y0, x1, y1 = roi
     level = choose_level(T_C_B, K, texture)
     G = _texel_from_ray(T_C_B, texture, level)
@@ -395,7 +492,30 @@ def _rays_hit_front(T_C_B, rays):
 
 
 def board_roi(T_C_B, texture: BoardTexture, K, dist, size, pad_px=3):
-    """Pixel box (x0, y0, x1, y1) holding the sheet, the whole image if unsure, None if unseen."""
+    """Pixel box (x0, y0, x1, y1) holding the sheet, the whole image if unsure, None if unseen.
+
+    Parameters
+    ----------
+    T_C_B : ndarray, shape (4, 4)
+        Board in camera, metres.
+    texture : BoardTexture
+        Its extent in B (the whole texture, empty ring included) is what is boxed.
+    K : ndarray, shape (3, 3)
+        Camera matrix, px.
+    dist : ndarray, shape (5,)
+        Distortion [k1, k2, p1, p2, k3].
+    size : (int, int)
+        Image (width, height), px.
+    pad_px : int
+        Margin added round the projected outline, px.
+
+    Returns
+    -------
+    roi : (int, int, int, int) or None
+        ``(x0, y0, x1, y1)`` clipped to the image, end-exclusive, px. The whole image when an
+        outline point cannot be projected (NaN: behind the camera or off the lens model's
+        domain); None when the box lies outside the image.
+    """
     width, height = size
     x_a = texture.x0_m
     y_a = texture.y0_m
@@ -420,6 +540,22 @@ def make_background(rng, size, n_rects=60, light=False):
 
     Random rectangles (furniture, posters) over a smooth texture; ``light`` gives the pale,
     plain background of the calibration stills.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Draws the texture, the rectangles and the fine noise.
+    size : (int, int)
+        Image (width, height), px.
+    n_rects : int
+        Random rectangles drawn.
+    light : bool
+        Map the result to 0.75..0.95 (the stills' pale background).
+
+    Returns
+    -------
+    background : ndarray, shape (height, width), float32
+        Reflectance in 0..1.
     """
     width, height = size
     coarse = rng.uniform(0.0, 1.0, size=(height // 16 + 2, width // 16 + 2)).astype(np.float32)
@@ -437,7 +573,23 @@ def make_background(rng, size, n_rects=60, light=False):
 
 
 def vignetting(size, K, strength=0.25):
-    """Smooth multiplicative shading, shape (height, width), 1 at the principal point."""
+    """Smooth multiplicative shading, shape (height, width), 1 at the principal point.
+
+    Parameters
+    ----------
+    size : (int, int)
+        Image (width, height), px.
+    K : ndarray, shape (3, 3)
+        Camera matrix, px: the shading is ``1 - strength * r^2`` with r the normalised
+        distance ``((u - cx) / fx, (v - cy) / fy)`` from the principal point.
+    strength : float
+        Fall-off per unit squared normalised radius.
+
+    Returns
+    -------
+    shading : ndarray, shape (height, width), float32
+        Multiplier of the scene radiance, dimensionless.
+    """
     width, height = size
     u, v = np.meshgrid(np.arange(width, dtype=np.float32), np.arange(height, dtype=np.float32))
     r2 = ((u - K[0, 2]) / K[0, 0]) ** 2 + ((v - K[1, 2]) / K[1, 1]) ** 2

@@ -138,6 +138,24 @@ def _pair(value, key, positive=True):
 def parse_effects(synth_cfg, image_noise_sigma, video_quality) -> Effects:
     """Resolve ``synth.preset`` and the effect keys of a session's ``synth`` block.
 
+    Parameters
+    ----------
+    synth_cfg : dict
+        The session's ``synth`` block: ``preset`` (default ``fast``) and any effect keys
+        (``image_size`` px, ``fps`` Hz, ``distance_m``, ``rolling_shutter``, ``occlusion``,
+        ``auto_exposure``, ``white_balance_drift``, ``defocus``, ``noise``, ``codec``,
+        ``timestamps``), merged over the preset's values.
+    image_noise_sigma : float
+        ``synth.image_noise_sigma`` (grey levels): the read noise when ``noise.read_sigma``
+        is None.
+    video_quality : int
+        ``synth.video_quality``: the codec quality when ``codec.quality`` is None.
+
+    Returns
+    -------
+    Effects
+        The resolved effects; ``explicit`` lists the effect keys the block gave itself.
+
     Raises
     ------
     ConfigError
@@ -227,6 +245,25 @@ def make_timeline(n_capture, fps, jitter_s, drop_rate, rng) -> Timeline:
     Capture k is nominally at k / fps; its container time is that plus Gaussian jitter
     (clipped to +-0.4 period so the order never changes), rounded to the 1/90000 s tick.
     Each capture except the first is dropped with probability ``drop_rate``.
+
+    Parameters
+    ----------
+    n_capture : int
+        Captures of the regular sequence.
+    fps : float
+        Capture rate, Hz.
+    jitter_s : float
+        Standard deviation of the timestamp jitter, s (the first capture has none).
+    drop_rate : float
+        Probability that a capture is dropped, 0..1.
+    rng : numpy.random.Generator
+        The ``timestamps`` stream; not drawn from when ``jitter_s`` and ``drop_rate`` are 0.
+
+    Returns
+    -------
+    Timeline
+        The kept captures: ``capture_index``, container time ``t_s`` (s), ``pts`` (ticks of
+        1 / ``PTS_RATE_HZ`` s), and the ``dropped`` capture indices.
     """
     k = np.arange(n_capture)
     t_nom = k / fps
@@ -271,7 +308,25 @@ class HandPlan:
 
 
 def make_hand_plan(rng, duration_s, board: Board, effects: Effects) -> HandPlan:
-    """Random grip episodes over the video (about ``hand_share`` of the time with a hand)."""
+    """Random grip episodes over the video (about ``hand_share`` of the time with a hand).
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The ``hand`` stream.
+    duration_s : float
+        Video length, s; episodes cover -1 s to ``duration_s + 1`` s.
+    board : Board
+        Its ``square_m`` scales the fingers' reach.
+    effects : Effects
+        ``hand_share`` (probability of a hand per episode), ``reach_squares`` (range of the
+        reach, in squares) and ``episode_s`` (range of the episode lengths, s).
+
+    Returns
+    -------
+    HandPlan
+        Episode start times (s), each episode's grip index (-1: no hand) and the grips.
+    """
     starts, index, grips = [], [], []
     t = -1.0
     while t < duration_s + 1.0:
@@ -297,6 +352,22 @@ def hand_polygons_B(grip: Grip, board: Board, n_arc=12):
 
     The palm sits on the sheet edge (half of it beyond the sheet), four fingers reach inwards
     so that their tips lie ``reach_m`` past the outermost inner-corner line.
+
+    Parameters
+    ----------
+    grip : Grip
+        Edge, position along it, reach (m) and finger spread (rad).
+    board : Board
+        Sheet extent and inner-corner grid in B.
+    n_arc : int
+        Points per half outline of the palm and per fingertip arc.
+
+    Returns
+    -------
+    polygons : list of ndarray, shape (M, 2)
+        Outlines (open; ``cv2.fillPoly`` closes them) in the board plane (x, y in B),
+        metres: the palm, the strip from the sheet edge to it when the palm reaches onto the
+        sheet, and four fingers.
     """
     s = board.square_m
     sx0, sx1, sy0, sy1 = board.sheet_B()
@@ -346,6 +417,22 @@ def make_hand_texture(grip: Grip, board: Board, ppm=600.0, n_levels=5) -> BoardT
     """Texture pyramid of the hand in the board plane (channel 0 skin reflectance x alpha, 1 alpha).
 
     Its extent covers the sheet plus a margin for the palm beyond the sheet edge.
+
+    Parameters
+    ----------
+    grip : Grip
+        The hand's grip (:func:`hand_polygons_B`).
+    board : Board
+        The board whose sheet (plus 0.1 m) the texture covers.
+    ppm : float
+        Texels per metre of the finest level.
+    n_levels : int
+        Pyramid levels, each half the resolution of the previous one.
+
+    Returns
+    -------
+    BoardTexture
+        Channel 0 ``SKIN_GREY`` times coverage, channel 1 coverage of the hand (anti-aliased).
     """
     sx0, sx1, sy0, sy1 = board.sheet_B()
     margin = 0.1
@@ -363,7 +450,22 @@ def make_hand_texture(grip: Grip, board: Board, ppm=600.0, n_levels=5) -> BoardT
 
 
 def occluded_corners(texture: BoardTexture, corners_B, radius_m):
-    """Corners (bool (M,)) with hand coverage > 0.5 anywhere within ``radius_m`` in the board plane."""
+    """Corners (bool (M,)) with hand coverage > 0.5 anywhere within ``radius_m`` in the board plane.
+
+    Parameters
+    ----------
+    texture : BoardTexture
+        The hand texture (:func:`make_hand_texture`); its finest level is used.
+    corners_B : ndarray, shape (M, 3) or (M, 2)
+        Corners in the board frame B, metres (x, y used).
+    radius_m : float
+        Distance from a corner within which a covered texel hides it, m (at least one texel).
+
+    Returns
+    -------
+    occluded : ndarray of bool, shape (M,)
+        True where the hand hides the corner; False outside the texture.
+    """
     alpha = texture.levels[0][..., 1]
     ppm = texture.ppm[0]
     r = max(int(np.ceil(radius_m * ppm)), 1)
@@ -387,6 +489,16 @@ def auto_exposure(rng, t_s, effects: Effects):
     the light it saw ``lag_s`` ago, using exposure first (within ``exposure_s``), gain for the
     rest. So the blur follows the exposure and the brightness shows the AE's lag.
 
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The ``exposure`` stream (draws the light's drift).
+    t_s : array_like, shape (N,)
+        Frame times, s.
+    effects : Effects
+        ``light_drift`` (relative amplitude), ``ae_lag_s`` (s) and ``exposure_range_s``
+        (min, max exposure, s; the reference exposure is their geometric mean).
+
     Returns
     -------
     light, exposure_s, gain : ndarray, shape (N,)
@@ -405,7 +517,22 @@ def auto_exposure(rng, t_s, effects: Effects):
 
 
 def white_balance(rng, t_s, effects: Effects):
-    """Per-channel (B, G, R) gains at times ``t_s``, shape (N, 3): 1 + drift x slow sines, G fixed."""
+    """Per-channel (B, G, R) gains at times ``t_s``, shape (N, 3): 1 + drift x slow sines, G fixed.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The ``colour`` stream.
+    t_s : array_like, shape (N,)
+        Frame times, s.
+    effects : Effects
+        ``wb_drift``: largest relative change of the B and R gains.
+
+    Returns
+    -------
+    gains : ndarray, shape (N, 3)
+        White-balance gains B, G, R per frame (G is 1; B and R within 1 +- ``wb_drift``).
+    """
     d = random_sine_sum(rng, 2, 3, 0.02, 0.12, std=[1.0, 1.0])(np.asarray(t_s, float))
     g = np.ones((len(t_s), 3))
     g[:, 0] = 1.0 + effects.wb_drift * np.tanh(d[:, 0])

@@ -46,6 +46,24 @@ def random_sine_sum(rng, n_channels, n_terms, f_min_hz, f_max_hz, std):
 
     Amplitudes fall off as 1/f, as hand motion does, so that slow sweeps dominate and faster
     terms add the occasional quick move.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Draws the frequencies, amplitudes and phases.
+    n_channels : int
+        Independent signals.
+    n_terms : int
+        Sinusoids per signal.
+    f_min_hz, f_max_hz : float
+        Range of the (uniform) frequencies, Hz.
+    std : array_like, shape (n_channels,)
+        Standard deviation of each channel over time, in the channel's own unit.
+
+    Returns
+    -------
+    SineSum
+        Callable: times (N,) in s to values (N, n_channels), zero mean.
     """
     freq_hz = rng.uniform(f_min_hz, f_max_hz, size=(n_channels, n_terms))
     amplitude = rng.uniform(0.5, 1.0, size=(n_channels, n_terms)) / freq_hz
@@ -133,6 +151,20 @@ def motion_channels(motion: HandMotion, t_s):
 
     Before ``HOLD_S`` the board is still (also for t < 0, when only the Vicon records), then it
     is tilted forward about its x axis and back (``GESTURE_S``), then blended into free motion.
+
+    Parameters
+    ----------
+    motion : HandMotion
+        The motion's random signals and hold pose.
+    t_s : array_like, shape (N,)
+        Video-clock times, s (negative ones are before the video starts).
+
+    Returns
+    -------
+    channels : ndarray, shape (N, 6)
+        Per time: horizontal and vertical position of the board centre in units of the half
+        field of view (``tan_half_fov``), log-depth relative to ``depth_center_m``
+        (dimensionless), and roll, pitch, yaw (rad).
     """
     t_s = np.asarray(t_s, dtype=float)
     free = motion.free(t_s)
@@ -215,6 +247,18 @@ def still_plan(rng, n):
     y down); a tilt axis (radians, in the board plane from board x) marks a strongly tilted
     view, None a moderately tilted one of random axis. The first min(n, 9) stills visit the
     3x3 regions (corners, edges, centre); the rest are tilted views over the outer regions.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Permutes the outer regions for the tilted views.
+    n : int
+        Number of stills.
+
+    Returns
+    -------
+    plan : list of (tuple of int, float or None)
+        ``n`` entries ``((sx, sy), axis_rad)``, in still order.
     """
     plan = [(push, None) for push in _CELL_PUSH[: min(n, 9)]]
     outer = list(_CELL_PUSH[:8])

@@ -218,6 +218,16 @@ def _camera_truth(spec, rig, motion, t_s):
 def realistic_truth(spec, rngs, motion):
     """Timeline, exposure, colour, hand and the true per-frame quantities of a realistic render.
 
+    Parameters
+    ----------
+    spec : SynthSpec
+        The checked session (its ``effects`` pick what is simulated).
+    rngs : dict of str to numpy.random.Generator
+        :func:`cvsflow.synth.session.random_streams`; uses ``timestamps``, ``exposure``,
+        ``lighting``, ``colour`` and ``hand``.
+    motion : HandMotion
+        The board's motion in C.
+
     Returns
     -------
     truth : VideoTruth

@@ -109,6 +109,21 @@ def _require(mapping, key, where):
 def parse_session_config(session_cfg) -> SynthSpec:
     """Read and check a session's ``synth``, ``board`` and ``markers`` blocks.
 
+    Parameters
+    ----------
+    session_cfg : dict
+        ``config["sessions"][name]``: ``synth`` (``seed``, ``camera`` with ``fx_px, fy_px,
+        cx_px, cy_px`` in px and ``dist`` [k1, k2, p1, p2, k3], ``T_Cm_C_pose6``,
+        ``T_Bm_B_pose6`` (m, rad), optional durations in s, noise in m and grey levels, the
+        effect keys and ``camera_motion``), ``board`` (``squares_x``, ``squares_y``,
+        ``square_m`` in m; ChArUco: ``marker_m``, ``dictionary``) and ``markers`` (per body
+        ``camera``/``board``: ``names`` and ``layout_m``, one [x, y, z] in m per name).
+
+    Returns
+    -------
+    SynthSpec
+        The checked specification, with the defaults of absent optional keys filled in.
+
     Raises
     ------
     ConfigError
@@ -182,6 +197,18 @@ def parse_session_config(session_cfg) -> SynthSpec:
 def parse_camera_motion(cfg) -> CameraMotion:
     """``synth.camera_motion`` (absent: a static camera), checked.
 
+    Parameters
+    ----------
+    cfg : dict or None
+        The ``synth.camera_motion`` block: ``type`` (one of ``CAMERA_MOTION_TYPES``, default
+        ``static``) and the :class:`cvsflow.synth.motion.CameraMotion` fields (``radius_m``,
+        ``period_s`` > 0; ``amplitude_rad``, ``lift_m`` >= 0). None: a static camera.
+
+    Returns
+    -------
+    CameraMotion
+        The motion, with the defaults of absent keys.
+
     Raises
     ------
     ConfigError
@@ -213,7 +240,20 @@ def parse_camera_motion(cfg) -> CameraMotion:
 
 
 def random_streams(seed):
-    """Independent generators, one per purpose, all derived from ``seed``."""
+    """Independent generators, one per purpose, all derived from ``seed``.
+
+    Parameters
+    ----------
+    seed : int
+        The session's ``synth.seed``.
+
+    Returns
+    -------
+    rngs : dict of str to numpy.random.Generator
+        One generator per name of ``_STREAMS`` (``mounting``, ``stills``, ``motion``, ...),
+        spawned from ``SeedSequence(seed)`` in that order, so a stream appended later leaves
+        the earlier ones unchanged.
+    """
     children = np.random.SeedSequence(seed).spawn(len(_STREAMS))
     return {name: np.random.default_rng(s) for name, s in zip(_STREAMS, children, strict=True)}
 
@@ -236,6 +276,21 @@ def make_rig(spec: SynthSpec, rng) -> Rig:
     The camera sits on a chair, optical axis horizontal, marker body roughly aligned with
     the Vicon axes by hand (a few degrees off). The true time offset is ``vicon_lead_s``
     plus a random fraction of a Vicon sample, so it is never a whole number of samples.
+
+    Parameters
+    ----------
+    spec : SynthSpec
+        The designed mountings, marker layouts (m), placement error sigma (m) and
+        ``vicon_lead_s`` (s).
+    rng : numpy.random.Generator
+        The ``mounting`` stream: marker placement errors, camera position and yaw, the
+        sub-sample part of the time offset.
+
+    Returns
+    -------
+    Rig
+        True T_W_Cm, T_Cm_C, T_Bm_B (metres), the real marker positions in Cm and Bm (m) and
+        the true ``dt_offset_s`` (t_vicon_s = t_video_s + dt_offset_s, s).
     """
     sigma = spec.marker_placement_sigma_m
     T_Cm_C, markers_Cm = true_mounting(
@@ -291,7 +346,20 @@ class VideoTruth:
 
 
 def exposure_times(rng, t_s):
-    """Auto-exposure times (s) at video times ``t_s``: drifting slowly within 8..20 ms."""
+    """Auto-exposure times (s) at video times ``t_s``: drifting slowly within 8..20 ms.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Draws the drift (a random sum of sines at 0.01..0.08 Hz).
+    t_s : ndarray, shape (N,)
+        Video frame times, s.
+
+    Returns
+    -------
+    exposure_s : ndarray, shape (N,)
+        Exposure time of each frame, s, in [0.008, 0.020].
+    """
     drift = random_sine_sum(rng, 1, 3, 0.01, 0.08, std=[1.0])(t_s)[:, 0]
     return np.clip(0.014 + 0.006 * drift, 0.008, 0.020)
 
@@ -302,6 +370,25 @@ def video_truth(spec: SynthSpec, motion: HandMotion, exposure_s, t_s=None) -> Vi
     ``t_s`` (N,) are the frames' container times (default: regular at ``FPS``). Under a
     rolling shutter (``spec.effects.line_delay_s`` > 0) ``corners_px`` are the corners at
     their own row's capture time (``corners_at_line_times``); ``T_C_B`` stays at ``t_s``.
+
+    Parameters
+    ----------
+    spec : SynthSpec
+        Camera (K, dist), board, image size and effects (``line_delay_s``).
+    motion : HandMotion
+        The board's motion in C (:func:`cvsflow.synth.motion.board_poses`).
+    exposure_s : ndarray, shape (N,)
+        Exposure time of each frame, s (the blur spans t_s +- exposure_s / 2).
+    t_s : ndarray, shape (N,), optional
+        Container (mid-exposure) times, s; None: ``duration_s * FPS`` frames at ``FPS``.
+
+    Returns
+    -------
+    VideoTruth
+        ``t_s``, ``T_C_B`` (N, 4, 4, m), ``exposure_s``, ``corners_px`` (N, nx*ny, 2;
+        distorted px, NaN where a corner cannot be projected), ``in_view`` (every corner at
+        least ``IN_VIEW_MARGIN_PX`` inside the image) and ``blur_px`` (largest corner travel
+        over the exposure, px; 0 when none is projectable); the realistic fields None.
     """
     if t_s is None:
         n = int(round(spec.duration_s * FPS))
@@ -338,10 +425,32 @@ def corners_at_line_times(motion, t_s, corners_B, K, dist, line_delay_s, guess_p
     Row v is captured at t_s + v * line_delay_s; the fixed point v = v(t_s + v * line_delay_s)
     is found by iteration (a contraction: the board moves far less than one row per row time).
 
+    Parameters
+    ----------
+    motion : HandMotion
+        The board's motion in C.
+    t_s : array_like, shape (N,)
+        Frame times, s: the capture time of image row 0.
+    corners_B : ndarray, shape (M, 3)
+        Corners in the board frame B, metres.
+    K : ndarray, shape (3, 3)
+        Camera matrix, px.
+    dist : ndarray, shape (5,)
+        Distortion [k1, k2, p1, p2, k3].
+    line_delay_s : float
+        Time between the capture of consecutive rows, s.
+    guess_px : ndarray, shape (N, M, 2)
+        Starting corner pixels (e.g. the global-shutter projection at ``t_s``).
+    n_iter : int
+        Fixed-point iterations.
+
     Returns
     -------
     uv_px : ndarray, shape (N, M, 2)
+        Distorted corner pixels at their own row's time, px (NaN where not projectable).
     t_line_s : ndarray, shape (N, M)
+        Capture time of each corner, s (``t_s + v * line_delay_s`` with v clipped at 0 and a
+        NaN v taken as row 0).
     """
     t_s = np.asarray(t_s, float)
     uv = guess_px
@@ -512,6 +621,22 @@ def camera_track(spec: SynthSpec, rig: Rig, motion: HandMotion, t_s):
 
     ``rig.T_W_Cm`` at every time for a static camera; else ``camera_poses`` (the chair's pose
     as the start, or the orbit's centre) with the true mounting T_Cm_C.
+
+    Parameters
+    ----------
+    spec : SynthSpec
+        Its ``camera_motion``.
+    rig : Rig
+        True ``T_W_Cm`` (at video time 0) and ``T_Cm_C``, metres.
+    motion : HandMotion
+        The board's motion (a hand-held camera makes the board's relative motion).
+    t_s : array_like, shape (N,)
+        Video-clock times, s.
+
+    Returns
+    -------
+    T_W_Cm : ndarray, shape (N, 4, 4)
+        Camera-marker body pose in the Vicon world W per time, metres.
     """
     T_W_C0 = rig.T_W_Cm @ rig.T_Cm_C
     return camera_poses(spec.camera_motion, motion, T_W_C0, t_s) @ invert_T(rig.T_Cm_C)
@@ -565,6 +690,29 @@ def truth_tables(spec: SynthSpec, truth: VideoTruth, T_W_C=None):
     ``T_W_C`` (N, 4, 4): the true camera in W per frame, given for a moving camera; it adds
     ``cam_x_m, cam_y_m, cam_z_m, cam_qx, cam_qy, cam_qz, cam_qw`` (T_W_C, metres) to
     ``truth_frames``.
+
+    Parameters
+    ----------
+    spec : SynthSpec
+        Its ``effects.line_delay_s`` (realistic renders).
+    truth : VideoTruth
+        The video's true per-frame quantities (:func:`video_truth`, realistic fields filled
+        by :func:`cvsflow.synth.render.realistic_truth`).
+    T_W_C : ndarray, shape (N, 4, 4), optional
+        True camera pose in W per frame, metres; None (static camera): no ``cam_*`` columns.
+
+    Returns
+    -------
+    frames : DataFrame
+        ``truth_frames``: one row per frame, ``frame, t_s``, true T_C_B as ``x_m, y_m, z_m``
+        (m), ``roll_rad, pitch_rad, yaw_rad`` and ``qx .. qw`` (scalar last), ``in_view``,
+        ``blur_px``, ``exposure_s``; realistic renders add ``capture_index``,
+        ``line_delay_s``, ``n_visible``, ``n_occluded``, ``grip``, ``gain``, ``analog_gain``,
+        ``light``, ``wb_b, wb_g, wb_r``.
+    corners : DataFrame
+        ``truth_corners``: one row per frame and corner, ``frame, corner, u_px, v_px``
+        (distorted px, NaN where not projectable); realistic renders add ``occluded``,
+        ``in_image``, ``t_line_s`` (s).
     """
     n = len(truth.t_s)
     rpy = euler_from_R(truth.T_C_B[:, :3, :3])
@@ -624,6 +772,25 @@ def truth_document(spec: SynthSpec, rig: Rig, n_frames, stills, extra=None):
     """The ``truth.yaml`` mapping (docs/contracts.md), plus the designed mountings and stills.
 
     ``extra`` (realistic renders): more keys, e.g. the effects and the dropped capture indices.
+
+    Parameters
+    ----------
+    spec : SynthSpec
+        The camera, board, marker names, seed and designed mountings.
+    rig : Rig
+        The true geometry (T_Cm_C, T_Bm_B, T_W_Cm in m; marker positions; ``dt_offset_s``).
+    n_frames : int
+        Video frames written.
+    stills : dict
+        Still file name to its truth (``T_C_B``, ``pose6``).
+    extra : dict, optional
+        Keys added last (they override); None or empty: none.
+
+    Returns
+    -------
+    doc : dict
+        The mapping (numpy arrays not yet converted for YAML); ``camera_motion`` is added
+        for a moving camera, whose ``T_W_Cm`` is then the pose at video time 0.
     """
     width, height = spec.image_size
     doc = {
@@ -652,5 +819,16 @@ def truth_document(spec: SynthSpec, rig: Rig, n_frames, stills, extra=None):
 
 
 def still_outline_B(board: Board):
-    """Points that must be in view in a calibration still: the printed squares' outline."""
+    """Points that must be in view in a calibration still: the printed squares' outline.
+
+    Parameters
+    ----------
+    board : Board
+        The board (its printed squares' extent in B).
+
+    Returns
+    -------
+    points_B : ndarray, shape (24, 3)
+        Points along the printed squares' rectangle in B (z = 0), 6 per edge, metres.
+    """
     return rectangle_outline_B(board.printed_B(), n_per_edge=6)
