@@ -14,11 +14,12 @@ peak memory (b = 1: linear; b = 0: flat).
     .venv/bin/python bench/bench_scaling.py --plot-only                     # redraw from --out
 
 A case is ``<duration_s>x<height>``: 640x480, 1280x720 or 1920x1080. At the higher resolutions
-the intrinsics (fx, fy, cx, cy) scale with the width so the field of view stays the demo's.
+the intrinsics (fx, fy, cx, cy) scale with the height so the vertical field of view stays the
+demo's (16:9 images see more at the sides).
 The flight demo is left out (its length does not follow the session's). CPU seconds are the
 primary number on a shared machine; wall seconds are printed beside them.
-Writes ``--out`` (CSV, one row per case and stage; rows of the cases run replace earlier rows
-of the same case) and the log-log figure ``--figure`` (cvsflow.plots.timing.plot_stage_scaling).
+Writes ``--out`` (CSV, one row per case, stage set and stage; a rerun replaces the earlier rows
+of the same case and stage set) and the log-log figure ``--figure`` (cvsflow.plots.timing.plot_stage_scaling).
 """
 
 from __future__ import annotations
@@ -33,9 +34,10 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import yaml
+
+from cvsflow.plots.timing import stage_exponents
 
 REPO = Path(__file__).resolve().parents[1]
 SIZES = {480: (640, 480), 720: (1280, 720), 1080: (1920, 1080)}
@@ -65,7 +67,9 @@ def case_config(duration_s: float, height_px: int) -> dict:
     width, height = SIZES[height_px]
     if height_px != 480:
         synth["image_size"] = [width, height]
-        scale = width / 640.0
+        # scaled with the height: the vertical field of view stays the demo's (its 15 stills
+        # must hold the whole board), the wider 16:9 images see more at the sides
+        scale = height / 480.0
         cam = synth["camera"]
         cam["fx_px"] *= scale
         cam["fy_px"] *= scale
@@ -149,24 +153,11 @@ def write_table_hashes(results: Path, out: Path) -> None:
     print(f"sha256 of {len(lines)} tables: {out}", flush=True)
 
 
-def fit_exponents(table: pd.DataFrame) -> pd.DataFrame:
-    """Per stage, the log-log least-squares slope of cpu_s, s and max_rss_MB in duration_s.
-
-    Only the 640x480 cases enter the fit; a stage needs two or more lengths.
-    """
-    rows = []
-    base = table[table["height_px"] == 480]
-    for stage, g in base.groupby("stage"):
-        g = g.sort_values("duration_s")
-        if g["duration_s"].nunique() < 2:
-            continue
-        x = np.log(g["duration_s"].to_numpy())
-        row = {"stage": stage, "n_lengths": g["duration_s"].nunique()}
-        for col, name in (("cpu_s", "b_cpu"), ("s", "b_wall"), ("max_rss_MB", "b_rss")):
-            y = np.log(np.maximum(g[col].to_numpy(), 1e-3))
-            row[name] = np.polyfit(x, y, 1)[0]
-        rows.append(row)
-    return pd.DataFrame(rows).sort_values("b_cpu", ascending=False)
+def prefer_whole_runs(table: pd.DataFrame) -> pd.DataFrame:
+    """One row per case and stage: a whole run's row over a front-only run's of the same case."""
+    if "stages" not in table:
+        return table
+    return table.sort_values("stages", kind="stable").drop_duplicates(["case", "stage"], keep="first")
 
 
 def print_tables(table: pd.DataFrame) -> None:
@@ -181,7 +172,7 @@ def print_tables(table: pd.DataFrame) -> None:
                                        peak_rss_MB=("max_rss_MB", "max")).reindex(cases)
     print("\ntotals (rendering excluded)")
     print(totals.to_string(float_format=lambda v: f"{v:.1f}"))
-    fits = fit_exponents(table)
+    fits = stage_exponents(table)
     if len(fits):
         print("\nexponent b of cost = a * duration**b (640x480 cases, log-log least squares)")
         print(fits.to_string(index=False, float_format=lambda v: f"{v:.2f}"))
@@ -213,15 +204,19 @@ def main() -> None:
                          for c in args.cases], ignore_index=True)
         if args.out.exists():
             old = pd.read_csv(args.out)
-            new = pd.concat([old[~old["case"].isin(new["case"])], new], ignore_index=True)
+            if "stages" not in old:
+                old["stages"] = "all"
+            # a rerun of a case with the same stage set replaces its rows
+            same = old.set_index(["case", "stages"]).index.isin(new.set_index(["case", "stages"]).index)
+            new = pd.concat([old[~same], new], ignore_index=True)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         new.to_csv(args.out, index=False, float_format="%.3f")
         print(f"\nwrote {args.out}")
-    table = pd.read_csv(args.out)
+    table = prefer_whole_runs(pd.read_csv(args.out))
     print_tables(table)
     if args.figure is None:
         return
-    from cvsflow.plots.timing import plot_stage_scaling
+    from cvsflow.plots.timing import plot_stage_scaling  # matplotlib only when drawing
 
     fig = plot_stage_scaling(table)
     args.figure.parent.mkdir(parents=True, exist_ok=True)
