@@ -167,7 +167,8 @@ def print_tables(table: pd.DataFrame) -> None:
                        ("max_rss_MB", "peak RSS (MB) per stage")):
         wide = table.pivot_table(index="stage", columns="case", values=col).reindex(order)[cases]
         print(f"\n{title}")
-        print(wide.to_string(float_format=lambda v: f"{v:.1f}" if col != "max_rss_MB" else f"{v:.0f}"))
+        digits = 0 if col == "max_rss_MB" else 1
+        print(wide.to_string(float_format=lambda v, d=digits: f"{v:.{d}f}"))
     totals = table.groupby("case").agg(cpu_s=("cpu_s", "sum"), pipeline_wall_s=("pipeline_wall_s", "first"),
                                        peak_rss_MB=("max_rss_MB", "max")).reindex(cases)
     print("\ntotals (rendering excluded)")
