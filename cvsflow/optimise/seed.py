@@ -139,15 +139,16 @@ def _skew_exp(omega):
     return R_from_rvec(omega)
 
 
-def _project(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist):
-    """Distorted pixel projections (N, P, 2) and the intermediates their Jacobian reuses.
+def _project_with_jacobian(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist, want_jac=True):
+    """Distorted pixel projections (N, P, 2) and d(u, v)/d(omega, t) (N, P, 2, 6).
 
-    ``fx``, ``fy`` are scalars or (N, 1) arrays (one focal length per row). The rotated
-    points' components are copied into contiguous (N, P) arrays first: arithmetic on the
-    strided views of R X ran numpy's loops P elements at a time. Copies do not change a bit.
+    ``fx``, ``fy`` are scalars or (N, 1) arrays (one focal length per row). Every quantity is
+    computed on contiguous (N, P) arrays and written into J once: strided arithmetic on views
+    of J was most of the seed optimiser's time. The operations and their order are those of
+    the textbook expressions (the same floating-point results).
     """
     q = R_C_B @ X_B.T  # R X, (N, 3, P)
-    qx, qy, qz = (np.ascontiguousarray(q[:, i]) for i in range(3))
+    qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
     inv_z = 1.0 / (qz + t_C_B[:, 2:3])
     x = (qx + t_C_B[:, 0:1]) * inv_z
     y = (qy + t_C_B[:, 1:2]) * inv_z
@@ -161,22 +162,8 @@ def _project(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist):
     uv = np.empty(x.shape + (2,))
     uv[..., 0] = fx * xd + cx
     uv[..., 1] = fy * yd + cy
-    return uv, (qx, qy, qz, inv_z, x, y, r2, radial, two_p1_x, two_p2_x, xd, yd)
-
-
-def _jacobian(parts, fx, fy, dist, rows=None):
-    """d(u, v)/d(omega, t), (N, P, 2, 6), from :func:`_project`'s intermediates.
-
-    ``rows`` (a boolean mask or indices) restricts it to those rows, with ``fx``, ``fy``
-    already restricted: every row's numbers are its own, so a subset gives the same bits.
-    Every quantity is computed on contiguous (N, P) arrays and written into J once: strided
-    arithmetic on views of J was most of the seed optimiser's time. The operations and their
-    order are those of the textbook expressions (the same floating-point results).
-    """
-    if rows is not None:
-        parts = tuple(a[rows] for a in parts)
-    qx, qy, qz, inv_z, x, y, r2, radial, two_p1_x, two_p2_x = parts[:10]
-    k1, k2, p1, p2, k3 = dist
+    if not want_jac:
+        return uv, xd, yd, None
     dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
     dxd_dx = radial + 2.0 * x * x * dradial_dr2 + 2.0 * p1 * y + 6.0 * p2 * x
     dxd_dy = 2.0 * x * y * dradial_dr2 + two_p1_x + 2.0 * p2 * y
@@ -193,30 +180,19 @@ def _jacobian(parts, fx, fy, dist, rows=None):
     a12 = -(dv_dx * x + dv_dy * y) * inv_z
     # left perturbation R <- exp([w]x) R: dp/dw = -[q]x, so the row a^T (-[q]x) = (q x a)^T
     J = np.empty(x.shape + (2, 6))
-    # differences written straight into J (out=): one temporary and one strided copy fewer
-    np.subtract(qy * a02, qz * a01, out=J[..., 0, 0])
-    np.subtract(qz * a00, qx * a02, out=J[..., 0, 1])
-    np.subtract(qx * a01, qy * a00, out=J[..., 0, 2])
+    J[..., 0, 0] = qy * a02 - qz * a01
+    J[..., 0, 1] = qz * a00 - qx * a02
+    J[..., 0, 2] = qx * a01 - qy * a00
     J[..., 0, 3] = a00
     J[..., 0, 4] = a01
     J[..., 0, 5] = a02
-    np.subtract(qy * a12, qz * a11, out=J[..., 1, 0])
-    np.subtract(qz * a10, qx * a12, out=J[..., 1, 1])
-    np.subtract(qx * a11, qy * a10, out=J[..., 1, 2])
+    J[..., 1, 0] = qy * a12 - qz * a11
+    J[..., 1, 1] = qz * a10 - qx * a12
+    J[..., 1, 2] = qx * a11 - qy * a10
     J[..., 1, 3] = a10
     J[..., 1, 4] = a11
     J[..., 1, 5] = a12
-    return J
-
-
-def _project_with_jacobian(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist, want_jac=True):
-    """Distorted pixel projections (N, P, 2), xd, yd (N, P) and d(u, v)/d(omega, t) (N, P, 2, 6).
-
-    ``fx``, ``fy`` are scalars or (N, 1) arrays; J is None unless ``want_jac``.
-    """
-    uv, parts = _project(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist)
-    J = _jacobian(parts, fx, fy, dist) if want_jac else None
-    return uv, parts[10], parts[11], J
+    return uv, xd, yd, J
 
 
 def _dist5(dist):
@@ -278,10 +254,9 @@ def _solve_R_t(uv_px, X_B, fx, fy, cx, cy, dist5, R, t, max_iter, tol):
     still active rows are recomputed.
 
     Every row's arithmetic is independent of the other rows, so a row's result does not
-    depend on which rows share the stack. The residuals and Jacobian at the trial pose are
+    depend on which rows share the stack. The projection and Jacobian at the trial pose are
     kept and reused as the next iteration's linearisation (the same numbers a fresh
-    projection at that pose would give), so each iteration projects once; the Jacobian is
-    formed only for the rows that iterate again (it is most of an iteration's arithmetic).
+    projection at that pose would give), so each iteration projects once.
     """
     R = np.array(R, dtype=float)
     t = np.array(t, dtype=float)
@@ -292,16 +267,14 @@ def _solve_R_t(uv_px, X_B, fx, fy, cx, cy, dist5, R, t, max_iter, tol):
     # the active rows' state, compacted when rows stop
     rows = np.arange(n)
     Ra, ta, obs = R.copy(), t.copy(), np.asarray(uv_px, dtype=float)
-    uv, parts = _project(Ra, ta, X_B, fxa, fya, cx, cy, dist5)
-    Ja = _jacobian(parts, fxa, fya, dist5)
-    resa = obs - uv
-    costa = np.sum(resa**2, axis=(1, 2))
+    uva, _, _, Ja = _project_with_jacobian(Ra, ta, X_B, fxa, fya, cx, cy, dist5)
+    costa = np.sum((obs - uva) ** 2, axis=(1, 2))
     lama = np.full(n, 1e-4)
     eye6 = np.eye(6)
     n_iter = 0
     for n_iter in range(1, max_iter + 1):  # noqa: B007
         m = rows.size
-        r = resa.reshape(m, -1, 1)
+        r = (obs - uva).reshape(m, -1, 1)
         Jf = Ja.reshape(m, -1, 6)
         JfT = Jf.transpose(0, 2, 1)
         JtJ = JfT @ Jf
@@ -310,28 +283,22 @@ def _solve_R_t(uv_px, X_B, fx, fy, cx, cy, dist5, R, t, max_iter, tol):
         delta = np.linalg.solve(JtJ + damp, Jtr)[..., 0]
         R_new = _skew_exp(delta[:, :3]) @ Ra
         t_new = ta + delta[:, 3:]
-        uv_new, parts = _project(R_new, t_new, X_B, fxa, fya, cx, cy, dist5)
-        res_new = obs - uv_new
-        cost_new = np.sum(res_new**2, axis=(1, 2))
+        uv_new, _, _, J_new = _project_with_jacobian(R_new, t_new, X_B, fxa, fya, cx, cy, dist5)
+        cost_new = np.sum((obs - uv_new) ** 2, axis=(1, 2))
         accept = cost_new <= costa
         reject = ~accept
         if reject.any():  # rejected rows keep their pose and its linearisation
             R_new[reject], t_new[reject], cost_new[reject] = Ra[reject], ta[reject], costa[reject]
-            res_new[reject] = resa[reject]
+            uv_new[reject], J_new[reject] = uva[reject], Ja[reject]
+        Ra, ta, costa, uva, Ja = R_new, t_new, cost_new, uv_new, J_new
         lama = np.where(accept, np.maximum(lama * 0.1, 1e-9), lama * 10.0)
         step = np.max(np.abs(delta), axis=1)
         done = (accept & (step < tol)) | (lama > 1e6)
-        # Only the rows that go on need the Jacobian at their new pose: a row that stops (or
-        # the last iteration) would throw it away, and a rejected row keeps its old one.
-        fresh = accept & ~done
-        if n_iter < max_iter and fresh.any():
-            Ja[fresh] = _jacobian(parts, fxa[fresh], fya[fresh], dist5, rows=fresh)
-        Ra, ta, costa, resa = R_new, t_new, cost_new, res_new
         if done.any():
             R[rows[done]], t[rows[done]] = Ra[done], ta[done]
             keep = ~done
-            rows, Ra, ta, costa, Ja = rows[keep], Ra[keep], ta[keep], costa[keep], Ja[keep]
-            obs, fxa, fya, lama, resa = obs[keep], fxa[keep], fya[keep], lama[keep], resa[keep]
+            rows, Ra, ta, costa, uva, Ja = rows[keep], Ra[keep], ta[keep], costa[keep], uva[keep], Ja[keep]
+            obs, fxa, fya, lama = obs[keep], fxa[keep], fya[keep], lama[keep]
             if rows.size == 0:
                 break
     R[rows], t[rows] = Ra, ta  # rows still active after max_iter keep their last accepted pose
