@@ -154,13 +154,22 @@ def write_table_hashes(results: Path, out: Path) -> None:
 
 
 def prefer_whole_runs(table: pd.DataFrame) -> pd.DataFrame:
-    """One row per case and stage: a whole run's row over a front-only run's of the same case."""
+    """One stage set per stage: the one run at the most lengths, a whole run's on a tie.
+
+    A stage measured both in whole runs and in front-only runs keeps the rows of one kind
+    only, so that its lengths come from runs made alike (the exponent compares them).
+    """
     if "stages" not in table:
         return table
-    return table.sort_values("stages", kind="stable").drop_duplicates(["case", "stage"], keep="first")
+    counts = table.groupby(["stage", "stages"])["duration_s"].nunique().reset_index()
+    counts["whole"] = counts["stages"] == "all"
+    best = counts.sort_values(["duration_s", "whole"], ascending=False).drop_duplicates("stage")
+    keep = table.set_index(["stage", "stages"]).index.isin(best.set_index(["stage", "stages"]).index)
+    return table[keep]
 
 
-def print_tables(table: pd.DataFrame) -> None:
+def print_tables(raw: pd.DataFrame) -> None:
+    table = prefer_whole_runs(raw)
     order = table.groupby("stage")["cpu_s"].max().sort_values(ascending=False).index
     cases = sorted(table["case"].unique(), key=lambda c: (parse_case(c)[1], parse_case(c)[0]))
     for col, title in (("cpu_s", "CPU s per stage"), ("s", "wall s per stage"),
@@ -169,8 +178,9 @@ def print_tables(table: pd.DataFrame) -> None:
         print(f"\n{title}")
         digits = 0 if col == "max_rss_MB" else 1
         print(wide.to_string(float_format=lambda v, d=digits: f"{v:.{d}f}"))
-    totals = table.groupby("case").agg(cpu_s=("cpu_s", "sum"), pipeline_wall_s=("pipeline_wall_s", "first"),
-                                       peak_rss_MB=("max_rss_MB", "max")).reindex(cases)
+    whole = raw[raw["stages"] == "all"] if "stages" in raw else raw
+    totals = whole.groupby("case").agg(cpu_s=("cpu_s", "sum"), pipeline_wall_s=("pipeline_wall_s", "first"),
+                                       peak_rss_MB=("max_rss_MB", "max")).dropna()
     print("\ntotals (rendering excluded)")
     print(totals.to_string(float_format=lambda v: f"{v:.1f}"))
     fits = stage_exponents(table)
@@ -213,13 +223,13 @@ def main() -> None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         new.to_csv(args.out, index=False, float_format="%.3f")
         print(f"\nwrote {args.out}")
-    table = prefer_whole_runs(pd.read_csv(args.out))
-    print_tables(table)
+    raw = pd.read_csv(args.out)
+    print_tables(raw)
     if args.figure is None:
         return
     from cvsflow.plots.timing import plot_stage_scaling  # matplotlib only when drawing
 
-    fig = plot_stage_scaling(table)
+    fig = plot_stage_scaling(prefer_whole_runs(raw))
     args.figure.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(args.figure, dpi=110)
     print(f"wrote {args.figure}")
