@@ -25,7 +25,7 @@ import pandas as pd
 
 from cvsflow.board import SUBPIX_CRITERIA, board_object_points, board_pattern, ends_distinguishable
 from cvsflow.charuco import find_charuco, make_detector
-from cvsflow.errors import CalibrationError, ConfigError, InputError
+from cvsflow.errors import CalibrationError, InputError
 
 log = logging.getLogger(__name__)
 

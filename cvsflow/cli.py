@@ -358,8 +358,8 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
     notes : list of str
         What was found and what the user must check.
     """
-    from cvsflow.io.mocap_formats import read_mocap
     from cvsflow.io.markers import marker_names
+    from cvsflow.io.mocap_formats import read_mocap
 
     folder = Path(folder)
     if not folder.is_dir():

@@ -23,10 +23,10 @@ from cvsflow.errors import ConfigError
 from cvsflow.optimise.se3 import corner_arrays
 from cvsflow.pose import CORNER_COLUMNS, estimate_poses, extract_corners
 from cvsflow.sessions import check_sessions
-from cvsflow.synth.render import realistic_truth, render_stills
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.effects import Grip, make_hand_texture, occluded_corners
 from cvsflow.synth.motion import make_hand_motion
+from cvsflow.synth.render import realistic_truth, render_stills
 from cvsflow.synth.session import (
     FrameEffects,
     Renderer,

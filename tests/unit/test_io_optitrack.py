@@ -7,9 +7,9 @@ import pytest
 from conftest import REAL_DATA, need_real_file
 
 from cvsflow.errors import InputError
+from cvsflow.io.markers import marker_columns, marker_names
 from cvsflow.io.mocap_formats import detect_format, read_mocap
 from cvsflow.io.optitrack import read_motive_csv, write_motive_csv
-from cvsflow.io.markers import marker_columns, marker_names
 from cvsflow.mocap import body_poses, fit_bodies
 
 MOTIVE = REAL_DATA / "mocap" / "optitrack-motive"

@@ -7,9 +7,9 @@ import pytest
 from conftest import REAL_DATA, need_real_file
 
 from cvsflow.errors import InputError
+from cvsflow.io.markers import marker_columns, marker_names
 from cvsflow.io.mocap_formats import detect_format, read_mocap
 from cvsflow.io.qualisys import read_qtm_tsv, write_qtm_tsv
-from cvsflow.io.markers import marker_columns, marker_names
 from cvsflow.mocap import body_poses, fit_bodies
 
 QTM = REAL_DATA / "mocap" / "qualisys-qtm"

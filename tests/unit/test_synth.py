@@ -15,10 +15,10 @@ import yaml
 from cvsflow.calibration import calibrate_camera
 from cvsflow.errors import ConfigError
 from cvsflow.io import synth_out
-from cvsflow.synth.render import render_session, render_stills
 from cvsflow.synth.camera import Board, make_board_texture, project_points
 from cvsflow.synth.markers import fit_rigid, true_mounting
 from cvsflow.synth.motion import board_poses, make_hand_motion, still_poses
+from cvsflow.synth.render import render_session, render_stills
 from cvsflow.synth.session import (
     IMAGE_SIZE,
     Renderer,

@@ -18,7 +18,6 @@ import pytest
 import yaml
 
 from cvsflow.errors import ConfigError
-from cvsflow.synth.render import render_session
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.effects import (
     PRESETS,
@@ -27,6 +26,7 @@ from cvsflow.synth.effects import (
     parse_effects,
 )
 from cvsflow.synth.motion import board_poses, make_hand_motion, random_sine_sum
+from cvsflow.synth.render import render_session
 from cvsflow.synth.session import (
     ILLUMINANT_BGR,
     FrameEffects,
