@@ -450,3 +450,38 @@ def test_vicon_filled_marks_frames_near_a_gap_filled_board_sample():
     bodies.loc[(bodies["body"] == "camera") & (np.abs(bodies["t_s"] - 0.5) < 1e-9), "n_filled"] = 2
     tq = np.array([0.5, 0.985, 0.995, 1.0, 1.009, 1.02, 1.5])
     np.testing.assert_array_equal(un.vicon_filled(bodies, tq), [0, 0, 1, 1, 1, 0, 0])
+
+
+def test_flight_reference_covariance_takes_the_shrinkage_option():
+    """A flight's reference covariance under model (T) with ``k_shrink``: k = 0 is the model
+    without it; a huge k pulls every frame to the flight's pooled noise, so frames whose
+    residual is below the pool get a larger covariance and those above a smaller one."""
+    from cvsflow import flight as F
+    from cvsflow.calibration import board_object_points
+    from cvsflow.flight_synth import (BOARD_DEFAULT, CAMERA_DEMO, T_Q_B_DEFAULT, camera_pose,
+                                      measure_reference, true_flight)
+
+    t = np.arange(60) / 30.0
+    T_C_B = tf.invert_T(camera_pose()) @ true_flight(3, 20.0)(t) @ T_Q_B_DEFAULT
+    _, valid, _, poses, corners = measure_reference(T_C_B, t, np.ones(len(t), bool),
+                                                    np.random.default_rng(2), calib_std={})
+    K = [[CAMERA_DEMO["fx_px"], 0, CAMERA_DEMO["cx_px"]],
+         [0, CAMERA_DEMO["fy_px"], CAMERA_DEMO["cy_px"]], [0, 0, 1]]
+    calib = {"K": K, "dist": CAMERA_DEMO["dist"], "std": {}}
+    p_B = board_object_points(BOARD_DEFAULT)
+    m = un.RENDERED_TRANSFER_MODEL
+
+    def trace(model):
+        S = F.reference_covariance_transfer(poses, corners, p_B, calib, model=model, flips=False)
+        return np.einsum("nii->n", S[valid][:, :3, :3])
+
+    base = trace(m)
+    np.testing.assert_allclose(trace({**m, "k_shrink": 0.0}), base, rtol=1e-12)
+    pooled = trace({**m, "k_shrink": 1e9})
+    rows = poses[valid]
+    n_seen = np.isfinite(un._seen_corners(corners, rows["frame"].to_numpy(), len(p_B))[0]).all(-1).sum(1)
+    n_i = un.corner_noise_from_reproj(rows["reproj_rms_px"].to_numpy(float), n_seen)
+    low = n_i < 0.95 * np.median(n_i)
+    high = n_i > 1.05 * np.median(n_i)
+    assert low.sum() >= 5 and high.sum() >= 5
+    assert (pooled[low] > base[low]).all() and (pooled[high] < base[high]).all()
