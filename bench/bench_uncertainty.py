@@ -10,7 +10,9 @@ tables and writes the scores to results/bench_uncertainty/loso.yaml. Render the 
     PYTHONPATH=. .venv/bin/python bench/bench_uncertainty.py [session ...]
 
 Default sessions: every session of bench/uncertainty_sessions.yaml plus ``demo`` when
-results/demo/heldout exists. ``--worst NAME`` instead prints, for session NAME scored by the
+results/demo/heldout exists. ``--shrink fit`` (or ``--shrink K``) shrinks each frame's
+corner noise toward its session's median with a fitted (or the given) prior strength
+(:func:`cvsflow.uncertainty.shrink_corner_noise`). ``--worst NAME`` instead prints, for session NAME scored by the
 model fitted on the other sessions given, what its worst 5 % of frames (Mahalanobis
 distance) look like and which term of model (T) dominates them (docs/findings.md).
 """
@@ -47,6 +49,9 @@ def load(name, board):
     corners = read_parquet(res / "corners.parquet")
     bodies = read_parquet(res / "bodies.parquet")
     feats = un.measurement_features(heldout, corners, board, fits=fits, bodies=bodies)
+    # the session's pooled corner noise (what the shrinkage option pulls each frame toward)
+    feats[un.NOISE_POOL_COLUMN] = un.corner_noise_pool(feats["reproj_rms_px"].to_numpy(float),
+                                                       feats["n_corners"].to_numpy(float))
     sig = {int(f["fold"]): float(f["sigma_px"]) for f in fits}
     sigma_px = np.array([sig[int(k)] for k in heldout["fold"]])
     ld = [f.get("line_delay_s") for f in fits]
@@ -57,7 +62,7 @@ def fmt_axes(d, f="{:.3f}"):
     return " ".join(f.format(d[a]) for a in ERROR_DIMS)
 
 
-def main(names):
+def main(names, shrink=None):
     b = boards()
     if not names:
         names = [n for n in b if n != "demo" and (ROOT / "results" / n / "heldout").exists()]
@@ -74,7 +79,7 @@ def main(names):
               f"{f['n_corners'].max()}, speed median {f['speed_px'].median():.1f} px/frame, "
               f"fold line delays {lds}")
     t0 = time.perf_counter()
-    loso = un.leave_one_session_out(sessions)
+    loso = un.leave_one_session_out(sessions, shrink=shrink)
     print(f"leave-one-session-out: {time.perf_counter() - t0:.1f} s\n")
     print("axes: " + " ".join(ERROR_DIMS))
     misses, misses_beyond = [], []
@@ -82,7 +87,8 @@ def main(names):
         sc, m = r["score"], r["model"]
         print(f"{n}: n {sc['n']}, NEES {sc['nees_mean']:.2f}, model s0 {m['s0_px']:.3f} px "
               f"s_speed {m['s_speed']:.3f} s_reproj {m['s_reproj']:.2f} c_cal {m['c_cal']:.2f} "
-              f"b {m['b_pos_m'] * 1e3:.2f} mm {m['b_rot_rad'] * 1e3:.2f} mrad nu {m['nu']:.1f}")
+              f"b {m['b_pos_m'] * 1e3:.2f} mm {m['b_rot_rad'] * 1e3:.2f} mrad nu {m['nu']:.1f}"
+              + (f" k_shrink {m['k_shrink']:.3g}" if "k_shrink" in m else ""))
         print(f"   inside 95: {fmt_axes(sc['inside_95'])}")
         print(f"   inside 68: {fmt_axes(sc['inside_68'])}")
         print(f"   z RMS:     {fmt_axes(sc['z_rms'])}")
@@ -114,7 +120,10 @@ def main(names):
           f"(AR(1) effective n) ({len(misses_beyond)}):")
     for m in misses_beyond:
         print("  " + m)
-    out = ROOT / "results" / "bench_uncertainty" / "loso.yaml"
+    if "k_shrink" in pm:
+        print(f"pooled model k_shrink {pm['k_shrink']:.4g}")
+    tag = "" if shrink is None else f"_shrink_{shrink}"
+    out = ROOT / "results" / "bench_uncertainty" / f"loso{tag}.yaml"
     write_yaml({"sessions": {n: r for n, r in loso["sessions"].items()},
                 "pooled_model": pm, "targets_missed": misses,
                 "band_targets_missed_beyond_sampling": misses_beyond}, out)
@@ -170,7 +179,12 @@ def worst_frames(names, held):
 
 if __name__ == "__main__":
     args = sys.argv[1:]
+    shrink = None
+    if "--shrink" in args:  # --shrink fit | K: the corner-noise shrinkage of model (T)
+        i = args.index("--shrink")
+        shrink = args[i + 1] if args[i + 1] == "fit" else float(args[i + 1])
+        del args[i : i + 2]
     if args[:1] == ["--worst"]:
         worst_frames(args[2:] or ["u_demo", "u_wide", "u_tele", "u_rs", "u_far"], args[1])
     else:
-        main(args)
+        main(args, shrink)

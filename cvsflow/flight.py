@@ -1548,6 +1548,10 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     unit, shear = un.frame_noise_terms(uv, vel, rv, tv, p_B, K, dist, ld, frame="C")
     n_seen = np.isfinite(uv).all(axis=-1).sum(axis=1)
     reproj = un.corner_noise_from_reproj(rows["reproj_rms_px"].to_numpy(float), n_seen)
+    if model.get("k_shrink") is not None:
+        # the model's shrinkage option: toward the flight's own pooled corner noise
+        pool = un.corner_noise_pool(rows["reproj_rms_px"].to_numpy(float), n_seen)
+        reproj = un.shrink_corner_noise(reproj, n_seen, pool, model["k_shrink"])
     var_px = (model["s0_px"] ** 2 + (model["s_speed"] * speed) ** 2
               + (model["s_reproj"] * reproj) ** 2)  # fmt: skip
     # intrinsics through PnP: d(rvec, tvec)/d(intrinsics) = -(J^T J)^-1 J^T J_K

@@ -913,6 +913,67 @@ def corner_noise_from_reproj(reproj_rms_px, n_corners):
     return np.asarray(reproj_rms_px, float) / np.sqrt(2.0) * np.sqrt(n_res / np.maximum(n_res - 6, 1))
 
 
+#: Column of a features table with the pooled corner noise (px) its frames' estimates are
+#: shrunk toward (model (T) with ``k_shrink``); absent: the median over the rows given.
+NOISE_POOL_COLUMN = "noise_pool_px"
+
+
+def corner_noise_pool(reproj_rms_px, n_corners):
+    """The pooled corner noise (px) of a session or flight: the median over its frames of
+    :func:`corner_noise_from_reproj` (known at measurement time, from its own corners).
+
+    Parameters
+    ----------
+    reproj_rms_px : ndarray, shape (N,)
+        Each frame's PnP reprojection RMS, px (NaN for frames without a pose).
+    n_corners : ndarray, shape (N,)
+        Corners each frame's PnP used.
+
+    Returns
+    -------
+    pool_px : float
+        Median corner noise per image axis over the finite frames, px.
+
+    Raises
+    ------
+    OptimiseError
+        No frame with a finite reprojection RMS.
+    """
+    n = corner_noise_from_reproj(reproj_rms_px, n_corners)
+    n = n[np.isfinite(n)]
+    if not len(n):
+        raise OptimiseError("corner_noise_pool: no frame with a finite reprojection RMS")
+    return float(np.median(n))
+
+
+def shrink_corner_noise(noise_px, n_corners, pool_px, k):
+    """Each frame's corner-noise estimate shrunk toward a pooled value.
+
+    n_i'^2 = (dof_i n_i^2 + k n_pool^2) / (dof_i + k), dof_i = 2 n_corners - 6: the posterior
+    mean of the noise variance when the frame's residual (dof_i degrees of freedom) is
+    combined with a prior of strength k pseudo-degrees of freedom centred on the pool. k = 0
+    keeps the frame's own estimate, k -> inf the pool.
+
+    Parameters
+    ----------
+    noise_px : ndarray, shape (N,)
+        :func:`corner_noise_from_reproj` of each frame, px.
+    n_corners : ndarray, shape (N,)
+        Corners each frame's PnP used.
+    pool_px : float or ndarray, shape (N,)
+        Pooled noise (:func:`corner_noise_pool`), px.
+    k : float
+        Prior strength, degrees of freedom (>= 0).
+
+    Returns
+    -------
+    noise_shrunk_px : ndarray, shape (N,)
+    """
+    dof = np.maximum(2.0 * np.asarray(n_corners, float) - 6.0, 1.0)
+    n2 = np.asarray(noise_px, float) ** 2
+    return np.sqrt((dof * n2 + k * np.asarray(pool_px, float) ** 2) / (dof + k))
+
+
 #: Half-width (s) of the window about a frame's Vicon time whose board samples count for
 #: ``vicon_filled`` (the interpolation and the board track's 0.01 s smoothing reach ~1 sample).
 FILL_WINDOW_S = 0.01
@@ -971,9 +1032,23 @@ def _unpack_transfer(q):
     return (*np.exp(q[:9]), 2.0 + np.exp(q[9]))
 
 
-def _transfer_cov(q, U, P, RS, speed, reproj, filled):
-    """Model (T) mean (N, 6) and covariance (N, 6, 6), working units."""
+def _shrink_terms(features):
+    """(corners per frame (N,), pooled corner noise (N,)) for the shrinkage of model (T)."""
+    n_c = features["n_corners"].to_numpy(float)
+    if NOISE_POOL_COLUMN in features:
+        pool = features[NOISE_POOL_COLUMN].to_numpy(float)
+    else:
+        pool = np.full(len(n_c), corner_noise_pool(features["reproj_rms_px"].to_numpy(float),
+                                                   n_c))  # fmt: skip
+    return n_c, pool
+
+
+def _transfer_cov(q, U, P, RS, speed, reproj, filled, shrink=None):
+    """Model (T) mean (N, 6) and covariance (N, 6, 6), working units; ``q`` of 11 entries
+    (the last log k) with ``shrink`` = :func:`_shrink_terms` shrinks the corner noise."""
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, _ = _unpack_transfer(q)
+    if len(q) > 10 and shrink is not None:
+        reproj = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
     var_px = s0**2 + (s_speed * speed) ** 2 + (s_reproj * reproj) ** 2
     floor = np.r_[np.full(3, b_pos), np.full(3, b_rot)] / _UNIT
     fill = np.r_[np.full(3, f_pos), np.full(3, f_rot)] / _UNIT
@@ -982,7 +1057,7 @@ def _transfer_cov(q, U, P, RS, speed, reproj, filled):
     return s_rs * RS, S
 
 
-def fit_transfer_model(features, errors):
+def fit_transfer_model(features, errors, shrink=None):
     """Fit model (T) by maximum likelihood on frames of one or more sessions.
 
     Model (T), per frame i (what is known when it is measured):
@@ -1015,13 +1090,17 @@ def fit_transfer_model(features, errors):
         :func:`measurement_features` of the training frames (``unitcov``, optional ``parcov``).
     errors : DataFrame
         The same frames' ``err_{dim}`` (CVS - reference, :func:`cvsflow.evaluate.pose_errors`).
+    shrink : None, "fit" or float
+        None: n_i as measured. Otherwise n_i is replaced by :func:`shrink_corner_noise`
+        toward the pooled noise (column :data:`NOISE_POOL_COLUMN`, else the median over the
+        rows) with prior strength k: fitted (``"fit"``) or the given value.
 
     Returns
     -------
     model : dict
         ``kind: T``, ``dims``, one entry per :data:`TRANSFER_PARAMS` (px, -, -, -, -, m, rad,
         -),
-        ``nll`` (mean per frame), ``n_train``.
+        ``nll`` (mean per frame), ``n_train``; with ``shrink`` also ``k_shrink``.
 
     Raises
     ------
@@ -1049,12 +1128,19 @@ def fit_transfer_model(features, errors):
     # fit it to their noise): held at 1
     fit_rs = False
 
+    fit_k = isinstance(shrink, str)
+    if fit_k and shrink != "fit":
+        raise OptimiseError(f"fit_transfer_model: shrink={shrink!r}; expected None, 'fit' or k")
+    sh = _shrink_terms(features) if shrink is not None else None
+    k_fixed = [] if shrink is None or fit_k else [np.log(max(float(shrink), 1e-12))]
+
     def full(q):
-        return q if fit_rs else np.r_[q[:4], 0.0, q[4:]]
+        q = q if fit_rs else np.r_[q[:4], 0.0, q[4:]]
+        return np.r_[q, k_fixed]
 
     def nll(q):
         q = full(q)
-        mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled)
+        mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, sh)
         nu = _unpack_transfer(q)[9]
         try:
             L = np.linalg.cholesky(S * ((nu - 2.0) / nu))
@@ -1073,22 +1159,38 @@ def fit_transfer_model(features, errors):
     # parameter covariance, no speed): two starts, keep the better
     keep = np.ones(10, bool)
     keep[4] = fit_rs
-    for start in (x0, x0 + np.r_[0.7, -1.5, -1.5, -0.7, -0.7, 0.7, 0.7, -1.0, -1.0, 0.0]):
-        sol = minimize(nll, start[keep], method="L-BFGS-B",
-                       bounds=[(-25, 10)] * (keep.sum() - 1) + [(-4, 6)],
-                       options={"maxiter": 500})
+    bounds = [(-25, 10)] * (keep.sum() - 1) + [(-4, 6)]
+    starts = [x0, x0 + np.r_[0.7, -1.5, -1.5, -0.7, -0.7, 0.7, 0.7, -1.0, -1.0, 0.0]]
+    if fit_k:
+        # k in pseudo-degrees of freedom: from a tenth of a frame's (~50) to 2e5 (the pool)
+        bounds.append((np.log(0.1), np.log(2e5)))
+        starts = [np.r_[x[keep], np.log(30.0)] for x in starts]
+    else:
+        starts = [x[keep] for x in starts]
+    for start in starts:
+        sol = minimize(nll, start, method="L-BFGS-B", bounds=bounds, options={"maxiter": 500})
         if best is None or sol.fun < best.fun:
             best = sol
-    vals = _unpack_transfer(full(best.x))
+    q_best = full(best.x)
+    vals = _unpack_transfer(q_best)
     model = {"kind": "T", "dims": list(ERROR_DIMS), "n_train": int(len(E)),
              "nll": float(best.fun), "s_rs_fitted": fit_rs}
     model.update({name: float(v) for name, v in zip(TRANSFER_PARAMS, vals, strict=True)})
+    if shrink is not None:
+        model["k_shrink"] = float(np.exp(q_best[10]))
     return model
 
 
 def _q_from_model(model):
     v = [model[n] for n in TRANSFER_PARAMS]
-    return np.r_[np.log(v[:9]), np.log(v[9] - 2.0)]
+    q = np.r_[np.log(v[:9]), np.log(v[9] - 2.0)]
+    k = model.get("k_shrink")
+    return q if k is None else np.r_[q, np.log(max(float(k), 1e-12))]
+
+
+def _model_cov(model, features):
+    sh = _shrink_terms(features) if model.get("k_shrink") is not None else None
+    return _transfer_cov(_q_from_model(model), *_transfer_terms(features), sh)
 
 
 def transfer_covariance(model, features):
@@ -1097,11 +1199,13 @@ def transfer_covariance(model, features):
     Parameters
     ----------
     model : dict
-        :func:`fit_transfer_model` output (the ``TRANSFER_PARAMS`` and ``nu``).
+        :func:`fit_transfer_model` output (the ``TRANSFER_PARAMS`` and ``nu``; with
+        ``k_shrink``, each frame's corner noise is shrunk toward the pooled value).
     features : DataFrame
         :func:`measurement_features` of the frames: ``unitcov_{a}{b}``, ``speed_px``,
-        ``reproj_rms_px``, ``n_corners``, and optionally ``parcov_{a}{b}``, ``rs_err_{dim}``
-        and ``vicon_filled`` (absent ones count as zero).
+        ``reproj_rms_px``, ``n_corners``, and optionally ``parcov_{a}{b}``, ``rs_err_{dim}``,
+        ``vicon_filled`` (absent ones count as zero) and ``noise_pool_px`` (default: the
+        median corner noise of the rows given).
 
     Returns
     -------
@@ -1110,7 +1214,7 @@ def transfer_covariance(model, features):
         ``err_{dim}`` columns, ``dim`` in ``ERROR_DIMS``), m^2, m rad and rad^2. It is
         the Student-t's covariance, not its scale matrix.
     """
-    _, S = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
+    _, S = _model_cov(model, features)
     return S * np.outer(_UNIT, _UNIT)
 
 
@@ -1131,7 +1235,7 @@ def transfer_mean(model, features):
         ``rs_err_{dim}`` columns times the model's shear scale, zero without those columns
         (a global shutter).
     """
-    mu, _ = _transfer_cov(_q_from_model(model), *_transfer_terms(features))
+    mu, _ = _model_cov(model, features)
     return mu * _UNIT
 
 
@@ -1292,7 +1396,7 @@ def _sampling_band(n, rho):
             "inside_68_tolerance": float(2.0 * np.sqrt(0.6827 * 0.3173 / n_eff))}
 
 
-def leave_one_session_out(sessions):
+def leave_one_session_out(sessions, shrink=None):
     """Fit model (T) on all sessions but one, score the one left out; every session in turn.
 
     Parameters
@@ -1301,6 +1405,8 @@ def leave_one_session_out(sessions):
         Session name -> dict with ``features`` (:func:`measurement_features`), ``errors``
         (the held-out table: ``err_{dim}``, ``fold``) and optional ``sigma_px`` (per row or
         scalar, for the Cramer-Rao bound).
+    shrink : None, "fit" or float
+        Corner-noise shrinkage of every fit (:func:`fit_transfer_model`).
 
     Returns
     -------
@@ -1326,7 +1432,7 @@ def leave_one_session_out(sessions):
     out = {"sessions": {}}
     for name in names:
         f, e = stack([n for n in names if n != name])
-        model = fit_transfer_model(f, e)
+        model = fit_transfer_model(f, e, shrink)
         s = sessions[name]
         err = s["errors"].reset_index(drop=True)
         folds = err["fold"].to_numpy() if "fold" in err else None
@@ -1335,7 +1441,7 @@ def leave_one_session_out(sessions):
         out["sessions"][name] = {"model": model, "score": score}
         log.info("LOSO %s: NEES %.2f, inside 95 %% %s", name, score["nees_mean"],
                  {d: round(v, 3) for d, v in score["inside_95"].items()})
-    out["pooled_model"] = fit_transfer_model(*stack(names))
+    out["pooled_model"] = fit_transfer_model(*stack(names), shrink)
     return out
 
 

@@ -332,7 +332,7 @@ def test_measurement_features_use_only_the_seen_corners(truth_session):
                                 fits=fits)  # fmt: skip
 
 
-def _draw_transfer(rng, n, truth, n_blocks=8):
+def _draw_transfer(rng, n, truth, n_blocks=8, reproj=None):
     """Synthetic features and errors drawn from model (T) with known parameters: U from random
     SPD matrices, a parameter covariance P shared by blocks of frames whose error is one draw
     per block (the correlated term), Student-t frames."""
@@ -341,7 +341,7 @@ def _draw_transfer(rng, n, truth, n_blocks=8):
     B = rng.normal(size=(6, 6)) * 3e-4
     P0 = B @ B.T
     speed = rng.uniform(0, 10, n)
-    reproj = rng.uniform(0.1, 0.5, n)
+    reproj = rng.uniform(0.1, 0.5, n) if reproj is None else np.asarray(reproj, float)
     # reproj_rms_px of many corners: the implied corner noise is reproj_rms / sqrt(2) = reproj
     feats = pd.DataFrame({"speed_px": speed, "reproj_rms_px": np.sqrt(2.0) * reproj,
                           "n_corners": 1e9})  # fmt: skip
@@ -398,6 +398,48 @@ def test_transfer_model_bad_input():
         un.fit_transfer_model(feats.iloc[:10], E.iloc[:10])
 
 
+def test_shrink_corner_noise_is_the_dof_weighted_mean_of_variances():
+    """k = 0 keeps each frame's estimate, a huge k gives the pool, and in between the variance
+    is the (2n - 6, k)-weighted mean of the frame's and the pool's; the pool is the median."""
+    noise = np.array([0.1, 0.2, 0.4])
+    n_c = np.array([20, 28, 30])
+    np.testing.assert_allclose(un.shrink_corner_noise(noise, n_c, 0.25, 0.0), noise)
+    np.testing.assert_allclose(un.shrink_corner_noise(noise, n_c, 0.25, 1e12), 0.25, rtol=1e-9)
+    got = un.shrink_corner_noise(noise, n_c, 0.25, 30.0) ** 2
+    dof = 2.0 * n_c - 6
+    np.testing.assert_allclose(got, (dof * noise**2 + 30.0 * 0.0625) / (dof + 30.0))
+    rms = noise * np.sqrt(2.0) / np.sqrt(2.0 * n_c / (2.0 * n_c - 6))
+    assert un.corner_noise_pool(rms, n_c) == pytest.approx(0.2)
+
+
+def test_transfer_model_shrinks_noisy_corner_noise_toward_the_pool():
+    """Two sessions whose corner noise is one value each (0.15 and 0.45 px) and whose frames
+    estimate it from 25 corners (44 dof, ~11 % scatter): the fitted prior strength k is more
+    than twice a frame's dof (the session's pool is the better estimate; 1200 frames tell k
+    only roughly), the likelihood is higher than without shrinkage, and k = 0 is the model
+    without it."""
+    rng = np.random.default_rng(5)
+    n = 1200
+    true = np.where(np.arange(n) < n // 2, 0.15, 0.45)
+    truth = {**TRUTH_T, "s0_px": 1e-3, "s_speed": 1e-4, "s_reproj": 1.0}
+    feats, E, _ = _draw_transfer(rng, n, truth, n_blocks=100, reproj=true)
+    dof = 2 * 25 - 6
+    est = true * np.sqrt(rng.chisquare(dof, n) / dof)
+    feats["n_corners"] = 25
+    feats["reproj_rms_px"] = est * np.sqrt(2.0) / np.sqrt(50.0 / dof)
+    np.testing.assert_allclose(un.corner_noise_from_reproj(feats["reproj_rms_px"], 25), est)
+    half = np.arange(n) < n // 2
+    feats[un.NOISE_POOL_COLUMN] = np.where(half, np.median(est[half]), np.median(est[~half]))
+    m0 = un.fit_transfer_model(feats, E)
+    m1 = un.fit_transfer_model(feats, E, shrink="fit")
+    assert m1["k_shrink"] > 2 * dof, m1["k_shrink"]
+    assert m1["nll"] < m0["nll"] - 0.005, (m1["nll"], m0["nll"])
+    np.testing.assert_allclose(un.transfer_covariance({**m0, "k_shrink": 0.0}, feats),
+                               un.transfer_covariance(m0, feats), rtol=1e-9)  # fmt: skip
+    with pytest.raises(OptimiseError, match="shrink"):
+        un.fit_transfer_model(feats, E, shrink="median")
+
+
 def test_vicon_filled_marks_frames_near_a_gap_filled_board_sample():
     """A board sample with a filled marker at t = 1.0 s marks the frames whose Vicon time is
     within FILL_WINDOW_S of it, not the others nor the camera's fills."""
@@ -408,3 +450,44 @@ def test_vicon_filled_marks_frames_near_a_gap_filled_board_sample():
     bodies.loc[(bodies["body"] == "camera") & (np.abs(bodies["t_s"] - 0.5) < 1e-9), "n_filled"] = 2
     tq = np.array([0.5, 0.985, 0.995, 1.0, 1.009, 1.02, 1.5])
     np.testing.assert_array_equal(un.vicon_filled(bodies, tq), [0, 0, 1, 1, 1, 0, 0])
+
+
+def test_flight_reference_covariance_takes_the_shrinkage_option():
+    """A flight's reference covariance under model (T) with ``k_shrink``: k = 0 is the model
+    without it; a huge k pulls every frame to the flight's pooled noise, so frames whose
+    residual is below the pool get a larger covariance and those above a smaller one."""
+    from cvsflow import flight as F
+    from cvsflow.calibration import board_object_points
+    from cvsflow.flight_synth import (
+        BOARD_DEFAULT,
+        CAMERA_DEMO,
+        T_Q_B_DEFAULT,
+        camera_pose,
+        measure_reference,
+        true_flight,
+    )
+
+    t = np.arange(60) / 30.0
+    T_C_B = tf.invert_T(camera_pose()) @ true_flight(3, 20.0)(t) @ T_Q_B_DEFAULT
+    _, valid, _, poses, corners = measure_reference(T_C_B, t, np.ones(len(t), bool),
+                                                    np.random.default_rng(2), calib_std={})
+    K = [[CAMERA_DEMO["fx_px"], 0, CAMERA_DEMO["cx_px"]],
+         [0, CAMERA_DEMO["fy_px"], CAMERA_DEMO["cy_px"]], [0, 0, 1]]
+    calib = {"K": K, "dist": CAMERA_DEMO["dist"], "std": {}}
+    p_B = board_object_points(BOARD_DEFAULT)
+    m = un.RENDERED_TRANSFER_MODEL
+
+    def trace(model):
+        S = F.reference_covariance_transfer(poses, corners, p_B, calib, model=model, flips=False)
+        return np.einsum("nii->n", S[valid][:, :3, :3])
+
+    base = trace(m)
+    np.testing.assert_allclose(trace({**m, "k_shrink": 0.0}), base, rtol=1e-12)
+    pooled = trace({**m, "k_shrink": 1e9})
+    rows = poses[valid]
+    n_seen = np.isfinite(un._seen_corners(corners, rows["frame"].to_numpy(), len(p_B))[0]).all(-1).sum(1)
+    n_i = un.corner_noise_from_reproj(rows["reproj_rms_px"].to_numpy(float), n_seen)
+    low = n_i < 0.95 * np.median(n_i)
+    high = n_i > 1.05 * np.median(n_i)
+    assert low.sum() >= 5 and high.sum() >= 5
+    assert (pooled[low] > base[low]).all() and (pooled[high] < base[high]).all()
