@@ -134,3 +134,21 @@ def test_corner_error_no_worse_than_scaled_cornersubpix(scored):
         f"{scored['name']}: median corner error {ours:.3f} px against cornerSubPix's {ref:.3f} px "
         "(quarter-square window, same corners)"
     )
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "a hand on the board from the first frame on: findChessboardCorners finds it, but its "
+    "hidden corners fail the neighbour check, so detection gives 'inconsistent' and there is "
+    "no full view to track from; the visible corners should be kept (partial detection)"))
+def test_board_with_a_hand_from_the_first_frame_is_kept_where_opencv_finds_it(tmp_path):
+    cfg = session_cfg(EFFECTS["hand"])
+    cfg["synth"]["duration_s"] = 1.0  # this take's hand never leaves the board
+    render_session(cfg, tmp_path)
+    board = cfg["board"]
+    pattern = (board["squares_x"] - 1, board["squares_y"] - 1)
+    grays = {f: g for f, _, g in iter_video_gray(tmp_path / "video.mp4")}
+    plain = {f for f, g in grays.items() if plain_opencv(g, pattern)}
+    corners = extract_corners(((f, 0.0, g) for f, g in grays.items()), board)
+    kept = set(corners.loc[corners["found"], "frame"])
+    assert len(plain) >= 20  # the case is what it claims: OpenCV sees the board
+    assert plain <= kept, f"plain OpenCV finds {len(plain)} frames, the stage keeps {len(kept & plain)} of them"
