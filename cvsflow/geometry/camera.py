@@ -6,8 +6,8 @@ y'' = y'(1 + ...) + p1 (r^2 + 2y'^2) + 2 p2 x'y', u = fx x'' + cx, v = fy y'' + 
 Skew is taken as zero. Points are in the camera optical frame C (x right, y down, z forward).
 
 :func:`project_points` evaluates the radial factor in Horner form, :func:`project_points_jac`
-term by term, exactly as the two copies in ``cvsflow.optimise.se3`` that they replace next
-round do (so that the optimiser's numbers stay bit-identical); they agree to ~1e-12 px.
+term by term, as ``cvsflow.optimise.se3`` always did (it now imports them; its numbers are
+bit-identical); the two agree to ~1e-12 px.
 """
 
 from __future__ import annotations
