@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pandas as pd
 
 from cvsflow.errors import ConfigError
 
@@ -90,3 +91,75 @@ def ends_distinguishable(board: dict) -> bool:
     parity of i + j by sx + sy; only when that is odd does every square change colour.
     """
     return (int(board["squares_x"]) + int(board["squares_y"])) % 2 == 1
+
+
+#: Columns of the corners table (corners.parquet) every board detector writes.
+CORNER_COLUMNS = ["frame", "t_s", "found", "corner", "u_px", "v_px"]
+
+
+class CornerRows:
+    """The corners table, built frame by frame (any board type).
+
+    A found frame gives one row per corner it knows (finite pixels), with corner k's index;
+    a frame without a board gives one row with ``corner = -1``, NaN pixels, ``found`` False.
+
+    Parameters
+    ----------
+    n_corners : int
+        Inner corners of the board (corner k is row k of the per-frame pixel arrays).
+    """
+
+    def __init__(self, n_corners: int):
+        self._ids = np.arange(int(n_corners), dtype=np.int64)
+        self._frame, self._t, self._found, self._corner, self._uv = [], [], [], [], []
+
+    def add(self, frame: int, t_s: float, corners_px: np.ndarray | None) -> None:
+        """Append one frame's rows.
+
+        Parameters
+        ----------
+        frame : int
+        t_s : float
+            Video time, s.
+        corners_px : ndarray, shape (n_corners, 2), or None
+            Distorted pixels in corner order, NaN for corners not kept; None: no board.
+
+        Returns
+        -------
+        None
+        """
+        if corners_px is None:
+            self._frame.append(np.array([frame], dtype=np.int64))
+            self._t.append(np.array([t_s], dtype=np.float64))
+            self._found.append(np.array([False]))
+            self._corner.append(np.array([-1], dtype=np.int64))
+            self._uv.append(np.full((1, 2), np.nan))
+            return
+        known = np.isfinite(corners_px).all(axis=1)
+        n = int(known.sum())
+        self._frame.append(np.full(n, frame, dtype=np.int64))
+        self._t.append(np.full(n, t_s, dtype=np.float64))
+        self._found.append(np.ones(n, dtype=bool))
+        self._corner.append(self._ids[known])
+        self._uv.append(corners_px[known])
+
+    def table(self) -> pd.DataFrame:
+        """The rows so far as a corners table.
+
+        Returns
+        -------
+        corners : DataFrame
+            :data:`CORNER_COLUMNS`: ``frame`` int64, ``t_s`` float64 s, ``found`` bool,
+            ``corner`` int64, ``u_px``, ``v_px`` float64 distorted pixels.
+        """
+        uv = np.concatenate(self._uv).astype(np.float64)
+        return pd.DataFrame(
+            {
+                "frame": np.concatenate(self._frame),
+                "t_s": np.concatenate(self._t),
+                "found": np.concatenate(self._found),
+                "corner": np.concatenate(self._corner),
+                "u_px": uv[:, 0],
+                "v_px": uv[:, 1],
+            }
+        )[CORNER_COLUMNS]

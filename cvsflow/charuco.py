@@ -33,13 +33,12 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.board import SUBPIX_CRITERIA, board_object_points, board_pattern
+from cvsflow.board import SUBPIX_CRITERIA, CornerRows, board_object_points, board_pattern
 from cvsflow.errors import ConfigError, InputError
 
 log = logging.getLogger(__name__)
 
 BOARD_TYPES = ("chessboard", "charuco")
-CORNER_COLUMNS = ["frame", "t_s", "found", "corner", "u_px", "v_px"]
 
 # A frame (or still) counts as found with at least this many refined, checked corners spread
 # over two rows and two columns of the grid: PnP's minimum (cvsflow.pose.MIN_INLIERS).
@@ -502,8 +501,7 @@ def extract_charuco_corners(
     """
     detector = make_detector(board)
     nx, ny = board_pattern(board)
-    corner_ids = np.arange(nx * ny, dtype=np.int64)
-    frame_ids, times, founds, corner_col, uv_blocks = [], [], [], [], []
+    rows = CornerRows(nx * ny)
     methods: dict[str, int] = {}
     n_done = n_found = n_cv_errors = 0
     t_start = time.perf_counter()
@@ -525,21 +523,8 @@ def extract_charuco_corners(
         if corners_px is not None and method != "charuco" and not keep_partial:
             corners_px, method = None, "not_found"
         methods[method] = methods.get(method, 0) + 1
-        if corners_px is None:
-            frame_ids.append(np.array([frame], dtype=np.int64))
-            times.append(np.array([t_s], dtype=np.float64))
-            founds.append(np.array([False]))
-            corner_col.append(np.array([-1], dtype=np.int64))
-            uv_blocks.append(np.full((1, 2), np.nan))
-        else:
-            n_found += 1
-            known = np.isfinite(corners_px).all(axis=1)
-            n = int(known.sum())
-            frame_ids.append(np.full(n, frame, dtype=np.int64))
-            times.append(np.full(n, t_s, dtype=np.float64))
-            founds.append(np.ones(n, dtype=bool))
-            corner_col.append(corner_ids[known])
-            uv_blocks.append(corners_px[known])
+        n_found += corners_px is not None
+        rows.add(frame, t_s, corners_px)
         n_done += 1
         if log_every and n_done % log_every == 0:
             of_total = f" of {n_frames}" if n_frames else ""
@@ -547,17 +532,7 @@ def extract_charuco_corners(
                      of_total, n_found)
     if n_done == 0:
         raise InputError("video: no frames to extract corners from (expected at least one)")
-    uv = np.concatenate(uv_blocks).astype(np.float64)
-    corners = pd.DataFrame(
-        {
-            "frame": np.concatenate(frame_ids),
-            "t_s": np.concatenate(times),
-            "found": np.concatenate(founds),
-            "corner": np.concatenate(corner_col),
-            "u_px": uv[:, 0],
-            "v_px": uv[:, 1],
-        }
-    )[CORNER_COLUMNS]
+    corners = rows.table()
     corners.attrs = {"n_frames": n_done, "n_found": n_found, "order_methods": methods,
                      "n_cv_errors": n_cv_errors}
     log.info("corners (ChArUco): board found in %d of %d frames (%.1f %%), %.1f frames/s; %s",

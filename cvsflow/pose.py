@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow import transforms as tf
+from cvsflow.board import CORNER_COLUMNS, CornerRows
 from cvsflow.calibration import (
     SUBPIX_CRITERIA,
     board_object_points,
@@ -51,7 +52,6 @@ log = logging.getLogger(__name__)
 VIDEO_FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 VIDEO_SEARCH_FLAGS = VIDEO_FIND_FLAGS | cv2.CALIB_CB_FAST_CHECK
 
-CORNER_COLUMNS = ["frame", "t_s", "found", "corner", "u_px", "v_px"]
 POSE_COLUMNS = [
     "frame",
     "t_s",
@@ -1421,9 +1421,7 @@ def extract_corners(
     if is_charuco(board):  # the markers name each corner: every frame detected on its own
         return extract_charuco_corners(frames, board, subpix_window_px, n_frames, log_every,
                                        keep_partial)
-    n_corners = int(np.prod(board_pattern(board)))
-    corner_ids = np.arange(n_corners, dtype=np.int64)
-    frame_ids, times, founds, corner_col, uv_blocks = [], [], [], [], []
+    rows = CornerRows(int(np.prod(board_pattern(board))))
     methods: dict[str, int] = {}
     follower = _CornerFollower(board, subpix_window_px, max_grid_deviation,
                                max_continuity_gap, flags, track, restart_every, keep_partial)
@@ -1434,21 +1432,8 @@ def extract_corners(
         nonlocal n_found
         for frame, t_s, corners_px, method in results:
             methods[method] = methods.get(method, 0) + 1
-            if corners_px is None:
-                frame_ids.append(np.array([frame], dtype=np.int64))
-                times.append(np.array([t_s], dtype=np.float64))
-                founds.append(np.array([False]))
-                corner_col.append(np.array([-1], dtype=np.int64))
-                uv_blocks.append(np.full((1, 2), np.nan))
-            else:
-                n_found += 1
-                known = np.isfinite(corners_px).all(axis=1)
-                n = int(known.sum())
-                frame_ids.append(np.full(n, frame, dtype=np.int64))
-                times.append(np.full(n, t_s, dtype=np.float64))
-                founds.append(np.ones(n, dtype=bool))
-                corner_col.append(corner_ids[known])
-                uv_blocks.append(corners_px[known])
+            n_found += corners_px is not None
+            rows.add(frame, t_s, corners_px)
 
     for frame, t_s, gray in frames:
         gray = np.asarray(gray)
@@ -1473,17 +1458,7 @@ def extract_corners(
     elapsed = time.perf_counter() - t_start
     if n_done == 0:
         raise InputError("video: no frames to extract corners from (expected at least one)")
-    uv = np.concatenate(uv_blocks).astype(np.float64)
-    corners = pd.DataFrame(
-        {
-            "frame": np.concatenate(frame_ids),
-            "t_s": np.concatenate(times),
-            "found": np.concatenate(founds),
-            "corner": np.concatenate(corner_col),
-            "u_px": uv[:, 0],
-            "v_px": uv[:, 1],
-        }
-    )[CORNER_COLUMNS]
+    corners = rows.table()
     corners.attrs = {"n_frames": n_done, "n_found": n_found, "order_methods": methods,
                      "n_cv_errors": follower.cv_errors}
     if follower.cv_errors:
