@@ -60,6 +60,7 @@ from cvsflow import transforms as tf
 from cvsflow.calibration import board_object_points
 from cvsflow.errors import OptimiseError
 from cvsflow.geometry.camera import project_points, project_points_jac
+from cvsflow.geometry.transforms import skew
 from cvsflow.optimise import OptimiseResult
 
 log = logging.getLogger(__name__)
@@ -615,21 +616,11 @@ def solve_pnp_frames(uv_px, p_B, K, dist):
 # --------------------------------------------------------------------------- the model
 
 
-def _skew(v):
-    """Cross-product matrices [v]x of vectors (..., 3) -> (..., 3, 3)."""
-    v = np.asarray(v, float)
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
-
-
 def _right_jacobian(w):
     """Right Jacobian of SO(3) at w (3,): exp(w + d) = exp(w) exp(Jr(w) d) to first order."""
     w = np.asarray(w, float)
     th = np.linalg.norm(w)
-    W = _skew(w)
+    W = skew(w)
     if th < 1e-8:
         return np.eye(3) - 0.5 * W
     # Chirikjian (2011) eq. 10.86
@@ -748,9 +739,9 @@ class _Model:
         R_C_Bm = R_Cm_C.T @ T_Cm_Bm[..., :3, :3]  # (F, Q, 3, 3)
         R_C_B = R_C_Bm @ T_Bm_B[:3, :3]
         d_pC = np.zeros((F, P, 3, 14))
-        d_pC[..., 0:3] = _skew(p_C) @ _right_jacobian(c[:3])  # w_C
+        d_pC[..., 0:3] = skew(p_C) @ _right_jacobian(c[:3])  # w_C
         d_pC[..., 3:6] = -R_Cm_C.T  # t_Cm_C
-        d_pC[..., 6:9] = -np.einsum("fpij,pjk->fpik", R_C_B, _skew(self.p_B)) @ _right_jacobian(
+        d_pC[..., 6:9] = -np.einsum("fpij,pjk->fpik", R_C_B, skew(self.p_B)) @ _right_jacobian(
             b[:3]
         )  # w_B
         d_pC[..., 9:12] = R_C_Bm  # t_Bm_B
