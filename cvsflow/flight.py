@@ -51,6 +51,9 @@ from cvsflow.transforms import (
     rotation_angle,
     wrap_angle,
 )
+from cvsflow.transforms import (
+    skew as skew_matrix,
+)
 from cvsflow.uncertainty import error_covariance, pnp_covariance
 
 log = logging.getLogger(__name__)
@@ -934,15 +937,6 @@ def reference_covariance_model(
     return Sigma
 
 
-def _skew(v):
-    """Cross-product matrices of vectors (N, 3) -> (N, 3, 3)."""
-    S = np.zeros(v.shape[:-1] + (3, 3))
-    S[..., 0, 1], S[..., 0, 2] = -v[..., 2], v[..., 1]
-    S[..., 1, 0], S[..., 1, 2] = v[..., 2], -v[..., 0]
-    S[..., 2, 0], S[..., 2, 1] = -v[..., 1], v[..., 0]
-    return S
-
-
 def _euler_rate_inverse(rpy):
     """E^-1 with E mapping roll/pitch/yaw increments to a world-frame rotation vector."""
     p, y = rpy[:, 1], rpy[:, 2]  # E does not depend on roll
@@ -979,7 +973,7 @@ def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L) -> np.ndarray:
     J = np.zeros((len(T_C_B), 6, 6))
     R_L_C = R_C_L.T
     J[:, :3, :3] = R_L_C
-    J[:, :3, 3:] = -R_L_C @ _skew(lever)  # dp = dt - [lever]x dtheta
+    J[:, :3, 3:] = -R_L_C @ skew_matrix(lever)  # dp = dt - [lever]x dtheta
     rpy = euler_from_R(R_L_C @ T_C_Q[:, :3, :3])
     J[:, 3:, 3:] = _euler_rate_inverse(rpy) @ R_L_C
     S = J @ np.asarray(Sigma_C_B, float) @ np.swapaxes(J, -1, -2)

@@ -61,7 +61,6 @@ from cvsflow.optimise.se3 import (
     INTRINSIC_NAMES,
     _covariances,
     _right_jacobian,
-    _skew,
     project_points_jac,
     solve_pnp_frames,
 )
@@ -351,11 +350,11 @@ class _Model:
         J = np.zeros((n, P, 2, len(x)))
         R_H, R_G = T_H[:3, :3], T_G[:3, :3]
         # d p_C / d w_H = [p_C]x Jr(w_H); d p_C / d t_H = -R_H^T
-        J[..., 0:3] = J_p @ (_skew(p_C) @ _right_jacobian(x[0:3]))
+        J[..., 0:3] = J_p @ (tf.skew(p_C) @ _right_jacobian(x[0:3]))
         J[..., 3:6] = J_p @ (-R_H.T)
         # d p_C / d p_G = R_H^T R_A; d p_G / d w_G = -R_G [p_B]x Jr(w_G); d p_G / d t_G = I
         M = np.einsum("ji,njk->nik", R_H, A[:, :3, :3])  # (n, 3, 3)
-        d_pG_dw = -R_G @ _skew(self.p_B) @ _right_jacobian(x[6:9])  # (P, 3, 3)
+        d_pG_dw = -R_G @ tf.skew(self.p_B) @ _right_jacobian(x[6:9])  # (P, 3, 3)
         J_pG = np.einsum("npij,njk->npik", J_p, M)  # (n, P, 2, 3)
         J[..., 6:9] = np.einsum("npij,pjk->npik", J_pG, d_pG_dw)
         J[..., 9:12] = J_pG
@@ -369,12 +368,12 @@ class _Model:
             J_pA = J_p @ R_H.T  # (n, P, 2, 3): d uv / d p_A
             if self.mode == "eye_to_hand":  # p_A = R' p_G + t'
                 u = np.einsum("nij,pj->npi", T_X[:, :3, :3], p_G_of(T_G, self.p_B))
-                dA_drho = -_skew(u) @ Jl[:, None]
+                dA_drho = -tf.skew(u) @ Jl[:, None]
                 dA_dtau = np.broadcast_to(np.eye(3), (n, 1, 3, 3))
             else:  # p_A = R'^T (p_G - t')
                 v = p_G_of(T_G, self.p_B)[None] - T_X[:, None, :3, 3]
                 Rt = np.swapaxes(T_X[:, :3, :3], 1, 2)[:, None]
-                dA_drho = Rt @ _skew(v) @ Jl[:, None]
+                dA_drho = Rt @ tf.skew(v) @ Jl[:, None]
                 dA_dtau = -np.broadcast_to(Rt, (n, 1, 3, 3))
             cols = self.k + 6 * np.arange(n)
             for j in range(3):
