@@ -29,6 +29,7 @@ import yaml
 from cvsflow import uncertainty as un
 from cvsflow.evaluate import ERROR_DIMS
 from cvsflow.io import read_parquet, read_yaml, write_yaml
+from cvsflow.uncertainty import transfer as un_transfer
 
 ROOT = Path(__file__).resolve().parents[1]
 TARGETS = {"nees": (4.5, 7.5), "inside_95": (0.93, 0.97), "inside_68": (0.64, 0.72)}
@@ -147,14 +148,14 @@ def worst_frames(names, held):
     Sig = un.transfer_covariance(m, f)
     E = e[cols].to_numpy() - un.transfer_mean(m, f)
     m2 = np.einsum("ni,nij,nj->n", E, np.linalg.inv(Sig), E)
-    U, P, _, speed, reproj, _ = un._transfer_terms(f)
+    U, P, _, speed, reproj, _ = un_transfer._transfer_terms(f)
     var_px = m["s0_px"] ** 2 + (m["s_speed"] * speed) ** 2 + (m["s_reproj"] * reproj) ** 2
     t_noise = np.einsum("nii->n", var_px[:, None, None] * U)
     t_cal = np.einsum("nii->n", m["c_cal"] ** 2 * P)
     res = ROOT / "results" / held
     fits = read_yaml(res / "heldout" / "se3_folds.yaml")["folds"]
     p_B = board_object_points(b[held])
-    uv, _, _ = un._seen_corners(read_parquet(res / "corners.parquet"), e["frame"].to_numpy(),
+    uv, _, _ = un.seen_corners(read_parquet(res / "corners.parquet"), e["frame"].to_numpy(),
                                 len(p_B))  # fmt: skip
     rv = e[[f"cvs_rvec_{j}" for j in range(3)]].to_numpy()
     tv = e[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy()

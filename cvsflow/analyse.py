@@ -198,7 +198,7 @@ def vicon_vs_cvs(errors, result):
 def error_covariance(errors, prefix="eps"):
     """6x6 covariance Sigma of eps (seed eq. 1.14) and its correlation matrix, in SI.
 
-    Not :func:`cvsflow.uncertainty.error_covariance` (the propagated covariance of each pose).
+    Not :func:`cvsflow.uncertainty.propagated_pose_covariance` (the propagated covariance of each pose).
 
     Parameters
     ----------

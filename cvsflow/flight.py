@@ -54,7 +54,7 @@ from cvsflow.transforms import (
 from cvsflow.transforms import (
     skew as skew_matrix,
 )
-from cvsflow.uncertainty import error_covariance, pnp_covariance
+from cvsflow.uncertainty.propagation import pnp_covariance, propagated_pose_covariance
 
 log = logging.getLogger(__name__)
 
@@ -1408,7 +1408,7 @@ def reference_covariance_from_pnp(poses_raw, p_B, K, dist, sigma_px):
         rv = poses_raw.loc[valid, ["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
         tv = poses_raw.loc[valid, ["x_m", "y_m", "z_m"]].to_numpy(float)
         cov_rt = pnp_covariance(rv, tv, p_B, np.asarray(K, float), np.asarray(dist, float), sigma_px)
-        Sigma[valid] = error_covariance(rv, tv, cov_rt, frame="C")
+        Sigma[valid] = propagated_pose_covariance(rv, tv, cov_rt, frame="C")
     return Sigma
 
 
@@ -1537,7 +1537,7 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     tv = rows[["x_m", "y_m", "z_m"]].to_numpy(float)
     K = np.asarray(calib["K"], float)
     dist = np.asarray(calib["dist"], float).ravel()
-    uv, speed, vel = un._seen_corners(corners, rows["frame"].to_numpy(), len(p_B))
+    uv, speed, vel = un.seen_corners(corners, rows["frame"].to_numpy(), len(p_B))
     ld = float(calib.get("line_delay_s") or 0.0)
     unit, shear = un.frame_noise_terms(uv, vel, rv, tv, p_B, K, dist, ld, frame="C")
     n_seen = np.isfinite(uv).all(axis=-1).sum(axis=1)
@@ -1562,7 +1562,7 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
         A = -np.linalg.lstsq(Jp.T @ Jp, Jp.T @ JK, rcond=None)[0]
         cov_rt[i] = (A * sd**2) @ A.T
 
-    cal = error_covariance(rv, tv, cov_rt, frame="C")
+    cal = propagated_pose_covariance(rv, tv, cov_rt, frame="C")
     S = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
          + shear[:, :, None] * shear[:, None, :])  # fmt: skip
     if flips:

@@ -35,14 +35,14 @@ def test_pnp_covariance_matches_monte_carlo():
     np.testing.assert_allclose(np.std(sols, axis=0), np.sqrt(np.diag(cov)), rtol=0.15)
 
 
-def test_error_covariance_matches_monte_carlo_of_composed_errors():
+def test_propagated_pose_covariance_matches_monte_carlo_of_composed_errors():
     """Propagated covariance of the composed error in C equals the covariance of composed
     errors of samples drawn from Cov(rvec, tvec): std within 10 %."""
     rng = np.random.default_rng(1)
     rvec, tvec = np.array([[0.5, -0.3, 0.2]]), np.array([[0.1, 0.0, 2.5]])
     A = rng.normal(size=(6, 6)) * np.r_[[1e-3] * 3, [2e-3] * 3]
     cov_rt = (A @ A.T)[None]
-    cov_e = un.error_covariance(rvec, tvec, cov_rt)[0]
+    cov_e = un.propagated_pose_covariance(rvec, tvec, cov_rt)[0]
     x = rng.multivariate_normal(np.r_[rvec[0], tvec[0]], cov_rt[0], 4000)
     T0 = np.repeat(tf.T_from_rvec_tvec(rvec, tvec), len(x), 0)
     e = ev.pose_errors(T0, tf.T_from_rvec_tvec(x[:, :3], x[:, 3:]))[ev.error_columns()]
@@ -346,9 +346,9 @@ def _draw_transfer(rng, n, truth, n_blocks=8, reproj=None):
     feats = pd.DataFrame({"speed_px": speed, "reproj_rms_px": np.sqrt(2.0) * reproj,
                           "n_corners": 1e9})  # fmt: skip
     iu = np.triu_indices(6)
-    for c, name in enumerate(un._cov_columns("unitcov")):
+    for c, name in enumerate(un.cov_columns("unitcov")):
         feats[name] = U[:, iu[0][c], iu[1][c]]
-    for c, name in enumerate(un._cov_columns("parcov")):
+    for c, name in enumerate(un.cov_columns("parcov")):
         feats[name] = P0[iu[0][c], iu[1][c]]
     model = {"kind": "T", **truth}
     S = un.transfer_covariance(model, feats)
@@ -485,7 +485,7 @@ def test_flight_reference_covariance_takes_the_shrinkage_option():
     np.testing.assert_allclose(trace({**m, "k_shrink": 0.0}), base, rtol=1e-12)
     pooled = trace({**m, "k_shrink": 1e9})
     rows = poses[valid]
-    n_seen = np.isfinite(un._seen_corners(corners, rows["frame"].to_numpy(), len(p_B))[0]).all(-1).sum(1)
+    n_seen = np.isfinite(un.seen_corners(corners, rows["frame"].to_numpy(), len(p_B))[0]).all(-1).sum(1)
     n_i = un.corner_noise_from_reproj(rows["reproj_rms_px"].to_numpy(float), n_seen)
     low = n_i < 0.95 * np.median(n_i)
     high = n_i > 1.05 * np.median(n_i)

@@ -1,0 +1,81 @@
+"""Per-frame pose error covariance: propagated, modelled, scored.
+
+- :mod:`cvsflow.uncertainty.propagation`: the PnP pose covariance under iid corner noise
+  (:func:`pnp_covariance`), pushed to the composed error (:func:`propagated_pose_covariance`)
+  or the pose 6-vector (:func:`pose6_covariance`), and the covariance each held-out frame
+  inherits from the se3 fit that scored it (:func:`parameter_covariance`).
+- :mod:`cvsflow.uncertainty.models`: the one-session error models (M) and (P)
+  (:func:`fit_error_model`, :func:`predicted_covariance`, :func:`score_error_model`).
+- :mod:`cvsflow.uncertainty.features`: what is known of a frame when it is measured
+  (:func:`measurement_features`, the corner noise its reprojection implies).
+- :mod:`cvsflow.uncertainty.transfer`: model (T), fitted on some sessions, predicting
+  another or a flight (:func:`fit_transfer_model`, :func:`transfer_covariance`,
+  :func:`leave_one_session_out`, :data:`RENDERED_TRANSFER_MODEL`).
+- :mod:`cvsflow.uncertainty.scoring`: band coverage and NEES (:func:`score_covariance`,
+  :func:`nees_values`, :func:`band_multipliers`).
+- :mod:`cvsflow.uncertainty.crb`: the Cramer-Rao floor (:func:`cramer_rao_sigma`).
+
+The submodules import each other downwards (propagation, scoring < models, features, crb <
+transfer); this package only re-exports their public names.
+"""
+
+from cvsflow.uncertainty.crb import cramer_rao_sigma
+from cvsflow.uncertainty.features import (
+    FILL_WINDOW_S,
+    MEASUREMENT_FEATURES,
+    NOISE_POOL_COLUMN,
+    corner_noise_from_reproj,
+    corner_noise_pool,
+    frame_noise_terms,
+    measurement_features,
+    seen_corners,
+    shrink_corner_noise,
+    vicon_filled,
+)
+from cvsflow.uncertainty.models import (
+    FEATURES,
+    error_features,
+    fit_error_model,
+    predict_error_sigma,
+    predicted_covariance,
+    score_error_model,
+)
+from cvsflow.uncertainty.propagation import (
+    PARAM_BLOCKS,
+    cov_columns,
+    cov_from_columns,
+    parameter_covariance,
+    pnp_covariance,
+    pose6_covariance,
+    propagated_pose_covariance,
+)
+from cvsflow.uncertainty.scoring import (
+    BANDS,
+    WORKING_UNITS,
+    band_multipliers,
+    nees_values,
+    score_covariance,
+)
+from cvsflow.uncertainty.transfer import (
+    RENDERED_TRANSFER_MODEL,
+    TRANSFER_PARAMS,
+    crossfit_transfer,
+    fit_transfer_model,
+    leave_one_session_out,
+    score_transfer,
+    transfer_covariance,
+    transfer_mean,
+)
+
+__all__ = [
+    "BANDS", "FEATURES", "FILL_WINDOW_S", "MEASUREMENT_FEATURES", "NOISE_POOL_COLUMN",
+    "PARAM_BLOCKS", "RENDERED_TRANSFER_MODEL", "TRANSFER_PARAMS", "WORKING_UNITS",
+    "band_multipliers", "corner_noise_from_reproj", "corner_noise_pool", "cov_columns",
+    "cov_from_columns", "cramer_rao_sigma", "crossfit_transfer", "error_features",
+    "fit_error_model", "fit_transfer_model", "frame_noise_terms", "leave_one_session_out",
+    "measurement_features", "nees_values", "parameter_covariance", "pnp_covariance",
+    "pose6_covariance", "predict_error_sigma", "predicted_covariance",
+    "propagated_pose_covariance", "score_covariance", "score_error_model", "score_transfer",
+    "seen_corners", "shrink_corner_noise", "transfer_covariance", "transfer_mean",
+    "vicon_filled",
+]  # fmt: skip

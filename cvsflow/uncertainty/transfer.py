@@ -1,0 +1,439 @@
+"""Model (T): an error covariance from what is known when a frame is measured.
+
+Fitted by maximum likelihood on the held-out frames of one or more sessions
+(:func:`fit_transfer_model`), it predicts another session or a flight
+(:func:`transfer_covariance`, :func:`transfer_mean`); :func:`score_transfer`,
+:func:`leave_one_session_out` and :func:`crossfit_transfer` score it on frames it did not
+see. The inputs are :func:`cvsflow.uncertainty.features.measurement_features`.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import minimize
+from scipy.special import gammaln
+
+from cvsflow.errors import OptimiseError
+from cvsflow.metrics import ERROR_DIMS
+from cvsflow.uncertainty.crb import cramer_rao_sigma
+from cvsflow.uncertainty.features import (
+    NOISE_POOL_COLUMN,
+    corner_noise_from_reproj,
+    corner_noise_pool,
+    shrink_corner_noise,
+)
+from cvsflow.uncertainty.propagation import cov_columns, cov_from_columns
+from cvsflow.uncertainty.scoring import WORKING_UNITS, score_covariance
+
+log = logging.getLogger(__name__)
+
+#: Parameters of model (T), in the order of its vector (logs of positive scales).
+TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "b_rot_rad",
+                   "b_fill_pos_m", "b_fill_rot_rad", "nu")
+
+
+def _transfer_terms(features):
+    """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), corner noise (N,), Vicon
+    gap-filled (N,)), working units."""
+    U = cov_from_columns(features, "unitcov")
+
+    def block(name):
+        has = all(c in features.columns for c in cov_columns(name))
+        return cov_from_columns(features, name) if has else np.zeros_like(U)
+
+    scale = 1.0 / np.outer(WORKING_UNITS, WORKING_UNITS)
+    speed = features["speed_px"].to_numpy(float)
+    reproj = corner_noise_from_reproj(features["reproj_rms_px"].to_numpy(float),
+                                      features["n_corners"].to_numpy(float))
+    rs_cols = [f"rs_err_{d}" for d in ERROR_DIMS]
+    RS = (features[rs_cols].to_numpy(float) / WORKING_UNITS if all(c in features for c in rs_cols)
+          else np.zeros((len(U), 6)))  # fmt: skip
+    filled = (features["vicon_filled"].to_numpy(float) if "vicon_filled" in features
+              else np.zeros(len(U)))  # fmt: skip
+    return U * scale, block("parcov") * scale, RS, speed, reproj, filled
+
+
+def _unpack_transfer(q):
+    return (*np.exp(q[:9]), 2.0 + np.exp(q[9]))
+
+
+def _shrink_terms(features):
+    """(corners per frame (N,), pooled corner noise (N,)) for the shrinkage of model (T)."""
+    n_c = features["n_corners"].to_numpy(float)
+    if NOISE_POOL_COLUMN in features:
+        pool = features[NOISE_POOL_COLUMN].to_numpy(float)
+    else:
+        pool = np.full(len(n_c), corner_noise_pool(features["reproj_rms_px"].to_numpy(float),
+                                                   n_c))  # fmt: skip
+    return n_c, pool
+
+
+def _transfer_cov(q, U, P, RS, speed, reproj, filled, shrink=None):
+    """Model (T) mean (N, 6) and covariance (N, 6, 6), working units; ``q`` of 11 entries
+    (the last log k) with ``shrink`` = :func:`_shrink_terms` shrinks the corner noise."""
+    s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, _ = _unpack_transfer(q)
+    if len(q) > 10 and shrink is not None:
+        reproj = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
+    var_px = s0**2 + (s_speed * speed) ** 2 + (s_reproj * reproj) ** 2
+    floor = np.r_[np.full(3, b_pos), np.full(3, b_rot)] / WORKING_UNITS
+    fill = np.r_[np.full(3, f_pos), np.full(3, f_rot)] / WORKING_UNITS
+    S = (var_px[:, None, None] * U + c**2 * P + np.diag(floor**2)[None]
+         + filled[:, None, None] * np.diag(fill**2)[None])  # fmt: skip
+    return s_rs * RS, S
+
+
+def fit_transfer_model(features, errors, shrink=None):
+    """Fit model (T) by maximum likelihood on frames of one or more sessions.
+
+    Model (T), per frame i (what is known when it is measured):
+
+        sigma_px,i^2 = s0^2 + (s_speed v_i)^2 + (s_reproj n_i)^2
+        mu_i = s_rs r_i
+        Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
+                  + f_i diag(b_fill_pos^2 I3, b_fill_rot^2 I3)
+
+    with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
+    saw (it carries the distance, the view angles, the corner count and their spread), v_i the
+    image speed (px per frame period: blur), n_i the corner noise the frame's PnP
+    reprojection RMS implies (:func:`corner_noise_from_reproj`; s_reproj = 1 for iid
+    noise), P_i the
+    calibration's covariance (intrinsics free and fixed, both mountings) propagated through
+    PnP and the reference (the term common to every frame the fit scores, hence correlated in
+    time), r_i the pose error a rolling shutter's shear predicts (fitted line delay x image
+    velocity x row through PnP; 0 for a global shutter: the CVS's PnP ignores the shear, the
+    reference is taken at the mean row; a known error, hence a mean, not a variance), and the
+    floors b the Vicon reference's own noise, raised by b_fill where a board marker was
+    gap-filled about the frame (f_i = 1, ``vicon_filled``: the filled marker's error moves
+    the rigid fit). The errors are multivariate
+    Student-t with nu > 2 degrees of freedom and covariance Sigma_i. Every scale is in
+    physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
+    fitted on some sessions predicts another.
+
+    Parameters
+    ----------
+    features : DataFrame
+        :func:`measurement_features` of the training frames (``unitcov``, optional ``parcov``).
+    errors : DataFrame
+        The same frames' ``err_{dim}`` (CVS - reference, :func:`cvsflow.evaluate.pose_errors`).
+    shrink : None, "fit" or float
+        None: n_i as measured. Otherwise n_i is replaced by :func:`shrink_corner_noise`
+        toward the pooled noise (column :data:`NOISE_POOL_COLUMN`, else the median over the
+        rows) with prior strength k: fitted (``"fit"``) or the given value.
+
+    Returns
+    -------
+    model : dict
+        ``kind: T``, ``dims``, one entry per :data:`TRANSFER_PARAMS` (px, -, -, -, -, m, rad,
+        -),
+        ``nll`` (mean per frame), ``n_train``; with ``shrink`` also ``k_shrink``.
+
+    Raises
+    ------
+    OptimiseError
+        Missing columns, fewer than 20 frames or non-finite data.
+    """
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    missing = [c for c in cols if c not in errors.columns]
+    missing += [c for c in [*cov_columns("unitcov"), "speed_px", "reproj_rms_px", "n_corners"]
+                if c not in features.columns]  # fmt: skip
+    if missing:
+        raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
+    E = errors[cols].to_numpy(float) / WORKING_UNITS
+    U, P, RS, speed, reproj, filled = _transfer_terms(features)
+    if len(E) != len(U) or len(E) < 20:
+        raise OptimiseError(
+            f"fit_transfer_model: {len(E)} error rows and {len(U)} feature rows; need equal, >= 20"
+        )
+    if not (np.isfinite(E).all() and np.isfinite(U).all() and np.isfinite(P).all()):
+        raise OptimiseError("fit_transfer_model: non-finite errors or covariances")
+    d = 6
+    # the shear term is a first-order prediction of the error itself: its scale is 1 in
+    # physics (fitted on the rendered rolling-shutter session it comes out at 1.01), and a
+    # session without a rolling shutter cannot tell it (fitted line delays of ~1e-7 s would
+    # fit it to their noise): held at 1
+    fit_rs = False
+
+    fit_k = isinstance(shrink, str)
+    if fit_k and shrink != "fit":
+        raise OptimiseError(f"fit_transfer_model: shrink={shrink!r}; expected None, 'fit' or k")
+    sh = _shrink_terms(features) if shrink is not None else None
+    k_fixed = [] if shrink is None or fit_k else [np.log(max(float(shrink), 1e-12))]
+
+    def full(q):
+        q = q if fit_rs else np.r_[q[:4], 0.0, q[4:]]
+        return np.r_[q, k_fixed]
+
+    def nll(q):
+        q = full(q)
+        mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, sh)
+        nu = _unpack_transfer(q)[9]
+        try:
+            L = np.linalg.cholesky(S * ((nu - 2.0) / nu))
+        except np.linalg.LinAlgError:
+            return 1e30
+        z = np.linalg.solve(L, (E - mu)[:, :, None])[:, :, 0]
+        m2 = np.einsum("ni,ni->n", z, z)
+        logdet = 2.0 * np.log(np.einsum("nii->ni", L)).sum(axis=1)
+        ll = (gammaln((nu + d) / 2) - gammaln(nu / 2) - 0.5 * d * np.log(nu * np.pi)
+              - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(m2 / nu))
+        return -float(np.mean(ll))
+
+    x0 = np.log([0.2, 0.02, 0.3, 1.0, 1.0, 5e-4, 5e-4, 2e-3, 2e-3, 5.0])
+    best = None
+    # the likelihood is smooth but can be flat in a term the data do not need (e.g. no
+    # parameter covariance, no speed): two starts, keep the better
+    keep = np.ones(10, bool)
+    keep[4] = fit_rs
+    bounds = [(-25, 10)] * (keep.sum() - 1) + [(-4, 6)]
+    starts = [x0, x0 + np.r_[0.7, -1.5, -1.5, -0.7, -0.7, 0.7, 0.7, -1.0, -1.0, 0.0]]
+    if fit_k:
+        # k in pseudo-degrees of freedom: from a tenth of a frame's (~50) to 2e5 (the pool)
+        bounds.append((np.log(0.1), np.log(2e5)))
+        starts = [np.r_[x[keep], np.log(30.0)] for x in starts]
+    else:
+        starts = [x[keep] for x in starts]
+    for start in starts:
+        sol = minimize(nll, start, method="L-BFGS-B", bounds=bounds, options={"maxiter": 500})
+        if best is None or sol.fun < best.fun:
+            best = sol
+    q_best = full(best.x)
+    vals = _unpack_transfer(q_best)
+    model = {"kind": "T", "dims": list(ERROR_DIMS), "n_train": int(len(E)),
+             "nll": float(best.fun), "s_rs_fitted": fit_rs}
+    model.update({name: float(v) for name, v in zip(TRANSFER_PARAMS, vals, strict=True)})
+    if shrink is not None:
+        model["k_shrink"] = float(np.exp(q_best[10]))
+    return model
+
+
+def _q_from_model(model):
+    v = [model[n] for n in TRANSFER_PARAMS]
+    q = np.r_[np.log(v[:9]), np.log(v[9] - 2.0)]
+    k = model.get("k_shrink")
+    return q if k is None else np.r_[q, np.log(max(float(k), 1e-12))]
+
+
+def _model_cov(model, features):
+    sh = _shrink_terms(features) if model.get("k_shrink") is not None else None
+    return _transfer_cov(_q_from_model(model), *_transfer_terms(features), sh)
+
+
+def transfer_covariance(model, features):
+    """Model (T)'s predicted 6x6 error covariance of each frame, SI (m, rad), (N, 6, 6).
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output (the ``TRANSFER_PARAMS`` and ``nu``; with
+        ``k_shrink``, each frame's corner noise is shrunk toward the pooled value).
+    features : DataFrame
+        :func:`measurement_features` of the frames: ``unitcov_{a}{b}``, ``speed_px``,
+        ``reproj_rms_px``, ``n_corners``, and optionally ``parcov_{a}{b}``, ``rs_err_{dim}``,
+        ``vicon_filled`` (absent ones count as zero) and ``noise_pool_px`` (default: the
+        median corner noise of the rows given).
+
+    Returns
+    -------
+    cov : ndarray, shape (N, 6, 6)
+        Covariance of the pose error ``[x, y, z, roll, pitch, yaw]`` of each frame (the
+        ``err_{dim}`` columns, ``dim`` in ``ERROR_DIMS``), m^2, m rad and rad^2. It is
+        the Student-t's covariance, not its scale matrix.
+    """
+    _, S = _model_cov(model, features)
+    return S * np.outer(WORKING_UNITS, WORKING_UNITS)
+
+
+def transfer_mean(model, features):
+    """Model (T)'s predicted error of each frame (the rolling shutter's shear), SI, (N, 6).
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output.
+    features : DataFrame
+        :func:`measurement_features` of the frames, as for :func:`transfer_covariance`.
+
+    Returns
+    -------
+    mu : ndarray, shape (N, 6)
+        Predicted pose error ``[x, y, z, roll, pitch, yaw]`` of each frame, m and rad: the
+        ``rs_err_{dim}`` columns times the model's shear scale, zero without those columns
+        (a global shutter).
+    """
+    mu, _ = _model_cov(model, features)
+    return mu * WORKING_UNITS
+
+
+def _autocorr_lag1(z, fold):
+    """Lag-1 autocorrelation of standardised errors z (N, 6) within each fold's runs."""
+    same = fold[1:] == fold[:-1]
+    a, b = z[:-1][same], z[1:][same]
+    return np.sum(a * b, axis=0) / np.sqrt(np.sum(a * a, axis=0) * np.sum(b * b, axis=0))
+
+
+def score_transfer(model, features, errors, folds=None, sigma_px=None):
+    """Model (T) scored on one session: overall and per cross-validation fold.
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output (fitted without this session).
+    features, errors : DataFrame
+        :func:`measurement_features` and ``err_{dim}`` (and ``t_s``) of its held-out rows.
+    folds : ndarray, optional
+        The time-block fold of each row (the se3 fit that scored it).
+    sigma_px : float or ndarray, optional
+        Corner noise for the Cramer-Rao bound (the se3 fits' ``sigma_px``); adds
+        ``error_over_crb`` (RMS of error / CRB per axis) and ``crb_median`` per axis.
+
+    Returns
+    -------
+    score : dict
+        :func:`score_covariance` keys, ``lag1_autocorr`` per axis (of the errors standardised
+        by their predicted sigma, within folds), ``folds`` (list of per-fold scores with
+        ``fold``), and with ``sigma_px`` the CRB keys.
+    """
+    cov = transfer_covariance(model, features)
+    mu = transfer_mean(model, features)
+    out = score_covariance(cov, errors, nu=model["nu"], mean=mu)
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
+    z = (E - mu) / np.sqrt(np.einsum("nii->ni", cov))
+    fold = np.zeros(len(E), int) if folds is None else np.asarray(folds).astype(int)
+    out["lag1_autocorr"] = dict(zip(ERROR_DIMS, map(float, _autocorr_lag1(z, fold)), strict=True))
+    if sigma_px is not None:
+        crb = cramer_rao_sigma(features, sigma_px)
+        out["error_over_crb"] = {d: float(np.sqrt(np.mean((E[:, j] / crb[:, j]) ** 2)))
+                                 for j, d in enumerate(ERROR_DIMS)}  # fmt: skip
+        out["crb_median"] = {d: float(np.median(crb[:, j])) for j, d in enumerate(ERROR_DIMS)}
+    out["folds"] = []
+    rho = np.clip(np.mean(list(out["lag1_autocorr"].values())), 0.0, 0.95)
+    out.update(_sampling_band(len(E), rho))
+    if folds is not None:
+        for k in np.unique(fold):
+            sel = fold == k
+            s = score_covariance(cov[sel], errors[sel].reset_index(drop=True), nu=model["nu"],
+                                 mean=mu[sel])
+            s["fold"] = int(k)
+            s.update(_sampling_band(int(sel.sum()), rho))
+            out["folds"].append(s)
+    return out
+
+
+def _sampling_band(n, rho):
+    """How far a calibrated model's shares of n frames scatter when the standardised errors
+    have lag-1 autocorrelation rho (AR(1)): ``n_effective`` = n (1 - rho) / (1 + rho) and the
+    2-sigma binomial half-widths ``inside_95_tolerance``, ``inside_68_tolerance``."""
+    n_eff = max(n * (1.0 - rho) / (1.0 + rho), 1.0)
+    return {"n_effective": float(n_eff), "lag1_mean": float(rho),
+            "inside_95_tolerance": float(2.0 * np.sqrt(0.95 * 0.05 / n_eff)),
+            "inside_68_tolerance": float(2.0 * np.sqrt(0.6827 * 0.3173 / n_eff))}
+
+
+def leave_one_session_out(sessions, shrink=None):
+    """Fit model (T) on all sessions but one, score the one left out; every session in turn.
+
+    Parameters
+    ----------
+    sessions : dict
+        Session name -> dict with ``features`` (:func:`measurement_features`), ``errors``
+        (the held-out table: ``err_{dim}``, ``fold``) and optional ``sigma_px`` (per row or
+        scalar, for the Cramer-Rao bound).
+    shrink : None, "fit" or float
+        Corner-noise shrinkage of every fit (:func:`fit_transfer_model`).
+
+    Returns
+    -------
+    result : dict
+        ``sessions``: name -> {``model`` (fitted without it), ``score``
+        (:func:`score_transfer`)}; ``pooled_model`` (fitted on every session, the one to
+        use on new data).
+
+    Raises
+    ------
+    OptimiseError
+        Fewer than two sessions.
+    """
+    names = list(sessions)
+    if len(names) < 2:
+        raise OptimiseError(f"leave_one_session_out: {len(names)} session(s); need at least 2")
+
+    def stack(keep):
+        f = pd.concat([sessions[n]["features"] for n in keep], ignore_index=True)
+        e = pd.concat([sessions[n]["errors"] for n in keep], ignore_index=True)
+        return f, e
+
+    out = {"sessions": {}}
+    for name in names:
+        f, e = stack([n for n in names if n != name])
+        model = fit_transfer_model(f, e, shrink)
+        s = sessions[name]
+        err = s["errors"].reset_index(drop=True)
+        folds = err["fold"].to_numpy() if "fold" in err else None
+        score = score_transfer(model, s["features"].reset_index(drop=True), err, folds,
+                               s.get("sigma_px"))  # fmt: skip
+        out["sessions"][name] = {"model": model, "score": score}
+        log.info("LOSO %s: NEES %.2f, inside 95 %% %s", name, score["nees_mean"],
+                 {d: round(v, 3) for d, v in score["inside_95"].items()})
+    out["pooled_model"] = fit_transfer_model(*stack(names), shrink)
+    return out
+
+
+#: Model (T) fitted on the held-out frames of the five rendered sessions of
+#: bench/uncertainty_sessions.yaml (1800 frames; five cameras, lenses, boards, distance ranges,
+#: one rolling shutter), by ``PYTHONPATH=. .venv/bin/python bench/bench_uncertainty.py``
+#: (``pooled_model``). Each of those sessions left out and predicted by the other four: NEES
+#: 2.6-7.6, results/bench_uncertainty/loso.yaml and docs/findings.md.
+RENDERED_TRANSFER_MODEL = {
+    "kind": "T", "dims": list(ERROR_DIMS), "n_train": 1800, "s_rs_fitted": False,
+    "s0_px": 0.01084, "s_speed": 4.987e-06, "s_reproj": 1.127, "c_cal": 1.011, "s_rs": 1.0,
+    "b_pos_m": 8.242e-05, "b_rot_rad": 0.0001234, "b_fill_pos_m": 0.000779,
+    "b_fill_rot_rad": 0.002943, "nu": 13.44,
+}  # fmt: skip
+
+
+def crossfit_transfer(features, errors, sigma_px=None):
+    """Model (T) fitted on all time-block folds of a session but one, scored on the last.
+
+    Parameters
+    ----------
+    features : DataFrame
+        :func:`measurement_features` of the session's held-out rows.
+    errors : DataFrame
+        The held-out rows (``err_{dim}``, ``fold``).
+    sigma_px : ndarray, optional
+        Per-row corner noise for the Cramer-Rao bound.
+
+    Returns
+    -------
+    score : dict
+        Pooled ``n``, ``inside_68``, ``inside_95`` (per axis and ``_all``), ``nees_mean``,
+        ``nees_inside_95``, ``z_rms``, ``model: T``, ``folds`` (per-fold
+        :func:`score_covariance` with ``fold`` and the fold's ``params``).
+    cov : ndarray, shape (N, 6, 6)
+        Each row's covariance from the model that did not see its fold.
+    mu : ndarray, shape (N, 6)
+        Each row's predicted error (the rolling shutter's shear).
+    """
+    fold = errors["fold"].to_numpy().astype(int)
+    cov = np.full((len(errors), 6, 6), np.nan)
+    mu = np.full((len(errors), 6), np.nan)
+    folds = []
+    for k in np.unique(fold):
+        train, test = fold != k, fold == k
+        model = fit_transfer_model(features[train].reset_index(drop=True),
+                                   errors[train].reset_index(drop=True))  # fmt: skip
+        f_test = features[test].reset_index(drop=True)
+        cov[test] = transfer_covariance(model, f_test)
+        mu[test] = transfer_mean(model, f_test)
+        s = score_covariance(cov[test], errors[test].reset_index(drop=True), nu=model["nu"],
+                             mean=mu[test])  # fmt: skip
+        s["fold"] = int(k)
+        s["params"] = {n: model[n] for n in TRANSFER_PARAMS}
+        folds.append(s)
+    nu = float(np.median([f["params"]["nu"] for f in folds]))
+    out = score_covariance(cov, errors, nu=nu, mean=mu)
+    out.update(model="T", folds=folds)
+    return out, cov, mu
