@@ -12,7 +12,8 @@ tables and writes the scores to results/bench_uncertainty/loso.yaml. Render the 
 Default sessions: every session of bench/uncertainty_sessions.yaml plus ``demo`` when
 results/demo/heldout exists. ``--shrink fit`` (or ``--shrink K``) shrinks each frame's
 corner noise toward its session's median with a fitted (or the given) prior strength
-(:func:`cvsflow.uncertainty.shrink_corner_noise`). ``--worst NAME`` instead prints, for session NAME scored by the
+(:func:`cvsflow.uncertainty.shrink_corner_noise`). ``--time-offset`` adds the se3 fits' time
+offset to the calibration term (``parameter_covariance(time_offset=True)``). ``--worst NAME`` instead prints, for session NAME scored by the
 model fitted on the other sessions given, what its worst 5 % of frames (Mahalanobis
 distance) look like and which term of model (T) dominates them (docs/findings.md).
 """
@@ -43,13 +44,14 @@ def boards():
     return out
 
 
-def load(name, board):
+def load(name, board, time_offset=False):
     res = ROOT / "results" / name
     heldout = read_parquet(res / "heldout" / "se3.parquet")
     fits = read_yaml(res / "heldout" / "se3_folds.yaml")["folds"]
     corners = read_parquet(res / "corners.parquet")
     bodies = read_parquet(res / "bodies.parquet")
-    feats = un.measurement_features(heldout, corners, board, fits=fits, bodies=bodies)
+    feats = un.measurement_features(heldout, corners, board, fits=fits, bodies=bodies,
+                                    time_offset=time_offset)
     # the session's pooled corner noise (what the shrinkage option pulls each frame toward)
     feats[un.NOISE_POOL_COLUMN] = un.corner_noise_pool(feats["reproj_rms_px"].to_numpy(float),
                                                        feats["n_corners"].to_numpy(float))
@@ -63,14 +65,14 @@ def fmt_axes(d, f="{:.3f}"):
     return " ".join(f.format(d[a]) for a in ERROR_DIMS)
 
 
-def main(names, shrink=None):
+def main(names, shrink=None, time_offset=False):
     b = boards()
     if not names:
         names = [n for n in b if n != "demo" and (ROOT / "results" / n / "heldout").exists()]
         if (ROOT / "results/demo/heldout/se3.parquet").exists():
             names.append("demo")
     t0 = time.perf_counter()
-    sessions = {n: load(n, b[n]) for n in names}
+    sessions = {n: load(n, b[n], time_offset) for n in names}
     print(f"features of {len(names)} sessions: {time.perf_counter() - t0:.1f} s")
     for n, s in sessions.items():
         f = s["features"]
@@ -123,7 +125,7 @@ def main(names, shrink=None):
         print("  " + m)
     if "k_shrink" in pm:
         print(f"pooled model k_shrink {pm['k_shrink']:.4g}")
-    tag = "" if shrink is None else f"_shrink_{shrink}"
+    tag = ("" if shrink is None else f"_shrink_{shrink}") + ("_dt" if time_offset else "")
     out = ROOT / "results" / "bench_uncertainty" / f"loso{tag}.yaml"
     write_yaml({"sessions": {n: r for n, r in loso["sessions"].items()},
                 "pooled_model": pm, "targets_missed": misses,
@@ -185,7 +187,10 @@ if __name__ == "__main__":
         i = args.index("--shrink")
         shrink = args[i + 1] if args[i + 1] == "fit" else float(args[i + 1])
         del args[i : i + 2]
+    time_offset = "--time-offset" in args  # the fits' time offset in the calibration term
+    if time_offset:
+        args.remove("--time-offset")
     if args[:1] == ["--worst"]:
         worst_frames(args[2:] or ["u_demo", "u_wide", "u_tele", "u_rs", "u_far"], args[1])
     else:
-        main(args, shrink)
+        main(args, shrink, time_offset)

@@ -128,7 +128,8 @@ def frame_noise_terms(uv_px, vel_px_s, rvec, tvec, p_B, K, dist, line_delay_s=0.
     return unit, shear
 
 
-def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=None):
+def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=None,
+                         time_offset=False):
     """What is known of each held-out frame when it is measured, and its covariance terms.
 
     Parameters
@@ -151,6 +152,8 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
         bodies.parquet (``t_s``, ``body``, ``n_filled``): adds ``vicon_filled``, 1 where a
         board marker was gap-filled within :data:`FILL_WINDOW_S` of the frame's Vicon time
         (``t_vicon_s``), else 0.
+    time_offset : bool
+        Include the fit's time offset in ``parcov`` (:func:`parameter_covariance`).
 
     Returns
     -------
@@ -217,7 +220,8 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
     if bodies is not None and "n_filled" in bodies and "t_vicon_s" in heldout:
         out["vicon_filled"] = vicon_filled(bodies, heldout["t_vicon_s"].to_numpy(float))
     if fits and all("correlation" in f for f in fits):
-        cov_par, _ = parameter_covariance(heldout, p_B, fits, frame=frame)
+        cov_par, _ = parameter_covariance(heldout, p_B, fits, frame=frame,
+                                          time_offset=time_offset)
         for c, name in enumerate(cov_columns("parcov")):
             out[name] = cov_par[:, iu[0][c], iu[1][c]]
     return out

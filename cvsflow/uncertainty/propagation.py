@@ -146,17 +146,20 @@ _INTRINSIC_COLUMN = {"fx": 6, "fy": 7, "cx": 8, "cy": 9, "k1": 10, "k2": 11, "p1
                      "k3": 14}
 _MOUNT_NAMES = tuple(f"{body}_{s}" for body in ("T_Cm_C", "T_Bm_B")
                      for s in ("rx_rad", "ry_rad", "rz_rad", "x_m", "y_m", "z_m"))
+#: The se3 fit's time offset (Vicon clock = video clock + dt), s.
+_TIME_OFFSET = "dt_offset_s"
 #: Names of the (co)variance blocks :func:`error_features` adds with ``fits``.
 PARAM_BLOCKS = ("parcov", "intrcov")
 
 
-def _fit_parameter_cov(fit):
+def _fit_parameter_cov(fit, time_offset=False):
     """A se3 fit's parameter uncertainty, free and fixed, for the error propagation.
 
     Returns
     -------
     names : list of str
-        Free intrinsics and mountings (no time offset), in ``correlation.names`` order.
+        Free intrinsics and mountings (and the time offset ``dt_offset_s`` with
+        ``time_offset``), in ``correlation.names`` order.
     cov_data : ndarray, shape (n, n)
         Their data-only covariance (``std_errors_data``, else ``std_errors_cluster``, with
         the data-only ``correlation``).
@@ -172,7 +175,8 @@ def _fit_parameter_cov(fit):
     std = fit.get("std_errors_data") or fit.get("std_errors_cluster") or fit["std_errors"]
     sd = np.array([float(std[n]) for n in names])
     cov = np.asarray(fit["correlation"]["matrix"], float) * np.outer(sd, sd)
-    keep = [i for i, n in enumerate(names) if n in _INTRINSIC_COLUMN or n in _MOUNT_NAMES]
+    keep = [i for i, n in enumerate(names) if n in _INTRINSIC_COLUMN or n in _MOUNT_NAMES
+            or (time_offset and n == _TIME_OFFSET)]
     fi = fit.get("fixed_intrinsics") or {}
     fixed = [n for n in fi.get("names", []) if n in _INTRINSIC_COLUMN]
     if fixed and fi.get("sensitivity") is not None:
@@ -184,7 +188,7 @@ def _fit_parameter_cov(fit):
     return [names[i] for i in keep], cov[np.ix_(keep, keep)], fixed, S, sd_fixed
 
 
-def parameter_covariance(frames, p_B, fits, frame="C", h=1e-6):
+def parameter_covariance(frames, p_B, fits, frame="C", h=1e-6, time_offset=False):
     """Error covariance of held-out frames from the uncertainty of the fit that scored them.
 
     Parameters
@@ -201,10 +205,19 @@ def parameter_covariance(frames, p_B, fits, frame="C", h=1e-6):
         heldout/se3_folds.yaml.
     frame : {"C", "B"}
         Error frame.
+    h : float
+        Step of the central differences (rad, m, px and unitless alike).
+    time_offset : bool
+        Also propagate the fit's time offset ``dt_offset_s``: the reference is read at
+        t + dt, so its error moves each frame's error by the reference's rate of change
+        (from the frame's neighbours in the table, same fold, ``t_vicon_s``) times the error
+        of dt, correlated with the other parameters through the fit's covariance.
+
     Returns
     -------
     cov_par : ndarray, shape (N, 6, 6)
         Covariance of [err_x_m .. err_yaw_rad] from all fitted intrinsics and both mountings
+        (and the time offset with ``time_offset``)
         (rotations perturbed on the right, R = R0 exp([w]x), translations added, as in
         :mod:`cvsflow.optimise.se3`).
     cov_intr : ndarray, shape (N, 6, 6)
@@ -236,7 +249,7 @@ def parameter_covariance(frames, p_B, fits, frame="C", h=1e-6):
         idx = np.flatnonzero(fold == k)
         if not len(idx):
             continue
-        names, Sig, fixed, S, sd_fixed = _fit_parameter_cov(fit)
+        names, Sig, fixed, S, sd_fixed = _fit_parameter_cov(fit, time_offset)
         K = np.asarray(fit["K"], np.float64)
         dist = np.asarray(fit["dist"], np.float64).ravel()
         T_Cm_C = np.asarray(fit["T_Cm_C"], float)
@@ -279,6 +292,9 @@ def parameter_covariance(frames, p_B, fits, frame="C", h=1e-6):
             step = np.zeros(len(names))
             step[j] = h
             G[:, :, j] = (err(step) - err(-step)) / (2 * h)
+        if _TIME_OFFSET in names:
+            G[:, :, names.index(_TIME_OFFSET)] = _reference_rate(
+                frames.iloc[idx], T_ref, rt, frame)
         cov_par[idx] = G @ Sig @ np.swapaxes(G, 1, 2)
         ki = [names.index(n) for n in kn]
         Gk = G[:, :, ki]
@@ -295,6 +311,30 @@ def parameter_covariance(frames, p_B, fits, frame="C", h=1e-6):
             G_th = G_th + G @ S
             cov_par[idx] += G_th @ (sd_fixed[:, None] ** 2 * np.swapaxes(G_th, 1, 2))
     return cov_par, cov_intr
+
+
+def _reference_rate(rows, T_ref, rt, frame):
+    """d err / d t of the reference (N, 6): central differences over each row's neighbours
+    in time (one-sided at a gap or an end; zero without a neighbour within 3.5 periods)."""
+    t = rows["t_vicon_s"].to_numpy(float) if "t_vicon_s" in rows else rows["t_s"].to_numpy(float)
+    order = np.argsort(t, kind="stable")
+    ts = t[order]
+    n = len(ts)
+    period = float(np.median(np.diff(ts))) if n > 1 else np.inf
+    pos = np.empty(n, int)
+    pos[order] = np.arange(n)
+    prev = order[np.clip(pos - 1, 0, n - 1)]
+    nxt = order[np.clip(pos + 1, 0, n - 1)]
+    prev = np.where(t - t[prev] < 3.5 * period, prev, np.arange(n))
+    nxt = np.where(t[nxt] - t < 3.5 * period, nxt, np.arange(n))
+    span = t[nxt] - t[prev]
+    T_cvs = tf.T_from_rvec_tvec(rt[:, :3], rt[:, 3:])
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    e_next = pose_errors(T_ref[nxt], T_cvs, frame=frame)[cols].to_numpy()
+    e_prev = pose_errors(T_ref[prev], T_cvs, frame=frame)[cols].to_numpy()
+    d = e_next - e_prev
+    d[:, 3:] = tf.wrap_angle(d[:, 3:])
+    return np.where(span[:, None] > 0, d / np.where(span > 0, span, 1.0)[:, None], 0.0)
 
 
 def cov_columns(block):
