@@ -8,10 +8,12 @@ fit over all cameras and views then refines the relative poses and each view's b
 ``T_C0_B`` from every corner any camera saw, so views that a third camera shares improve all
 of them, and a view where a camera sees only part of the board (ChArUco) still counts.
 
-Standard errors are the Gauss-Newton covariance ``s^2 (J^T J)^-1`` of the joint fit (``s^2``
-the residual variance per coordinate), the data-only uncertainty of the shared views; the
-intrinsics' own uncertainty (their calibration ``std``) is propagated through the fit's
-sensitivity to them and reported beside it.
+Standard errors add two parts: the Gauss-Newton covariance ``s^2 (J^T J)^-1`` of the joint
+fit (``s^2`` the residual variance per coordinate), the uncertainty from the shared views'
+noise, and the intrinsics' own uncertainty (their calibration ``std``) propagated through the
+fit's sensitivity to them. On sharp stills the second dominates: rendered 640x480 pairs with
+0.04-0.08 px corner noise and a 0.6 m baseline gave errors of 10-80 data-only sigmas and
+0.01-1.3 total sigmas.
 """
 
 from __future__ import annotations
@@ -205,12 +207,13 @@ def stereo_extrinsics(
     dict
         ``cameras``: list, entry i for camera i >= 1 with ``T_Ci_C0`` (4x4 list: a point in
         C0 maps to Ci, metres), ``rvec_rad`` and ``t_m`` of it, ``baseline_m`` (camera i's
-        centre from camera 0's), ``std`` (1-sigma of ``rx ry rz`` (rad, rotation vector) and
-        ``tx ty tz`` (m), data only; the rotation as a small rotation of Ci on the left,
-        R_Ci_C0 <- exp([r]x) R_Ci_C0, the translation as t_m's own error),
-        ``std_with_intrinsics`` (the same with the intrinsics' ``std`` propagated, cameras'
-        intrinsics independent), ``baseline_std_m``,
-        ``covariance`` (6x6 list, [r, t] order as ``std``, data only), ``n_shared_views``,
+        centre from camera 0's), ``std`` (1-sigma of ``rx ry rz`` (rad) and ``tx ty tz`` (m):
+        the rotation as a small rotation of Ci on the left, R_Ci_C0 <- exp([r]x) R_Ci_C0, the
+        translation as t_m's own error; the shared views' noise and the intrinsics' ``std``
+        propagated), ``std_data_only`` (the views' noise alone: too small whenever the
+        intrinsics are less certain than the views, as with sharp stills),
+        ``baseline_std_m``, ``covariance`` (6x6 list, [r, t] order as ``std``, the same
+        total as ``std``), ``n_shared_views``,
         ``start_T_Ci_C0`` (stereoCalibrate's, before the joint refinement); ``rms_px`` (per
         camera, the joint fit's reprojection RMS), ``n_views`` (views seen by two or more
         cameras), ``views`` (their names), ``T_C0_B`` (dict view -> 4x4 list, m),
@@ -229,7 +232,7 @@ def stereo_extrinsics(
     -----
     A view seen by one camera only says nothing about relative poses and is left out. The
     intrinsics are held fixed in the fit (each camera's own calibration is the better place
-    to estimate them); their uncertainty enters ``std_with_intrinsics`` as
+    to estimate them); their uncertainty enters ``std`` as
     ``A J_k Sigma_k J_k^T A^T`` with ``A = (J^T J)^-1 J^T``, which treats the nine
     intrinsics of a camera as uncorrelated because camera.yaml stores standard deviations
     only: a conservative or optimistic approximation depending on the sign of their
@@ -293,7 +296,7 @@ def stereo_extrinsics(
     for i in range(1, n_cam):
         s = slice(6 * (i - 1), 6 * i)
         T = T_Ci_C0[i]
-        C = cov[s, s]
+        C, C_k = cov[s, s], cov_k[s, s]
         # camera i's centre in C0 is -R^T t, as long as t is; under the left increments a
         # rotation leaves |t| unchanged, so only dt moves the baseline: d|t|/dt = t^T / |t|.
         centre = -T[:3, :3].T @ T[:3, 3]
@@ -304,11 +307,10 @@ def stereo_extrinsics(
             "rvec_rad": rvec_from_R(T[:3, :3]).tolist(),
             "t_m": T[:3, 3].tolist(),
             "baseline_m": float(np.linalg.norm(centre)),
-            "baseline_std_m": float(np.sqrt(g_t @ C[3:, 3:] @ g_t)),
-            "std": dict(zip(POSE_STD_NAMES, np.sqrt(np.diag(C)).tolist(), strict=True)),
-            "std_with_intrinsics": dict(zip(POSE_STD_NAMES, np.sqrt(np.diag(C + cov_k[s, s])).tolist(),
-                                            strict=True)),
-            "covariance": C.tolist(),
+            "baseline_std_m": float(np.sqrt(g_t @ (C + C_k)[3:, 3:] @ g_t)),
+            "std": dict(zip(POSE_STD_NAMES, np.sqrt(np.diag(C + C_k)).tolist(), strict=True)),
+            "std_data_only": dict(zip(POSE_STD_NAMES, np.sqrt(np.diag(C)).tolist(), strict=True)),
+            "covariance": (C + C_k).tolist(),
             "n_shared_views": int(sum(1 for v in views if 0 in seen_by[v] and i in seen_by[v])),
             "start_T_Ci_C0": starts[i].tolist(),
         })
