@@ -1,0 +1,154 @@
+"""Relative camera poses from shared views: recovered against the truth they were made from."""
+
+import copy
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+
+from cvsflow.board import board_object_points
+from cvsflow.calibration import calibrate_camera
+from cvsflow.errors import CalibrationError, InputError
+from cvsflow.geometry.camera import project_points
+from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T, rvec_from_R
+from cvsflow.stereo import stereo_extrinsics
+from cvsflow.synth.stereo import render_shared_stills
+
+REPO = Path(__file__).resolve().parents[2]
+
+BOARD = {"squares_x": 9, "squares_y": 7, "square_m": 0.04}
+CAM0 = {"K": [[700.0, 0, 322.0], [0, 698.0, 241.0], [0, 0, 1]], "dist": [-0.28, 0.09, 0.001, -0.0005, 0.0],
+        "width": 640, "height": 480}
+CAM1 = {"K": [[910.0, 0, 630.0], [0, 912.0, 362.0], [0, 0, 1]], "dist": [0.05, -0.1, 0.0, 0.0, 0.0],
+        "width": 1280, "height": 720}
+# camera 1 sits 1 m to the right of camera 0, turned 20 deg towards it
+T_C0_C1 = make_T(R_from_euler([0.02, -np.deg2rad(20.0), 0.01]), [1.0, 0.03, 0.1])
+T_C1_C0 = invert_T(T_C0_C1)
+
+
+def _views(rng, n_views, sigma_px, rig=((CAM0, np.eye(4)), (CAM1, T_C1_C0)), hide=0):
+    """Corner tables of each (camera, T_Ci_C0) of the rig for n_views board poses in front of all."""
+    p_B = board_object_points(BOARD)
+    centre_B = p_B.mean(axis=0)
+    tables = [[] for _ in rig]
+    for v in range(n_views):
+        target_C0 = np.array([rng.uniform(0.25, 0.5), rng.uniform(-0.15, 0.15), rng.uniform(1.8, 2.4)])
+        R = R_from_euler(np.deg2rad([rng.uniform(-25, 25), rng.uniform(-10, 30), rng.uniform(-30, 30)]))
+        T_C0_B = make_T(R, target_C0 - R @ centre_B)
+        for c, (cam, T) in enumerate(rig):
+            p_C = (T @ T_C0_B)[:3, :3] @ p_B.T
+            p_C = p_C.T + (T @ T_C0_B)[:3, 3]
+            uv = project_points(p_C, np.array(cam["K"]), np.array(cam["dist"]))
+            uv = uv + rng.normal(0.0, sigma_px, uv.shape)
+            keep = np.ones(len(p_B), bool)
+            if hide:
+                keep[rng.choice(len(p_B), hide, replace=False)] = False
+            tables[c].append(pd.DataFrame({
+                "image": f"pair_{v:03d}.png", "corner": np.flatnonzero(keep),
+                "u_px": uv[keep, 0], "v_px": uv[keep, 1], "X_m": p_B[keep, 0], "Y_m": p_B[keep, 1]}))
+    return [pd.concat(t, ignore_index=True) for t in tables]
+
+
+def _pose_error(T_est, T_true):
+    """[rotation error (rad, on the left: R_est = exp([r]x) R_true), t error (m)], as ``std``."""
+    return np.concatenate([rvec_from_R(T_est[:3, :3] @ T_true[:3, :3].T), T_est[:3, 3] - T_true[:3, 3]])
+
+
+def test_relative_pose_is_recovered_within_its_standard_errors():
+    z = []
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        out = stereo_extrinsics(_views(rng, 12, 0.2), [CAM0, CAM1])
+        cam = out["cameras"][0]
+        err = _pose_error(np.array(cam["T_Ci_C0"]), T_C1_C0)
+        std = np.array(list(cam["std"].values()))
+        z.append(err / std)
+        assert abs(cam["baseline_m"] - np.linalg.norm(T_C0_C1[:3, 3])) < 5 * cam["baseline_std_m"]
+        assert out["sigma_px"] == pytest.approx(0.2, rel=0.1)
+    z = np.array(z)
+    # if the standard errors are right, z is unit normal: pooled over the 240 values the RMS
+    # lies in [0.85, 1.15] (chi-square, beyond 3 sigma otherwise), per parameter over 40 draws
+    # in [0.7, 1.35] (p < 0.003 each)
+    pooled = np.sqrt(np.mean(z ** 2))
+    rms = np.sqrt(np.mean(z ** 2, axis=0))
+    assert 0.85 < pooled < 1.15, pooled
+    assert np.all((rms > 0.7) & (rms < 1.35)), rms
+
+
+def test_joint_fit_uses_the_corners_only_one_camera_saw():
+    # each camera misses a different 15 of the 48 corners per view (a hand, a ChArUco board):
+    # stereoCalibrate (the start) sees only the corners both saw, the joint fit all of them
+    sq_start, sq_joint = np.zeros(6), np.zeros(6)
+    for seed in range(12):
+        rng = np.random.default_rng(100 + seed)
+        out = stereo_extrinsics(_views(rng, 10, 0.3, hide=15), [CAM0, CAM1])
+        cam = out["cameras"][0]
+        assert out["n_views"] == 10 and cam["n_shared_views"] == 10
+        assert all(r == pytest.approx(0.3 * np.sqrt(2), rel=0.15) for r in out["rms_px"])
+        err = _pose_error(np.array(cam["T_Ci_C0"]), T_C1_C0)
+        assert np.all(np.abs(err) < 4.5 * np.array(list(cam["std"].values()))), err
+        sq_joint += err ** 2
+        sq_start += _pose_error(np.array(cam["start_T_Ci_C0"]), T_C1_C0) ** 2
+    assert np.sum(sq_joint / sq_start) < 6 * 0.9, sq_joint / sq_start
+
+
+def test_intrinsics_uncertainty_widens_the_errors():
+    rng = np.random.default_rng(3)
+    cams = [dict(CAM0, std={"fx": 1.0, "fy": 1.0, "cx": 0.8, "cy": 0.8}), dict(CAM1, std={"fx": 1.5, "fy": 1.5})]
+    cam = stereo_extrinsics(_views(rng, 12, 0.2), cams)["cameras"][0]
+    data, both = np.array(list(cam["std_data_only"].values())), np.array(list(cam["std"].values()))
+    assert np.all(both >= data) and np.any(both > 1.5 * data)
+
+
+def test_three_cameras_in_one_fit():
+    rng = np.random.default_rng(11)
+    # a third camera: camera 1's intrinsics, 0.5 m left of camera 0
+    T_C2_C0 = invert_T(make_T(R_from_euler([0.0, np.deg2rad(8.0), 0.0]), [-0.5, 0.0, 0.0]))
+    tables = _views(rng, 8, 0.2, rig=((CAM0, np.eye(4)), (CAM1, T_C1_C0), (CAM1, T_C2_C0)))
+    out = stereo_extrinsics(tables, [CAM0, CAM1, CAM1])
+    for cam, T_true in zip(out["cameras"], [T_C1_C0, T_C2_C0], strict=True):
+        err = _pose_error(np.array(cam["T_Ci_C0"]), T_true)
+        assert np.all(np.abs(err) < 5 * np.array(list(cam["std"].values()))), (cam["camera"], err)
+
+
+def test_a_camera_without_shared_views_is_named():
+    rng = np.random.default_rng(0)
+    t0, t1 = _views(rng, 4, 0.2)
+    t1 = t1.assign(image="other_" + t1["image"])
+    with pytest.raises(CalibrationError, match="camera 1 shares 0 views"):
+        stereo_extrinsics([t0, t1], [CAM0, CAM1])
+
+
+def test_bad_rows_are_named():
+    rng = np.random.default_rng(0)
+    t0, t1 = _views(rng, 4, 0.2)
+    t1.loc[5, "u_px"] = np.nan
+    with pytest.raises(InputError, match="camera 1: corner table row 5"):
+        stereo_extrinsics([t0, t1], [CAM0, CAM1])
+    with pytest.raises(InputError, match="two or more cameras"):
+        stereo_extrinsics([t0], [CAM0])
+
+
+def test_rendered_stereo_stills_calibrate_to_the_true_rig():
+    # two cameras 0.6 m apart, each calibrated from its own copy of 15 shared stills
+    cfg0 = yaml.safe_load((REPO / "config" / "config.yaml").read_text())["sessions"]["demo"]
+    cfg1 = copy.deepcopy(cfg0)
+    cfg1["synth"]["camera"].update(fx_px=760.0, fy_px=757.0, cx_px=318.0, cy_px=236.0,
+                                   dist=[-0.2, 0.05, 0.0, 0.0, 0.0])
+    T_C1_C0_true = invert_T(make_T(R_from_euler([0.0, -np.deg2rad(12.0), 0.0]), [0.6, 0.0, 0.05]))
+    stills, T_C0_B = render_shared_stills([cfg0, cfg1], [np.eye(4), T_C1_C0_true], 15, seed=0)
+    assert len(T_C0_B) == 15 and [len(s) for s in stills] == [15, 15]
+    cams, tables = zip(*(calibrate_camera(s, cfg0["board"]) for s in stills), strict=True)
+    assert [c["n_used"] for c in cams] == [15, 15]
+    out = stereo_extrinsics(list(tables), list(cams))
+    cam = out["cameras"][0]
+    err = _pose_error(np.array(cam["T_Ci_C0"]), T_C1_C0_true)
+    z = err / np.array(list(cam["std"].values()))
+    assert np.all(np.abs(z) < 4), z
+    assert abs(cam["baseline_m"] - np.linalg.norm(T_C1_C0_true[:3, 3])) < 4 * cam["baseline_std_m"]
+    assert np.all(np.abs(err[3:]) < 3e-3) and np.all(np.abs(err[:3]) < 2e-3)  # mm, mrad
+    # sharp stills: the views alone would claim far more than they know
+    z_data = err / np.array(list(cam["std_data_only"].values()))
+    assert np.max(np.abs(z_data)) > 5
