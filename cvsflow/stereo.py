@@ -322,3 +322,97 @@ def stereo_extrinsics(
         "views": views,
         "T_C0_B": {v: T.tolist() for v, T in zip(views, T_C0_B, strict=True)},
     }
+
+
+def _board_pose_residuals(T_C0_B, uv, seen, p_B, K, dist, T_Ci_C0):
+    """Residuals (F, C, N, 2) px, zero where unseen, and d/d[dt, dtheta] of T_C0_B (F, C, N, 2, 6)."""
+    n_frames, n_cam, n_pts = seen.shape
+    r = np.zeros((n_frames, n_cam, n_pts, 2))
+    J = np.zeros((n_frames, n_cam, n_pts, 2, 6))
+    Rp_B = np.einsum("fij,nj->fni", T_C0_B[:, :3, :3], p_B)
+    p_C0 = Rp_B + T_C0_B[:, None, :3, 3]
+    for c in range(n_cam):
+        R, t = T_Ci_C0[c][:3, :3], T_Ci_C0[c][:3, 3]
+        p_C = p_C0 @ R.T + t
+        front = p_C[..., 2] > 1e-6
+        p_C = np.where(front[..., None], p_C, [0.0, 0.0, 1.0])
+        uv_hat, d_uv_d_p, _ = project_points_jac(p_C, K[c], dist[c])
+        m = seen[:, c] & front
+        r[:, c] = np.where(m[..., None], uv_hat - np.nan_to_num(uv[:, c]), 0.0)
+        d_uv_d_pc0 = d_uv_d_p @ R
+        J[:, c, :, :, :3] = d_uv_d_pc0
+        J[:, c, :, :, 3:] = -d_uv_d_pc0 @ skew(Rp_B)
+        J[:, c] *= m[..., None, None]
+    return r, J
+
+
+def fused_board_pose(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B_start, sigma_px=None,
+                     n_iterations=10):
+    """One board pose per frame from the corners every camera saw, with its covariance.
+
+    Parameters
+    ----------
+    uv_px : ndarray, shape (F, C, N, 2)
+        Detected corner k of the board in camera c on frame f, px (anything where not seen).
+    seen : ndarray of bool, shape (F, C, N)
+        Which corners each camera saw on each frame.
+    p_B : ndarray, shape (N, 3)
+        The corners in the board frame B, m.
+    cameras : sequence of (K, dist)
+        Each camera's matrix (3, 3) px and distortion (5,).
+    T_Ci_C0 : sequence of ndarray, shape (4, 4)
+        Each camera's pose from camera 0 (identity first), m.
+    T_C0_B_start : ndarray, shape (F, 4, 4)
+        Start of each frame's solve (e.g. one camera's PnP mapped to C0), m.
+    sigma_px : float, optional
+        Corner noise per image axis, px; None: each frame's residual RMS (dof-corrected).
+    n_iterations : int
+        Gauss-Newton steps (it converges in 3-5 from a PnP start).
+
+    Returns
+    -------
+    T_C0_B : ndarray, shape (F, 4, 4)
+        The fused board pose in camera 0, m; NaN on frames with fewer than 4 corners in all.
+    Sigma : ndarray, shape (F, 6, 6)
+        Its covariance, ``[dt (m), dtheta (rad)]`` in C0 with the rotation perturbed on the left
+        (R <- exp([dtheta]x) R: the flight reference's convention), NaN where not solved.
+    n_seen : ndarray of int, shape (F, C)
+        Corners used per camera.
+
+    Notes
+    -----
+    The covariance is ``sigma^2 (J^T J)^-1`` of the stacked reprojection residuals of every
+    camera: the corner noise only. A second camera ``b`` metres away measures depth by
+    triangulation, with an error that grows as d^2 / (f b) instead of the single camera's
+    d^2 / (f L) for a board of size L (``bench/bench_stereo_flight.py`` shows both).
+    """
+    uv = np.asarray(uv_px, float)
+    seen = np.asarray(seen, bool)
+    K = [np.asarray(c[0], float) for c in cameras]
+    dist = [np.asarray(c[1], float).ravel()[:5] for c in cameras]
+    T = np.array(T_C0_B_start, float, copy=True)
+    n_seen = seen.sum(axis=2)
+    ok = n_seen.sum(axis=1) >= 4
+    T[~ok] = np.eye(4)
+    n_frames = len(T)
+    for _ in range(n_iterations):
+        r, J = _board_pose_residuals(T, uv, seen, p_B, K, dist, T_Ci_C0)
+        Jf = J.reshape(n_frames, -1, 6)
+        H = np.einsum("fmi,fmj->fij", Jf, Jf) + 1e-12 * np.eye(6)
+        g = np.einsum("fmi,fm->fi", Jf, r.reshape(n_frames, -1))
+        step = -np.linalg.solve(H, g[..., None])[..., 0]
+        step[~ok] = 0.0
+        T[:, :3, 3] += step[:, :3]
+        T[:, :3, :3] = np.einsum("fij,fjk->fik", R_from_rvec(step[:, 3:]), T[:, :3, :3])
+    r, J = _board_pose_residuals(T, uv, seen, p_B, K, dist, T_Ci_C0)
+    Jf = J.reshape(n_frames, -1, 6)
+    H = np.einsum("fmi,fmj->fij", Jf, Jf) + 1e-12 * np.eye(6)
+    if sigma_px is None:
+        r_f = r.reshape(n_frames, -1)
+        s2 = np.einsum("fm,fm->f", r_f, r_f) / np.maximum(2 * n_seen.sum(axis=1) - 6, 1)
+    else:
+        s2 = np.full(n_frames, float(sigma_px) ** 2)
+    Sigma = s2[:, None, None] * np.linalg.inv(H)
+    T[~ok] = np.nan
+    Sigma[~ok] = np.nan
+    return T, Sigma, n_seen

@@ -3,6 +3,7 @@
 import copy
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pandas as pd
 import pytest
@@ -13,7 +14,7 @@ from cvsflow.calibration import calibrate_camera
 from cvsflow.errors import CalibrationError, InputError
 from cvsflow.geometry.camera import project_points
 from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T, rvec_from_R
-from cvsflow.stereo import stereo_extrinsics
+from cvsflow.stereo import fused_board_pose, stereo_extrinsics
 from cvsflow.synth.stereo import render_shared_stills
 
 REPO = Path(__file__).resolve().parents[2]
@@ -152,3 +153,76 @@ def test_rendered_stereo_stills_calibrate_to_the_true_rig():
     # sharp stills: the views alone would claim far more than they know
     z_data = err / np.array(list(cam["std_data_only"].values()))
     assert np.max(np.abs(z_data)) > 5
+
+
+def _rig_views(T_C0_B, rig, rng=None, sigma_px=0.3):
+    p_B = board_object_points(BOARD)
+    uv = np.zeros((len(T_C0_B), len(rig), len(p_B), 2))
+    for c, (cam, T) in enumerate(rig):
+        T_C_B = T @ T_C0_B
+        p_C = np.einsum("fij,nj->fni", T_C_B[:, :3, :3], p_B) + T_C_B[:, None, :3, 3]
+        uv[:, c] = project_points(p_C, np.array(cam["K"]), np.array(cam["dist"]))
+    if rng is not None:
+        uv += sigma_px * rng.standard_normal(uv.shape)
+    return uv, np.ones(uv.shape[:3], bool), p_B
+
+
+def _board_poses(rng, n, depth_m):
+    p_B = board_object_points(BOARD)
+    R = R_from_euler(np.deg2rad(rng.uniform(-20, 20, (n, 3))))
+    t = np.column_stack([rng.uniform(0.3, 0.5, n), rng.uniform(-0.1, 0.1, n), rng.uniform(*depth_m, n)])
+    T = np.tile(np.eye(4), (n, 1, 1))
+    T[:, :3, :3] = R
+    T[:, :3, 3] = t - np.einsum("fij,j->fi", R, p_B.mean(axis=0))
+    return T
+
+
+def test_fused_board_pose_is_pnp_for_one_camera():
+    rng = np.random.default_rng(5)
+    T_true = _board_poses(rng, 20, (1.5, 2.5))
+    uv, seen, p_B = _rig_views(T_true, [(CAM0, np.eye(4))], rng)
+    K, dist = np.array(CAM0["K"]), np.array(CAM0["dist"])
+    T_hat, Sigma, n_seen = fused_board_pose(uv, seen, p_B, [(K, dist)], [np.eye(4)], T_true)
+    assert np.all(n_seen == len(p_B))
+    for f in range(len(T_true)):
+        ok, rvec, tvec = cv2.solvePnP(p_B, uv[f, 0], K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
+        assert np.allclose(T_hat[f, :3, 3], tvec.ravel(), atol=1e-6)
+        assert np.allclose(T_hat[f, :3, :3], cv2.Rodrigues(rvec)[0], atol=1e-7)
+    # without sigma_px the noise comes from each frame's residual: 0.3 px on average
+    _, Sigma_03, _ = fused_board_pose(uv, seen, p_B, [(K, dist)], [np.eye(4)], T_true, sigma_px=0.3)
+    assert np.mean(Sigma[:, 2, 2] / Sigma_03[:, 2, 2]) == pytest.approx(1.0, abs=0.12)
+
+
+def test_fused_board_pose_errors_match_its_covariance():
+    # a stereo rig, 1 m baseline; Monte Carlo over frames: NEES mean 6 (chi-square, 6 dof)
+    rng = np.random.default_rng(9)
+    T_true = _board_poses(rng, 400, (1.8, 2.4))
+    rig = [(CAM0, np.eye(4)), (CAM1, T_C1_C0)]
+    uv, seen, p_B = _rig_views(T_true, rig, rng)
+    cams = [(np.array(c["K"]), np.array(c["dist"])) for c, _ in rig]
+    T_hat, Sigma, _ = fused_board_pose(uv, seen, p_B, cams, [T for _, T in rig], T_true, sigma_px=0.3)
+    e = np.column_stack([T_hat[:, :3, 3] - T_true[:, :3, 3],
+                         [rvec_from_R(a @ b.T) for a, b in zip(T_hat[:, :3, :3], T_true[:, :3, :3], strict=True)]])
+    nees = np.einsum("fi,fij,fj->f", e, np.linalg.inv(Sigma), e)
+    # 400 draws of chi-square(6): mean 6 +- 0.17 (1 sigma)
+    assert 5.4 < nees.mean() < 6.6, nees.mean()
+    # the second camera is what measures depth: the single camera's depth sigma is larger
+    _, Sigma_mono, _ = fused_board_pose(uv[:, :1], seen[:, :1], p_B, cams[:1], [np.eye(4)], T_true, sigma_px=0.3)
+    assert np.median(np.sqrt(Sigma_mono[:, 2, 2] / Sigma[:, 2, 2])) > 1.5
+
+
+def test_fused_board_pose_keeps_frames_one_camera_saw():
+    rng = np.random.default_rng(2)
+    T_true = _board_poses(rng, 6, (1.8, 2.4))
+    rig = [(CAM0, np.eye(4)), (CAM1, T_C1_C0)]
+    uv, seen, p_B = _rig_views(T_true, rig, rng)
+    seen[:3, 1] = False       # camera 1 misses frames 0-2
+    seen[3, :, :] = False     # nobody sees frame 3
+    seen[4, 0, 10:] = False   # camera 0 sees part of the board on frame 4
+    cams = [(np.array(c["K"]), np.array(c["dist"])) for c, _ in rig]
+    T_hat, Sigma, n_seen = fused_board_pose(uv, seen, p_B, cams, [T for _, T in rig], T_true, sigma_px=0.3)
+    assert n_seen.tolist()[:5] == [[48, 0], [48, 0], [48, 0], [0, 0], [10, 48]]
+    assert np.isnan(T_hat[3]).all() and np.isnan(Sigma[3]).all()
+    ok = [0, 1, 2, 4, 5]
+    err = np.linalg.norm(T_hat[ok, :3, 3] - T_true[ok, :3, 3], axis=1)
+    assert np.all(err < 5 * np.sqrt(np.trace(Sigma[ok, :3, :3], axis1=1, axis2=2)))

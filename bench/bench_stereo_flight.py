@@ -1,0 +1,149 @@
+"""Mono against stereo references on the same rendered flight (issue 19).
+
+Renders the flight demo's trajectory (``flight_synth.render_flight``, 3-20 m from camera 0)
+and, for a single camera and for two-camera rigs with baselines of 0.3, 1 and 3 m (camera 1
+to the right of camera 0, turned in so the optical axes cross 10 m ahead), states each frame's
+reference covariance from the corners the cameras see (``stereo.fused_board_pose``, 0.3 px
+iid corner noise, the board's 20 corners, corners within 2 px of the border dropped). The same
+flight is then drawn with that covariance and evaluated by ``flight.evaluate_flight`` (true
+clock, fitted SE(3) alignment), which gives the share of samples whose error the reference
+cannot resolve (sigma > |error|) per axis. It prints:
+
+- the reference's depth sigma (along camera 0's axis) against distance, per rig;
+- the unresolved share per axis (x y z roll pitch yaw) at 3-20 m, per rig;
+- the fused pose's calibration: NEES of Monte-Carlo solves (noisy corners, Gauss-Newton from
+  the truth kicked by 1 cm / 5 cm in depth / 10 mrad) against the stated covariance, per distance bin (6 is right).
+
+    PYTHONPATH=. .venv/bin/python bench/bench_stereo_flight.py [--seed 1] [--mc-frames 300]
+
+The covariance is the corner noise's only (calibration and rig extrinsics exact), for the
+mono rig too, so the rigs compare like for like; the flight stage's own reference model adds
+the calibration terms on top.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from cvsflow import flight as F
+from cvsflow.board import board_object_points
+from cvsflow.flight_synth import BOARD_DEFAULT, BORDER_PX, CAMERA_DEMO, render_flight
+from cvsflow.geometry.camera import project_points
+from cvsflow.geometry.transforms import R_from_euler, R_from_rvec, invert_T, make_T
+from cvsflow.stereo import fused_board_pose
+
+AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+BASELINES_M = (0.3, 1.0, 3.0)
+CROSS_M = 10.0
+DIST_BINS_M = (3.0, 5.0, 8.0, 12.0, 16.0, 20.5)
+SIGMA_PX = 0.3
+CHI2_6_95 = 12.592  # 95 % quantile of chi-square with 6 dof (median 5.35)
+
+
+def rig(baseline_m):
+    """T_Ci_C0 of a rig: camera 0 alone, or camera 1 b m to its right, axes crossing at CROSS_M."""
+    if baseline_m is None:
+        return [np.eye(4)]
+    T_C0_C1 = make_T(R_from_euler([0.0, -np.arctan2(baseline_m, CROSS_M), 0.0]), [baseline_m, 0.0, 0.0])
+    return [np.eye(4), invert_T(T_C0_C1)]
+
+
+def observe(T_C0_B, T_Ci_C0, p_B, K, dist, size, rng=None):
+    """Corners in each camera (F, C, N, 2) and which are seen, with noise when rng is given."""
+    w, h = size
+    uv = np.zeros((len(T_C0_B), len(T_Ci_C0), len(p_B), 2))
+    seen = np.zeros(uv.shape[:3], bool)
+    for c, T in enumerate(T_Ci_C0):
+        T_C_B = T @ T_C0_B
+        p_C = np.einsum("fij,nj->fni", T_C_B[:, :3, :3], p_B) + T_C_B[:, None, :3, 3]
+        uv[:, c] = project_points(p_C, K, dist)
+        inside = ((p_C[..., 2] > 0) & (uv[:, c, :, 0] >= BORDER_PX) & (uv[:, c, :, 0] <= w - 1 - BORDER_PX)
+                  & (uv[:, c, :, 1] >= BORDER_PX) & (uv[:, c, :, 1] <= h - 1 - BORDER_PX))
+        # a camera that sees fewer than 6 corners does not find the board
+        seen[:, c] = inside & (inside.sum(axis=1) >= 6)[:, None]
+    if rng is not None:
+        uv = uv + SIGMA_PX * rng.standard_normal(uv.shape)
+    return uv, seen
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--duration-s", type=float, default=60.0)
+    ap.add_argument("--mc-frames", type=int, default=300)
+    ap.add_argument("--iterations", type=int, default=10, help="Gauss-Newton steps of the Monte-Carlo solves")
+    args = ap.parse_args()
+    t0 = time.process_time()
+    K = np.array([[CAMERA_DEMO["fx_px"], 0, CAMERA_DEMO["cx_px"]], [0, CAMERA_DEMO["fy_px"], CAMERA_DEMO["cy_px"]],
+                  [0, 0, 1.0]])
+    dist = np.asarray(CAMERA_DEMO["dist"], float)
+    size = (int(CAMERA_DEMO.get("width_px", 640)), int(CAMERA_DEMO.get("height_px", 480)))
+    p_B = board_object_points(BOARD_DEFAULT)
+    base = render_flight(seed=args.seed, duration_s=args.duration_s, reference="model")
+    T_L_Q = F.T_from_traj(base.truth)
+    T_C0_B = invert_T(base.T_L_C) @ T_L_Q @ base.T_Q_B
+    d_m = np.linalg.norm(T_C0_B[:, :3, 3], axis=1)
+    bins = np.digitize(d_m, DIST_BINS_M) - 1
+    print(f"flight seed {args.seed}: {len(T_C0_B)} frames, board {d_m.min():.1f}-{d_m.max():.1f} m from "
+          f"camera 0; camera {size[0]}x{size[1]} fx {K[0, 0]:.0f} px; {len(p_B)} corners, {SIGMA_PX} px")
+    rigs = {"mono": None} | {f"stereo {b:g} m": b for b in BASELINES_M}
+    rows, nees_rows, seen_rows = {}, {}, {}
+    for name, b in rigs.items():
+        T_Ci_C0 = rig(b)
+        cams = [(K, dist)] * len(T_Ci_C0)
+        uv, seen = observe(T_C0_B, T_Ci_C0, p_B, K, dist, size)
+        _, Sigma, n_seen = fused_board_pose(uv, seen, p_B, cams, T_Ci_C0, T_C0_B, sigma_px=SIGMA_PX,
+                                            n_iterations=0)
+        lost = ~np.isfinite(Sigma[:, 0, 0])
+        Sigma[lost] = np.diag([1e2] * 3 + [1.0] * 3)  # never seen: the flight marks it missed
+        seen_rows[name] = (n_seen > 0).mean(axis=0)
+        d = render_flight(seed=args.seed, duration_s=args.duration_s, Sigma_ref=Sigma)
+        valid = d.reference["pos_valid"].to_numpy(bool) & ~lost
+        d.reference.loc[~valid, ["pos_valid", "rot_valid"]] = False
+        r = F.evaluate_flight(d.reference, d.onboard, d.T_Q_B, d.Sigma_ref, clock=d.clock)
+        ax = r.stats["axes"]
+        sig_z = np.sqrt(Sigma[:, 2, 2])
+        rows[name] = {
+            "depth_mm": [1e3 * np.median(sig_z[(bins == k) & ~lost]) for k in range(len(DIST_BINS_M) - 1)],
+            "unresolved": [ax[a]["unresolved_fraction"] for a in AXES],
+        }
+        # calibration of the fused pose: Monte-Carlo solves on a subset of frames
+        rng = np.random.default_rng(args.seed)
+        pick = np.sort(rng.choice(np.flatnonzero(~lost), min(args.mc_frames, int((~lost).sum())), replace=False))
+        uv_n, seen_n = observe(T_C0_B[pick], T_Ci_C0, p_B, K, dist, size, rng)
+        start = T_C0_B[pick].copy()
+        kick = rng.standard_normal((len(pick), 6)) * [0.01, 0.01, 0.05, 0.01, 0.01, 0.01]
+        start[:, :3, 3] += kick[:, :3]
+        start[:, :3, :3] = R_from_rvec(kick[:, 3:]) @ start[:, :3, :3]
+        T_hat, S_hat, _ = fused_board_pose(uv_n, seen_n, p_B, cams, T_Ci_C0, start, sigma_px=SIGMA_PX,
+                                          n_iterations=args.iterations)
+        R_err = np.einsum("fij,fkj->fik", T_hat[:, :3, :3], T_C0_B[pick, :3, :3])
+        e = np.column_stack([T_hat[:, :3, 3] - T_C0_B[pick, :3, 3], Rotation.from_matrix(R_err).as_rotvec()])
+        nees = np.einsum("fi,fij,fj->f", e, np.linalg.inv(S_hat), e)
+        nb = bins[pick]
+        nees_rows[name] = [float(np.mean(nees[nb == k])) if np.any(nb == k) else np.nan
+                           for k in range(len(DIST_BINS_M) - 1)] + [float(np.mean(nees)), float(np.median(nees)),
+                                                                    float(np.mean(nees > CHI2_6_95))]
+    edges = [f"{a:g}-{b:g}" for a, b in zip(DIST_BINS_M[:-1], DIST_BINS_M[1:], strict=True)]
+    print("\nreference depth sigma (mm), median per distance bin (m):")
+    print(f"{'rig':14s} " + " ".join(f"{e:>8s}" for e in edges) + "   share of frames seen by camera 0 / 1")
+    for name, row in rows.items():
+        print(f"{name:14s} " + " ".join(f"{v:8.1f}" for v in row["depth_mm"]) + "   "
+              + " / ".join(f"{100 * s:.0f} %" for s in seen_rows[name]))
+    print("\nunresolved share (sigma > |on-board error|), % of samples, 3-20 m:")
+    print(f"{'rig':14s} " + " ".join(f"{a:>6s}" for a in AXES))
+    for name, row in rows.items():
+        print(f"{name:14s} " + " ".join(f"{100 * v:6.1f}" for v in row["unresolved"]))
+    print(f"\nNEES of the fused pose (Monte Carlo, {args.mc_frames} frames; 6 is consistent):")
+    print(f"{'rig':14s} " + " ".join(f"{e:>8s}" for e in edges) + "      all   median  > chi2 95 %")
+    for name, row in nees_rows.items():
+        print(f"{name:14s} " + " ".join(f"{v:8.2f}" for v in row[:-1]) + f"   {100 * row[-1]:5.1f} %")
+    print(f"\n{time.process_time() - t0:.1f} s CPU")
+
+
+if __name__ == "__main__":
+    main()
