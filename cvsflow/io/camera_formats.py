@@ -174,19 +174,80 @@ def write_kalibr_camchain(camera: dict, path, topic: str = "/camera/image_raw") 
         )
     else:
         log.info("%s: %s", path, note)
-    data = {
-        "cam0": {
-            "camera_model": "pinhole",
-            "intrinsics": [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])],
-            "distortion_model": "radtan",
-            "distortion_coeffs": [float(v) for v in dist[:4]],
-            "resolution": [width, height],
-            "rostopic": topic,
-        }
-    }
+    data = {"cam0": _kalibr_camera(K, dist, width, height, topic)}
     header = "Kalibr camchain written by cvsflow from camera.yaml.\n" + note + "\n" + _board_comment(camera)
     _dump_with_header(data, header, path)
     return shift
+
+
+def _kalibr_camera(K, dist, width, height, topic) -> dict:
+    return {
+        "camera_model": "pinhole",
+        "intrinsics": [float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])],
+        "distortion_model": "radtan",
+        "distortion_coeffs": [float(v) for v in dist[:4]],
+        "resolution": [width, height],
+        "rostopic": topic,
+    }
+
+
+def write_kalibr_rig_camchain(cameras: list[dict], T_Ci_C0: list, path, topics=None) -> list[float]:
+    """Kalibr camchain YAML of a rig: ``cam0`` .. ``camN`` with ``T_cn_cnm1`` from each to the next.
+
+    Parameters
+    ----------
+    cameras : list of dict
+        Each camera's ``camera.yaml`` mapping (``K``, ``dist``, ``width``, ``height``, px).
+    T_Ci_C0 : list of array_like, shape (4, 4)
+        Each camera's pose from camera 0 (``cvsflow.stereo.stereo_extrinsics``; identity or
+        omitted for camera 0 itself), metres: a point in C0 maps to Ci.
+    path : str or Path
+        Output file.
+    topics : list of str, optional
+        Each camera's ``rostopic``; default ``/cam<i>/image_raw``.
+
+    Returns
+    -------
+    list of float
+        Per camera, the largest pixel shift that dropping k3 causes (Kalibr radtan has no k3).
+
+    Raises
+    ------
+    InputError
+        A camera mapping without K, dist, width or height; a transform that is not 4x4 rigid.
+
+    Notes
+    -----
+    Kalibr's ``T_cn_cnm1`` takes points from camera n-1 to camera n:
+    ``T_Cn_C0 @ inv(T_Cn-1_C0)``.
+    """
+    if len(T_Ci_C0) == len(cameras) - 1:
+        T_Ci_C0 = [np.eye(4)] + list(T_Ci_C0)
+    if len(T_Ci_C0) != len(cameras) or len(cameras) < 2:
+        raise InputError(f"{path}: a rig needs two or more cameras and one transform per camera; "
+                         f"got {len(cameras)} cameras and {len(T_Ci_C0)} transforms")
+    data, shifts = {}, []
+    for i, camera in enumerate(cameras):
+        K, dist, width, height = _camera_arrays(camera, source=f"camera {i}")
+        T = np.asarray(T_Ci_C0[i], float)
+        if T.shape != (4, 4) or not np.allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-6):
+            raise InputError(f"{path}: T_Ci_C0 of camera {i} is not a 4x4 rigid transform")
+        block = _kalibr_camera(K, dist, width, height,
+                               topics[i] if topics else f"/cam{i}/image_raw")
+        if i > 0:
+            T_prev = np.asarray(T_Ci_C0[i - 1], float)
+            T_prev_inv = np.eye(4)
+            T_prev_inv[:3, :3] = T_prev[:3, :3].T
+            T_prev_inv[:3, 3] = -T_prev[:3, :3].T @ T_prev[:3, 3]
+            block["T_cn_cnm1"] = (T @ T_prev_inv).tolist()
+        data[f"cam{i}"] = block
+        shifts.append(k3_drop_shift_px(camera))
+    header = ("Kalibr camchain of a camera rig written by cvsflow (cvsflow.stereo.stereo_extrinsics).\n"
+              "T_cn_cnm1 takes points from camera n-1 to camera n, metres.\n"
+              + "k3 dropped (Kalibr radtan); largest pixel shift per camera: "
+              + ", ".join(f"{v:.3f} px" for v in shifts) + "\n" + _board_comment(cameras[0]))
+    _dump_with_header(data, header, path)
+    return shifts
 
 
 def write_ros_camera_info(camera: dict, path, camera_name: str = "camera") -> None:

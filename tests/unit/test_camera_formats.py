@@ -8,11 +8,13 @@ import pytest
 import yaml
 
 from cvsflow.errors import InputError
+from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T
 from cvsflow.io.camera_formats import (
     K3_WARN_PX,
     k3_drop_shift_px,
     write_all_formats,
     write_camera_format,
+    write_kalibr_rig_camchain,
 )
 
 CAMERA = {
@@ -91,3 +93,21 @@ def test_unknown_format_and_bad_camera_are_named(tmp_path):
         write_camera_format(CAMERA, "matlab", tmp_path / "x")
     with pytest.raises(InputError, match="dist"):
         write_camera_format(dict(CAMERA, dist=[0.1, 0.2]), "ros", tmp_path / "x")
+
+
+def test_kalibr_rig_camchain_chains_the_transforms(tmp_path):
+    T_C1_C0 = invert_T(make_T(R_from_euler([0.0, -0.2, 0.0]), [1.0, 0.0, 0.05]))
+    T_C2_C0 = invert_T(make_T(R_from_euler([0.0, 0.1, 0.02]), [-0.5, 0.01, 0.0]))
+    path = tmp_path / "rig.yaml"
+    shifts = write_kalibr_rig_camchain([CAMERA, CAMERA, CAMERA], [T_C1_C0, T_C2_C0], path)
+    data = yaml.safe_load(path.read_text())
+    assert list(data) == ["cam0", "cam1", "cam2"] and len(shifts) == 3
+    assert "T_cn_cnm1" not in data["cam0"]
+    T10 = np.array(data["cam1"]["T_cn_cnm1"])
+    T21 = np.array(data["cam2"]["T_cn_cnm1"])
+    assert np.allclose(T10, T_C1_C0)
+    # chaining the file's transforms gives camera 2's pose from camera 0 back
+    assert np.allclose(T21 @ T10, T_C2_C0, atol=1e-12)
+    assert data["cam2"]["rostopic"] == "/cam2/image_raw"
+    with pytest.raises(InputError, match="one transform per camera"):
+        write_kalibr_rig_camchain([CAMERA, CAMERA], [T_C1_C0, T_C2_C0, T_C2_C0], path)
