@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from cvsflow.calibration import calibrate_camera
 from cvsflow.errors import CalibrationError, InputError
 from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points_jac
 from cvsflow.geometry.transforms import R_from_rvec, invert_T, make_T, rvec_from_R, skew
@@ -416,3 +417,45 @@ def fused_board_pose(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B_start, sigma_px=
     T[~ok] = np.nan
     Sigma[~ok] = np.nan
     return T, Sigma, n_seen
+
+
+def calibrate_rig(stills: list, board: dict, min_shared_views: int = 3, **calibrate_kwargs):
+    """Calibrate every camera of a rig from its stills, then the rig from the shared ones.
+
+    Parameters
+    ----------
+    stills : list (per camera) of sequence of (str, ndarray)
+        Each camera's ``(name, gray)`` stills (``calibration.calibrate_camera``'s input). Stills
+        taken at the same instant by several cameras carry the same name: those are the shared
+        views; a camera's other stills help its own intrinsics only.
+    board : dict
+        The board (``squares_x``, ``squares_y``, ``square_m``; ChArUco keys for ``type:
+        charuco``).
+    min_shared_views : int
+        Fewest shared views each camera needs with camera 0.
+    **calibrate_kwargs
+        Passed to ``calibration.calibrate_camera`` (``subpix_window_px``, ``min_images``, ...).
+
+    Returns
+    -------
+    cameras : list of dict
+        Each camera's camera.yaml content.
+    rig : dict
+        :func:`stereo_extrinsics`' result.
+    corners : list of DataFrame
+        Each camera's ``calib_corners`` table.
+
+    Raises
+    ------
+    CalibrationError
+        A camera that cannot be calibrated (named, with its index), or too few shared views.
+    """
+    cameras, corners = [], []
+    for i, camera_stills in enumerate(stills):
+        try:
+            camera, table = calibrate_camera(camera_stills, board, **calibrate_kwargs)
+        except CalibrationError as exc:
+            raise CalibrationError(f"camera {i}: {exc}") from exc
+        cameras.append(camera)
+        corners.append(table)
+    return cameras, stereo_extrinsics(corners, cameras, min_shared_views=min_shared_views), corners
