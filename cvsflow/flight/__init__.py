@@ -36,6 +36,7 @@ names below are re-exported for existing callers.
 from cvsflow.flight.alignment import (
     Alignment,
     align_trajectories,
+    align_weighted,
     align_yaw,
     rotation_alignment,
     umeyama,
@@ -76,11 +77,11 @@ from cvsflow.flight.trajectory import (
 
 __all__ = [
     "AXES", "Alignment", "Clock", "ERR_COLS", "FlightResult", "SIG_COLS", "TRAJ_COLS",
-    "T_from_traj", "align_trajectories", "align_yaw", "angular_speed", "ape_rotation",
-    "ape_translation", "associate", "axis_errors", "axis_stats", "check_against_truth",
-    "check_trajectory", "corner_noise_per_axis", "error_stats", "estimate_clock",
-    "evaluate_flight", "interpolate_trajectory", "pnp_flip_term", "propagate_reference_sigma",
-    "reference_covariance_from_pnp", "reference_covariance_model",
+    "T_from_traj", "align_trajectories", "align_weighted", "align_yaw", "angular_speed",
+    "ape_rotation", "ape_translation", "associate", "axis_errors", "axis_stats",
+    "check_against_truth", "check_trajectory", "corner_noise_per_axis", "error_stats",
+    "estimate_clock", "evaluate_flight", "interpolate_trajectory", "pnp_flip_term",
+    "propagate_reference_sigma", "reference_covariance_from_pnp", "reference_covariance_model",
     "reference_covariance_transfer", "reference_from_poses", "rotation_alignment", "rpe",
     "sigma_columns", "sigma_from_columns", "traj_from_T", "trajectory_frame", "umeyama",
 ]  # fmt: skip

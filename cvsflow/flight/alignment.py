@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from cvsflow.errors import InputError, OptimiseError
@@ -28,12 +29,15 @@ class Alignment:
     scale : float
         s (1 for SE(3) and yaw-only).
     method : str
-        ``se3``, ``sim3``, ``yaw`` or ``given``.
+        ``se3``, ``sim3``, ``yaw``, ``se3w`` (:func:`align_weighted`) or ``given``.
+    floor_m2 : float
+        ``se3w`` only: the variance per axis added to the reference's in the weights, m^2.
     """
 
     T_ref_est: np.ndarray
     scale: float = 1.0
     method: str = "se3"
+    floor_m2: float = float("nan")
 
     def apply_points(self, p_est):
         """Map points (N, 3) from the estimate's world into the reference's."""
@@ -164,6 +168,66 @@ def align_yaw(p_ref, p_est, z_est_in_ref=(0.0, 0.0, 1.0)) -> Alignment:
     R = R0 @ Rz
     t = y.mean(0) - R @ x.mean(0)
     return Alignment(make_T(R, t), 1.0, "yaw")
+
+
+def align_weighted(p_ref, p_est, Sigma_ref_p, n_iter: int = 3, floor_m2=None) -> Alignment:
+    """Rigid alignment weighted by the reference's position covariance and a fitted floor.
+
+    Minimises ``sum_i e_i^T (Sigma_i + s^2 I)^-1 e_i`` with ``e_i = p_ref,i - R p_est,i - t``:
+    a far, small board's depth noise (tens of mm along the line of sight) no longer turns and
+    shifts the alignment, while ``s^2``, the variance per axis the reference does not explain
+    (the on-board error, estimated from the residuals as
+    ``max(mean |e|^2 - mean tr Sigma, 0) / 3``), keeps the near frames from taking all the
+    weight. Started from :func:`umeyama`; ``s^2`` and (R, t) alternate ``n_iter`` times.
+
+    Parameters
+    ----------
+    p_ref, p_est : ndarray, shape (N, 3)
+        Associated positions, reference world and estimate world, metres.
+    Sigma_ref_p : ndarray, shape (N, 3, 3)
+        Covariance of each reference position, m^2, reference world.
+    n_iter : int
+        Alternations of the floor and the fit.
+    floor_m2 : float, optional
+        A given ``s^2`` (m^2), not fitted: the same weights as another fit's (the truth check
+        fits the true poses with the evaluation's weights).
+
+    Returns
+    -------
+    Alignment
+        Method ``se3w``, ``floor_m2`` the ``s^2`` used; ``p_ref ≈ R p_est + t``.
+
+    Raises
+    ------
+    OptimiseError
+        Fewer than 3 pairs, non-finite values, or a covariance that is not (N, 3, 3) and finite.
+    """
+    y, x = _check_points(p_ref, p_est, 3)
+    S = np.asarray(Sigma_ref_p, float)
+    if S.shape != (len(y), 3, 3) or not np.isfinite(S).all():
+        raise OptimiseError(
+            f"weighted alignment: covariance of shape {S.shape} (finite: "
+            f"{bool(np.isfinite(S).all())}); expected ({len(y)}, 3, 3), finite"
+        )
+    al = umeyama(y, x)
+    tr = float(np.mean(np.trace(S, axis1=1, axis2=2)))
+    for _ in range(n_iter if floor_m2 is None else 1):
+        R0, t0 = al.T_ref_est[:3, :3], al.T_ref_est[:3, 3]
+        e = y - x @ R0.T - t0
+        s2 = (max(float(np.mean(np.sum(e * e, axis=1))) - tr, 0.0) / 3.0
+              if floor_m2 is None else float(floor_m2))  # fmt: skip
+        # whitening: L_i^T e_i with L_i L_i^T = (Sigma_i + s^2 I)^-1
+        L = np.linalg.cholesky(np.linalg.inv(S + (s2 + 1e-12) * np.eye(3)))
+        xr = x @ R0.T
+
+        def residual(v, xr=xr, L=L, t0=t0):
+            r = y - xr @ Rotation.from_rotvec(v[:3]).as_matrix().T - (t0 + v[3:])
+            return np.einsum("nji,nj->ni", L, r).ravel()
+
+        v = least_squares(residual, np.zeros(6), method="lm").x
+        R = Rotation.from_rotvec(v[:3]).as_matrix() @ R0
+        al = Alignment(make_T(R, t0 + v[3:]), 1.0, "se3w", s2)
+    return al
 
 
 def align_trajectories(p_ref, p_est, method: str = "se3", z_est_in_ref=(0.0, 0.0, 1.0)):

@@ -43,7 +43,8 @@ with stage_logging(snakemake.log[0], "flight") as log:
                                   cfg.get("csv"))
         T_Q_B = T_from_pose6(cfg["T_Q_B_pose6"]) if "T_Q_B_pose6" in cfg else None
     result = evaluate_flight(reference, onboard, T_Q_B, Sigma_ref,
-                                alignment=cfg.get("alignment", "se3"), k_sigma=cfg.get("k_sigma", 1.0))
+                                alignment=cfg.get("alignment", "se3"), k_sigma=cfg.get("k_sigma", 1.0),
+                             weighted_alignment=cfg.get("weighted_alignment", False))
     stats = dict(result.stats)
     if "synth" in cfg:
         truth = read_parquet(inp.truth)
