@@ -32,24 +32,27 @@ def error_columns():
     return [f"err_{d}" for d in ERROR_DIMS]
 
 
-def error_moments(x):
+def error_moments(x, ddof=1):
     """Mean, standard deviation and RMS of one error dimension: the one definition.
 
     Parameters
     ----------
     x : ndarray, shape (N,)
-        Per-frame errors of one dimension (m or rad), N >= 2.
+        Per-frame errors of one dimension (m or rad), N > ``ddof``.
+    ddof : int, default 1
+        Delta degrees of freedom of the standard deviation: 1 the sample one, 0 the
+        population one (evo's statistics, :func:`cvsflow.flight.metrics.error_stats`).
 
     Returns
     -------
     mean : float
         Same unit as ``x``.
     std : float
-        Sample standard deviation (ddof 1).
+        Standard deviation (ddof ``ddof``).
     rms : float
         sqrt(mean(x^2)): the error about zero, not about the mean.
     """
-    return float(x.mean()), float(x.std(ddof=1)), float(np.sqrt(np.mean(x * x)))
+    return float(x.mean()), float(x.std(ddof=ddof)), float(np.sqrt(np.mean(x * x)))
 
 
 def poses_from_table(frames, prefix):

@@ -156,6 +156,48 @@ def test_umeyama_recovers_known_similarity():
         F.umeyama(y[:2], p[:2])
 
 
+def test_weighted_alignment_equal_weights_is_umeyama_and_unequal_ones_resist_depth_noise():
+    """align_weighted with one isotropic covariance for every point is Umeyama's fit (1e-9);
+    with far points whose depth noise is 50 mm (near ones 1 mm, on-board noise 5 mm) it turns
+    and shifts the alignment less than the unweighted fit; a bad covariance is refused."""
+    rng = np.random.default_rng(11)
+    R = Rotation.random(random_state=11).as_matrix()
+    t = np.array([0.3, -2.0, 5.0])
+    p_est = rng.uniform(-3.0, 3.0, size=(200, 3))
+    y = p_est @ R.T + t + 0.005 * rng.standard_normal((200, 3))
+    S_eq = np.broadcast_to(1e-4 * np.eye(3), (200, 3, 3))
+    al_eq = F.align_weighted(y, p_est, S_eq)
+    al_u = F.umeyama(y, p_est)
+    np.testing.assert_allclose(al_eq.T_ref_est, al_u.T_ref_est, atol=1e-9)
+    assert al_eq.method == "se3w" and al_eq.floor_m2 >= 0.0
+    S = np.zeros((200, 3, 3))
+    S[:, 0, 0] = S[:, 1, 1] = 1e-6
+    S[:, 2, 2] = np.where(np.arange(200) < 100, 1e-6, 0.05**2)  # depth noise along z
+    far = np.arange(200) >= 100
+    y2 = y.copy()
+    y2[far, 2] += 0.05 * rng.standard_normal(far.sum())
+    err = []
+    for al in (F.umeyama(y2, p_est), F.align_weighted(y2, p_est, S)):
+        dR = Rotation.from_matrix(al.T_ref_est[:3, :3] @ R.T).magnitude()
+        err.append((dR, np.linalg.norm(al.T_ref_est[:3, 3] - t)))
+    assert err[1][0] < 0.5 * err[0][0] and err[1][1] < 0.5 * err[0][1], err
+    with pytest.raises(OptimiseError, match="covariance"):
+        F.align_weighted(y, p_est, S[:10])
+
+
+def test_angular_speed_over_a_baseline():
+    """At a constant 0.5 rad/s about a fixed axis both the frame-to-frame speed and the speed
+    over a 0.2 s baseline are 0.5 rad/s; the baseline's spans are the first sample >= 0.2 s on."""
+    t = np.arange(0.0, 3.0, 1 / 30)
+    R = Rotation.from_rotvec(np.outer(0.5 * t, [0.0, 0.6, 0.8])).as_matrix()
+    _, w = F.angular_speed(t, R)
+    tm, wb, span = F.angular_speed(t, R, 0.2)
+    np.testing.assert_allclose(w, 0.5, rtol=1e-9)
+    np.testing.assert_allclose(wb, 0.5, rtol=1e-9)
+    assert np.all(span >= 0.2 - 1e-12) and np.all(span < 0.2 + 1 / 30)
+    np.testing.assert_allclose(tm, t[: len(tm)] + 0.5 * span)
+
+
 def test_yaw_alignment_is_four_dof_and_exact():
     """Yaw-only alignment recovers a yaw + translation exactly and ignores a roll it cannot fit."""
     rng = np.random.default_rng(5)
@@ -253,6 +295,14 @@ def test_clock_recovered_below_one_frame(demo):
     assert worst < 1e-3
     assert clock.skew == pytest.approx(demo.clock.skew, abs=2e-5)
     assert 0.3 < clock.quality <= 1.0
+    # a model reference keeps the frame-to-frame speeds; the stated uncertainty holds
+    assert clock.details["xcorr_baseline_s"] is None
+    t_c = clock.details["t_centre_s"]
+    e_c = clock.to_log(t_c) - demo.clock.to_log(t_c)
+    assert 0 < clock.details["dt_centre_std_s"] < 1e-3
+    assert abs(e_c) < 3 * clock.details["dt_centre_std_s"]
+    e_o = clock.dt_offset_s - demo.clock.dt_offset_s
+    assert abs(e_o) < 3 * clock.details["dt_offset_std_s"]
     # mounting not given: estimated alongside; the clock is as good, and the mounting differs
     # from the truth by no more than the injected constant roll/pitch error (which it absorbs)
     # plus 0.2 deg

@@ -4,7 +4,7 @@ import cv2
 import numpy as np
 
 from cvsflow.calibration import board_object_points
-from cvsflow.flight import corner_noise_per_axis, sigma_columns, sigma_from_columns
+from cvsflow.flight.reference import corner_noise_per_axis, sigma_columns, sigma_from_columns
 
 
 def test_corner_noise_per_axis_recovers_the_simulated_noise():

@@ -2,8 +2,16 @@
 
 import numpy as np
 
-from cvsflow import flight as fl
 from cvsflow.calibration import board_object_points
+from cvsflow.flight.clock import Clock
+from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
+from cvsflow.flight.reference import (
+    corner_noise_per_axis,
+    reference_covariance_from_pnp,
+    reference_covariance_transfer,
+    sigma_from_columns,
+)
+from cvsflow.flight.trajectory import reference_from_poses
 from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet, write_yaml
 from cvsflow.io.flightlog import read_flight_log, read_tum, write_tum
 from cvsflow.io.logs import stage_logging
@@ -15,7 +23,7 @@ with stage_logging(snakemake.log[0], "flight") as log:
     inp = snakemake.input
     if "synth" in cfg:
         table = read_parquet(inp.reference)
-        reference, Sigma_ref = table, fl.sigma_from_columns(table)
+        reference, Sigma_ref = table, sigma_from_columns(table)
         onboard = read_tum(inp.onboard)
         truth_cfg = read_yaml(inp.truth_yaml)
         T_Q_B = np.array(truth_cfg["T_Q_B"]) if cfg.get("mounting_known", True) else None
@@ -23,24 +31,25 @@ with stage_logging(snakemake.log[0], "flight") as log:
         poses = read_parquet(inp.poses)
         calib = read_yaml(inp.se3_result) if hasattr(inp, "se3_result") else read_yaml(inp.camera)
         p_B = board_object_points(snakemake.params.board)
-        sigma_px = float(calib["sigma_px"]) if "sigma_px" in calib else fl.corner_noise_per_axis(
+        sigma_px = float(calib["sigma_px"]) if "sigma_px" in calib else corner_noise_per_axis(
             np.nanmedian(poses["reproj_rms_px"]), len(p_B))
-        reference = fl.reference_from_poses(poses)
+        reference = reference_from_poses(poses)
         if hasattr(inp, "corners"):  # model (T): seen corners, speed, residual, calibration
-            Sigma_ref = fl.reference_covariance_transfer(poses, read_parquet(inp.corners), p_B, calib)
+            Sigma_ref = reference_covariance_transfer(poses, read_parquet(inp.corners), p_B, calib)
         else:
-            Sigma_ref = fl.reference_covariance_from_pnp(
+            Sigma_ref = reference_covariance_from_pnp(
                 poses, p_B, calib["K"], calib["dist"], sigma_px)
         onboard = read_flight_log(inp.onboard, cfg["format"], cfg.get("ulog_source", "local_position"),
                                   cfg.get("csv"))
         T_Q_B = T_from_pose6(cfg["T_Q_B_pose6"]) if "T_Q_B_pose6" in cfg else None
-    result = fl.evaluate_flight(reference, onboard, T_Q_B, Sigma_ref,
-                                alignment=cfg.get("alignment", "se3"), k_sigma=cfg.get("k_sigma", 1.0))
+    result = evaluate_flight(reference, onboard, T_Q_B, Sigma_ref,
+                                alignment=cfg.get("alignment", "se3"), k_sigma=cfg.get("k_sigma", 1.0),
+                             weighted_alignment=cfg.get("weighted_alignment", False))
     stats = dict(result.stats)
     if "synth" in cfg:
         truth = read_parquet(inp.truth)
-        clock = fl.Clock(**truth_cfg["clock"])
-        stats["truth_check"] = fl.check_against_truth(result, onboard, truth, np.array(truth_cfg["T_L_C"]),
+        clock = Clock(**truth_cfg["clock"])
+        stats["truth_check"] = check_against_truth(result, onboard, truth, np.array(truth_cfg["T_L_C"]),
                                                       clock)
         log.info("recovered vs injected error, z-RMS per axis: %s", stats["truth_check"]["z_rms"])
     log.info("%d pairs; APE RMSE %.4f m", stats["n_pairs"], stats["ape_trans"]["rmse"])

@@ -1,0 +1,358 @@
+"""The reference's uncertainty on a flight: its covariance per frame and its propagation.
+
+``Sigma_ref`` (N, 6, 6) is the covariance of the reference's error ``[dt, dtheta]`` on T_C_B,
+with ``t_meas = t_true + dt`` (metres, in C) and ``R_meas = Exp(dtheta) R_true`` (radians,
+left perturbation, in C). Models: a distance-only stand-in
+(:func:`reference_covariance_model`), the corner noise through PnP
+(:func:`reference_covariance_from_pnp`) and the se3 stage's model (T) with the planar PnP's
+flip ambiguity (:func:`reference_covariance_transfer`, :func:`pnp_flip_term`).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pandas as pd
+from scipy.spatial.transform import Rotation
+
+from cvsflow import uncertainty as un
+from cvsflow.errors import InputError
+from cvsflow.geometry import euler_from_R, invert_T
+from cvsflow.geometry import skew as skew_matrix
+from cvsflow.optimise.se3 import DEFAULT_INTRINSIC_STD, INTRINSIC_NAMES
+from cvsflow.uncertainty.propagation import pnp_covariance, propagated_pose_covariance
+
+# --------------------------------------------------------------------------------------------
+# Reference uncertainty
+# --------------------------------------------------------------------------------------------
+
+
+def reference_covariance_model(
+    T_C_B, f_px: float = 700.0, board_m: float = 0.5, sigma_px: float = 0.3, n_corners: int = 20
+) -> np.ndarray:
+    """A simple distance-dependent covariance of a PnP board pose (stand-in for se3's model).
+
+    Lateral position error ~ d sigma_px / (f sqrt(n)); depth error ~ d^2 sigma_px /
+    (f L sqrt(n)); tilt (about the camera's x, y) ~ d sigma_px / (f L) and in-plane rotation
+    (about z) ~ d sigma_px / (f L sqrt(n)), with d the board distance and L its size.
+
+    Parameters
+    ----------
+    T_C_B : ndarray, shape (N, 4, 4)
+        Board poses in the camera frame, metres.
+    f_px, board_m, sigma_px, n_corners : float
+        Focal length (px), board size (m), corner noise (px), number of corners.
+
+    Returns
+    -------
+    Sigma : ndarray, shape (N, 6, 6)
+        Diagonal covariance of ``[dt (m, in C), dtheta (rad, in C)]`` (module docstring).
+    """
+    d = np.linalg.norm(np.asarray(T_C_B, float)[:, :3, 3], axis=1)
+    rn = np.sqrt(n_corners)
+    s_lat = d * sigma_px / (f_px * rn)
+    s_depth = d**2 * sigma_px / (f_px * board_m * rn)
+    s_tilt = d * sigma_px / (f_px * board_m)
+    s_roll = s_tilt / rn
+    sig = np.column_stack([s_lat, s_lat, s_depth, s_tilt, s_tilt, s_roll])
+    Sigma = np.zeros((len(d), 6, 6))
+    idx = np.arange(6)
+    Sigma[:, idx, idx] = sig**2
+    return Sigma
+
+
+def _euler_rate_inverse(rpy):
+    """E^-1 with E mapping roll/pitch/yaw increments to a world-frame rotation vector."""
+    p, y = rpy[:, 1], rpy[:, 2]  # E does not depend on roll
+    cy, sy, cp, sp = np.cos(y), np.sin(y), np.cos(p), np.sin(p)
+    E = np.zeros((len(rpy), 3, 3))
+    E[:, :, 0] = np.column_stack([cy * cp, sy * cp, -sp])  # Rz Ry e_x
+    E[:, :, 1] = np.column_stack([-sy, cy, np.zeros_like(y)])  # Rz e_y
+    E[:, 2, 2] = 1.0  # e_z
+    return np.linalg.inv(E)
+
+
+def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L) -> np.ndarray:
+    """Per-axis standard deviations of the reference body pose in the error axes of L.
+
+    Parameters
+    ----------
+    Sigma_C_B : ndarray, shape (N, 6, 6)
+        Covariance of the board pose error [dt, dtheta] in C (module docstring).
+    T_C_B : ndarray, shape (N, 4, 4)
+        Measured board poses.
+    T_Q_B : ndarray, shape (4, 4)
+        Board mounting on the body.
+    R_C_L : ndarray, shape (3, 3)
+        Rotation of the alignment.
+
+    Returns
+    -------
+    sigma : ndarray, shape (N, 6)
+        Standard deviations of x, y, z (m, axes of L) and roll, pitch, yaw (rad of R_L_Q).
+    """
+    T_B_Q = invert_T(T_Q_B)
+    T_C_Q = T_C_B @ T_B_Q
+    lever = T_C_B[:, :3, :3] @ T_B_Q[:3, 3]  # R_C_B t_B_Q
+    J = np.zeros((len(T_C_B), 6, 6))
+    R_L_C = R_C_L.T
+    J[:, :3, :3] = R_L_C
+    J[:, :3, 3:] = -R_L_C @ skew_matrix(lever)  # dp = dt - [lever]x dtheta
+    rpy = euler_from_R(R_L_C @ T_C_Q[:, :3, :3])
+    J[:, 3:, 3:] = _euler_rate_inverse(rpy) @ R_L_C
+    S = J @ np.asarray(Sigma_C_B, float) @ np.swapaxes(J, -1, -2)
+    return np.sqrt(np.clip(np.diagonal(S, axis1=1, axis2=2), 0, None))
+
+
+def sigma_columns(Sigma):
+    """Flatten (N, 6, 6) covariances into a DataFrame of columns ``S00 .. S55`` (SI).
+
+    Parameters
+    ----------
+    Sigma : array_like, shape (N, 6, 6)
+        Covariances of ``[dt (m), dtheta (rad)]`` in C (module docstring).
+
+    Returns
+    -------
+    DataFrame
+        N rows, 36 columns ``S{i}{j}`` (row-major), in m^2, m rad and rad^2.
+    """
+    Sigma = np.asarray(Sigma, float)
+    columns = [f"S{i}{j}" for i in range(6) for j in range(6)]
+    return pd.DataFrame(Sigma.reshape(len(Sigma), 36), columns=columns)
+
+
+def sigma_from_columns(df):
+    """Inverse of :func:`sigma_columns`: (N, 6, 6) from columns ``S00 .. S55``.
+
+    Parameters
+    ----------
+    df : DataFrame
+        A table with the 36 columns ``S00 .. S55`` (e.g. ``reference.parquet``).
+
+    Returns
+    -------
+    Sigma : ndarray, shape (N, 6, 6)
+        Covariances of ``[dt (m), dtheta (rad)]`` in C.
+
+    Raises
+    ------
+    InputError
+        A column is missing.
+    """
+    cols = [f"S{i}{j}" for i in range(6) for j in range(6)]
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise InputError(f"reference covariance table lacks columns {missing[:3]}...")
+    return df[cols].to_numpy(float).reshape(len(df), 6, 6)
+
+
+def corner_noise_per_axis(reproj_rms_px, n_corners):
+    """Corner noise per image axis (px) from PnP's 2-D reprojection RMS over ``n_corners``:
+    the RMS of the residual length over sqrt(2), corrected for the 6 pose parameters fitted.
+
+    Parameters
+    ----------
+    reproj_rms_px : float
+        RMS over the corners of the reprojection residual length, px.
+    n_corners : int
+        Corners in the PnP fit.
+
+    Returns
+    -------
+    float
+        ``reproj_rms_px / sqrt(2) * sqrt(2n / (2n - 6))``, px per axis.
+    """
+    n_res = 2 * int(n_corners)
+    return float(reproj_rms_px) / np.sqrt(2.0) * np.sqrt(n_res / max(n_res - 6, 1))
+
+
+def reference_covariance_from_pnp(poses_raw, p_B, K, dist, sigma_px):
+    """Reference covariance per frame of a real flight, propagated from the corner noise.
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet of the flight's video (``valid``, ``rvec_0..2``, ``x_m..z_m``).
+    p_B : ndarray, shape (P, 3)
+        Board corners in B, m.
+    K, dist : array_like
+        Intrinsics (the se3 calibration's where available), px.
+    sigma_px : float
+        Corner noise per axis, px (the se3 fit's ``sigma_px``).
+
+    Returns
+    -------
+    Sigma_ref : ndarray, shape (N, 6, 6)
+        ``[dt, dtheta]`` in C (module docstring) per row of ``poses_raw``; NaN where not valid.
+    """
+
+    valid = poses_raw["valid"].to_numpy(bool)
+    Sigma = np.full((len(poses_raw), 6, 6), np.nan)
+    if valid.any():
+        rv = poses_raw.loc[valid, ["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
+        tv = poses_raw.loc[valid, ["x_m", "y_m", "z_m"]].to_numpy(float)
+        cov_rt = pnp_covariance(rv, tv, p_B, np.asarray(K, float), np.asarray(dist, float), sigma_px)
+        Sigma[valid] = propagated_pose_covariance(rv, tv, cov_rt, frame="C")
+    return Sigma
+
+
+def _intrinsics_std(calib):
+    """1-sigma of [fx, fy, cx, cy, k1, k2, p1, p2, k3] from an se3 result or a camera.yaml."""
+
+    sd = dict(DEFAULT_INTRINSIC_STD)
+    std = calib.get("std") if isinstance(calib.get("std"), dict) else {}
+    sd.update({k: float(v) for k, v in std.items() if k in sd and v is not None})
+    fixed = calib.get("fixed_intrinsics") or {}
+    sd.update(dict(zip(fixed.get("names", []), map(float, fixed.get("std", [])), strict=False)))
+    se = calib.get("std_errors") or {}
+    sd.update({k: float(v) for k, v in se.items() if k in sd})
+    return np.array([sd[n] for n in INTRINSIC_NAMES])
+
+
+def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
+    """The other solution of each frame's planar PnP and how much worse it fits its corners.
+
+    A planar board seen small or nearly face-on has two poses that fit its corners almost
+    equally (IPPE's two solutions: the board tilted one way or mirrored about the line of
+    sight); noise can make the PnP pick the wrong one, an error of up to twice the tilt that
+    no first-order covariance holds. Each IPPE solution is refined (LM); the alternative is the
+    one farther in rotation from the measured pose.
+
+    Parameters
+    ----------
+    uv_px : ndarray, shape (N, P, 2)
+        Observed corners, NaN where unseen.
+    rvec, tvec : ndarray, shape (N, 3)
+        The measured poses T_C_B.
+    p_B : ndarray, shape (P, 3)
+    K, dist : ndarray
+        The intrinsics of the PnP.
+
+    Returns
+    -------
+    delta : ndarray, shape (N, 6)
+        Measured minus alternative, ``[dt m, dtheta rad]`` in C (module docstring); 0 where
+        the two solutions coincide.
+    d_ssr : ndarray, shape (N,)
+        Sum of squared reprojection residuals of the alternative minus the measured pose's,
+        px^2 (inf where there is no distinct alternative).
+    """
+    obj = np.asarray(p_B, np.float64)
+    K = np.asarray(K, np.float64)
+    dist = np.asarray(dist, np.float64).ravel()
+    rvec, tvec = np.array(rvec, np.float64), np.array(tvec, np.float64)  # writable copies
+    delta = np.zeros((len(uv_px), 6))
+    d_ssr = np.full(len(uv_px), np.inf)
+
+    def ssr(o, img, r, t):
+        proj, _ = cv2.projectPoints(o, r, t, K, dist)
+        return float(np.sum((proj.reshape(-1, 2) - img.reshape(-1, 2)) ** 2))
+
+    for i in range(len(uv_px)):
+        seen = np.isfinite(uv_px[i]).all(axis=1)
+        if seen.sum() < 4:
+            continue
+        o = np.ascontiguousarray(obj[seen]).reshape(-1, 1, 3)
+        img = np.ascontiguousarray(uv_px[i, seen], np.float64).reshape(-1, 1, 2)
+        n, rvs, tvs, _ = cv2.solvePnPGeneric(o, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
+        R_m = Rotation.from_rotvec(rvec[i])
+        best = None
+        for r0, t0 in zip(rvs[:n], tvs[:n], strict=True):
+            r1, t1 = cv2.solvePnPRefineLM(o, img, K, dist, r0.copy(), t0.copy())
+            ang = (Rotation.from_rotvec(r1.ravel()) * R_m.inv()).magnitude()
+            if best is None or ang > best[0]:
+                best = (ang, r1.ravel(), t1.ravel())
+        if best is None or best[0] < 1e-6:
+            continue
+        _, r_alt, t_alt = best
+        d_ssr[i] = ssr(o, img, r_alt, t_alt) - ssr(o, img, rvec[i], tvec[i])
+        delta[i, :3] = tvec[i] - t_alt
+        delta[i, 3:] = (R_m * Rotation.from_rotvec(r_alt).inv()).as_rotvec()
+    return delta, d_ssr
+
+
+def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, flips=True):
+    """Reference covariance per frame of a flight from the error model (T) of the se3 stage.
+
+    The camera reference of a flight is the PnP pose of the board: its error is what model (T)
+    (:func:`cvsflow.uncertainty.fit_transfer_model`) predicts for the CVS side, without the
+    Vicon's floor and mountings (a flight has no Vicon): the corner noise from each frame's
+    image speed and reprojection RMS through the PnP of the corners it saw, the calibration's
+    intrinsics uncertainty through PnP (one draw for the whole flight: correlated; the principal
+    point's is left out, the alignment absorbs it), and, with a
+    rolling shutter (``calib["line_delay_s"]``), the outer product of the pose error its shear
+    predicts (the reference does not correct it), and (``flips``) the planar PnP's two-fold
+    ambiguity: ``w delta delta^T`` with ``delta`` the measured pose minus the other IPPE
+    solution (:func:`pnp_flip_term`) and ``w = 1 / (1 + exp(d_ssr / (2 sigma_px^2)))`` the
+    chance that the other one is the true pose given how much worse it fits the corners (the
+    covariance of the two-solution mixture about the measured pose).
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet of the flight's video (``frame``, ``valid``, ``rvec_0..2``,
+        ``x_m..z_m``, ``reproj_rms_px``).
+    corners : DataFrame
+        corners.parquet of the flight's video.
+    p_B : ndarray, shape (P, 3)
+        Board corners in B, m.
+    calib : dict
+        The se3 result (``K``, ``dist``, ``std_errors``, ``fixed_intrinsics``,
+        ``line_delay_s``) or a camera.yaml (``K``, ``dist``, ``std``); intrinsics without a
+        standard deviation take ``DEFAULT_INTRINSIC_STD``; their correlations are left out.
+    model : dict, optional
+        Model (T); default :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`.
+    flips : bool
+        Add the PnP ambiguity term.
+
+    Returns
+    -------
+    Sigma_ref : ndarray, shape (N, 6, 6)
+        ``[dt, dtheta]`` in C per row of ``poses_raw``; NaN where not valid.
+    """
+
+    model = un.RENDERED_TRANSFER_MODEL if model is None else model
+    valid = poses_raw["valid"].to_numpy(bool)
+    Sigma = np.full((len(poses_raw), 6, 6), np.nan)
+    if not valid.any():
+        return Sigma
+    rows = poses_raw[valid]
+    rv = rows[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
+    tv = rows[["x_m", "y_m", "z_m"]].to_numpy(float)
+    K = np.asarray(calib["K"], float)
+    dist = np.asarray(calib["dist"], float).ravel()
+    uv, speed, vel = un.seen_corners(corners, rows["frame"].to_numpy(), len(p_B))
+    ld = float(calib.get("line_delay_s") or 0.0)
+    unit, shear = un.frame_noise_terms(uv, vel, rv, tv, p_B, K, dist, ld, frame="C")
+    n_seen = np.isfinite(uv).all(axis=-1).sum(axis=1)
+    reproj = un.corner_noise_from_reproj(rows["reproj_rms_px"].to_numpy(float), n_seen)
+    if model.get("k_shrink") is not None:
+        # the model's shrinkage option: toward the flight's own pooled corner noise
+        pool = un.corner_noise_pool(rows["reproj_rms_px"].to_numpy(float), n_seen)
+        reproj = un.shrink_corner_noise(reproj, n_seen, pool, model["k_shrink"])
+    var_px = (model["s0_px"] ** 2 + (model["s_speed"] * speed) ** 2
+              + (model["s_reproj"] * reproj) ** 2)  # fmt: skip
+    # intrinsics through PnP: d(rvec, tvec)/d(intrinsics) = -(J^T J)^-1 J^T J_K
+    sd = _intrinsics_std(calib)
+    # a principal-point error is to first order a turn of C about its origin, which the
+    # flight's alignment (R_C_L) absorbs: only focal lengths and distortion stay
+    sd[2:4] = 0.0
+    seen = np.isfinite(uv).all(axis=-1)
+    cov_rt = np.empty((len(rows), 6, 6))
+    obj = np.asarray(p_B, np.float64)
+    for i in range(len(rows)):
+        _, jac = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rv[i], tv[i], K, dist)
+        Jp, JK = jac[:, :6], jac[:, 6:15]
+        A = -np.linalg.lstsq(Jp.T @ Jp, Jp.T @ JK, rcond=None)[0]
+        cov_rt[i] = (A * sd**2) @ A.T
+
+    cal = propagated_pose_covariance(rv, tv, cov_rt, frame="C")
+    S = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
+         + shear[:, :, None] * shear[:, None, :])  # fmt: skip
+    if flips:
+        delta, d_ssr = pnp_flip_term(uv, rv, tv, p_B, K, dist)
+        w = 1.0 / (1.0 + np.exp(np.clip(d_ssr / (2.0 * var_px), -50.0, 50.0)))
+        S = S + w[:, None, None] * delta[:, :, None] * delta[:, None, :]
+    Sigma[valid] = S
+    return Sigma
