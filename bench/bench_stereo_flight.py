@@ -9,7 +9,7 @@ flight is then drawn with that covariance and evaluated by ``flight.evaluate_fli
 clock, fitted SE(3) alignment), which gives the share of samples whose error the reference
 cannot resolve (sigma > |error|) per axis. It prints:
 
-- the reference's depth sigma (along camera 0's axis) against distance, per rig;
+- the reference's depth sigma (along camera 0's axis) and rotation sigma against distance, per rig;
 - the unresolved share per axis (x y z roll pitch yaw) at 3-20 m, per rig;
 - the fused pose's calibration: NEES of Monte-Carlo solves (noisy corners, Gauss-Newton from
   the truth kicked by 1 cm / 5 cm in depth / 10 mrad) against the stated covariance, per distance bin (6 is right).
@@ -107,8 +107,10 @@ def main():
         r = F.evaluate_flight(d.reference, d.onboard, d.T_Q_B, d.Sigma_ref, clock=d.clock)
         ax = r.stats["axes"]
         sig_z = np.sqrt(Sigma[:, 2, 2])
+        sig_rot = np.sqrt(np.trace(Sigma[:, 3:, 3:], axis1=1, axis2=2) / 3.0)
         rows[name] = {
             "depth_mm": [1e3 * np.median(sig_z[(bins == k) & ~lost]) for k in range(len(DIST_BINS_M) - 1)],
+            "rot_deg": [np.degrees(np.median(sig_rot[(bins == k) & ~lost])) for k in range(len(DIST_BINS_M) - 1)],
             "unresolved": [ax[a]["unresolved_fraction"] for a in AXES],
         }
         # calibration of the fused pose: Monte-Carlo solves on a subset of frames
@@ -134,6 +136,9 @@ def main():
     for name, row in rows.items():
         print(f"{name:14s} " + " ".join(f"{v:8.1f}" for v in row["depth_mm"]) + "   "
               + " / ".join(f"{100 * s:.0f} %" for s in seen_rows[name]))
+    print("\nreference rotation sigma (deg, RMS over the three axes), median per distance bin (m):")
+    for name, row in rows.items():
+        print(f"{name:14s} " + " ".join(f"{v:8.2f}" for v in row["rot_deg"]))
     print("\nunresolved share (sigma > |on-board error|), % of samples, 3-20 m:")
     print(f"{'rig':14s} " + " ".join(f"{a:>6s}" for a in AXES))
     for name, row in rows.items():
