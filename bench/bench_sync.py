@@ -5,7 +5,7 @@ directory, runs the camera half (calibration, corners, PnP poses) and the Vicon 
 repair, rigid bodies) exactly as the workflow scripts do, then synchronises with both
 methods and prints, per seed, the error of every estimate against ``truth.yaml``'s
 ``dt_offset_s`` in milliseconds: the angular-speed method's parabolic correlation peak
-(``dt_parabolic_s``), its result before (``--before``: ``cvsflow/align.py`` at that git
+(``dt_parabolic_s``), its result before (``--before``: ``cvsflow/align.py``, now ``cvsflow/sync.py``, at that git
 revision, the angular-speed mismatch refinement) and now (relative-rotation-angle refinement,
 with its jackknife standard error), and the chapter's gesture method. Target: |error| < 2 ms for the angular-speed result on every
 seed (the issue asks for 3 ms).
@@ -101,8 +101,8 @@ def load_align_at(rev):
 
 def sync_errors(poses, bodies, truth, before=None):
     """Errors (ms) of the sync estimates against the truth."""
-    from cvsflow.align import synchronise
     from cvsflow.errors import SyncError
+    from cvsflow.sync import synchronise
 
     dt_true = float(truth["dt_offset_s"])
     row = {}
