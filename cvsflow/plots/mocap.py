@@ -24,7 +24,7 @@ def plot_marker_gaps(markers_filled: pd.DataFrame, summary: dict | None = None) 
     markers_filled : DataFrame
         ``markers_filled`` table (``t_s``, ``{marker}_{x,y,z}_m``, ``{marker}_filled``).
     summary : dict, optional
-        The summary of :func:`cvsflow.mocap.fill_marker_gaps`; its per-marker counts are shown
+        The summary of :func:`cvsflow.mocap_repair.fill_marker_gaps`; its per-marker counts are shown
         beside each marker's name (rigid / interpolated / missing samples).
 
     Returns

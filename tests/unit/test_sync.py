@@ -244,7 +244,7 @@ def rendered(tmp_path_factory):
 
     synth = pytest.importorskip("cvsflow.synth.render")
     from cvsflow.io.mocap_formats import read_markers
-    from cvsflow.mocap import fill_marker_gaps
+    from cvsflow.mocap_repair import fill_marker_gaps
 
     cfg_path = Path(__file__).resolve().parents[2] / "config" / "config.yaml"
     session_cfg = copy.deepcopy(yaml.safe_load(cfg_path.read_text())["sessions"]["demo"])
