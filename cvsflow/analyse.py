@@ -195,7 +195,7 @@ def vicon_vs_cvs(errors, result):
     return out
 
 
-def error_covariance(errors, prefix="eps"):
+def sample_error_covariance(errors, prefix="eps"):
     """6x6 covariance Sigma of eps (seed eq. 1.14) and its correlation matrix, in SI.
 
     Not :func:`cvsflow.uncertainty.propagated_pose_covariance` (the propagated covariance of each pose).
@@ -312,7 +312,7 @@ def error_statistics(errors, prefix="eps"):
         ``corr`` (6x6) and ``units``.
     """
     tests = normality_tests(errors, prefix)
-    Sigma, corr = error_covariance(errors, prefix)
+    Sigma, corr = sample_error_covariance(errors, prefix)
     keys = ["mean", "std", "rms", "min", "max", "skew", "kurtosis", "dagostino_k2",
             "dagostino_p", "anderson_stat", "anderson_p"]
     per_dim = {d: {k: float(tests.loc[d, k]) for k in keys} for d in POSE_DIMS}

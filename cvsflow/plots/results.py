@@ -269,7 +269,7 @@ def plot_covariance(Sigma, corr):
     Parameters
     ----------
     Sigma : ndarray, shape (6, 6)
-        Covariance in SI (:func:`cvsflow.analyse.error_covariance`).
+        Covariance in SI (:func:`cvsflow.analyse.sample_error_covariance`).
     corr : ndarray, shape (6, 6)
         Correlation matrix.
 

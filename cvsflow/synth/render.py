@@ -31,24 +31,19 @@ from cvsflow.synth.effects import (
     occluded_corners,
     white_balance,
 )
+from cvsflow.synth.frames import FrameEffects, Lighting, Renderer
 from cvsflow.synth.motion import make_hand_motion, random_sine_sum, still_poses
 from cvsflow.synth.session import (
-    FPS,
-    VICON_RATE_HZ,
-    FrameEffects,
-    Lighting,
-    Renderer,
     camera_track,
     exposure_times,
     make_rig,
-    parse_session_config,
-    random_streams,
     still_outline_B,
     truth_document,
     truth_tables,
     vicon_recording,
     video_truth,
 )
+from cvsflow.synth.spec import FPS, VICON_RATE_HZ, parse_session_config, random_streams
 from cvsflow.transforms import invert_T, pose6_from_T, transform_points
 
 __all__ = ["render_session", "render_stills"]
@@ -223,7 +218,7 @@ def realistic_truth(spec, rngs, motion):
     spec : SynthSpec
         The checked session (its ``effects`` pick what is simulated).
     rngs : dict of str to numpy.random.Generator
-        :func:`cvsflow.synth.session.random_streams`; uses ``timestamps``, ``exposure``,
+        :func:`cvsflow.synth.spec.random_streams`; uses ``timestamps``, ``exposure``,
         ``lighting``, ``colour`` and ``hand``.
     motion : HandMotion
         The board's motion in C.

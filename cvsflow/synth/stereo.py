@@ -13,8 +13,10 @@ import numpy as np
 from cvsflow.errors import ConfigError
 from cvsflow.geometry.transforms import R_from_euler, R_from_rvec, make_T
 from cvsflow.synth.camera import project_points
+from cvsflow.synth.frames import Renderer
 from cvsflow.synth.motion import _in_view, _min_square_px
-from cvsflow.synth.session import Renderer, parse_session_config, still_outline_B
+from cvsflow.synth.session import still_outline_B
+from cvsflow.synth.spec import parse_session_config
 
 
 def shared_view_poses(rng, n, cameras, T_Ci_C0, board, depth_m=(1.2, 2.6), max_tilt_deg=35.0,

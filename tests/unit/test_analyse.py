@@ -75,7 +75,7 @@ def test_normality_rejects_uniform_errors():
 def test_covariance_and_correlation_by_hand():
     """Sigma equals numpy's ddof=1 covariance (eq. 1.14); corr equals np.corrcoef."""
     df, eps, _ = _errors()
-    Sigma, corr = analyse.error_covariance(df)
+    Sigma, corr = analyse.sample_error_covariance(df)
     c = eps - eps.mean(axis=0)
     np.testing.assert_allclose(Sigma, c.T @ c / (len(eps) - 1), rtol=1e-12, atol=1e-18)
     np.testing.assert_allclose(corr, np.corrcoef(eps, rowvar=False), atol=1e-12)
@@ -149,7 +149,7 @@ def test_too_few_rows_and_missing_columns_raise():
     with pytest.raises(InputError, match="at least 3"):
         analyse.normality_tests(df.iloc[:2])
     with pytest.raises(InputError, match="eps_roll_rad"):
-        analyse.error_covariance(df.drop(columns="eps_roll_rad"))
+        analyse.sample_error_covariance(df.drop(columns="eps_roll_rad"))
 
 
 # ------------------------------------------------------------------ figures (structure only)
@@ -176,7 +176,7 @@ def test_plot_functions_return_labelled_figures():
         assert isinstance(fig, Figure), name
         assert len(fig.axes) == n_axes, name
         assert all(_labelled(ax) for ax in fig.axes), name
-    Sigma, corr = analyse.error_covariance(df)
+    Sigma, corr = analyse.sample_error_covariance(df)
     fig = pr.plot_covariance(Sigma, corr)
     assert len(fig.axes) == 3  # table, heat map, colour bar
     assert fig.axes[1].get_xticklabels()[0].get_text() == "x [mm]"  # units on the ticks
@@ -293,6 +293,6 @@ def test_mark_diverged_appends_the_reason_in_red_and_leaves_converged_runs_alone
     title = fig.get_suptitle()
     assert title.startswith("Normal Q-Q plots") and title.endswith("DIVERGED: fy = 4985.8 px at the bound")
     assert fig._suptitle.get_color() == "tab:red"
-    Sigma, corr = analyse.error_covariance(df)
+    Sigma, corr = analyse.sample_error_covariance(df)
     assert pr.mark_diverged(pr.plot_covariance(Sigma, corr), "x").get_suptitle() == "DIVERGED: x"
     assert pr.mark_diverged(pr.plot_qq(analyse.qq_data(df)), None).get_suptitle() == "Normal Q-Q plots of the errors"

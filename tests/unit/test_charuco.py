@@ -25,15 +25,11 @@ from cvsflow.pose import CORNER_COLUMNS, estimate_poses, extract_corners
 from cvsflow.sessions import check_sessions
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.effects import Grip, make_hand_texture, occluded_corners
+from cvsflow.synth.frames import FrameEffects, Renderer
 from cvsflow.synth.motion import make_hand_motion
 from cvsflow.synth.render import realistic_truth, render_stills
-from cvsflow.synth.session import (
-    FrameEffects,
-    Renderer,
-    parse_session_config,
-    random_streams,
-    still_outline_B,
-)
+from cvsflow.synth.session import still_outline_B
+from cvsflow.synth.spec import parse_session_config, random_streams
 
 REPO = Path(__file__).resolve().parents[2]
 BOARD = {"type": "charuco", "squares_x": 6, "squares_y": 5, "square_m": 0.09,

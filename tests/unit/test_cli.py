@@ -9,6 +9,7 @@ import pytest
 import yaml
 
 from cvsflow import cli
+from cvsflow.cli import run as cli_run
 from cvsflow.io import write_parquet, write_yaml
 
 REAL = Path("/work/shared/data/real/opencv-chessboard")
@@ -202,7 +203,7 @@ def test_init_on_a_6dof_only_qtm_export_uses_the_system_bodies(tmp_path):
 
 def test_run_passes_arguments_and_picks_profile(tmp_path, monkeypatch):
     calls = []
-    monkeypatch.setattr(cli.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
+    monkeypatch.setattr(cli_run.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
     (tmp_path / "Snakefile").write_text("")
     (tmp_path / "workflow" / "profiles" / "default").mkdir(parents=True)
     monkeypatch.chdir(tmp_path)

@@ -213,16 +213,11 @@ def _realistic_window(name, n_frames=5, duration_s=3.0, **synth):
     """``n_frames`` consecutive grey frames of a session of config/realistic.yaml, rendered in
     memory by the package's renderer (no stills, no codec), where the board is in view with
     at least 80 % of its corners visible; (frames, truth frames, true corners, board)."""
+    from cvsflow.synth.frames import FrameEffects, Renderer
     from cvsflow.synth.motion import make_hand_motion
     from cvsflow.synth.render import realistic_truth
-    from cvsflow.synth.session import (
-        FrameEffects,
-        Renderer,
-        make_rig,
-        parse_session_config,
-        random_streams,
-        truth_tables,
-    )
+    from cvsflow.synth.session import make_rig, truth_tables
+    from cvsflow.synth.spec import parse_session_config, random_streams
 
     with open(REALISTIC_YAML) as fh:
         cfg = yaml.safe_load(fh)["sessions"][name]

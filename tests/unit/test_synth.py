@@ -16,19 +16,12 @@ from cvsflow.calibration import calibrate_camera
 from cvsflow.errors import ConfigError
 from cvsflow.io import synth_out
 from cvsflow.synth.camera import Board, make_board_texture, project_points
+from cvsflow.synth.frames import Renderer
 from cvsflow.synth.markers import fit_rigid, true_mounting
 from cvsflow.synth.motion import board_poses, make_hand_motion, still_poses
 from cvsflow.synth.render import render_session, render_stills
-from cvsflow.synth.session import (
-    IMAGE_SIZE,
-    Renderer,
-    make_rig,
-    parse_session_config,
-    random_streams,
-    still_outline_B,
-    vicon_recording,
-    video_truth,
-)
+from cvsflow.synth.session import make_rig, still_outline_B, vicon_recording, video_truth
+from cvsflow.synth.spec import IMAGE_SIZE, parse_session_config, random_streams
 from cvsflow.transforms import (
     T_from_pose6,
     euler_from_R,
@@ -471,7 +464,7 @@ def test_files_agree_vicon_and_video_truth(rendered):
 def _moving_spec(spec, **camera_motion):
     from dataclasses import replace
 
-    from cvsflow.synth.session import parse_camera_motion
+    from cvsflow.synth.spec import parse_camera_motion
 
     return replace(spec, marker_noise_sigma_m=0.0, dropout_rate_hz=0.0,
                    camera_motion=parse_camera_motion(camera_motion))  # fmt: skip
@@ -525,12 +518,8 @@ def test_moving_camera_vicon_gives_the_same_relative_motion(spec, kind):
 def test_moving_camera_truth_tables_and_config(spec):
     """truth_frames gains T_W_C per frame (cam_x_m .. cam_qw) and truth.yaml the motion only
     for a moving camera; a static one keeps the demo's columns and keys; bad config named."""
-    from cvsflow.synth.session import (
-        camera_track,
-        parse_camera_motion,
-        truth_document,
-        truth_tables,
-    )
+    from cvsflow.synth.session import camera_track, truth_document, truth_tables
+    from cvsflow.synth.spec import parse_camera_motion
 
     rngs = random_streams(7)
     rig = make_rig(spec, rngs["mounting"])

@@ -25,16 +25,11 @@ from cvsflow.synth.effects import (
     make_timeline,
     parse_effects,
 )
+from cvsflow.synth.frames import ILLUMINANT_BGR, FrameEffects, Lighting, Renderer
 from cvsflow.synth.motion import board_poses, make_hand_motion, random_sine_sum
 from cvsflow.synth.render import render_session
-from cvsflow.synth.session import (
-    ILLUMINANT_BGR,
-    FrameEffects,
-    Lighting,
-    Renderer,
-    corners_at_line_times,
-    parse_session_config,
-)
+from cvsflow.synth.session import corners_at_line_times
+from cvsflow.synth.spec import parse_session_config
 
 av = pytest.importorskip("av")
 

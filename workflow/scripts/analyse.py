@@ -19,7 +19,7 @@ with stage_logging(snakemake.log[0], "analyse") as log:
     with atomic_output(snakemake.output.stats) as tmp:
         tmp.write_text(json.dumps(stats, indent=2))
     tests = analyse.normality_tests(errors)
-    Sigma, corr = analyse.error_covariance(errors)
+    Sigma, corr = analyse.sample_error_covariance(errors)
     out = snakemake.output
     iterations = read_parquet(snakemake.input.iterations)
     # A diverged seed run (its own check) says so in every figure's title.

@@ -1,8 +1,8 @@
 """CVS and Vicon poses side by side per video frame (rule pairs)."""
 
-from cvsflow.align import make_pairs
 from cvsflow.io import read_parquet, read_yaml, write_parquet
 from cvsflow.io.logs import stage_logging
+from cvsflow.pairs import make_pairs
 from cvsflow.plausibility import check_pair_distances
 
 with stage_logging(snakemake.log[0], "pairs") as log:

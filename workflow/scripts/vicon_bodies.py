@@ -3,7 +3,8 @@
 from cvsflow.io import read_parquet, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.mocap_formats import read_system_bodies
-from cvsflow.mocap import fit_bodies, resolve_layouts
+from cvsflow.mocap import fit_bodies
+from cvsflow.mocap_layout import resolve_layouts
 from cvsflow.plausibility import check_body_fits
 from cvsflow.plots import mocap as plots
 

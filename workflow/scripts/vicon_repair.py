@@ -2,7 +2,7 @@
 
 from cvsflow.io import read_parquet, save_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.mocap import repair_markers
+from cvsflow.mocap_repair import repair_markers
 from cvsflow.plots import mocap as plots
 
 with stage_logging(snakemake.log[0], "vicon_repair") as log:

@@ -1,105 +1,24 @@
-"""Synchronisation (angular speed, gesture) and pairs against a synthetic session with known offset."""
+"""Synchronisation (angular speed, gesture) against a synthetic session with known offset."""
 
 import numpy as np
 import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
+from sync_session import DT_OFFSET_S, FPS, RATE_HZ, make_session
 
-from cvsflow.align import (
+from cvsflow.errors import InputError, SyncError
+from cvsflow.mocap import fit_bodies
+from cvsflow.pairs import build_pairs
+from cvsflow.sync import (
     angular_speed_cvs,
     angular_speed_streams,
     angular_speed_vicon,
-    build_pairs,
     check_take_covers_video,
     refine_offset_rotations,
     sync_angular_speed,
     synchronise,
 )
-from cvsflow.errors import InputError, NoUsableRowsError, OverlapError, SyncError
-from cvsflow.mocap import block_average_bodies, fit_bodies, interpolate_bodies
-from cvsflow.transforms import (
-    T_from_pose6,
-    invert_T,
-    make_T,
-    pose6_from_T,
-    rotation_angle,
-    rvec_tvec_from_T,
-    transform_points,
-    wrap_angle,
-)
-
-RATE_HZ = 300.0
-FPS = 30.0
-DT_OFFSET_S = 2.3712
-BOARD_NAMES = ["board:B1", "board:B2", "board:B3", "board:B4"]
-CAMERA_NAMES = ["camera:C1", "camera:C2", "camera:C3", "camera:C4"]
-BOARD_LAYOUT_M = np.array([[0.0, 0.0, 0.0], [0.76, 0.0, 0.0], [0.0, 0.52, 0.0], [0.58, 0.5, 0.0]])
-CAMERA_LAYOUT_M = np.array([[0.0, 0.0, 0.0], [0.0, 0.16, 0.0], [0.0, 0.0, 0.12], [0.0, 0.11, 0.17]])
-SPECS = {
-    "camera": {"names": CAMERA_NAMES, "layout_m": CAMERA_LAYOUT_M},
-    "board": {"names": BOARD_NAMES, "layout_m": BOARD_LAYOUT_M},
-}
-T_W_CM = make_T(Rotation.from_rotvec([0.05, -0.1, 1.6]).as_matrix(), [0.2, -1.5, 1.0])
-T_CM_C = T_from_pose6([0.03, -0.02, 0.05, -1.5708, 0.0, -1.5708])
-T_BM_B = T_from_pose6([0.1, 0.07, -0.004, 3.1416, 0.0, 0.0])
-
-
-def board_motion(t_s, seed=0, still_s=1.0):
-    """True T_W_Bm (N, 4, 4): still, a forward tilt (25 deg, 0.8 s), then hand-like motion."""
-    rng = np.random.default_rng(seed)
-    tau = t_s - still_s
-    tilt = np.where((tau > 0) & (tau < 0.8), np.radians(25.0) * np.sin(np.pi * np.clip(tau, 0, 0.8) / 0.8) ** 2, 0.0)
-    free = np.clip(tau - 1.0, 0.0, None)
-    ramp = np.clip(free, 0.0, 1.0)
-    rotvec = np.zeros((len(t_s), 3))
-    pos = np.zeros((len(t_s), 3))
-    for a in range(3):
-        for _ in range(3):
-            f = rng.uniform(0.2, 1.2)
-            ph = rng.uniform(0, 2 * np.pi)
-            rotvec[:, a] += ramp * 0.15 * (np.sin(2 * np.pi * f * free + ph) - np.sin(ph))
-            pos[:, a] += ramp * 0.08 * (np.sin(2 * np.pi * rng.uniform(0.2, 1.0) * free + ph) - np.sin(ph))
-    rotvec[:, 0] += tilt
-    R_Cm_Bm0 = Rotation.from_euler("xyz", [0.0, 0.0, np.pi]).as_matrix()
-    T_Cm_Bm = make_T(R_Cm_Bm0 @ Rotation.from_rotvec(rotvec).as_matrix(), pos + [0.4, 0.3, 1.5])
-    return T_W_CM @ T_Cm_Bm
-
-
-def make_session(duration_video_s=12.0, lead_s=DT_OFFSET_S, tail_s=1.0, noise_m=0.0003,
-                 rot_noise_rad=np.radians(0.1), pos_noise_m=0.001, drop_frac=0.05, seed=0):
-    """Synthetic Vicon bodies (via markers and fit_bodies) and poses_raw with known offset."""
-    rng = np.random.default_rng(seed)
-    n_v = int(round((lead_s + duration_video_s + tail_s) * RATE_HZ))
-    t_v = np.arange(n_v) / RATE_HZ
-    # the gesture happens in the video at 1 s + tilt: put the still start before the video starts
-    T_W_Bm = board_motion(t_v, seed=seed, still_s=lead_s + 1.0)
-    data = {"frame": np.arange(n_v), "t_s": t_v}
-    for names, layout, T in ((CAMERA_NAMES, CAMERA_LAYOUT_M, np.broadcast_to(T_W_CM, (n_v, 4, 4))),
-                             (BOARD_NAMES, BOARD_LAYOUT_M, T_W_Bm)):
-        for name, pt in zip(names, layout, strict=True):
-            xyz = transform_points(T, pt) + rng.normal(0, noise_m, (n_v, 3))
-            for a, ax in enumerate("xyz"):
-                data[f"{name}_{ax}_m"] = xyz[:, a]
-    markers = pd.DataFrame(data)
-    markers.attrs["rate_hz"] = RATE_HZ
-    bodies = fit_bodies(markers, SPECS)
-    n_f = int(round(duration_video_s * FPS))
-    t_video = np.arange(n_f) / FPS
-    T_true = invert_T(T_CM_C) @ invert_T(T_W_CM) @ board_motion(t_video + lead_s, seed=seed, still_s=lead_s + 1.0) @ T_BM_B
-    dR = Rotation.from_rotvec(rng.normal(0, rot_noise_rad, (n_f, 3))).as_matrix()
-    T_noisy = make_T(T_true[:, :3, :3] @ dR, T_true[:, :3, 3] + rng.normal(0, pos_noise_m, (n_f, 3)))
-    rvec, tvec = rvec_tvec_from_T(T_noisy)
-    valid = rng.uniform(size=n_f) > drop_frac
-    rpy = pose6_from_T(T_noisy)[:, 3:]
-    poses = pd.DataFrame({
-        "frame": np.arange(n_f), "t_s": t_video, "valid": valid,
-        "rvec_0": rvec[:, 0], "rvec_1": rvec[:, 1], "rvec_2": rvec[:, 2],
-        "x_m": tvec[:, 0], "y_m": tvec[:, 1], "z_m": tvec[:, 2],
-        "roll_rad": rpy[:, 0], "pitch_rad": rpy[:, 1], "yaw_rad": rpy[:, 2],
-        "reproj_rms_px": 0.2, "n_inliers": 20,
-    })
-    poses.loc[~valid, ["rvec_0", "rvec_1", "rvec_2", "x_m", "y_m", "z_m"]] = np.nan
-    return poses, bodies, T_true
+from cvsflow.transforms import invert_T, make_T, rotation_angle
 
 
 @pytest.fixture(scope="module")
@@ -218,7 +137,7 @@ def test_refine_offset_rotations_too_few_pairs():
 def test_smooth_rotations_keeps_time_and_masks_holes():
     """A constant-rate turn is its own Gaussian mean (to 1e-9 rad): smoothing shifts nothing in
     time; samples within 2.5 sigma of an invalid one, or of either end, are marked invalid."""
-    from cvsflow.align import _smooth_rotations
+    from cvsflow.sync import _smooth_rotations
 
     t = np.arange(0.0, 1.0, 1.0 / RATE_HZ)
     R = Rotation.from_rotvec(np.outer(1.7 * t, [0.36, 0.48, 0.8])).as_matrix()
@@ -258,24 +177,21 @@ def test_sync_peak_at_search_boundary_refused(session):
 
 
 def test_take_shorter_than_video_names_both_spans(session):
-    """A take lasting under 20 % of the video stops sync (InputError naming both spans); a take
-    that overlaps only 14 % of the video at the offset stops pairs (OverlapError, both spans)."""
+    """A take lasting under 20 % of the video stops sync (InputError naming both spans); the
+    pairs side (a take overlapping 14 % of the video) is
+    test_pairs.py::test_pairs_take_overlapping_14_percent_names_both_spans."""
     poses, bodies, _ = session
     tiny = bodies[bodies["t_s"] < 2.0]
     with pytest.raises(InputError, match=r"take spans 0\.000\.\.1\.997 s.*video spans 0\.000\.\.11\.967 s"):
         sync_angular_speed(poses, tiny)
-    short = bodies[bodies["t_s"] < 4.0]
-    with pytest.raises(OverlapError, match=r"pairs: only \d+ of 360 video frames \(1\d\.\d %\).*"
-                       r"video frames span 0\.000\.\.11\.967 s.*take spans"):
-        build_pairs(poses, short, DT_OFFSET_S, mode="interp")
     with pytest.raises(InputError, match="does not cover the video"):
         check_take_covers_video((0.0, 10.0), (0.0, 11.0), dt_offset_s=2.0)
 
 
 def test_partial_overlap_uses_what_overlaps(session):
     """A take that stops 1 s before the video ends: sync still finds the offset, reports the
-    overlap share (about 92 %) and a warning under min_overlap_share; pairs keeps exactly the
-    frames inside the take, in both modes, with the share and warning in attrs."""
+    overlap share (about 92 %) and a warning under min_overlap_share (the pairs side is
+    test_pairs.py::test_pairs_partial_overlap_uses_what_overlaps)."""
     poses, bodies, _ = session
     t_end = DT_OFFSET_S + float(poses["t_s"].max()) - 1.0
     cut = bodies[bodies["t_s"] <= t_end]
@@ -287,74 +203,6 @@ def test_partial_overlap_uses_what_overlaps(session):
     assert len(out["warnings"]) == 1 and "min_overlap_share 0.95" in out["warnings"][0]
     quiet = synchronise(poses, cut, max_offset_s=10.0, min_quality=0.2, min_overlap_share=0.8)
     assert quiet["warnings"] == []
-    pairs = build_pairs(poses, cut, DT_OFFSET_S, mode="interp", min_overlap_share=0.95)
-    assert pairs["t_vicon_s"].max() <= t_end
-    full = build_pairs(poses, bodies, DT_OFFSET_S, mode="interp")
-    assert abs(len(pairs) - int((full["t_vicon_s"] <= t_end).sum())) <= 1  # the last sample
-    assert pairs.attrs["warnings"] and abs(pairs.attrs["overlap_share"] - inside) < 0.01
-    lo = block_average_bodies(cut, 10)
-    pb = build_pairs(poses, lo, DT_OFFSET_S, mode="block", min_overlap_share=0.8)
-    assert 0.9 * len(pairs) < len(pb) <= len(pairs) + 1 and pb.attrs["warnings"] == []
-
-
-def test_pairs_zero_rows_names_counts(session):
-    """Pairs with no valid CVS pose: NoUsableRowsError naming both counts, not an empty table."""
-    poses, bodies, _ = session
-    none = poses.assign(valid=False)
-    with pytest.raises(NoUsableRowsError, match=r"0 of 360 video frames.*0 frames with a CVS pose"):
-        build_pairs(none, bodies, DT_OFFSET_S, mode="interp")
-
-
-def test_pairs_interp_match_truth(clean_session):
-    """interp pairs: T_Cm_Bm = inv(T_W_Cm) T_W_Bm within 1 mm / 0.1 deg of truth; composing with
-    the true T_Cm_C and T_Bm_B gives T_C_B within 1 mm / 0.1 deg; CVS columns pass through; P*
-    is the wrapped 6-vector difference (eq. 1.5); only valid CVS frames."""
-    poses, bodies, T_true = clean_session
-    pairs = build_pairs(poses, bodies, DT_OFFSET_S, mode="interp")
-    assert len(pairs) == int(poses["valid"].sum())
-    np.testing.assert_allclose(pairs["t_vicon_s"] - pairs["t_s"], DT_OFFSET_S, atol=1e-12)
-    q = pairs[["cmbm_qx", "cmbm_qy", "cmbm_qz", "cmbm_qw"]].to_numpy(copy=True)
-    T_Cm_Bm = make_T(Rotation.from_quat(q).as_matrix(), pairs[["cmbm_x_m", "cmbm_y_m", "cmbm_z_m"]].to_numpy())
-    T_C_B = invert_T(T_CM_C) @ T_Cm_Bm @ T_BM_B
-    dT = invert_T(T_true[pairs["frame"].to_numpy()]) @ T_C_B
-    assert np.linalg.norm(dT[:, :3, 3], axis=1).max() < 0.001
-    assert np.degrees(rotation_angle(dT[:, :3, :3])).max() < 0.1
-    sel = poses.set_index("frame").loc[pairs["frame"]]
-    np.testing.assert_allclose(pairs["cvs_rvec_0"], sel["rvec_0"], atol=1e-12)
-    np.testing.assert_allclose(pairs["cvs_z_m"], sel["z_m"], atol=1e-12)
-
-    def T_of(prefix):
-        qq = pairs[[f"{prefix}_q{c}" for c in "xyzw"]].to_numpy(copy=True)
-        return make_T(Rotation.from_quat(qq).as_matrix(), pairs[[f"{prefix}_{c}_m" for c in "xyz"]].to_numpy())
-
-    P_star = pose6_from_T(T_of("wbm")) - pose6_from_T(T_of("wcm"))
-    P_star[:, 3:] = wrap_angle(P_star[:, 3:])
-    got = pairs[[f"vic_{n}" for n in ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")]].to_numpy()
-    np.testing.assert_allclose(got, P_star, atol=1e-9)
-    assert np.all(np.abs(got[:, 3:]) <= np.pi)
-
-
-def test_pairs_block_nearest_within_half_block(clean_session):
-    """block pairs take the nearest 10-sample block (its time within 16.7 ms of the frame's Vicon
-    time), and a block mean equals the SLERP pose at the block time within 0.5 mm / 0.05 deg."""
-    poses, bodies, _ = clean_session
-    lo = block_average_bodies(bodies, 10)
-    pb = build_pairs(poses, lo, DT_OFFSET_S, mode="block")
-    assert len(pb) == len(build_pairs(poses, bodies, DT_OFFSET_S, mode="interp"))
-    t_blk = lo.loc[lo.body == "board", "t_s"].to_numpy()
-    gap = np.abs(pb["t_vicon_s"].to_numpy()[:, None] - t_blk[None])
-    k = np.argmin(gap, axis=1)
-    assert gap[np.arange(len(k)), k].max() <= 0.5 / 30 + 1e-9
-    at_blocks = interpolate_bodies(bodies, t_blk[k])
-    wbm_blk = lo[lo.body == "board"].reset_index(drop=True).loc[k, ["x_m", "y_m", "z_m"]].to_numpy()
-    np.testing.assert_allclose(pb[["wbm_x_m", "wbm_y_m", "wbm_z_m"]].to_numpy(), wbm_blk, atol=1e-12)
-    board_at = at_blocks[at_blocks.body == "board"]
-    d = np.linalg.norm(board_at[["x_m", "y_m", "z_m"]].to_numpy() - wbm_blk, axis=1)
-    assert d.max() < 0.0005  # curvature bias of a 33 ms mean: a T^2 / 24
-    q_blk = lo[lo.body == "board"].reset_index(drop=True).loc[k, ["qx", "qy", "qz", "qw"]].to_numpy(copy=True)
-    q_at = board_at[["qx", "qy", "qz", "qw"]].to_numpy(copy=True)
-    ang = (Rotation.from_quat(q_blk).inv() * Rotation.from_quat(q_at)).magnitude()
-    assert np.degrees(ang).max() < 0.05
 
 
 def test_streams_for_the_figure(session):
@@ -396,7 +244,7 @@ def rendered(tmp_path_factory):
 
     synth = pytest.importorskip("cvsflow.synth.render")
     from cvsflow.io.mocap_formats import read_markers
-    from cvsflow.mocap import fill_marker_gaps
+    from cvsflow.mocap_repair import fill_marker_gaps
 
     cfg_path = Path(__file__).resolve().parents[2] / "config" / "config.yaml"
     session_cfg = copy.deepcopy(yaml.safe_load(cfg_path.read_text())["sessions"]["demo"])
@@ -454,15 +302,3 @@ def test_rendered_session_sync_within_3ms(rendered):
     assert abs(out["dt_offset_s"] - truth["dt_offset_s"]) < 0.002, (out, truth["dt_offset_s"])
     pairs = build_pairs(poses, bodies, out["dt_offset_s"], mode="interp")
     assert len(pairs) == int(frames["in_view"].sum())
-
-
-def test_make_pairs_picks_the_configured_table(clean_session):
-    """make_pairs uses the 30 Hz table for block and the native table for interp."""
-    from cvsflow.align import make_pairs
-
-    poses, bodies, _ = clean_session
-    lo = block_average_bodies(bodies, 10)
-    pd.testing.assert_frame_equal(make_pairs(poses, bodies, lo, DT_OFFSET_S, resample="block"),
-                                  build_pairs(poses, lo, DT_OFFSET_S, mode="block"))
-    pd.testing.assert_frame_equal(make_pairs(poses, bodies, lo, DT_OFFSET_S, resample="interp"),
-                                  build_pairs(poses, bodies, DT_OFFSET_S, mode="interp"))

@@ -1,0 +1,149 @@
+"""The ``cvsflow`` command: calibrate stills, export results, run the workflow, start a session.
+
+One module per subcommand group (``calibrate``, ``export``, ``run``, ``init``, ``handeye``);
+this one builds the parser and dispatches (``main``, the ``cvsflow`` entry point).
+
+Exit codes: 0 success; 1 a cvsflow error (one line on stderr naming the file); 2 a usage error
+(argparse); any other code from ``cvsflow run`` is snakemake's own.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from cvsflow.cli.args import EPILOG, _parse_inner
+from cvsflow.cli.calibrate import cmd_calibrate
+from cvsflow.cli.export import cmd_export_camera, cmd_export_trajectory
+from cvsflow.cli.handeye import _add_handeye_parser
+from cvsflow.cli.init import cmd_init
+from cvsflow.cli.run import cmd_run
+from cvsflow.errors import CvsflowError
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``cvsflow`` command and its subcommands.
+
+    Returns
+    -------
+    argparse.ArgumentParser
+        Subcommands ``calibrate``, ``export camera``, ``export trajectory``, ``run``,
+        ``init``, ``handeye``; each sets ``func`` to its ``cmd_*`` handler (None for ``run``,
+        which :func:`main` handles).
+    """
+    p = argparse.ArgumentParser(
+        prog="cvsflow",
+        description="Webcam + chessboard pose accuracy against Vicon: calibrate, export, run, init.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("-v", "--verbose", action="store_true", help="log progress (INFO) on stderr")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    c = sub.add_parser(
+        "calibrate",
+        help="calibrate a camera from a folder of chessboard stills",
+        description="Calibrate from stills alone (the workflow's calibrate stage); writes "
+        "camera.yaml, calib_corners.parquet and the OpenCV, Kalibr and ROS files into OUT.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    c.add_argument("dir", help="folder of stills (png, jpg, ...)")
+    c.add_argument("--inner", type=_parse_inner, required=True, help="inner corners NXxNY, e.g. 9x6")
+    c.add_argument("--square-m", type=float, required=True, help="square side, metres")
+    c.add_argument("--out", required=True, help="output folder")
+    c.add_argument("--subpix-window-px", type=int, default=11, help="cornerSubPix half window (px)")
+    c.add_argument("--min-images", type=int, default=5, help="fewest stills with a board")
+    c.set_defaults(func=cmd_calibrate)
+
+    e = sub.add_parser("export", help="export a finished run's camera or trajectories")
+    esub = e.add_subparsers(dest="what", required=True, metavar="WHAT")
+    ec = esub.add_parser(
+        "camera",
+        help="camera.yaml as OpenCV FileStorage, Kalibr camchain or ROS camera_info",
+        description="Kalibr's radtan model has no k3: it is dropped; the largest pixel shift "
+        "that causes is written in the file and warned about above 0.1 px.",
+    )
+    ec.add_argument("src", help="results/<session> folder or a camera.yaml")
+    ec.add_argument("--format", choices=("opencv", "kalibr", "ros"), required=True)
+    ec.add_argument("--out", required=True, help="output file")
+    ec.set_defaults(func=cmd_export_camera)
+    et = esub.add_parser(
+        "trajectory",
+        help="CVS and Vicon trajectories of a session as unaligned TUM files, for evo",
+        description="From pairs.parquet, on the video clock (s, m, quaternion xyzw), unaligned: "
+        "cvs_T_C_B.tum (PnP), vicon_T_Cm_Bm.tum (the Vicon, marker bodies) and, when the "
+        "session has an se3 result, vicon_T_C_B.tum = T_Cm_C^-1 T_Cm_Bm T_Bm_B (the Vicon in "
+        "the CVS frames). Compare with `evo_ape tum vicon_T_C_B.tum cvs_T_C_B.tum`, adding "
+        "evo's own -a/-s if wanted; vicon_T_Cm_Bm and cvs_T_C_B differ by transforms on both "
+        "sides, which evo's one-sided alignment cannot remove.",
+    )
+    et.add_argument("results", help="results/<session> folder or its pairs.parquet")
+    et.add_argument("--out-dir", required=True, help="output folder")
+    et.add_argument("--se3", help="se3 result.yaml with the mountings "
+                    "(default: RESULTS/se3/calib/result.yaml if present)")
+    et.set_defaults(func=cmd_export_trajectory)
+
+    r = sub.add_parser(
+        "run",
+        help="run the workflow (snakemake with the workstation profile); other options pass through",
+        description="Runs `python -m snakemake --profile profiles/default [ARGS]` (or "
+        "workflow/profiles/default if the former is absent) in the current folder; every "
+        "argument goes to snakemake unchanged, e.g. `cvsflow run --configfile my.yaml -n`.",
+    )
+    r.set_defaults(func=None)
+
+    i = sub.add_parser(
+        "init",
+        help="write a session config from a recording folder, for you to check",
+        description="Finds the stills folder, the video and the Nexus CSV / C3D export; lists "
+        "the subjects and marker names in the export; tries common inner-corner sizes on the "
+        "first stills; leaves TODO where it cannot know (square_m always) and layout_m out "
+        "(learned from the take). Never overwrites. The file merges with config/config.yaml "
+        "when given to --configfile.",
+    )
+    i.add_argument("dir", help="recording folder")
+    i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml)")
+    i.add_argument("--name", help="session name (default: the folder's name)")
+    i.set_defaults(func=cmd_init)
+    _add_handeye_parser(sub)
+    return p
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``cvsflow`` command; returns the exit code.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after the program name; default ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        0 on success, 1 on a :class:`CvsflowError` (one line ``cvsflow: error: ...`` on
+        stderr), snakemake's code for ``run``; usage errors exit 2 through argparse.
+    """
+    argv = list(sys.argv[1:] if argv is None else argv)
+    # `run` passes everything after it to snakemake, unparsed.
+    if "run" in argv and all(a.startswith("-") for a in argv[: argv.index("run")]):
+        k = argv.index("run")
+        extra = argv[k + 1 :]
+        if extra in (["-h"], ["--help"]):
+            build_parser().parse_args(["run", "--help"])
+        args = build_parser().parse_args(argv[: k + 1])
+        logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+        try:
+            return cmd_run(args, extra)
+        except CvsflowError as exc:
+            print(f"cvsflow: error: {exc}", file=sys.stderr)
+            return 1
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING, format="%(message)s")
+    try:
+        return args.func(args)
+    except CvsflowError as exc:
+        print(f"cvsflow: error: {exc}", file=sys.stderr)
+        return 1
+

@@ -1,0 +1,7 @@
+"""``python -m cvsflow.cli``: the ``cvsflow`` command."""
+
+import sys
+
+from cvsflow.cli import main
+
+sys.exit(main())

@@ -1,0 +1,63 @@
+"""``cvsflow calibrate``: calibrate a camera from a folder of chessboard stills."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from cvsflow.errors import InputError
+
+
+def cmd_calibrate(args) -> int:
+    """``cvsflow calibrate``: calibrate a camera from a folder of chessboard stills.
+
+    Writes ``camera.yaml``, ``calib_corners.parquet`` (docs/contracts.md) and the OpenCV,
+    Kalibr and ROS camera files into ``args.out``, and prints the intrinsics (px) and RMS.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``dir`` (stills folder), ``inner`` ((nx, ny) inner corners), ``square_m`` (square
+        side, m), ``out`` (output folder), ``subpix_window_px``, ``min_images``.
+
+    Returns
+    -------
+    int
+        Exit code, 0 (errors are raised as :class:`CvsflowError` and reported by :func:`main`).
+
+    Raises
+    ------
+    InputError
+        No images in ``dir`` (or an unreadable one).
+    CalibrationError
+        Too few stills with a board, or the calibration failed.
+    """
+    import cv2
+
+    from cvsflow.calibration import calibrate_camera
+    from cvsflow.io import write_parquet, write_yaml
+    from cvsflow.io.camera_formats import write_all_formats
+    from cvsflow.io.media import list_stills, read_gray
+
+    nx, ny = args.inner
+    board = {"squares_x": nx + 1, "squares_y": ny + 1, "square_m": float(args.square_m)}
+    cv2.setNumThreads(1)
+    paths = list_stills(args.dir)
+    if not paths:
+        raise InputError(f"{args.dir}: no images (png, jpg, ...) in the stills folder")
+    images = [(p.name, read_gray(p)) for p in paths]
+    camera, corners = calibrate_camera(
+        images, board, subpix_window_px=args.subpix_window_px, min_images=args.min_images
+    )
+    out = Path(args.out)
+    write_yaml(camera, out / "camera.yaml")
+    write_parquet(corners, out / "calib_corners.parquet")
+    files = write_all_formats(camera, out)
+    K = np.asarray(camera["K"])
+    print(
+        f"calibrated on {camera['n_used']} of {len(paths)} stills: fx {K[0, 0]:.5f} fy {K[1, 1]:.5f} "
+        f"cx {K[0, 2]:.5f} cy {K[1, 2]:.5f} px, RMS {camera['rms_px']:.6f} px"
+    )
+    print(f"wrote {out / 'camera.yaml'}, " + ", ".join(str(p) for p in files.values()))
+    return 0

@@ -1,0 +1,151 @@
+"""``cvsflow export camera`` and ``cvsflow export trajectory``: a finished run's camera and trajectories."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from cvsflow.errors import InputError
+
+
+def _camera_yaml_path(src) -> Path:
+    src = Path(src)
+    path = src / "camera.yaml" if src.is_dir() else src
+    if not path.is_file():
+        raise InputError(f"{path}: camera.yaml not found (give a results/<session> folder or the file)")
+    return path
+
+
+def cmd_export_camera(args) -> int:
+    """``cvsflow export camera``: a camera.yaml as OpenCV, Kalibr or ROS file.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``src`` (a results/<session> folder or a camera.yaml), ``format`` (opencv, kalibr,
+        ros), ``out`` (output file).
+
+    Returns
+    -------
+    int
+        Exit code, 0 (errors are raised as :class:`CvsflowError` and reported by :func:`main`).
+
+    Raises
+    ------
+    InputError
+        No camera.yaml at ``src``, or a malformed one.
+    """
+    from cvsflow.io import read_yaml
+    from cvsflow.io.camera_formats import write_camera_format
+
+    path = _camera_yaml_path(args.src)
+    write_camera_format(read_yaml(path), args.format, args.out)
+    print(f"wrote {args.out} ({args.format}) from {path}")
+    return 0
+
+
+def _tum_frame(t_s, T):
+    """Common trajectory form (``t_s``, ``x_m..z_m``, ``qx..qw``) of (N, 4, 4) transforms."""
+    import pandas as pd
+
+    from cvsflow.transforms import quat_from_R
+
+    q = quat_from_R(T[:, :3, :3]).reshape(-1, 4)
+    d = pd.DataFrame({"t_s": np.asarray(t_s, dtype=float)})
+    for k, a in enumerate("xyz"):
+        d[f"{a}_m"] = T[:, k, 3]
+    for k, a in enumerate(("qx", "qy", "qz", "qw")):
+        d[a] = q[:, k]
+    return d
+
+
+def session_trajectories(pairs, se3_result=None):
+    """The unaligned trajectories of a session, as (N, 4, 4) transforms on the video clock.
+
+    Parameters
+    ----------
+    pairs : DataFrame
+        pairs.parquet (``t_s``, ``cvs_rvec_*``, ``cvs_{x,y,z}_m``, ``cmbm_*``).
+    se3_result : dict, optional
+        The se3 result.yaml: its mountings ``T_Cm_C`` and ``T_Bm_B`` map the Vicon pose into
+        the camera optical and board frames.
+
+    Returns
+    -------
+    dict
+        ``cvs_T_C_B`` (PnP), ``vicon_T_Cm_Bm`` (Vicon, marker bodies) and with ``se3_result``
+        ``vicon_T_C_B`` = T_Cm_C⁻¹ T_Cm_Bm T_Bm_B: the Vicon reference in the frames of the CVS
+        estimate, so that ``evo_ape tum vicon_T_C_B.tum cvs_T_C_B.tum`` compares like with like.
+    """
+    from cvsflow.transforms import R_from_quat, R_from_rvec, invert_T, make_T
+
+    rvec = pairs[["cvs_rvec_0", "cvs_rvec_1", "cvs_rvec_2"]].to_numpy(float)
+    T_C_B = make_T(R_from_rvec(rvec), pairs[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy(float))
+    q = pairs[[f"cmbm_q{a}" for a in "xyzw"]].to_numpy(float)
+    T_Cm_Bm = make_T(R_from_quat(q), pairs[["cmbm_x_m", "cmbm_y_m", "cmbm_z_m"]].to_numpy(float))
+    out = {"cvs_T_C_B": T_C_B.reshape(-1, 4, 4), "vicon_T_Cm_Bm": T_Cm_Bm.reshape(-1, 4, 4)}
+    if se3_result is not None:
+        T_C_Cm = invert_T(np.asarray(se3_result["T_Cm_C"], dtype=float))
+        T_Bm_B = np.asarray(se3_result["T_Bm_B"], dtype=float)
+        out["vicon_T_C_B"] = T_C_Cm @ out["vicon_T_Cm_Bm"] @ T_Bm_B
+    return out
+
+
+def cmd_export_trajectory(args) -> int:
+    """``cvsflow export trajectory``: a session's CVS and Vicon trajectories as TUM files.
+
+    Writes ``cvs_T_C_B.tum``, ``vicon_T_Cm_Bm.tum`` and, when an se3 result.yaml is found,
+    ``vicon_T_C_B.tum`` (see :func:`session_trajectories`): video clock (s), m, scalar-last
+    quaternions, unaligned.
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``results`` (a results/<session> folder or its pairs.parquet), ``out_dir``, ``se3``
+        (a result.yaml, or None for ``RESULTS/se3/calib/result.yaml`` when present).
+
+    Returns
+    -------
+    int
+        Exit code, 0 (errors are raised as :class:`CvsflowError` and reported by :func:`main`).
+
+    Raises
+    ------
+    InputError
+        No pairs.parquet, missing pairs columns, a given ``se3`` file missing, or one without
+        ``T_Cm_C`` and ``T_Bm_B``.
+    """
+    from cvsflow.io import read_parquet, read_yaml
+    from cvsflow.io.flightlog import write_tum
+
+    src = Path(args.results)
+    path = src / "pairs.parquet" if src.is_dir() else src
+    if not path.is_file():
+        raise InputError(f"{path}: pairs.parquet not found (give a finished results/<session> folder)")
+    pairs = read_parquet(path)
+    need = {"t_s", "cvs_rvec_0", "cvs_rvec_1", "cvs_rvec_2", "cvs_x_m", "cvs_y_m", "cvs_z_m",
+            "cmbm_x_m", "cmbm_y_m", "cmbm_z_m", "cmbm_qx", "cmbm_qy", "cmbm_qz", "cmbm_qw"}
+    if not need <= set(pairs.columns):
+        missing = sorted(need - set(pairs.columns))
+        raise InputError(f"{path}: missing columns {missing} (docs/contracts.md, pairs.parquet)")
+    se3_path = Path(args.se3) if args.se3 else path.parent / "se3" / "calib" / "result.yaml"
+    if args.se3 and not se3_path.is_file():
+        raise InputError(f"{se3_path}: se3 result.yaml not found")
+    se3 = read_yaml(se3_path) if se3_path.is_file() else None
+    if se3 is not None and not {"T_Cm_C", "T_Bm_B"} <= set(se3):
+        raise InputError(f"{se3_path}: expected the keys T_Cm_C and T_Bm_B (an se3 result.yaml)")
+    out = Path(args.out_dir)
+    t_s = pairs["t_s"].to_numpy(float)
+    written = []
+    for name, T in session_trajectories(pairs, se3).items():
+        write_tum(_tum_frame(t_s, T), out / f"{name}.tum")
+        written.append(str(out / f"{name}.tum"))
+    print(f"wrote {', '.join(written)} ({len(pairs)} poses each, video clock, unaligned)")
+    if se3 is None:
+        print(f"no {se3_path}: vicon_T_C_B.tum (the Vicon in the CVS frames) not written; the "
+              "two files differ by T_Cm_C and T_Bm_B, which evo's one-sided -a cannot remove")
+    else:
+        print(f"compare: evo_ape tum {out / 'vicon_T_C_B.tum'} {out / 'cvs_T_C_B.tum'} "
+              f"(mountings from {se3_path}; add -a or -s for evo's own alignment)")
+    return 0
