@@ -33,21 +33,11 @@ Objectives (``objective`` argument), all on the translation error matrix E (3 x 
     monotonically and moves fx, fy, as the chapter reports (700 -> 628, 535). Because the
     held ``P_bar`` biases each f step, the descent takes many iterations (the chapter's 50).
 
-Speed. Every candidate re-runs PnP on all frames, so PnP here is a vectorised
-Gauss-Newton over all frames at once (:func:`solve_pnp_batch`) minimising the pixel
-reprojection error with OpenCV's distortion model (the same cost as
-``cv2.solvePnP(..., SOLVEPNP_ITERATIVE)``), warm-started from the poses at the current
-focal lengths moved by their first-order sensitivity to (fx, fy) (implicit-function
-theorem). Undistorting the corners once is not exact: the normalised coordinates
-``((u - cx) / fx, (v - cy) / fy)`` scale with the candidate f *before* the nonlinear
-undistortion, so the undistorted points change with every candidate; the forward model in
-pixels keeps it exact.
-
-All candidates of one grid level are solved as one stack of (candidate, frame) rows, cut
-into cache-sized chunks (:data:`ROWS_PER_CHUNK`) that ``n_workers`` threads share. Every row's
-arithmetic is independent of the others, so neither the stacking, the chunking nor the
-threads change a single bit of the result (bench/bench_seed.py compares the output files'
-sha256 with the per-candidate solver this replaced).
+Speed. Every candidate re-runs PnP on all frames; :mod:`cvsflow.optimise.seed_pnp` solves
+all candidates of one grid level as one stack of (candidate, frame) rows, warm-started from
+the poses at the current focal lengths moved by their first-order sensitivity to (fx, fy).
+Every row's arithmetic is independent of the others, so neither the stacking, the chunking
+nor the ``n_workers`` threads change a single bit of the result.
 """
 
 from __future__ import annotations
@@ -61,8 +51,9 @@ import pandas as pd
 
 from cvsflow.calibration import board_object_points
 from cvsflow.errors import OptimiseError
+from cvsflow.geometry.transforms import R_from_rvec, euler_from_R, wrap_angle
 from cvsflow.optimise import OptimiseResult
-from cvsflow.transforms import R_from_rvec, euler_from_R, rvec_from_R, wrap_angle
+from cvsflow.optimise.seed_pnp import dist5, focal_sensitivity, solve_rows
 
 log = logging.getLogger(__name__)
 
@@ -129,227 +120,6 @@ def corner_array(corners, frames, n_corners, allow_partial=False):
                f"has no complete set of {n_corners} found corners with finite u_px, v_px")
         )
     return uv
-
-
-# --------------------------------------------------------------------------- batched PnP
-
-
-def _skew_exp(omega):
-    """Rotation matrices exp([omega]x) of rotation vectors, (N, 3) -> (N, 3, 3)."""
-    return R_from_rvec(omega)
-
-
-def _project_with_jacobian(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist, want_jac=True):
-    """Distorted pixel projections (N, P, 2) and d(u, v)/d(omega, t) (N, P, 2, 6).
-
-    ``fx``, ``fy`` are scalars or (N, 1) arrays (one focal length per row). Every quantity is
-    computed on contiguous (N, P) arrays and written into J once: strided arithmetic on views
-    of J was most of the seed optimiser's time. The operations and their order are those of
-    the textbook expressions (the same floating-point results).
-    """
-    q = R_C_B @ X_B.T  # R X, (N, 3, P)
-    qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
-    inv_z = 1.0 / (qz + t_C_B[:, 2:3])
-    x = (qx + t_C_B[:, 0:1]) * inv_z
-    y = (qy + t_C_B[:, 1:2]) * inv_z
-    k1, k2, p1, p2, k3 = dist
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    two_p1_x = 2.0 * p1 * x  # shared by xd, yd and the Jacobian (evaluated left to right)
-    two_p2_x = 2.0 * p2 * x
-    xd = x * radial + two_p1_x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + two_p2_x * y
-    uv = np.empty(x.shape + (2,))
-    uv[..., 0] = fx * xd + cx
-    uv[..., 1] = fy * yd + cy
-    if not want_jac:
-        return uv, xd, yd, None
-    dradial_dr2 = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
-    dxd_dx = radial + 2.0 * x * x * dradial_dr2 + 2.0 * p1 * y + 6.0 * p2 * x
-    dxd_dy = 2.0 * x * y * dradial_dr2 + two_p1_x + 2.0 * p2 * y
-    dyd_dx = dxd_dy  # the same expression: d(xd)/dy = d(yd)/dx
-    dyd_dy = radial + 2.0 * y * y * dradial_dr2 + 6.0 * p1 * y + two_p2_x
-    du_dx, du_dy = fx * dxd_dx, fx * dxd_dy
-    dv_dx, dv_dy = fy * dyd_dx, fy * dyd_dy
-    # A = d(u, v)/dp (rows u, v; columns x, y, z of p)
-    a00 = du_dx * inv_z
-    a01 = du_dy * inv_z
-    a02 = -(du_dx * x + du_dy * y) * inv_z
-    a10 = dv_dx * inv_z
-    a11 = dv_dy * inv_z
-    a12 = -(dv_dx * x + dv_dy * y) * inv_z
-    # left perturbation R <- exp([w]x) R: dp/dw = -[q]x, so the row a^T (-[q]x) = (q x a)^T
-    J = np.empty(x.shape + (2, 6))
-    J[..., 0, 0] = qy * a02 - qz * a01
-    J[..., 0, 1] = qz * a00 - qx * a02
-    J[..., 0, 2] = qx * a01 - qy * a00
-    J[..., 0, 3] = a00
-    J[..., 0, 4] = a01
-    J[..., 0, 5] = a02
-    J[..., 1, 0] = qy * a12 - qz * a11
-    J[..., 1, 1] = qz * a10 - qx * a12
-    J[..., 1, 2] = qx * a11 - qy * a10
-    J[..., 1, 3] = a10
-    J[..., 1, 4] = a11
-    J[..., 1, 5] = a12
-    return uv, xd, yd, J
-
-
-def _dist5(dist):
-    """Distortion as (k1, k2, p1, p2, k3); longer models must have zero extra terms."""
-    d = np.zeros(5)
-    dist = np.ravel(np.asarray(dist, dtype=float))
-    if dist.size > 5 and np.any(dist[5:] != 0):
-        raise OptimiseError(
-            f"camera dist: {dist.size} coefficients with nonzero rational/prism terms; the seed "
-            "optimiser supports [k1, k2, p1, p2, k3]"
-        )
-    d[: min(5, dist.size)] = dist[:5]
-    return d
-
-
-def solve_pnp_batch(
-    uv_px, X_B, fx_px, fy_px, cx_px, cy_px, dist, rvec_C_B, tvec_C_B, max_iter=10, tol=1e-10
-):
-    """Least-squares PnP of many frames at once (vectorised Gauss-Newton).
-
-    Parameters
-    ----------
-    uv_px : ndarray, shape (N, P, 2)
-        Observed distorted corner positions, pixels.
-    X_B : ndarray, shape (P, 3)
-        Corner positions in the board frame B, metres.
-    fx_px, fy_px, cx_px, cy_px : float
-        Intrinsics, pixels.
-    dist : array_like, shape (4,) or (5,)
-        OpenCV distortion [k1, k2, p1, p2(, k3)].
-    rvec_C_B, tvec_C_B : ndarray, shape (N, 3)
-        Starting poses of B in C (rad, metres), e.g. the solution at nearby focal lengths.
-    max_iter : int
-        Gauss-Newton iterations at most.
-    tol : float
-        Stop when every frame's update is below this (rad and metres).
-
-    Returns
-    -------
-    rvec_C_B, tvec_C_B : ndarray, shape (N, 3)
-        Poses minimising the summed squared pixel reprojection error (the cost of
-        ``cv2.solvePnP`` with ``SOLVEPNP_ITERATIVE``), rad and metres.
-    n_iter : int
-        Iterations run.
-    """
-    R, t, n_iter = _solve_R_t(
-        uv_px, X_B, fx_px, fy_px, cx_px, cy_px, _dist5(dist),
-        R_from_rvec(rvec_C_B), np.array(tvec_C_B, dtype=float), max_iter, tol,
-    )
-    return rvec_from_R(R), t, n_iter
-
-
-def _solve_R_t(uv_px, X_B, fx, fy, cx, cy, dist5, R, t, max_iter, tol):
-    """Levenberg-Marquardt on (R, t) stacks, each frame damped and stopped on its own.
-
-    ``fx``, ``fy`` are scalars or one value per row (N,), so that many candidate focal
-    lengths are solved in one stack (:func:`_solve_rows`). Returns R (N, 3, 3), t (N, 3) and
-    the iterations run. A row stops when its update is below ``tol`` (rad, metres); only the
-    still active rows are recomputed.
-
-    Every row's arithmetic is independent of the other rows, so a row's result does not
-    depend on which rows share the stack. The projection and Jacobian at the trial pose are
-    kept and reused as the next iteration's linearisation (the same numbers a fresh
-    projection at that pose would give), so each iteration projects once.
-    """
-    R = np.array(R, dtype=float)
-    t = np.array(t, dtype=float)
-    n = uv_px.shape[0]
-    # per-row focal lengths, (N, 1) to broadcast over the corners
-    fxa = np.broadcast_to(np.asarray(fx, dtype=float), (n,))[:, None]
-    fya = np.broadcast_to(np.asarray(fy, dtype=float), (n,))[:, None]
-    # the active rows' state, compacted when rows stop
-    rows = np.arange(n)
-    Ra, ta, obs = R.copy(), t.copy(), np.asarray(uv_px, dtype=float)
-    uva, _, _, Ja = _project_with_jacobian(Ra, ta, X_B, fxa, fya, cx, cy, dist5)
-    costa = np.sum((obs - uva) ** 2, axis=(1, 2))
-    lama = np.full(n, 1e-4)
-    eye6 = np.eye(6)
-    n_iter = 0
-    for n_iter in range(1, max_iter + 1):  # noqa: B007
-        m = rows.size
-        r = (obs - uva).reshape(m, -1, 1)
-        Jf = Ja.reshape(m, -1, 6)
-        JfT = Jf.transpose(0, 2, 1)
-        JtJ = JfT @ Jf
-        Jtr = JfT @ r
-        damp = lama[:, None, None] * (JtJ * eye6)  # Marquardt's diagonal scaling
-        delta = np.linalg.solve(JtJ + damp, Jtr)[..., 0]
-        R_new = _skew_exp(delta[:, :3]) @ Ra
-        t_new = ta + delta[:, 3:]
-        uv_new, _, _, J_new = _project_with_jacobian(R_new, t_new, X_B, fxa, fya, cx, cy, dist5)
-        cost_new = np.sum((obs - uv_new) ** 2, axis=(1, 2))
-        accept = cost_new <= costa
-        reject = ~accept
-        if reject.any():  # rejected rows keep their pose and its linearisation
-            R_new[reject], t_new[reject], cost_new[reject] = Ra[reject], ta[reject], costa[reject]
-            uv_new[reject], J_new[reject] = uva[reject], Ja[reject]
-        Ra, ta, costa, uva, Ja = R_new, t_new, cost_new, uv_new, J_new
-        lama = np.where(accept, np.maximum(lama * 0.1, 1e-9), lama * 10.0)
-        step = np.max(np.abs(delta), axis=1)
-        done = (accept & (step < tol)) | (lama > 1e6)
-        if done.any():
-            R[rows[done]], t[rows[done]] = Ra[done], ta[done]
-            keep = ~done
-            rows, Ra, ta, costa, uva, Ja = rows[keep], Ra[keep], ta[keep], costa[keep], uva[keep], Ja[keep]
-            obs, fxa, fya, lama = obs[keep], fxa[keep], fya[keep], lama[keep]
-            if rows.size == 0:
-                break
-    R[rows], t[rows] = Ra, ta  # rows still active after max_iter keep their last accepted pose
-    return R, t, n_iter
-
-
-#: Rows (candidate x frame) per stack of :func:`_solve_rows`: bounds the memory of one
-#: stack (about 10 kB per row for a 20-corner board) while keeping numpy's per-call
-#: overhead small.
-ROWS_PER_CHUNK = 1024
-
-
-def _solve_rows(uv_px, frame_of_row, X_B, fx_rows, fy_rows, cx, cy, dist5, R, t, max_iter, tol,
-                pool=None, n_workers=1, rows_per_chunk=None):
-    """:func:`_solve_R_t` of many (candidate, frame) rows, in chunks, on a thread pool if given.
-
-    Row i solves frame ``frame_of_row[i]`` (an index into ``uv_px``, (N_frames, P, 2)) at
-    focal lengths ``fx_rows[i], fy_rows[i]`` from the pose ``R[i], t[i]``. Rows are
-    independent (see :func:`_solve_R_t`), so the chunking does not change a result.
-    Returns R (M, 3, 3) and t (M, 3).
-    """
-    n = frame_of_row.size
-    rows_per_chunk = ROWS_PER_CHUNK if rows_per_chunk is None else rows_per_chunk
-    n_chunks = max(int(n_workers) if pool is not None else 1, -(-n // int(rows_per_chunk)))
-    n_chunks = max(1, min(n_chunks, n))
-    bounds = np.linspace(0, n, n_chunks + 1).astype(int)
-
-    def work(i):
-        s = slice(bounds[i], bounds[i + 1])
-        return _solve_R_t(uv_px[frame_of_row[s]], X_B, fx_rows[s], fy_rows[s], cx, cy, dist5,
-                          R[s], t[s], max_iter, tol)[:2]
-
-    if pool is not None and n_chunks > 1:
-        parts = list(pool.map(work, range(n_chunks)))
-    else:
-        parts = [work(i) for i in range(n_chunks)]
-    return np.concatenate([q[0] for q in parts]), np.concatenate([q[1] for q in parts])
-
-
-def _focal_sensitivity(uv_px, X_B, fx, fy, cx, cy, dist5, R, t):
-    """d(omega, t)/d(fx, fy) at a PnP optimum, (N, 6, 2), by the implicit-function theorem."""
-    _, xd, yd, J = _project_with_jacobian(R, t, X_B, fx, fy, cx, cy, dist5)
-    n = uv_px.shape[0]
-    Jf = J.reshape(n, -1, 6)
-    dproj_df = np.zeros(J.shape[:2] + (2, 2))
-    dproj_df[..., 0, 0] = xd  # du/dfx
-    dproj_df[..., 1, 1] = yd  # dv/dfy
-    dproj_df = dproj_df.reshape(n, -1, 2)
-    JtJ = np.einsum("nki,nkj->nij", Jf, Jf)
-    Jtd = np.einsum("nki,nkj->nij", Jf, dproj_df)
-    return -np.linalg.solve(JtJ, Jtd)
 
 
 # --------------------------------------------------------------------------- eqs. 1.10-1.12
@@ -621,7 +391,7 @@ def optimise_seed(
     K = np.asarray(K, dtype=float)
     if K.shape != (3, 3):
         raise OptimiseError(f"camera K: shape {K.shape}, expected (3, 3)")
-    dist5 = _dist5(dist)
+    d5 = dist5(dist)
     cx, cy = float(K[0, 2]), float(K[1, 2])
     if f_init_px is None:
         f = np.array([K[0, 0], K[1, 1]], dtype=float)
@@ -663,9 +433,9 @@ def optimise_seed(
     def solve(cands, R_start, t_start_):
         """Poses of every frame at every candidate (fx, fy): one batched solve of all rows."""
         cands = np.asarray(cands, dtype=float).reshape(-1, 2)
-        Rc, tc = _solve_rows(uv, np.tile(np.arange(n_frames), len(cands)), X_B,
+        Rc, tc = solve_rows(uv, np.tile(np.arange(n_frames), len(cands)), X_B,
                              np.repeat(cands[:, 0], n_frames), np.repeat(cands[:, 1], n_frames),
-                             cx, cy, dist5, R_start, t_start_, gn_max_iter, gn_tol,
+                             cx, cy, d5, R_start, t_start_, gn_max_iter, gn_tol,
                              pool=pool, n_workers=n_workers)
         return Rc.reshape(len(cands), n_frames, 3, 3), tc.reshape(len(cands), n_frames, 3)
 
@@ -706,7 +476,7 @@ def optimise_seed(
                 rows.append(row)
                 continue
             tg = time.perf_counter()
-            dtheta_df = _focal_sensitivity(uv, X_B, f[0], f[1], cx, cy, dist5, R, t)
+            dtheta_df = focal_sensitivity(uv, X_B, f[0], f[1], cx, cy, d5, R, t)
             target = P_star[:, :3] + P_bar[:3]
 
             def score(cands, R=R, t=t, dtheta_df=dtheta_df, target=target, f_now=f.copy()):
@@ -719,7 +489,7 @@ def optimise_seed(
                         out[i] = (objective_value(t - target, objective), R, t)
                     else:
                         step = dtheta_df @ df  # first-order warm start, (N, 6)
-                        moved.append((i, _skew_exp(step[:, :3]) @ R, t + step[:, 3:]))
+                        moved.append((i, R_from_rvec(step[:, :3]) @ R, t + step[:, 3:]))
                 if moved:
                     Rc, tc = solve([cands[i] for i, _, _ in moved],
                                    np.concatenate([m[1] for m in moved]),

@@ -1,5 +1,7 @@
 """Tests of cvsflow.optimise.seed: the chapter's focal-length and offset optimiser."""
 
+from concurrent.futures import ThreadPoolExecutor
+
 import cv2
 import numpy as np
 import pandas as pd
@@ -14,9 +16,17 @@ from cvsflow.optimise.seed import (
     normalised_error_norm,
     objective_value,
     optimise_seed,
-    solve_pnp_batch,
 )
-from cvsflow.transforms import T_from_pose6, rvec_tvec_from_T
+from cvsflow.optimise.seed_pnp import (
+    _jacobian,
+    _project,
+    _project_with_jacobian,
+    _solve_R_t,
+    dist5,
+    solve_pnp_batch,
+    solve_rows,
+)
+from cvsflow.transforms import R_from_rvec, T_from_pose6, rvec_tvec_from_T
 
 BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
 DIST = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02])
@@ -84,31 +94,81 @@ def test_solve_pnp_batch_matches_opencv():
 def test_batched_candidates_equal_one_solve_per_candidate_bit_for_bit():
     """Stacking candidates, cutting the stack into chunks and threads change no bit of a pose.
 
-    optimise_seed solves all candidates of a grid level in one stack (_solve_rows); its
+    optimise_seed solves all candidates of a grid level in one stack (solve_rows); its
     outputs are only reproducible if a row's result does not depend on its neighbours.
     """
-    from concurrent.futures import ThreadPoolExecutor
-
-    from cvsflow.optimise.seed import _dist5, _solve_R_t, _solve_rows
-    from cvsflow.transforms import R_from_rvec
-
     _, _, _, _, uv, rvec, tvec = _session(40, seed=5)
     X_B = board_object_points(BOARD)
     cands = np.array([[690.0, 712.0], [700.0, 700.0], [640.0, 760.0]])
     n = len(uv)
-    R0, d5 = R_from_rvec(rvec), _dist5(DIST)
+    R0, d5 = R_from_rvec(rvec), dist5(DIST)
     one = [_solve_R_t(uv, X_B, fx, fy, 320.0, 240.0, d5, R0, tvec, 10, 1e-6)[:2]
            for fx, fy in cands]
     rows = np.tile(np.arange(n), len(cands))
     with ThreadPoolExecutor(2) as pool:
-        R, t = _solve_rows(uv, rows, X_B, np.repeat(cands[:, 0], n), np.repeat(cands[:, 1], n),
-                           320.0, 240.0, d5, np.tile(R0, (3, 1, 1)), np.tile(tvec, (3, 1)), 10,
-                           1e-6, pool=pool, n_workers=2, rows_per_chunk=7)
+        R, t = solve_rows(uv, rows, X_B, np.repeat(cands[:, 0], n), np.repeat(cands[:, 1], n),
+                          320.0, 240.0, d5, np.tile(R0, (3, 1, 1)), np.tile(tvec, (3, 1)), 10,
+                          1e-6, pool=pool, n_workers=2, rows_per_chunk=7)
     for k, (R_k, t_k) in enumerate(one):
         assert R[k * n:(k + 1) * n].tobytes() == R_k.tobytes()
         assert t[k * n:(k + 1) * n].tobytes() == t_k.tobytes()
     # and the candidates did move the poses (the comparison is not between start values)
     assert not np.array_equal(one[0][1], one[2][1])
+
+
+def _textbook_projection(R, t, X_B, fx, fy, cx, cy, dist):
+    """The projection and Jacobian written as plain expressions (one temporary per operation)."""
+    q = R @ X_B.T
+    qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
+    inv_z = 1.0 / (qz + t[:, 2:3])
+    x = (qx + t[:, 0:1]) * inv_z
+    y = (qy + t[:, 1:2]) * inv_z
+    k1, k2, p1, p2, k3 = dist
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    two_p1_x, two_p2_x = 2.0 * p1 * x, 2.0 * p2 * x
+    xd = x * radial + two_p1_x * y + p2 * (r2 + 2.0 * x * x)
+    yd = y * radial + p1 * (r2 + 2.0 * y * y) + two_p2_x * y
+    uv = np.stack([fx * xd + cx, fy * yd + cy], axis=-1)
+    dr = k1 + r2 * (2.0 * k2 + 3.0 * k3 * r2)
+    dxd_dx = radial + 2.0 * x * x * dr + 2.0 * p1 * y + 6.0 * p2 * x
+    dxd_dy = 2.0 * x * y * dr + two_p1_x + 2.0 * p2 * y
+    dyd_dy = radial + 2.0 * y * y * dr + 6.0 * p1 * y + two_p2_x
+    J = np.empty(x.shape + (2, 6))
+    for row, (du_dx, du_dy) in enumerate(((fx * dxd_dx, fx * dxd_dy), (fy * dxd_dy, fy * dyd_dy))):
+        a0, a1, a2 = du_dx * inv_z, du_dy * inv_z, -(du_dx * x + du_dy * y) * inv_z
+        J[..., row, :] = np.stack([qy * a2 - qz * a1, qz * a0 - qx * a2, qx * a1 - qy * a0,
+                                   a0, a1, a2], axis=-1)
+    return uv, xd, yd, J
+
+
+def test_projection_and_jacobian_equal_the_textbook_expressions_bit_for_bit():
+    """The buffered projection and Jacobian (out= arithmetic) equal the plain expressions in
+    every bit, against finite differences too; the Jacobian of a row subset is that subset."""
+    _, _, _, _, uv_obs, rvec, tvec = _session(30, seed=7)
+    X_B = board_object_points(BOARD)
+    rng = np.random.default_rng(8)
+    R = R_from_rvec(rvec)
+    fx, fy = rng.uniform(600, 800, (30, 1)), rng.uniform(600, 800, (30, 1))
+    d5 = dist5(DIST)
+    got = _project_with_jacobian(R, tvec, X_B, fx, fy, 320.0, 240.0, d5)
+    want = _textbook_projection(R, tvec, X_B, fx, fy, 320.0, 240.0, d5)
+    for g, w in zip(got, want, strict=True):
+        assert g.shape == w.shape and g.tobytes() == w.tobytes()
+    at_truth = _project(R, tvec, X_B, 700.0, 700.0, 320.0, 240.0, d5)[0]
+    np.testing.assert_allclose(at_truth, uv_obs, atol=1.5)  # 0.2 px noise: it projects these frames
+    sub = rng.random(30) < 0.5
+    _, _, _, parts = _project(R, tvec, X_B, fx, fy, 320.0, 240.0, d5)
+    J_sub = _jacobian([v[sub] for v in parts], fx[sub], fy[sub], d5)
+    assert J_sub.tobytes() == got[3][sub].tobytes()
+    # d(u, v)/dt by central differences: the Jacobian is a derivative, not only self-consistent
+    h = 1e-7
+    for k in range(3):
+        dt = np.zeros(3)
+        dt[k] = h
+        up = _project(R, tvec + dt, X_B, fx, fy, 320.0, 240.0, d5)[0]
+        dn = _project(R, tvec - dt, X_B, fx, fy, 320.0, 240.0, d5)[0]
+        np.testing.assert_allclose(got[3][..., 3 + k], (up - dn) / (2 * h), rtol=1e-5, atol=1e-3)
 
 
 def test_p_bar_and_eps_by_hand():
