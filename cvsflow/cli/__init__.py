@@ -1,7 +1,7 @@
 """The ``cvsflow`` command: calibrate stills, export results, run the workflow, start a session.
 
-One module per subcommand group (``calibrate``, ``export``, ``run``, ``init``, ``handeye``);
-this one builds the parser and dispatches (``main``, the ``cvsflow`` entry point).
+One module per subcommand group (``calibrate``, ``rig`` (calibrate-rig), ``export``, ``run``,
+``init``, ``handeye``); this one builds the parser and dispatches (``main``, the ``cvsflow`` entry point).
 
 Exit codes: 0 success; 1 a cvsflow error (one line on stderr naming the file); 2 a usage error
 (argparse); any other code from ``cvsflow run`` is snakemake's own.
@@ -18,6 +18,7 @@ from cvsflow.cli.calibrate import cmd_calibrate
 from cvsflow.cli.export import cmd_export_camera, cmd_export_trajectory
 from cvsflow.cli.handeye import _add_handeye_parser
 from cvsflow.cli.init import cmd_init
+from cvsflow.cli.rig import cmd_calibrate_rig
 from cvsflow.cli.run import cmd_run
 from cvsflow.errors import CvsflowError
 
@@ -28,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
     Returns
     -------
     argparse.ArgumentParser
-        Subcommands ``calibrate``, ``export camera``, ``export trajectory``, ``run``,
+        Subcommands ``calibrate``, ``calibrate-rig``, ``export camera``, ``export trajectory``, ``run``,
         ``init``, ``handeye``; each sets ``func`` to its ``cmd_*`` handler (None for ``run``,
         which :func:`main` handles).
     """
@@ -56,6 +57,25 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--subpix-window-px", type=int, default=11, help="cornerSubPix half window (px)")
     c.add_argument("--min-images", type=int, default=5, help="fewest stills with a board")
     c.set_defaults(func=cmd_calibrate)
+
+    cr = sub.add_parser(
+        "calibrate-rig",
+        help="calibrate two or more fixed cameras and their relative poses",
+        description="Each camera from its folder of stills, then every camera's pose from camera "
+        "0 from the stills they took together (the same file name in each folder); writes "
+        "cam<i>/ (as calibrate), rig.yaml (T_Ci_C0 with standard errors) and a Kalibr camchain.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    cr.add_argument("dirs", nargs="+", help="one stills folder per camera, camera 0 first")
+    cr.add_argument("--inner", type=_parse_inner, required=True, help="inner corners NXxNY, e.g. 9x6")
+    cr.add_argument("--square-m", type=float, required=True, help="square side, metres")
+    cr.add_argument("--out", required=True, help="output folder")
+    cr.add_argument("--subpix-window-px", type=int, default=11, help="cornerSubPix half window (px)")
+    cr.add_argument("--min-images", type=int, default=5, help="fewest stills with a board per camera")
+    cr.add_argument("--min-shared-views", type=int, default=3,
+                    help="fewest stills each camera must share with camera 0")
+    cr.set_defaults(func=cmd_calibrate_rig)
 
     e = sub.add_parser("export", help="export a finished run's camera or trajectories")
     esub = e.add_subparsers(dest="what", required=True, metavar="WHAT")

@@ -1,5 +1,6 @@
 """The `cvsflow` command: real stills, exports, init, run, exit codes and one-line errors."""
 
+import copy
 from pathlib import Path
 
 import cv2
@@ -10,7 +11,9 @@ import yaml
 
 from cvsflow import cli
 from cvsflow.cli import run as cli_run
+from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T
 from cvsflow.io import write_parquet, write_yaml
+from cvsflow.synth.stereo import render_shared_stills
 
 REAL = Path("/work/shared/data/real/opencv-chessboard")
 
@@ -257,3 +260,31 @@ def test_readme_session_config_validates_merged_with_the_demo_config():
     assert {"calibrate", "poses", "vicon", "pairs"} <= set(stages["lab1"])
     lab1 = config["sessions"]["lab1"]
     assert lab1["board"]["squares_x"] == 6 and len(lab1["markers"]["camera"]["layout_m"]) == 4
+
+
+def test_calibrate_rig_from_rendered_stereo_stills(tmp_path, capsys):
+    cfg0 = yaml.safe_load((Path(__file__).resolve().parents[2] / "config" / "config.yaml").read_text())
+    cfg0 = cfg0["sessions"]["demo"]
+    cfg1 = copy.deepcopy(cfg0)
+    cfg1["synth"]["camera"].update(fx_px=760.0, fy_px=757.0, cx_px=318.0, cy_px=236.0)
+    T_C1_C0 = invert_T(make_T(R_from_euler([0.0, -0.2, 0.0]), [0.6, 0.0, 0.0]))
+    stills, _ = render_shared_stills([cfg0, cfg1], [np.eye(4), T_C1_C0], 12, seed=3)
+    for c, cam_stills in enumerate(stills):
+        (tmp_path / f"cam{c}").mkdir()
+        for name, img in cam_stills:
+            cv2.imwrite(str(tmp_path / f"cam{c}" / name), img)
+    out = tmp_path / "rig"
+    assert cli.main(["calibrate-rig", str(tmp_path / "cam0"), str(tmp_path / "cam1"), "--inner", "5x4",
+                     "--square-m", "0.09", "--out", str(out)]) == 0
+    assert "baseline 0.6" in capsys.readouterr().out
+    rig = yaml.safe_load((out / "rig.yaml").read_text())
+    cam1 = rig["cameras"][1]
+    assert abs(cam1["baseline_m"] - 0.6) < 4 * cam1["baseline_std_m"] < 0.01
+    assert np.allclose(np.array(cam1["T_Ci_C0"])[:3, 3], T_C1_C0[:3, 3], atol=0.01)
+    chain = yaml.safe_load((out / "camchain.yaml").read_text())
+    assert np.allclose(chain["cam1"]["T_cn_cnm1"], cam1["T_Ci_C0"])
+    assert (out / "cam1" / "camera.yaml").is_file() and (out / "cam0" / "calib_corners.parquet").is_file()
+    # one folder is not a rig: one line on stderr, exit 1
+    assert cli.main(["calibrate-rig", str(tmp_path / "cam0"), "--inner", "5x4", "--square-m", "0.09",
+                     "--out", str(out)]) == 1
+    assert "two or more" in capsys.readouterr().err
