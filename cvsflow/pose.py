@@ -24,6 +24,7 @@ from __future__ import annotations
 import collections
 import functools
 import logging
+import math
 import time
 from collections.abc import Iterable
 
@@ -113,7 +114,8 @@ MIN_GRID_DEVIATION_PX = 1.0
 
 def _median(values: np.ndarray) -> float:
     """np.median of an array (same value), without its overhead (~10x on ~100 values)."""
-    s = np.sort(values, axis=None)
+    s = np.asarray(values).flatten()  # np.sort(values, axis=None) without its wrapper
+    s.sort()
     n = len(s)
     return float(0.5 * (s[(n - 1) // 2] + s[n // 2]))
 
@@ -142,7 +144,8 @@ def _pair_distances(corners_px: np.ndarray, board: dict) -> np.ndarray:
     a, b = _neighbour_pairs(*board_pattern(board))[:2]
     uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
     e = uv[b] - uv[a]
-    return np.sqrt((e * e).sum(axis=-1))
+    ex, ey = e[:, 0], e[:, 1]
+    return np.sqrt(ex * ex + ey * ey)  # (e * e).sum(axis=-1): the same two-term sums
 
 
 def _neighbour_distances(corners_px: np.ndarray, board: dict) -> np.ndarray:
@@ -166,9 +169,13 @@ def local_spacing(corners_px: np.ndarray, board: dict) -> np.ndarray:
         Mean distance to the up to four neighbours one grid step away, pixels; the median
         over the grid where a corner has no known neighbour.
     """
+    return _spacing_from_pairs(_pair_distances(corners_px, board), board)
+
+
+def _spacing_from_pairs(d: np.ndarray, board: dict) -> np.ndarray:
+    """``local_spacing`` from the corners' ``_pair_distances``."""
     nx, ny = board_pattern(board)
     _, _, nr, scatter, count = _neighbour_pairs(nx, ny)
-    d = _pair_distances(corners_px, board)
     both = np.concatenate([d[:nr], d[:nr], d[nr:], d[nr:]])
     ok = np.isfinite(both)
     if ok.all():
@@ -227,8 +234,10 @@ def _clip_into(points_px: np.ndarray, gray: np.ndarray) -> np.ndarray | None:
     if not np.isfinite(pts).all():
         return None
     h, w = gray.shape[:2]
-    pts = np.column_stack([np.clip(pts[:, 0], 0.0, w - 1.001), np.clip(pts[:, 1], 0.0, h - 1.001)])
-    return np.ascontiguousarray(pts, dtype=np.float32).reshape(-1, 1, 2)
+    # np.clip's bounds per column (finite points: the same values), straight into float32.
+    out = np.empty((len(pts), 1, 2), np.float32)
+    np.minimum(np.maximum(pts, 0.0), (w - 1.001, h - 1.001), out=out[:, 0, :], casting="same_kind")
+    return out
 
 
 def _subpix(gray: np.ndarray, points_px: np.ndarray, w: int) -> np.ndarray | None:
@@ -262,20 +271,25 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     """
     nx, ny = board_pattern(board)
     uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
-    known = np.isfinite(uv).all(axis=1)  # NaN corners (dropped, hidden) predict nothing
-    all_known = bool(known.all())
+    # NaN corners (dropped, hidden) predict nothing.
+    finite = np.isfinite(uv)
+    known = finite[:, 0] & finite[:, 1]
+    n_known = int(np.count_nonzero(known))
+    all_known = n_known == len(known)
     if all_known:
-        weights, xy1, mono, a_inv_x, det_a = _deviation_constants(nx, ny)
+        weights, xy1, mono, a_inv_x, enough = _deviation_constants(nx, ny)
     else:
-        weights, xy1, mono, a_inv_x, det_a = _deviation_constants_known(nx, ny,
-                                                                         known.tobytes())
+        weights, xy1, mono, a_inv_x, enough = _deviation_constants_known(nx, ny,
+                                                                          known.tobytes())
         uv = np.where(known[:, None], uv, 0.0)
-    # Conditioning as in Hartley's normalised DLT: centre and scale the pixels.
-    if known.any():
+    # Conditioning as in Hartley's normalised DLT: centre and scale the pixels. (The means
+    # are np.mean's: its sums divided by the count, without its wrapper.)
+    if n_known:
         seen = uv if all_known else uv[known]
-        centre = seen.mean(axis=0)
+        centre = np.add.reduce(seen, axis=0) / n_known
         d = seen - centre
-        scale = np.sqrt(2.0) / max(np.sqrt((d * d).sum(axis=1)).mean(), 1e-9)
+        dx, dy = d[:, 0], d[:, 1]
+        scale = _SQRT2 / max(np.add.reduce(np.sqrt(dx * dx + dy * dy)) / n_known, 1e-9)
     else:
         centre, scale = np.zeros(2), 1.0
     u, v = ((uv - centre) * scale).T
@@ -301,22 +315,29 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     M = S - (UVA @ UV).sum(axis=1)
     m = M[:, :2].reshape(n, 6)
     m00, m01, m02, m10, m11, m12 = m.T
-    det_m = m00 * m11 - m01 * m10
+    m00m11, m01m10 = m00 * m11, m01 * m10
+    det_m = m00m11 - m01m10
     # No prediction with fewer than four neighbours, or neighbours on a line (A singular), or
     # three of four on a line (M's 2x2 singular up to rounding: the homography is not fixed).
-    well_posed = np.abs(det_m) > 1e-9 * (np.abs(m00 * m11) + np.abs(m01 * m10))
-    enough = (weights.sum(axis=1) >= 4) & (det_a != 0) & well_posed
+    well_posed = np.abs(det_m) > 1e-9 * (np.abs(m00m11) + np.abs(m01m10))
     with np.errstate(divide="ignore", invalid="ignore"):
-        h3 = np.stack([m01 * m12 - m11 * m02, m10 * m02 - m00 * m12, det_m], axis=1)
+        h3 = np.empty((n, 3))  # np.stack of the three columns
+        np.subtract(m01 * m12, m11 * m02, out=h3[:, 0])
+        np.subtract(m10 * m02, m00 * m12, out=h3[:, 1])
+        h3[:, 2] = det_m
         # The prediction at X_k: (X_k' A^-1 U h3, X_k' A^-1 V h3) / (X_k' h3), h3 scaled by
         # det M (it cancels).
         puv = ((UV @ h3[:, None, :, None])[..., 0] * a_inv_x[:, None, :, 3]).sum(axis=2)
         predicted = puv / (xy1 * h3).sum(axis=1)[:, None] / scale + centre
     d = predicted - uv
-    deviation = np.sqrt((d * d).sum(axis=1))
+    dx, dy = d[:, 0], d[:, 1]
+    deviation = np.sqrt(dx * dx + dy * dy)
     # Fewer than four known neighbours leave the homography undetermined.
-    ok = np.isfinite(deviation) & known & enough
+    ok = np.isfinite(deviation) & known & enough & well_posed
     return predicted, np.where(ok, deviation, np.inf)
+
+
+_SQRT2 = np.sqrt(2.0)
 
 
 def _grid_moment_inverse(a_flat: np.ndarray, xy1: np.ndarray):
@@ -339,13 +360,15 @@ def _grid_moment_inverse(a_flat: np.ndarray, xy1: np.ndarray):
 def _deviation_constants(nx: int, ny: int):
     """``grid_deviation``'s constants: neighbour weights (N, N), grid points (N, 3), their
     X X' (N, 9), and for every corner known the grid moments' inverse with A^-1 X_k (N, 3, 4)
-    and determinant (N,)."""
+    and whether the grid alone allows a prediction (N,) bool: at least four neighbours, not
+    on a line (det A != 0)."""
     xy1, mono = _grid_monomials(nx, ny)
     weights = _neighbour_weights(nx, ny)
     a_inv_x, det = _grid_moment_inverse(weights @ mono, xy1)
-    for arr in (a_inv_x, det):
+    enough = (weights.sum(axis=1) >= 4) & (det != 0)
+    for arr in (a_inv_x, enough):
         arr.flags.writeable = False  # cached: shared by every call
-    return weights, xy1, mono, a_inv_x, det
+    return weights, xy1, mono, a_inv_x, enough
 
 
 @functools.lru_cache(maxsize=64)
@@ -357,9 +380,10 @@ def _deviation_constants_known(nx: int, ny: int, known_bytes: bytes):
     known = np.frombuffer(known_bytes, dtype=bool)
     weights = weights * known[None, :]
     a_inv_x, det = _grid_moment_inverse(weights @ mono, xy1)
-    for arr in (weights, a_inv_x, det):
+    enough = (weights.sum(axis=1) >= 4) & (det != 0)
+    for arr in (weights, a_inv_x, enough):
         arr.flags.writeable = False  # cached: shared by every call
-    return weights, xy1, mono, a_inv_x, det
+    return weights, xy1, mono, a_inv_x, enough
 
 
 def keep_consistent_corners(corners_px: np.ndarray, board: dict,
@@ -391,7 +415,8 @@ def _keep_consistent(corners_px, board, max_grid_deviation, limit=None, deviatio
     if limit is None:
         limit = deviation_limit_px(out, board, max_grid_deviation)
     for _ in range(len(out)):
-        known = np.isfinite(out).all(axis=1)
+        finite = np.isfinite(out)
+        known = finite[:, 0] & finite[:, 1]
         if not known.any():
             break
         if deviation is None:
@@ -399,14 +424,13 @@ def _keep_consistent(corners_px, board, max_grid_deviation, limit=None, deviatio
         else:
             dev, deviation = deviation, None
         excess = np.where(known, dev / limit, 0.0)
-        if excess.max() <= 1.0:
+        if np.maximum.reduce(excess) <= 1.0:
             break
         # Drop each corner that is the worst among its grid neighbours (a misplaced corner
         # pulls its neighbours' predictions too, so only the local worst is dropped; corners
         # far apart go in the same pass).
-        nx, ny = board_pattern(board)
-        weights = _neighbour_weights(nx, ny)
-        neighbour_max = np.max(np.where(weights > 0, excess[None, :], 0.0), axis=1)
+        near = _neighbour_mask(*board_pattern(board))
+        neighbour_max = np.maximum.reduce(np.where(near, excess[None, :], 0.0), axis=1)
         worst = (excess > 1.0) & (excess >= neighbour_max)
         out[worst] = np.nan
     return out
@@ -421,6 +445,14 @@ def _grid_monomials(nx: int, ny: int) -> tuple[np.ndarray, np.ndarray]:
     for a in (xy1, mono):
         a.flags.writeable = False  # cached: shared by every call
     return xy1, mono
+
+
+@functools.lru_cache(maxsize=16)
+def _neighbour_mask(nx: int, ny: int) -> np.ndarray:
+    """``_neighbour_weights > 0``, (N, N) bool."""
+    near = _neighbour_weights(nx, ny) > 0
+    near.flags.writeable = False  # cached: shared by every call
+    return near
 
 
 @functools.lru_cache(maxsize=16)
@@ -558,10 +590,14 @@ def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviatio
         return None, None
     corners = first.copy()
     predicted, deviation = grid_deviation(corners, board)
-    limit = deviation_limit_px(corners, board, max_grid_deviation)
+    # deviation_limit_px, with the neighbour distances kept for _refine_for_blur.
+    pairs = _pair_distances(corners, board)
+    limit = np.maximum(MIN_GRID_DEVIATION_PX,
+                       max_grid_deviation * _spacing_from_pairs(pairs, board))
     first = (first, limit, deviation)
     bad = deviation > limit
     if bad.any():
+        pairs = None  # the corners change
         if no_retry is not None and (bad & no_retry).any():
             return None, first
         retry = _subpix(gray, predicted[bad], w)
@@ -571,7 +607,7 @@ def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviatio
         _, deviation = grid_deviation(corners, board)
         if (deviation > limit).any():
             return None, first
-    return _refine_for_blur(gray, corners, board, w, limit), first
+    return _refine_for_blur(gray, corners, board, w, limit, pairs), first
 
 
 def edge_blur_px(gray: np.ndarray, corners_px: np.ndarray, board: dict) -> float:
@@ -598,7 +634,8 @@ def edge_blur_px(gray: np.ndarray, corners_px: np.ndarray, board: dict) -> float
     p0 = np.concatenate([g[:, :-1].reshape(-1, 2), g[:-1].reshape(-1, 2)])
     p1 = np.concatenate([g[:, 1:].reshape(-1, 2), g[1:].reshape(-1, 2)])
     d = p1 - p0
-    length = np.sqrt((d * d).sum(axis=1))
+    dx, dy = d[:, 0], d[:, 1]
+    length = np.sqrt(dx * dx + dy * dy)
     ok = np.isfinite(length) & (length > 4.0)
     if not ok.any():
         return 0.0
@@ -609,18 +646,21 @@ def edge_blur_px(gray: np.ndarray, corners_px: np.ndarray, board: dict) -> float
     pts = (mid[:, None, :] + s[None, :, None] * normal[:, None, :]).astype(np.float32)
     prof = cv2.remap(gray, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
-    step = np.abs(prof[:, -3:].mean(axis=1) - prof[:, :3].mean(axis=1))
-    slope = np.abs(np.diff(prof, axis=1)).max(axis=1) / 0.5
+    # (np.mean and ndarray.max as their reductions, without the wrappers: the same values.)
+    step = np.abs(np.add.reduce(prof[:, -3:], axis=1) / 3 - np.add.reduce(prof[:, :3], axis=1) / 3)
+    slope = np.maximum.reduce(np.abs(prof[:, 1:] - prof[:, :-1]), axis=1) / 0.5
     use = (step >= BLUR_MIN_EDGE_CONTRAST) & (slope > 0)
     if not use.any():
         return 0.0
     return _median(step[use] / (np.sqrt(2.0 * np.pi) * slope[use]))
 
 
-def _refine_for_blur(gray, corners, board, w, limit):
+def _refine_for_blur(gray, corners, board, w, limit, pairs=None):
     """Corners refined again with a window that covers the blur (``BLUR_WINDOW_SIGMAS``), when
-    the first window was smaller and the result still agrees with its neighbours; else as given."""
-    d = _neighbour_distances(corners, board)
+    the first window was smaller and the result still agrees with its neighbours; else as given.
+    ``pairs``: the corners' ``_pair_distances`` where the caller has them."""
+    d = _pair_distances(corners, board) if pairs is None else pairs
+    d = d[np.isfinite(d)]
     if not len(d):
         return corners.astype(np.float64)
     cap = int(min(BLUR_WINDOW_MAX_FRAC * _median(d), np.floor((d.min() - 1.0) / 2.0)))
@@ -672,12 +712,13 @@ def _track_scales(corners_px: np.ndarray, board: dict, shape: tuple[int, int]) -
     # Optical flow runs on the image shrunk by 2 ** lk_shrink, so that squares keep at least
     # LK_MIN_SQUARE_PX: its cost grows with the window's area, and the flow only has to land
     # within cornerSubPix's window (refined at full size afterwards).
-    shrink = int(np.clip(np.floor(np.log2(max(spacing, 1.0) / LK_MIN_SQUARE_PX)), 0,
-                         LK_MAX_SHRINK))
+    # (np.clip and np.floor as Python's min, max and math.floor: the same integer.)
+    shrink = min(max(math.floor(float(np.log2(max(spacing, 1.0) / LK_MIN_SQUARE_PX))), 0),
+                 LK_MAX_SHRINK)
     lk = int(min(LK_WINDOW_MAX_PX, max(LK_WINDOW_PX if not shrink else LK_WINDOW_SHRUNK_PX,
                                        round(LK_WINDOW_FRAC * spacing / 2 ** shrink))))
     lk += 1 - lk % 2  # odd
-    extra = max(0, int(round(np.log2(max(shape) / 640.0)))) if max(shape) > 640 else 0
+    extra = _extra_lk_levels(max(shape))
     return {
         "border": max(TRACK_BORDER_PX, TRACK_BORDER_FRAC * spacing),
         "homography_rms": max(MAX_TRACK_HOMOGRAPHY_RMS_PX, TRACK_HOMOGRAPHY_FRAC * spacing),
@@ -685,6 +726,12 @@ def _track_scales(corners_px: np.ndarray, board: dict, shape: tuple[int, int]) -
         "lk_levels": max(2, LK_LEVELS + extra - shrink),
         "lk_shrink": shrink,
     }
+
+
+@functools.lru_cache(maxsize=16)
+def _extra_lk_levels(long_side_px: int) -> int:
+    """LK pyramid levels added for an image of this long side (one per doubling over 640)."""
+    return max(0, int(round(np.log2(long_side_px / 640.0)))) if long_side_px > 640 else 0
 # The checkerboard seen through the tracked corners must have this much contrast (grey levels)
 # between its white and black squares, and every square on the right side of the midpoint.
 MIN_PATTERN_CONTRAST = 20.0
@@ -742,7 +789,8 @@ def board_squares_pattern_ok(
     with np.errstate(divide="ignore", invalid="ignore"):
         u, v = p[0] / p[2], p[1] / p[2]
     h, w = gray.shape
-    inside = np.all((u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1) & (p[2] > 0), axis=1)
+    inside = np.logical_and.reduce(
+        (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1) & (p[2] > 0), axis=1)
     if corner_known is not None:
         # Square (i, j) has corners (i-1..i, j-1..j) where they exist (the index nx * ny,
         # always known, stands for those that do not).
@@ -750,12 +798,15 @@ def board_squares_pattern_ok(
         inside &= known[_square_corners(sx, sy)].all(axis=1)
     if not inside.any():
         return False
-    level = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)].mean(axis=1)
+    # (The means are np.mean's: float64 sums divided by the count, without its wrapper.)
+    samples_in = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)]
+    level = np.add.reduce(samples_in, axis=1, dtype=np.float64) / samples_in.shape[1]
     black = black_all[inside]
-    if black.all() or not black.any():
+    n_black = int(np.count_nonzero(black))
+    if n_black == len(black) or not n_black:
         return False
     lo, hi = level[black], level[~black]
-    lo_mean, hi_mean = lo.mean(), hi.mean()
+    lo_mean, hi_mean = np.add.reduce(lo) / len(lo), np.add.reduce(hi) / len(hi)
     if hi_mean - lo_mean < min_contrast:
         return False
     mid = 0.5 * (hi_mean + lo_mean)
@@ -878,9 +929,8 @@ def track_corners(
     if H is None or inliers.sum() < MIN_TRACKED_CORNERS:
         return None, "lost"
     p = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
-    track_ok = np.zeros(len(grid), bool)
-    track_ok[np.flatnonzero(seen)[ok][inliers.ravel() == 1]] = True
-    p[track_ok] = moved.reshape(-1, 2)[ok][inliers.ravel() == 1]
+    inlier = inliers.ravel() == 1
+    p[np.flatnonzero(seen)[ok][inlier]] = moved.reshape(-1, 2)[ok][inlier]
     if not _inside(p, w, h, 0.0).all():
         return _follow_partial(gray, p, _inside(p, w, h, sc["border"]), grid, board,
                                subpix_window_px, sc, max_grid_deviation)
@@ -960,21 +1010,22 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
     q = cv2.perspectiveTransform(pts, H_img_grid)
     q = q.reshape(-1, n_off, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
     finite = np.isfinite(q)
-    ok = finite.all(axis=(1, 2))
+    n = len(q)
+    ok = np.logical_and.reduce(finite.reshape(n, -1), axis=1)
     # (Rows with a non-finite sample fail whatever their levels.)
     qi = np.rint(np.where(finite, q, 0.0)).astype(int)
-    ok &= ((qi >= 0) & (qi < np.array([w, h]))).all(axis=(1, 2))
-    qi[..., 0] = np.clip(qi[..., 0], 0, w - 1)
-    qi[..., 1] = np.clip(qi[..., 1], 0, h - 1)
+    ok &= np.logical_and.reduce(((qi >= 0) & (qi < (w, h))).reshape(n, -1), axis=1)
+    np.minimum(np.maximum(qi, 0, out=qi), (w - 1, h - 1), out=qi)  # np.clip per column
     level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, M)
     half = n_off // 2  # the (1, 1) and (-1, -1) diagonal first, then the other
     black_first = ((grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0)
     dark = np.where(black_first[:, None], level[:, :half], level[:, half:])
     light = np.where(black_first[:, None], level[:, half:], level[:, :half])
-    known = ok & np.isfinite(np.asarray(corners_px)).all(axis=1)
+    corners_finite = np.isfinite(np.asarray(corners_px))
+    known = ok & corners_finite[:, 0] & corners_finite[:, 1]
     contrast = _median(light[known]) - _median(dark[known]) if known.any() else 0.0
     need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
-    return ok & (light.min(axis=1) - dark.max(axis=1) >= need)
+    return ok & (np.minimum.reduce(light, axis=1) - np.maximum.reduce(dark, axis=1) >= need)
 
 
 @functools.lru_cache(maxsize=16)
