@@ -40,7 +40,8 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from cvsflow import uncertainty as un
 from cvsflow.errors import InputError, OptimiseError, SyncError
-from cvsflow.optimise.se3 import DEFAULT_INTRINSIC_STD, INTRINSIC_NAMES
+from cvsflow.geometry.camera import INTRINSIC_NAMES
+from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD
 from cvsflow.transforms import (
     R_from_quat,
     euler_from_R,

@@ -38,7 +38,8 @@ from cvsflow.flight import (
     reference_covariance_transfer,
     traj_from_T,
 )
-from cvsflow.optimise.se3 import INTRINSIC_NAMES, K_from_intrinsics, project_points
+from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points
+from cvsflow.optimise.se3_model import K_from_intrinsics
 from cvsflow.pose import estimate_poses
 from cvsflow.transforms import R_from_euler, euler_from_R, invert_T, make_T, wrap_angle
 

@@ -13,7 +13,7 @@ from cvsflow import handeye as he
 from cvsflow import transforms as tf
 from cvsflow.calibration import board_object_points
 from cvsflow.errors import CalibrationError, InputError
-from cvsflow.optimise.se3 import project_points
+from cvsflow.geometry.camera import project_points
 
 sys.path.insert(0, str(Path(__file__).parent))
 from board_images import board_centre_pose, render_board  # noqa: E402
