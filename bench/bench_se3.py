@@ -16,12 +16,14 @@ import numpy as np
 from cvsflow import evaluate as ev
 from cvsflow import transforms as tf
 from cvsflow import uncertainty as un
+from cvsflow.board import board_object_points
 from cvsflow.optimise import se3
+from cvsflow.optimise.se3_sim import simulate_session
 
 
 def main(seed: int = 0) -> None:
     t0 = time.perf_counter()
-    s = se3.simulate_session(seed, duration_s=90.0)
+    s = simulate_session(seed, duration_s=90.0)
     tr = s["truth"]
     corners = s["corners"][s["corners"]["frame"] < 2400]
     print(f"synthesis: {time.perf_counter() - t0:.2f} s, 2400 frames x 20 corners")
@@ -66,7 +68,7 @@ def main(seed: int = 0) -> None:
     print("  95 % block-bootstrap CI of std, lo:", np.round(b["std_lo"] * scale, 3).tolist())
     print("                                  hi:", np.round(b["std_hi"] * scale, 3).tolist())
 
-    p_B = se3.board_points_B(s["board"])
+    p_B = board_object_points(s["board"])
     feats, cov = un.error_features(held, p_B, np.array(fits[0]["K"]), np.array(fits[0]["dist"]),
                                    fits[0]["sigma_px"])
     train = held["fold"].isin([0, 1, 2]).to_numpy()

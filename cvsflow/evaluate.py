@@ -32,7 +32,8 @@ from cvsflow.metrics import (  # noqa: F401
     pose_errors,
     poses_from_table,
 )
-from cvsflow.optimise.se3 import apply_se3, board_points_B, corner_arrays, optimise_se3
+from cvsflow.optimise.se3 import apply_se3, optimise_se3
+from cvsflow.optimise.se3_start import corner_arrays
 from cvsflow.optimise.seed import DIVERGED_EPS_STD_M, compute_eps, optimise_seed
 
 log = logging.getLogger(__name__)
@@ -109,7 +110,7 @@ def cross_validate_se3(
     fits : list of dict
         ``result`` of each fold's fit, with ``fold`` added.
     """
-    frame_ids, t_video, _ = corner_arrays(corners, len(board_points_B(board)))
+    frame_ids, t_video, _ = corner_arrays(corners, len(board_object_points(board)))
     fold = make_time_blocks(t_video, block_s, n_folds, seed)
     parts, fits = [], []
     for k in range(n_folds):

@@ -34,7 +34,8 @@ from cvsflow.flight.clock import Clock
 from cvsflow.flight.metrics import ERR_COLS
 from cvsflow.flight.reference import reference_covariance_model, reference_covariance_transfer
 from cvsflow.flight.trajectory import interpolate_trajectory, traj_from_T
-from cvsflow.optimise.se3 import INTRINSIC_NAMES, K_from_intrinsics, project_points
+from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points
+from cvsflow.optimise.se3_model import K_from_intrinsics
 from cvsflow.pose import estimate_poses
 from cvsflow.transforms import R_from_euler, euler_from_R, invert_T, make_T, wrap_angle
 

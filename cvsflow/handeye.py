@@ -21,7 +21,7 @@ Method
    :func:`cvsflow.calibration.order_corners` (the board's colour fixes corner 0, so every
    still shares one board frame; for boards whose ends look alike the order of each still is
    chosen so its relative rotations match the carrier's); PnP per still
-   (:func:`cvsflow.optimise.se3.solve_pnp_frames`).
+   (:func:`cvsflow.optimise.se3_start.solve_pnp_frames`).
 2. Closed form (:mod:`cvsflow.handeye_model`): ``cv2.calibrateHandEye`` (Tsai, Park,
    Horaud, Andreff, Daniilidis) or ``cv2.calibrateRobotWorldHandEye`` (Shah, Li); G from the
    mean of ``inv(A_i) H B_i``.
@@ -29,14 +29,14 @@ Method
    the fit of the other stills; the worst is rejected while it exceeds 4x the median.
 4. Refinement (:mod:`cvsflow.handeye_refine`): H, G (and optionally fx, fy, cx, cy, distortion)
    minimising the corner reprojection error over all stills, ``scipy.optimize.least_squares``
-   with the analytic Jacobian; projection and its derivatives from :mod:`cvsflow.optimise.se3`.
+   with the analytic Jacobian; projection and its derivatives from :mod:`cvsflow.geometry.camera`.
    By default the carrier poses are not exact: each still's pose error (a turn about the carrier
    origin and a shift) is an unknown with a zero-mean isotropic prior, the corner, rotation and
    position sigmas estimated together (Foerstner's variance components). Without it, robot or
    mocap pose errors of a few mm are absorbed into H and G: on ViSP's Franka set the plain fit
    lands 5 mm / 3.4 deg from the published eMc, the errors-in-variables fit 0.4 mm / 0.07 deg.
 5. Standard errors: ``N^-1`` of the whitened problem (with one group, ``s^2 (J^T J)^-1``,
-   :func:`cvsflow.optimise.se3._covariances`), plus the fixed intrinsics' std when the camera
+   :func:`cvsflow.optimise.se3_cov.covariances`), plus the fixed intrinsics' std when the camera
    file gives it; and a delete-one-still jackknife, which sees errors the model misses. The
    reported ``std`` is the larger of the two per parameter.
 
@@ -72,7 +72,7 @@ from cvsflow.handeye_refine import (
     leave_one_out_rms,
     refine_hand_eye,
 )
-from cvsflow.optimise.se3 import solve_pnp_frames
+from cvsflow.optimise.se3_start import solve_pnp_frames
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,7 @@
 
 H, G (and optionally fx, fy, cx, cy, distortion) minimising the corner reprojection error over
 all stills, ``scipy.optimize.least_squares`` with the analytic Jacobian; projection and its
-derivatives from :mod:`cvsflow.optimise.se3`. By default the carrier poses are not exact: each
+derivatives from :mod:`cvsflow.geometry.camera`. By default the carrier poses are not exact: each
 still's pose error (a turn about the carrier origin and a shift) is an unknown with a zero-mean
 isotropic prior, the corner, rotation and position sigmas estimated together (Foerstner's
 variance components). Standard errors: ``N^-1`` of the whitened problem, plus the fixed
@@ -23,13 +23,10 @@ from scipy.optimize import least_squares
 
 from cvsflow import transforms as tf
 from cvsflow.errors import InputError
+from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points_jac
+from cvsflow.geometry.transforms import right_jacobian_SO3
 from cvsflow.handeye_model import MIN_STILLS, carrier_chain
-from cvsflow.optimise.se3 import (
-    INTRINSIC_NAMES,
-    _covariances,
-    _right_jacobian,
-    project_points_jac,
-)
+from cvsflow.optimise.se3_cov import covariances
 
 log = logging.getLogger(__name__)
 
@@ -128,11 +125,11 @@ class _Model:
         J = np.zeros((n, P, 2, len(x)))
         R_H, R_G = T_H[:3, :3], T_G[:3, :3]
         # d p_C / d w_H = [p_C]x Jr(w_H); d p_C / d t_H = -R_H^T
-        J[..., 0:3] = J_p @ (tf.skew(p_C) @ _right_jacobian(x[0:3]))
+        J[..., 0:3] = J_p @ (tf.skew(p_C) @ right_jacobian_SO3(x[0:3]))
         J[..., 3:6] = J_p @ (-R_H.T)
         # d p_C / d p_G = R_H^T R_A; d p_G / d w_G = -R_G [p_B]x Jr(w_G); d p_G / d t_G = I
         M = np.einsum("ji,njk->nik", R_H, A[:, :3, :3])  # (n, 3, 3)
-        d_pG_dw = -R_G @ tf.skew(self.p_B) @ _right_jacobian(x[6:9])  # (P, 3, 3)
+        d_pG_dw = -R_G @ tf.skew(self.p_B) @ right_jacobian_SO3(x[6:9])  # (P, 3, 3)
         J_pG = np.einsum("npij,njk->npik", J_p, M)  # (n, P, 2, 3)
         J[..., 6:9] = np.einsum("npij,pjk->npik", J_pG, d_pG_dw)
         J[..., 9:12] = J_pG
@@ -142,7 +139,7 @@ class _Model:
             # Jacobian of SO(3), Jl(rho) = Jr(rho)^T
             d = x[self.k:].reshape(-1, 6)
             T_X = self.carrier(x)
-            Jl = np.swapaxes(np.stack([_right_jacobian(r) for r in d[:, :3]]), 1, 2)
+            Jl = np.swapaxes(np.stack([right_jacobian_SO3(r) for r in d[:, :3]]), 1, 2)
             J_pA = J_p @ R_H.T  # (n, P, 2, 3): d uv / d p_A
             if self.mode == "eye_to_hand":  # p_A = R' p_G + t'
                 u = np.einsum("nij,pj->npi", T_X[:, :3, :3], p_G_of(T_G, self.p_B))
@@ -238,8 +235,8 @@ def refine_hand_eye(uv_px, p_B, T_W_X, camera, T0_H, T0_G, mode="eye_in_hand",
 
     Notes
     -----
-    Without pose noise the covariance is ``s^2 (J^T J)^-1`` (``cvsflow.optimise.se3.
-    _covariances``, linear loss). With pose noise the three groups (corners, carrier
+    Without pose noise the covariance is ``s^2 (J^T J)^-1`` (``cvsflow.optimise.se3_cov.
+    covariances``, linear loss). With pose noise the three groups (corners, carrier
     rotations, carrier translations) get their variances by Foerstner's variance-component
     estimation, ``sigma_g^2 <- sigma_g^2 v_g^T v_g / r_g`` with the redundancy
     ``r_g = m_g - tr(N^-1 J_g^T J_g)`` of the whitened problem, iterated with the fit until
@@ -299,11 +296,11 @@ def refine_hand_eye(uv_px, p_B, T_W_X, camera, T0_H, T0_G, mode="eye_in_hand",
     else:
         r = at.residuals(x_hat) * sig["corners"]  # px
         clusters = np.repeat(np.arange(len(uv)), uv.shape[1] * 2)
-        cov, _, _, sigma2, _ = _covariances(J * sig["corners"], r, "linear", 1.0, clusters)
+        cov, _, _, sigma2, _ = covariances(J * sig["corners"], r, "linear", 1.0, clusters)
         sigma_px = float(np.sqrt(sigma2))
     # The fixed intrinsics are not exact: their calibration std (camera["std"], e.g. from
     # `cvsflow calibrate`) enters through the solution's sensitivity to them,
-    # S = -(J^T J)^-1 J^T J_fixed (as cvsflow.optimise.se3._fixed_sensitivity, linear loss).
+    # S = -(J^T J)^-1 J^T J_fixed (as cvsflow.optimise.se3_cov.fixed_sensitivity, linear loss).
     fixed_names = [nm for nm in INTRINSIC_NAMES if nm not in free]
     given = camera.get("std") if isinstance(camera.get("std"), dict) else {}
     sd_fixed = np.array([float(given.get(nm) or 0.0) for nm in fixed_names])

@@ -19,7 +19,8 @@ from cvsflow import uncertainty as un
 from cvsflow.errors import InputError
 from cvsflow.geometry import euler_from_R, invert_T
 from cvsflow.geometry import skew as skew_matrix
-from cvsflow.optimise.se3 import DEFAULT_INTRINSIC_STD, INTRINSIC_NAMES
+from cvsflow.geometry.camera import INTRINSIC_NAMES
+from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD
 from cvsflow.uncertainty.propagation import pnp_covariance, propagated_pose_covariance
 
 # --------------------------------------------------------------------------------------------

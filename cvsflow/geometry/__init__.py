@@ -1,7 +1,8 @@
 """The one home of geometry: every other module calls these, none re-implements them.
 
 - :mod:`cvsflow.geometry.transforms`: SO(3)/SE(3): make, invert, compose (``@``), apply,
-  exp/log (rvec), skew, Euler, quaternions, pose6, rotation means, composed differences.
+  exp/log (rvec), skew, the right Jacobian, the nearest rotation, Euler, quaternions, pose6,
+  rotation means, composed differences.
 - :mod:`cvsflow.geometry.rigid`: the batched least-squares rigid fit (Kabsch/Umeyama).
 - :mod:`cvsflow.geometry.interpolate`: pose interpolation in time (linear + SLERP).
 - :mod:`cvsflow.geometry.camera`: the camera model (OpenCV's 5-term distortion) and its
@@ -27,7 +28,9 @@ from cvsflow.geometry.transforms import (
     mean_rotation,
     pose6_from_T,
     pose_difference,
+    project_SO3,
     quat_from_R,
+    right_jacobian_SO3,
     rotation_angle,
     rvec_from_R,
     rvec_tvec_from_T,
@@ -40,7 +43,7 @@ __all__ = [
     "EULER_SEQ", "INTRINSIC_NAMES", "R_from_euler", "R_from_quat", "R_from_rvec", "T_from_pose6",
     "T_from_rvec_tvec", "block_mean_quats", "bracket", "euler_from_R", "fit_rigid",
     "fit_rigid_pair", "interpolate_T", "interpolate_quats", "invert_T", "make_T",
-    "mean_rotation", "pose6_from_T", "pose_difference", "project_points", "project_points_jac",
-    "quat_from_R", "rotation_angle", "rvec_from_R", "rvec_tvec_from_T", "skew", "slerp",
-    "transform_points", "wrap_angle",
+    "mean_rotation", "pose6_from_T", "pose_difference", "project_SO3", "project_points",
+    "project_points_jac", "quat_from_R", "right_jacobian_SO3", "rotation_angle", "rvec_from_R",
+    "rvec_tvec_from_T", "skew", "slerp", "transform_points", "wrap_angle",
 ]

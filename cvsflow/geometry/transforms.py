@@ -129,6 +129,46 @@ def skew(v):
     return S
 
 
+def right_jacobian_SO3(w):
+    """Right Jacobian of SO(3): exp(w + d) = exp(w) exp(Jr(w) d) to first order.
+
+    Parameters
+    ----------
+    w : array_like, shape (3,)
+        Rotation vector, rad.
+
+    Returns
+    -------
+    Jr : ndarray, shape (3, 3)
+        ``I - (1 - cos th) / th^2 [w]x + (th - sin th) / th^3 [w]x^2``, th = |w| (Chirikjian
+        2011, eq. 10.86); ``I - [w]x / 2`` below th = 1e-8.
+    """
+    w = np.asarray(w, float)
+    th = np.linalg.norm(w)
+    W = skew(w)
+    if th < 1e-8:
+        return np.eye(3) - 0.5 * W
+    # Chirikjian (2011) eq. 10.86
+    return np.eye(3) - (1 - np.cos(th)) / th**2 * W + (th - np.sin(th)) / th**3 * (W @ W)
+
+
+def project_SO3(M):
+    """Nearest rotation matrix (Frobenius norm) to a 3x3 matrix.
+
+    Parameters
+    ----------
+    M : array_like, shape (3, 3)
+
+    Returns
+    -------
+    R : ndarray, shape (3, 3)
+        ``U diag(1, 1, sign det(U V^T)) V^T`` from the SVD M = U S V^T (det R = +1).
+    """
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    return U @ D @ Vt
+
+
 def R_from_rvec(rvec):
     """Rotation matrices from Rodrigues vectors (the exponential map of SO(3)).
 

@@ -17,7 +17,7 @@ from cvsflow import transforms as tf
 from cvsflow.calibration import board_object_points
 from cvsflow.errors import OptimiseError
 from cvsflow.metrics import ERROR_DIMS, pose_errors
-from cvsflow.optimise.se3 import corner_arrays
+from cvsflow.optimise.se3_start import corner_arrays
 from cvsflow.uncertainty.propagation import (
     cov_columns,
     parameter_covariance,

@@ -7,7 +7,7 @@ from board_images import board_centre_pose
 
 from cvsflow import transforms as tf
 from cvsflow.calibration import board_object_points
-from cvsflow.optimise.se3 import project_points
+from cvsflow.geometry.camera import project_points
 
 BOARD = {"squares_x": 10, "squares_y": 7, "square_m": 0.0236}  # 9x6 inner corners, as ViSP's
 K = np.array([[607.59, 0.0, 323.46], [0.0, 607.57, 243.26], [0.0, 0.0, 1.0]])

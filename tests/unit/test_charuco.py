@@ -20,7 +20,7 @@ from cvsflow import charuco as ch
 from cvsflow import transforms as tf
 from cvsflow.calibration import board_object_points, calibrate_camera
 from cvsflow.errors import ConfigError
-from cvsflow.optimise.se3 import corner_arrays
+from cvsflow.optimise.se3_start import corner_arrays
 from cvsflow.pose import CORNER_COLUMNS, estimate_poses, extract_corners
 from cvsflow.sessions import check_sessions
 from cvsflow.synth.camera import project_points

@@ -8,7 +8,7 @@ import pytest
 from cvsflow import evaluate as ev
 from cvsflow import transforms as tf
 from cvsflow.errors import OptimiseError
-from cvsflow.optimise import se3
+from cvsflow.optimise.se3_sim import simulate_session
 
 
 def test_pure_yaw_error_of_one_degree():
@@ -105,7 +105,7 @@ def test_cross_validation_held_out_errors_match_pnp_noise():
     """Held-out se3 errors on a 20 s session: every frame scored once by a fit that did not
     see it; their spread is below 2 mm in x and y, 15 mm in z and 1.5 deg in angle, and the
     mean error is within 3 standard errors of zero in x."""
-    s = se3.simulate_session(21, duration_s=20.0)
+    s = simulate_session(21, duration_s=20.0)
     held, fits = ev.cross_validate_se3(
         s["corners"], s["bodies"], s["camera"], s["board"], s["truth"]["dt_offset_s"],
         n_folds=4, block_s=2.5, seed=0,

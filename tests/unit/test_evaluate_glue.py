@@ -5,14 +5,16 @@ import pandas as pd
 import pytest
 
 from cvsflow import evaluate as ev
+from cvsflow.metrics import poses_from_table
 from cvsflow.optimise import se3
+from cvsflow.optimise.se3_sim import simulate_session
 
 DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 
 
 @pytest.fixture(scope="module")
 def session():
-    return se3.simulate_session(5, duration_s=12.0)
+    return simulate_session(5, duration_s=12.0)
 
 
 def _poses_raw(s):
@@ -33,7 +35,7 @@ def test_se3_run_tables_errors_equal_composed_errors_by_hand(session):
     iterations, errors, result = ev.se3_run_tables(fit, s["corners"], s["bodies"], s["board"],
                                                    _poses_raw(s))
     frames = se3.apply_se3(fit.result, s["corners"], s["bodies"], s["board"])
-    by_hand = ev.pose_errors(se3.poses_from_table(frames, "ref_"), se3.poses_from_table(frames, "cvs_"))
+    by_hand = ev.pose_errors(poses_from_table(frames, "ref_"), poses_from_table(frames, "cvs_"))
     for d in DIMS:
         np.testing.assert_allclose(errors[f"eps_{d}"], by_hand[f"err_{d}"], atol=1e-12)
     assert result["norm_normalised_final_m"] == pytest.approx(
@@ -49,7 +51,7 @@ def test_cross_validate_seed_scores_each_frame_once_with_training_offset():
     so on a constant-offset synthetic session the held-out error is small and near zero mean."""
     from cvsflow.transforms import pose6_from_T
 
-    s = se3.simulate_session(8, duration_s=12.0, pixel_noise_px=0.2)
+    s = simulate_session(8, duration_s=12.0, pixel_noise_px=0.2)
     p6 = pose6_from_T(s["truth"]["T_C_B"])
     offset = np.array([0.05, -0.02, 0.1, 0.01, 0.02, -0.03])
     pairs = pd.DataFrame({"frame": s["truth"]["frame"], "t_s": s["truth"]["t_s"]})
@@ -105,7 +107,7 @@ def test_cross_validate_seed_takes_the_given_folds():
     """With another method's folds, each pair frame is scored in the fold of the nearest frame."""
     from cvsflow.transforms import pose6_from_T
 
-    s = se3.simulate_session(9, duration_s=9.0, pixel_noise_px=0.2)
+    s = simulate_session(9, duration_s=9.0, pixel_noise_px=0.2)
     p6 = pose6_from_T(s["truth"]["T_C_B"])
     pairs = pd.DataFrame({"frame": s["truth"]["frame"], "t_s": s["truth"]["t_s"]})
     from scipy.spatial.transform import Rotation

@@ -460,20 +460,24 @@ def test_unaligned_tum_export_lets_evo_align_it_itself(demo, tmp_path):
 def _pnp_flight(seed, focal_px, board, intr_sd, rng):
     """A corner-level 'flight' video: PnP poses at intrinsics off by one calibration draw."""
     from cvsflow import transforms as tf
-    from cvsflow.optimise import se3
+    from cvsflow.board import board_object_points
+    from cvsflow.geometry.camera import project_points
+    from cvsflow.optimise.se3_model import K_from_intrinsics
+    from cvsflow.optimise.se3_sim import simulate_session
+    from cvsflow.optimise.se3_start import corner_arrays, solve_pnp_frames
 
-    s = se3.simulate_session(seed, duration_s=6.0, focal_px=focal_px, board=board)
+    s = simulate_session(seed, duration_s=6.0, focal_px=focal_px, board=board)
     tr = s["truth"]
     intr = np.r_[tr["K"][0, 0], tr["K"][1, 1], tr["K"][0, 2], tr["K"][1, 2], tr["dist"]]
     intr = intr + rng.normal(0.0, intr_sd)
-    K, dist = se3.K_from_intrinsics(*intr[:4]), intr[4:]
-    p_B = se3.board_points_B(s["board"])
-    frame, _, uv = se3.corner_arrays(s["corners"], len(p_B))
-    T, ok = se3.solve_pnp_frames(uv, p_B, K, dist)
+    K, dist = K_from_intrinsics(*intr[:4]), intr[4:]
+    p_B = board_object_points(s["board"])
+    frame, _, uv = corner_arrays(s["corners"], len(p_B))
+    T, ok = solve_pnp_frames(uv, p_B, K, dist)
     T = T[ok]
     rv = tf.rvec_from_R(T[:, :3, :3])
     p_C = np.einsum("fij,pj->fpi", T[:, :3, :3], p_B) + T[:, None, :3, 3]
-    rms = np.sqrt(np.nanmean(np.sum((se3.project_points(p_C, K, dist) - uv[ok]) ** 2, -1), 1))
+    rms = np.sqrt(np.nanmean(np.sum((project_points(p_C, K, dist) - uv[ok]) ** 2, -1), 1))
     good = rms < 1.5  # a PnP that failed (flipped, 1 in ~200 frames) shows in its residual
     ok[np.flatnonzero(ok)[~good]] = False
     T, rv, rms = T[good], rv[good], rms[good]

@@ -15,7 +15,7 @@ from cvsflow import handeye_model as hm
 from cvsflow import transforms as tf
 from cvsflow.calibration import board_object_points
 from cvsflow.errors import CalibrationError, InputError
-from cvsflow.optimise.se3 import project_points
+from cvsflow.geometry.camera import project_points
 
 # ------------------------------------------------------------------------------ rendered stills
 

@@ -6,16 +6,33 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.spatial.transform import Rotation
 
 from cvsflow import transforms as tf
+from cvsflow.board import board_object_points
 from cvsflow.errors import OptimiseError
+from cvsflow.geometry.camera import project_points
+from cvsflow.geometry.interpolate import interpolate_T
+from cvsflow.geometry.transforms import project_SO3
 from cvsflow.optimise import se3
+from cvsflow.optimise.body_tracks import (
+    CAMERA_MOVING_SMOOTH_S,
+    BodyTrack,
+    body_track,
+    is_static,
+    smooth_track,
+    smooth_track_local,
+)
+from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD
+from cvsflow.optimise.se3_model import Se3Model
+from cvsflow.optimise.se3_sim import simulate_session
+from cvsflow.optimise.se3_start import corner_arrays, solve_hand_eye
 
 
 @pytest.fixture(scope="module")
 def session():
     """A 20 s synthetic session (600 frames, 20 corners, 0.3 px, 0.3 mm marker noise)."""
-    return se3.simulate_session(11, duration_s=20.0)
+    return simulate_session(11, duration_s=20.0)
 
 
 @pytest.fixture(scope="module")
@@ -46,21 +63,21 @@ def test_project_points_equals_opencv():
     tvec = np.array([0.1, -0.05, 1.5])
     ref, _ = cv2.projectPoints(p_B.reshape(-1, 1, 3), rvec, tvec, K, dist)
     p_C = tf.transform_points(tf.T_from_rvec_tvec(rvec, tvec), p_B)
-    uv = se3.project_points(p_C, K, dist)
+    uv = project_points(p_C, K, dist)
     np.testing.assert_allclose(uv, ref.reshape(-1, 2), atol=1e-9)
 
 
 def test_projection_and_model_jacobians_equal_finite_differences():
     """The analytic Jacobian of the residuals (intrinsics, both transforms, dt) equals central
     differences to 1e-5 relative, with a moving camera and nonzero rotation perturbations."""
-    s = se3.simulate_session(3, duration_s=3.0, camera_motion_m=0.02)
+    s = simulate_session(3, duration_s=3.0, camera_motion_m=0.02)
     tr = s["truth"]
-    p_B = se3.board_points_B(s["board"])
-    _, t, uv = se3.corner_arrays(s["corners"], len(p_B))
-    cam = se3._Track(*se3.body_track(s["bodies"], "camera"))
-    brd = se3._Track(*se3.body_track(s["bodies"], "board"))
+    p_B = board_object_points(s["board"])
+    _, t, uv = corner_arrays(s["corners"], len(p_B))
+    cam = BodyTrack(*body_track(s["bodies"], "camera"))
+    brd = BodyTrack(*body_track(s["bodies"], "board"))
     intr = np.r_[tr["K"][0, 0], tr["K"][1, 1], tr["K"][0, 2], tr["K"][1, 2], tr["dist"]]
-    model = se3._Model(
+    model = Se3Model(
         intr, set(se3.DEFAULT_FREE), tr["T_Cm_C"][:3, :3], tr["T_Bm_B"][:3, :3], True,
         tr["dt_offset_s"], t, uv, p_B, cam, brd,
     )  # fmt: skip
@@ -73,7 +90,7 @@ def test_projection_and_model_jacobians_equal_finite_differences():
     assert rel.max() < 1e-5, dict(zip(model.names, rel, strict=True))
 
 
-def test_interpolate_body_linear_and_slerp():
+def test_body_track_linear_and_slerp():
     """Midway between two samples the pose is the mean position and the half-angle rotation."""
     R1 = tf.R_from_euler([0.0, 0.0, 0.4])
     q = np.array([[0, 0, 0, 1.0], tf.quat_from_R(R1)])
@@ -82,11 +99,25 @@ def test_interpolate_body_linear_and_slerp():
          "x_m": [0.0, 1.0], "y_m": [0.0, 2.0], "z_m": [0.0, -1.0],
          "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3]}
     )  # fmt: skip
-    T, ok = se3.interpolate_body(bodies, "board", [0.05, 0.2])
-    assert ok.tolist() == [True, False]
+    track = BodyTrack(*body_track(bodies, "board"))
+    tq = np.array([0.05, 0.2])
+    assert track.ok(tq).tolist() == [True, False]
+    T = track(tq)
     np.testing.assert_allclose(T[0, :3, 3], [0.5, 1.0, -0.5], atol=1e-12)
     np.testing.assert_allclose(T[0, :3, :3], tf.R_from_euler([0.0, 0.0, 0.2]), atol=1e-12)
-    assert np.isnan(T[1]).all()
+
+
+def test_body_track_is_geometry_interpolate_T_to_the_last_bits():
+    """The solver's interpolant is the curve of geometry.interpolate_T (the one home), computed
+    with matrices instead of quaternions: equal to 1e-14 on a swaying camera, same validity."""
+    s = simulate_session(3, duration_s=3.0, camera_motion_m=0.02)
+    t, T, valid = body_track(s["bodies"], "camera")
+    valid[40:45] = False
+    tq = np.linspace(t[0] - 0.1, t[-1] + 0.1, 400)
+    track = BodyTrack(t, T, valid)
+    T_geo, ok, _ = interpolate_T(t, T, valid, tq)
+    assert np.array_equal(track.ok(tq), ok) and 0 < ok.sum() < len(tq)
+    np.testing.assert_allclose(track(tq)[ok], T_geo[ok], rtol=0, atol=1e-14)
 
 
 def _hand_eye_pairs(rng, n, noise_rad=0.0, noise_m=0.0):
@@ -106,7 +137,7 @@ def _hand_eye_pairs(rng, n, noise_rad=0.0, noise_m=0.0):
 def test_hand_eye_exact_on_noise_free_pairs():
     """Noise-free pairs give T_Cm_C and T_Bm_B to 1e-9 m and 1e-9 rad."""
     A, B, Z, X = _hand_eye_pairs(np.random.default_rng(1), 30)
-    Z_est, X_est = se3.solve_hand_eye(A, B)
+    Z_est, X_est = solve_hand_eye(A, B)
     for T_true, T_est in ((Z, Z_est), (X, X_est)):
         dt_m, dr_rad = _pose_err(T_true, T_est)
         assert dt_m < 1e-9 and dr_rad < 1e-9
@@ -117,7 +148,7 @@ def test_hand_eye_noisy_agrees_with_truth_and_opencv():
     0.5 deg of truth and within 10 mm / 0.5 deg of cv2.calibrateRobotWorldHandEye (with the
     argument mapping A = cTw, X = wTb, Z = cTg, B = gTb)."""
     A, B, Z, X = _hand_eye_pairs(np.random.default_rng(2), 300, np.radians(0.5), 0.005)
-    Z_est, X_est = se3.solve_hand_eye(A, B)
+    Z_est, X_est = solve_hand_eye(A, B)
     R_b2w, t_b2w, R_g2c, t_g2c = cv2.calibrateRobotWorldHandEye(
         list(A[:, :3, :3]), list(A[:, :3, 3]), list(B[:, :3, :3]), list(B[:, :3, 3])
     )
@@ -136,7 +167,7 @@ def test_hand_eye_rejects_single_axis_rotation():
     n = 20
     B = tf.T_from_pose6(np.c_[rng.uniform(-0.5, 0.5, (n, 3)), np.zeros((n, 2)), rng.uniform(-1, 1, n)])
     with pytest.raises(OptimiseError, match="rotations are too alike"):
-        se3.solve_hand_eye(B, B)
+        solve_hand_eye(B, B)
 
 
 def test_se3_recovers_truth_within_tolerance_and_3_sigma(session, fitted):
@@ -254,7 +285,7 @@ def test_se3_without_camera_std_uses_the_documented_default(session):
                            tr["dt_offset_s"], free=["fx", "fy"], **kw).result
     fixed = res["fixed_intrinsics"]
     assert fixed["std_defaulted"] == fixed["names"] == ["cx", "cy", "k1", "k2", "p1", "p2", "k3"]
-    assert fixed["std"] == [se3.DEFAULT_INTRINSIC_STD[n] for n in fixed["names"]]
+    assert fixed["std"] == [DEFAULT_INTRINSIC_STD[n] for n in fixed["names"]]
     assert any("DEFAULT_INTRINSIC_STD" in w for w in res["warnings"])
     assert res["std_errors_fixed"]["T_Cm_C_ry_rad"] > 0.0
     res_all = se3.optimise_se3(session["corners"], session["bodies"], cam, session["board"],
@@ -269,7 +300,7 @@ def test_se3_with_moving_camera_and_outliers():
     15 px: the robust fit still recovers fx within 0.2 %, T_Bm_B within 2 mm / 0.2 deg and
     T_Cm_C within 5 mm / 0.5 deg (the camera's own mrad-level orientation noise, smoothed
     over 1 s only, limits T_Cm_C when the camera moves)."""
-    s = se3.simulate_session(5, duration_s=15.0, camera_motion_m=0.02)
+    s = simulate_session(5, duration_s=15.0, camera_motion_m=0.02)
     rng = np.random.default_rng(5)
     corners = s["corners"].copy()
     bad = rng.random(len(corners)) < 0.02
@@ -287,7 +318,7 @@ def test_se3_warns_when_board_never_tilts():
     """A board kept nearly face-on (tilt <= 1 deg) cannot separate the translations of T_Cm_C
     and T_Bm_B (a board that does not turn shows no lever arm): the result carries warnings
     naming such a pair, also logged."""
-    s = se3.simulate_session(6, duration_s=8.0, max_tilt_rad=np.radians(1.0))
+    s = simulate_session(6, duration_s=8.0, max_tilt_rad=np.radians(1.0))
     tr = s["truth"]
     # hand-eye needs turns: start from the truth, fit intrinsics and transforms
     res = se3.optimise_se3(
@@ -336,7 +367,7 @@ def test_se3_uses_partly_hidden_boards(session):
         idx = np.flatnonzero(corners["frame"].to_numpy() == f)
         drop[rng.choice(idx, len(idx) - n, replace=False)] = True
     cut = corners[~drop].reset_index(drop=True)
-    frame_ids, _, uv = se3.corner_arrays(cut, 20)
+    frame_ids, _, uv = corner_arrays(cut, 20)
     assert len(frame_ids) == len(frames) - 30 and not np.isin(few, frame_ids).any()
     n_seen = np.isfinite(uv[..., 0]).sum(axis=1)
     assert n_seen.min() == 6 and (n_seen < 20).sum() == len(partial)
@@ -364,7 +395,7 @@ RS_LINE_DELAY_S = 5e-5  # 480 rows in 24 ms: a typical webcam readout
 @pytest.fixture(scope="module")
 def rs_session():
     """A 12 s session with a rolling shutter, the hand moving twice as fast as the default."""
-    return se3.simulate_session(5, duration_s=12.0, line_delay_s=RS_LINE_DELAY_S, speed=2.0)
+    return simulate_session(5, duration_s=12.0, line_delay_s=RS_LINE_DELAY_S, speed=2.0)
 
 
 @pytest.mark.parametrize("motion", [{"camera_motion_m": 0.02}, {"handheld_camera": True}],
@@ -374,14 +405,14 @@ def test_rolling_shutter_jacobian_equals_finite_differences(rs_session, motion):
     central differences to 1e-5 relative, moving camera and rotation perturbations too; with
     a hand-held camera (a still board) d / d dt and d / d line delay come from the camera
     body's velocity alone."""
-    s = se3.simulate_session(3, duration_s=3.0, line_delay_s=4e-5, **motion)
+    s = simulate_session(3, duration_s=3.0, line_delay_s=4e-5, **motion)
     tr = s["truth"]
-    p_B = se3.board_points_B(s["board"])
-    _, t, uv = se3.corner_arrays(s["corners"], len(p_B))
-    cam = se3._Track(*se3.body_track(s["bodies"], "camera"))
-    brd = se3._Track(*se3.body_track(s["bodies"], "board"))
+    p_B = board_object_points(s["board"])
+    _, t, uv = corner_arrays(s["corners"], len(p_B))
+    cam = BodyTrack(*body_track(s["bodies"], "camera"))
+    brd = BodyTrack(*body_track(s["bodies"], "board"))
     intr = np.r_[tr["K"][0, 0], tr["K"][1, 1], tr["K"][0, 2], tr["K"][1, 2], tr["dist"]]
-    model = se3._Model(
+    model = Se3Model(
         intr, set(se3.DEFAULT_FREE), tr["T_Cm_C"][:3, :3], tr["T_Bm_B"][:3, :3], True,
         tr["dt_offset_s"], t, uv, p_B, cam, brd, fit_ld=True, ld0=3e-5,
     )  # fmt: skip
@@ -454,7 +485,7 @@ def test_se3_finds_no_line_delay_on_a_global_shutter():
     """A global-shutter session fitted with the line delay free: it is within 3 of its standard
     errors of zero, and the other estimates equal the global-shutter fit's to well within
     their standard errors (dt along the line delay's correlation)."""
-    s = se3.simulate_session(5, duration_s=12.0, speed=2.0)
+    s = simulate_session(5, duration_s=12.0, speed=2.0)
     tr = s["truth"]
     args = (s["corners"], s["bodies"], s["camera"], s["board"], tr["dt_offset_s"] + 0.004)
     rs = se3.optimise_se3(*args, free=RS_FREE, fit_line_delay=True).result
@@ -492,12 +523,12 @@ def test_is_static_ignores_a_short_bump_but_not_a_moving_camera():
     rv = np.zeros((n, 3))
     rv[1500:1590, 0] = 0.0025
     T[:, :3, :3] = tf.R_from_rvec(rv)
-    assert se3.is_static(T, 0.002, 0.002)
-    assert not se3.is_static(T, 0.002, 0.002, quantile=1.0)
+    assert is_static(T, 0.002, 0.002)
+    assert not is_static(T, 0.002, 0.002, quantile=1.0)
     rv_move = np.zeros((n, 3))
     rv_move[:, 1] = np.linspace(-0.005, 0.005, n)
     T[:, :3, :3] = tf.R_from_rvec(rv_move)
-    assert not se3.is_static(T, 0.002, 0.002)
+    assert not is_static(T, 0.002, 0.002)
 
 
 # --------------------------------------------------------------------------- moving camera
@@ -523,7 +554,7 @@ def _z_scores(tr, res):
 def handheld():
     """10 s with the camera hand-held around a fixed board (the whole relative motion is the
     camera's: metres and tens of degrees), 0.3 mm marker noise on both bodies."""
-    return se3.simulate_session(3, duration_s=10.0, handheld_camera=True)
+    return simulate_session(3, duration_s=10.0, handheld_camera=True)
 
 
 def test_handheld_camera_simulation_moves_the_camera_not_the_board(handheld):
@@ -549,7 +580,7 @@ def test_se3_recovers_a_handheld_camera_where_the_old_smoothing_fails(handheld):
             tr["dt_offset_s"] + 0.01)  # fmt: skip
     res = se3.optimise_se3(*args).result
     assert not res["camera_static"]
-    assert res["camera_moving_smooth_s"] == se3.CAMERA_MOVING_SMOOTH_S
+    assert res["camera_moving_smooth_s"] == CAMERA_MOVING_SMOOTH_S
     z = _z_scores(tr, res)
     assert max(abs(v) for v in z.values()) < 3.0, z
     assert abs(res["dt_offset_s"] - tr["dt_offset_s"]) < 5e-4
@@ -583,7 +614,7 @@ def test_smooth_track_local_keeps_a_moving_path_the_box_bends():
     valid = np.ones(len(t), bool)
     valid[600:612] = False
     inner = slice(60, -60)
-    for fn, window, bound_m in ((se3.smooth_track_local, 0.1, 1e-4), (se3.smooth_track, 1.0, None)):
+    for fn, window, bound_m in ((smooth_track_local, 0.1, 1e-4), (smooth_track, 1.0, None)):
         Ts = fn(t, T, valid, window)
         dp = np.linalg.norm(Ts[:, :3, 3] - T[:, :3, 3], axis=1)[inner]
         dr = tf.rotation_angle(np.swapaxes(T[:, :3, :3], 1, 2) @ Ts[:, :3, :3])[inner]
@@ -594,7 +625,7 @@ def test_smooth_track_local_keeps_a_moving_path_the_box_bends():
     rng = np.random.default_rng(0)
     Tn = T.copy()
     Tn[:, :3, 3] += rng.normal(0, 1e-3, (len(t), 3))
-    Ts = se3.smooth_track_local(t, Tn, np.ones(len(t), bool), 0.1)
+    Ts = smooth_track_local(t, Tn, np.ones(len(t), bool), 0.1)
     scatter = (Ts[:, :3, 3] - T[:, :3, 3])[inner].std()
     assert scatter < 0.5e-3
 
@@ -607,7 +638,19 @@ def test_smooth_track_local_follows_a_body_turning_without_bound():
     ang = np.pi * t
     R = tf.R_from_euler(np.stack([0.3 + 0 * t, 0 * t, ang], axis=1))
     T = tf.make_T(R, np.stack([np.cos(ang), np.sin(ang), 1.0 + 0 * t], axis=1))
-    Ts = se3.smooth_track_local(t, T, np.ones(len(t), bool), 0.1)
+    Ts = smooth_track_local(t, T, np.ones(len(t), bool), 0.1)
     dr = tf.rotation_angle(np.swapaxes(T[:, :3, :3], 1, 2) @ Ts[:, :3, :3])[30:-30]
     assert dr.max() < 5e-5
     assert np.linalg.norm(Ts[:, :3, 3] - T[:, :3, 3], axis=1)[30:-30].max() < 1e-4
+
+
+def test_project_SO3_is_the_nearest_rotation():
+    """geometry.project_SO3 (the hand-eye start's projection) equals scipy's nearest rotation
+    (Bar-Itzhack) on perturbed rotations, and turns a reflection into a rotation."""
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        M = Rotation.random(random_state=rng).as_matrix() + rng.normal(0, 0.05, (3, 3))
+        R = project_SO3(M)
+        np.testing.assert_allclose(R, Rotation.from_matrix(M).as_matrix(), atol=1e-9)
+        np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
+    assert np.linalg.det(project_SO3(np.diag([1.0, 1.0, -1.0]))) > 0

@@ -10,8 +10,10 @@ import pytest
 from cvsflow import evaluate as ev
 from cvsflow import transforms as tf
 from cvsflow import uncertainty as un
+from cvsflow.board import board_object_points
 from cvsflow.errors import OptimiseError
-from cvsflow.optimise import se3
+from cvsflow.optimise.se3_sim import simulate_session
+from cvsflow.optimise.se3_start import corner_arrays, solve_pnp_frames
 
 K = np.array([[700.0, 0, 320.0], [0, 700.0, 240.0], [0, 0, 1]])
 DIST = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02])
@@ -22,7 +24,7 @@ def test_pnp_covariance_matches_monte_carlo():
     """The propagated 6x6 covariance of (rvec, tvec) matches the scatter of 400 noisy PnP
     solutions (0.5 px noise): per-axis standard deviations within 15 %."""
     rng = np.random.default_rng(0)
-    p_B = se3.board_points_B(BOARD)
+    p_B = board_object_points(BOARD)
     rvec, tvec = np.array([0.3, -0.4, 0.1]), np.array([-0.1, 0.05, 2.0])
     uv, _ = cv2.projectPoints(p_B.reshape(-1, 1, 3), rvec, tvec, K, DIST)
     sols = []
@@ -97,7 +99,7 @@ def test_error_model_detects_overconfidence():
 
 def test_error_features_geometry():
     """A face-on board centred on the optical axis at 2 m: distance 2 m, tilt 0, radius 0."""
-    p_B = se3.board_points_B(BOARD)
+    p_B = board_object_points(BOARD)
     centre = p_B.mean(axis=0)
     frames = pd.DataFrame(
         {"frame": [0], "cvs_rvec_0": [0.0], "cvs_rvec_1": [0.0], "cvs_rvec_2": [0.0],
@@ -135,7 +137,7 @@ def test_parameter_covariance_of_a_camera_mounting_rotation():
     board at 2 m on the axis by -w x t: err_y std 2 mm, err_roll std 1 mrad, nothing else;
     independent fx, fy errors (std 7 px at f 700, 1 %) move the PnP depth by their mean:
     err_z std 2 m x 1 % / sqrt(2) = 14 mm (within 5 %)."""
-    p_B = se3.board_points_B(BOARD)
+    p_B = board_object_points(BOARD)
     c = p_B.mean(axis=0)
     frames = pd.DataFrame({"fold": [0], "cvs_rvec_0": [0.0], "cvs_rvec_1": [0.0], "cvs_rvec_2": [0.0],
                            "cvs_x_m": [-c[0]], "cvs_y_m": [-c[1]], "cvs_z_m": [2.0],
@@ -158,7 +160,7 @@ def test_parameter_covariance_of_the_time_offset_is_the_reference_speed():
     second, and a time offset of std 1 ms: with ``time_offset`` each frame's error gets std
     0.5 mm in x and 1 mrad in yaw (within 2 %, ends included, one-sided there), nothing in
     y, z, roll, pitch; without it (the default) the time offset adds nothing."""
-    p_B = se3.board_points_B(BOARD)
+    p_B = board_object_points(BOARD)
     t_s = np.arange(9) / 30.0
     yaw = 1.0 * t_s
     R = tf.R_from_euler(np.c_[np.zeros((len(t_s), 2)), yaw])
@@ -259,7 +261,7 @@ def test_parameter_covariance_of_a_fixed_intrinsic_matches_monte_carlo():
     the propagated error covariance matches the Monte-Carlo covariance of the composed errors
     (std within 10 %, correlations within 0.1), signs included."""
     rng = np.random.default_rng(8)
-    p_B = se3.board_points_B(BOARD)
+    p_B = board_object_points(BOARD)
     fit = _fit_with_std(fx=0.0)
     names = fit["correlation"]["names"]
     S = np.zeros((len(names), 2))
@@ -309,11 +311,11 @@ def test_parameter_covariance_of_a_fixed_intrinsic_matches_monte_carlo():
 def truth_session():
     """A 10 s corner-level session scored against its own truth (the true K): CVS = PnP of the
     noisy corners, reference = the true pose, so the error is the corner noise alone."""
-    s = se3.simulate_session(21, duration_s=10.0, pixel_noise_px=0.4)
+    s = simulate_session(21, duration_s=10.0, pixel_noise_px=0.4)
     tr = s["truth"]
-    p_B = se3.board_points_B(s["board"])
-    frame, t, uv = se3.corner_arrays(s["corners"], len(p_B))
-    T_cvs, ok = se3.solve_pnp_frames(uv, p_B, tr["K"], tr["dist"])
+    p_B = board_object_points(s["board"])
+    frame, t, uv = corner_arrays(s["corners"], len(p_B))
+    T_cvs, ok = solve_pnp_frames(uv, p_B, tr["K"], tr["dist"])
     rows = {"frame": frame[ok], "t_s": t[ok], "fold": 0}
     for pre, T in (("cvs_", T_cvs[ok]), ("ref_", tr["T_C_B"][ok])):
         q = tf.quat_from_R(T[:, :3, :3])

@@ -1,0 +1,143 @@
+"""Parameter covariance of the ``se3`` estimate: data-only and from the fixed intrinsics.
+
+Data only: the Gauss-Newton covariance of an M-estimator (Huber 1981, sec. 7.6)
+``sigma_eff^2 (J^T J)^-1`` and a cluster-robust sandwich ``H^-1 (sum_c g_c g_c^T) H^-1`` over
+contiguous time blocks (:func:`covariances`). The intrinsics held fixed carry their
+calibration uncertainty into the free estimates through the sensitivity
+``S = -(J^T W J)^-1 J^T W J_fixed`` (:func:`fixed_sensitivity`; see
+:func:`cvsflow.optimise.se3.optimise_se3`, Notes).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cvsflow.optimise.se3_lm import gram, loss_weights
+
+#: 1-sigma of each intrinsic held fixed when camera.yaml has no ``std`` (px for fx..cy, then
+#: unitless): a 15-still 640 x 480 calibration at 0.1-0.4 px RMS, rounded up (the demo's stills
+#: give 0.3, 0.3, 0.6, 0.5 px, 0.003, 0.03, 2e-4, 2e-4, 0.08; OpenCV's 13 sample stills 0.9,
+#: 1.0, 1.0, 1.1 px, 0.012, 0.09, 2e-4, 3e-4, 0.2).
+DEFAULT_INTRINSIC_STD = {"fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "k1": 0.01, "k2": 0.05,
+                         "p1": 5e-4, "p2": 5e-4, "k3": 0.1}  # fmt: skip
+
+
+def covariances(J, r, loss, f_scale, clusters):
+    """Gauss-Newton M-estimator covariance, cluster-robust sandwich, and (J^T J)^-1.
+
+    Parameters
+    ----------
+    J : ndarray, shape (m, n)
+        Jacobian of the residuals at the solution.
+    r : ndarray, shape (m,)
+        Residuals at the solution, px.
+    loss : {"linear", "soft_l1", "huber"}
+    f_scale : float
+        Loss scale, px.
+    clusters : array_like, shape (m,)
+        Cluster label of each residual (e.g. its time block).
+
+    Returns
+    -------
+    cov_gn : ndarray, shape (n, n)
+        ``sigma_eff^2 (J^T J)^-1``, sigma_eff^2 = m/(m-n) mean(psi^2) / mean(psi')^2.
+    cov_cl : ndarray, shape (n, n)
+        Cluster-robust sandwich ``H^-1 (sum_c g_c g_c^T) H^-1`` with small-sample factors.
+    JtJ_inv : ndarray, shape (n, n)
+        Pseudo-inverse of J^T J.
+    sigma2 : float
+        sigma_eff^2, px^2.
+    n_clusters : int
+    """
+    m, n = J.shape
+    psi, dpsi = loss_weights(r, loss, f_scale)
+    JtJ = gram(J)
+    JtJ_inv = np.linalg.pinv(JtJ)
+    # Huber (1981) eq. 7.6.x: sigma_eff^2 = m/(m-n) mean(psi^2) / mean(psi')^2
+    sigma2 = (m / max(m - n, 1)) * np.mean(psi**2) / np.mean(dpsi) ** 2
+    cov_gn = sigma2 * JtJ_inv
+    H = gram(J, dpsi)
+    H_inv = np.linalg.pinv(H)
+    g_rows = J * psi[:, None]
+    labels, inv = np.unique(clusters, return_inverse=True)
+    G = len(labels)
+    g_c = np.zeros((G, n))
+    np.add.at(g_c, inv, g_rows)
+    meat = gram(g_c) * (G / max(G - 1, 1)) * ((m - 1) / max(m - n, 1))
+    cov_cl = H_inv @ meat @ H_inv
+    return cov_gn, cov_cl, JtJ_inv, float(sigma2), G
+
+
+def fixed_intrinsic_std(camera, names):
+    """1-sigma of the fixed intrinsics ``names``: camera["std"], else DEFAULT_INTRINSIC_STD.
+
+    Parameters
+    ----------
+    camera : dict
+        camera.yaml content; its optional ``std`` maps a name to a 1-sigma.
+    names : sequence of str
+        Intrinsics held fixed.
+
+    Returns
+    -------
+    std : ndarray, shape (k,)
+        px for fx..cy, unitless for the distortion terms.
+    defaulted : list of str
+        Names whose std is missing or not a finite value >= 0, taken from the default.
+    """
+    given = camera.get("std") if isinstance(camera, dict) else None
+    given = given if isinstance(given, dict) else {}
+    sd, defaulted = [], []
+    for n in names:
+        v = given.get(n)
+        try:
+            v = float(v)
+        except (TypeError, ValueError):
+            v = float("nan")
+        if not (np.isfinite(v) and v >= 0.0):
+            v = DEFAULT_INTRINSIC_STD[n]
+            defaulted.append(n)
+        sd.append(v)
+    return np.array(sd, float), defaulted
+
+
+def fixed_sensitivity(J, J_fixed, r, loss, f_scale):
+    """S = d x_hat / d theta_fixed = -(J^T W J)^-1 J^T W J_fixed, W = diag psi'(r).
+
+    Parameters
+    ----------
+    J : ndarray, shape (m, n)
+        Jacobian w.r.t. the free parameters.
+    J_fixed : ndarray, shape (m, k)
+        Jacobian w.r.t. the fixed intrinsics.
+    r : ndarray, shape (m,)
+        Residuals, px.
+    loss : {"linear", "soft_l1", "huber"}
+    f_scale : float
+        Loss scale, px.
+
+    Returns
+    -------
+    S : ndarray, shape (n, k)
+    """
+    dpsi = loss_weights(r, loss, f_scale)[1]
+    H = gram(J, dpsi)
+    B = np.einsum("mi,m,mj->ij", J, dpsi, J_fixed, optimize=False)
+    return -np.linalg.pinv(H) @ B
+
+
+def correlation(cov):
+    """Correlation matrix of a covariance.
+
+    Parameters
+    ----------
+    cov : ndarray, shape (n, n)
+
+    Returns
+    -------
+    corr : ndarray, shape (n, n)
+        cov_ij / (s_i s_j), s the standard deviations (floored at 1e-150).
+    """
+    d = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+    return cov / np.outer(d, d)
+
