@@ -13,10 +13,10 @@ Default sessions: every session of bench/uncertainty_sessions.yaml plus ``demo``
 results/demo/heldout exists. ``--shrink fit`` (or ``--shrink K``) shrinks each frame's
 corner noise toward its session's median with a fitted (or the given) prior strength
 (:func:`cvsflow.uncertainty.shrink_corner_noise`). ``--time-offset`` adds the se3 fits' time
-offset to the calibration term (``parameter_covariance(time_offset=True)``). Model (T) has
-its correlated corner-noise term (``measurement_features(corr_length_px=L)``) with L =
-``CORNER_CORRELATION_PX`` (a common shift); ``--corr L`` takes another length (px; written
-to loso_corr_L.yaml), ``--corr none`` leaves the term out (loso_nocorr.yaml). ``--worst NAME`` instead prints, for session NAME scored by the
+offset to the calibration term (``parameter_covariance(time_offset=True)``). ``--corr
+common`` adds model (T)'s correlated corner-noise term as a shift common to every corner of
+a frame (``measurement_features(corr_length_px=CORNER_CORRELATION_PX)``, written to
+loso_corr_inf.yaml), ``--corr L`` with corners correlated over L px (loso_corr_L.yaml). ``--worst NAME`` instead prints, for session NAME scored by the
 model fitted on the other sessions given, what its worst 5 % of frames (Mahalanobis
 distance) look like and which term of model (T) dominates them (docs/findings.md).
 """
@@ -132,8 +132,7 @@ def main(names, shrink=None, time_offset=False, corr_length_px=None):
     if "s_corr" in pm:
         print(f"pooled model s_corr {pm['s_corr']:.4g}")
     tag = (("" if shrink is None else f"_shrink_{shrink}") + ("_dt" if time_offset else "")
-           + ("_nocorr" if corr_length_px is None else "" if corr_length_px == un.CORNER_CORRELATION_PX
-              else f"_corr_{corr_length_px:g}"))
+           + ("" if corr_length_px is None else f"_corr_{corr_length_px:g}"))
     out = ROOT / "results" / "bench_uncertainty" / f"loso{tag}.yaml"
     write_yaml({"sessions": {n: r for n, r in loso["sessions"].items()},
                 "pooled_model": pm, "targets_missed": misses,
@@ -198,10 +197,10 @@ if __name__ == "__main__":
     time_offset = "--time-offset" in args  # the fits' time offset in the calibration term
     if time_offset:
         args.remove("--time-offset")
-    corr = un.CORNER_CORRELATION_PX
-    if "--corr" in args:  # --corr L | none: model (T)'s correlated corner noise, length L px
+    corr = None
+    if "--corr" in args:  # --corr L | common: model (T)'s correlated corner noise, length L px
         i = args.index("--corr")
-        corr = None if args[i + 1] == "none" else float(args[i + 1])
+        corr = un.CORNER_CORRELATION_PX if args[i + 1] == "common" else float(args[i + 1])
         del args[i : i + 2]
     if args[:1] == ["--worst"]:
         worst_frames(args[2:] or ["u_demo", "u_wide", "u_tele", "u_rs", "u_far"], args[1])
