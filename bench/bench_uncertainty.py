@@ -13,7 +13,10 @@ Default sessions: every session of bench/uncertainty_sessions.yaml plus ``demo``
 results/demo/heldout exists. ``--shrink fit`` (or ``--shrink K``) shrinks each frame's
 corner noise toward its session's median with a fitted (or the given) prior strength
 (:func:`cvsflow.uncertainty.shrink_corner_noise`). ``--time-offset`` adds the se3 fits' time
-offset to the calibration term (``parameter_covariance(time_offset=True)``). ``--worst NAME`` instead prints, for session NAME scored by the
+offset to the calibration term (``parameter_covariance(time_offset=True)``). ``--corr
+common`` adds model (T)'s correlated corner-noise term as a shift common to every corner of
+a frame (``measurement_features(corr_length_px=CORNER_CORRELATION_PX)``, written to
+loso_corr_inf.yaml), ``--corr L`` with corners correlated over L px (loso_corr_L.yaml). ``--worst NAME`` instead prints, for session NAME scored by the
 model fitted on the other sessions given, what its worst 5 % of frames (Mahalanobis
 distance) look like and which term of model (T) dominates them (docs/findings.md).
 """
@@ -44,14 +47,14 @@ def boards():
     return out
 
 
-def load(name, board, time_offset=False):
+def load(name, board, time_offset=False, corr_length_px=None):
     res = ROOT / "results" / name
     heldout = read_parquet(res / "heldout" / "se3.parquet")
     fits = read_yaml(res / "heldout" / "se3_folds.yaml")["folds"]
     corners = read_parquet(res / "corners.parquet")
     bodies = read_parquet(res / "bodies.parquet")
     feats = un.measurement_features(heldout, corners, board, fits=fits, bodies=bodies,
-                                    time_offset=time_offset)
+                                    time_offset=time_offset, corr_length_px=corr_length_px)
     # the session's pooled corner noise (what the shrinkage option pulls each frame toward)
     feats[un.NOISE_POOL_COLUMN] = un.corner_noise_pool(feats["reproj_rms_px"].to_numpy(float),
                                                        feats["n_corners"].to_numpy(float))
@@ -65,14 +68,14 @@ def fmt_axes(d, f="{:.3f}"):
     return " ".join(f.format(d[a]) for a in ERROR_DIMS)
 
 
-def main(names, shrink=None, time_offset=False):
+def main(names, shrink=None, time_offset=False, corr_length_px=None):
     b = boards()
     if not names:
         names = [n for n in b if n != "demo" and (ROOT / "results" / n / "heldout").exists()]
         if (ROOT / "results/demo/heldout/se3.parquet").exists():
             names.append("demo")
     t0 = time.perf_counter()
-    sessions = {n: load(n, b[n], time_offset) for n in names}
+    sessions = {n: load(n, b[n], time_offset, corr_length_px) for n in names}
     print(f"features of {len(names)} sessions: {time.perf_counter() - t0:.1f} s")
     for n, s in sessions.items():
         f = s["features"]
@@ -91,7 +94,8 @@ def main(names, shrink=None, time_offset=False):
         print(f"{n}: n {sc['n']}, NEES {sc['nees_mean']:.2f}, model s0 {m['s0_px']:.3f} px "
               f"s_speed {m['s_speed']:.3f} s_reproj {m['s_reproj']:.2f} c_cal {m['c_cal']:.2f} "
               f"b {m['b_pos_m'] * 1e3:.2f} mm {m['b_rot_rad'] * 1e3:.2f} mrad nu {m['nu']:.1f}"
-              + (f" k_shrink {m['k_shrink']:.3g}" if "k_shrink" in m else ""))
+              + (f" k_shrink {m['k_shrink']:.3g}" if "k_shrink" in m else "")
+              + (f" s_corr {m['s_corr']:.3f}" if "s_corr" in m else ""))
         print(f"   inside 95: {fmt_axes(sc['inside_95'])}")
         print(f"   inside 68: {fmt_axes(sc['inside_68'])}")
         print(f"   z RMS:     {fmt_axes(sc['z_rms'])}")
@@ -125,7 +129,10 @@ def main(names, shrink=None, time_offset=False):
         print("  " + m)
     if "k_shrink" in pm:
         print(f"pooled model k_shrink {pm['k_shrink']:.4g}")
-    tag = ("" if shrink is None else f"_shrink_{shrink}") + ("_dt" if time_offset else "")
+    if "s_corr" in pm:
+        print(f"pooled model s_corr {pm['s_corr']:.4g}")
+    tag = (("" if shrink is None else f"_shrink_{shrink}") + ("_dt" if time_offset else "")
+           + ("" if corr_length_px is None else f"_corr_{corr_length_px:g}"))
     out = ROOT / "results" / "bench_uncertainty" / f"loso{tag}.yaml"
     write_yaml({"sessions": {n: r for n, r in loso["sessions"].items()},
                 "pooled_model": pm, "targets_missed": misses,
@@ -150,7 +157,7 @@ def worst_frames(names, held):
     Sig = un.transfer_covariance(m, f)
     E = e[cols].to_numpy() - un.transfer_mean(m, f)
     m2 = np.einsum("ni,nij,nj->n", E, np.linalg.inv(Sig), E)
-    U, P, _, speed, reproj, _ = un_transfer._transfer_terms(f)
+    U, P, _, speed, reproj, _, _ = un_transfer._transfer_terms(f)
     var_px = m["s0_px"] ** 2 + (m["s_speed"] * speed) ** 2 + (m["s_reproj"] * reproj) ** 2
     t_noise = np.einsum("nii->n", var_px[:, None, None] * U)
     t_cal = np.einsum("nii->n", m["c_cal"] ** 2 * P)
@@ -190,7 +197,12 @@ if __name__ == "__main__":
     time_offset = "--time-offset" in args  # the fits' time offset in the calibration term
     if time_offset:
         args.remove("--time-offset")
+    corr = None
+    if "--corr" in args:  # --corr L | common: model (T)'s correlated corner noise, length L px
+        i = args.index("--corr")
+        corr = un.CORNER_CORRELATION_PX if args[i + 1] == "common" else float(args[i + 1])
+        del args[i : i + 2]
     if args[:1] == ["--worst"]:
         worst_frames(args[2:] or ["u_demo", "u_wide", "u_tele", "u_rs", "u_far"], args[1])
     else:
-        main(args, shrink, time_offset)
+        main(args, shrink, time_offset, corr)

@@ -21,11 +21,13 @@ transfer); this package only re-exports their public names.
 
 from cvsflow.uncertainty.crb import cramer_rao_sigma
 from cvsflow.uncertainty.features import (
+    CORNER_CORRELATION_PX,
     FILL_WINDOW_S,
     MEASUREMENT_FEATURES,
     NOISE_POOL_COLUMN,
     corner_noise_from_reproj,
     corner_noise_pool,
+    correlated_noise_terms,
     frame_noise_terms,
     measurement_features,
     seen_corners,
@@ -68,9 +70,11 @@ from cvsflow.uncertainty.transfer import (
 )
 
 __all__ = [
-    "BANDS", "FEATURES", "FILL_WINDOW_S", "MEASUREMENT_FEATURES", "NOISE_POOL_COLUMN",
+    "BANDS", "CORNER_CORRELATION_PX", "FEATURES", "FILL_WINDOW_S", "MEASUREMENT_FEATURES",
+    "NOISE_POOL_COLUMN",
     "PARAM_BLOCKS", "RENDERED_TRANSFER_MODEL", "TRANSFER_PARAMS", "WORKING_UNITS",
-    "band_multipliers", "corner_noise_from_reproj", "corner_noise_pool", "cov_columns",
+    "band_multipliers", "corner_noise_from_reproj", "corner_noise_pool", "correlated_noise_terms",
+    "cov_columns",
     "cov_from_columns", "cramer_rao_sigma", "crossfit_transfer", "error_features",
     "fit_error_model", "fit_transfer_model", "frame_noise_terms", "leave_one_session_out",
     "measurement_features", "nees_values", "parameter_covariance", "pnp_covariance",

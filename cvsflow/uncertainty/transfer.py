@@ -53,7 +53,11 @@ def _transfer_terms(features):
           else np.zeros((len(U), 6)))  # fmt: skip
     filled = (features["vicon_filled"].to_numpy(float) if "vicon_filled" in features
               else np.zeros(len(U)))  # fmt: skip
-    return U * scale, block("parcov") * scale, RS, speed, reproj, filled
+    return U * scale, block("parcov") * scale, RS, speed, reproj, filled, block("corrcov") * scale
+
+
+def _has_corr(features):
+    return all(c in features.columns for c in cov_columns("corrcov"))
 
 
 def _unpack_transfer(q):
@@ -71,9 +75,11 @@ def _shrink_terms(features):
     return n_c, pool
 
 
-def _transfer_cov(q, U, P, RS, speed, reproj, filled, shrink=None):
+def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, shrink=None, s_corr=0.0):
     """Model (T) mean (N, 6) and covariance (N, 6, 6), working units; ``q`` of 11 entries
-    (the last log k) with ``shrink`` = :func:`_shrink_terms` shrinks the corner noise."""
+    (the last log k) with ``shrink`` = :func:`_shrink_terms` shrinks the corner noise;
+    ``s_corr`` is the correlated share of the corner noise (its variance s_corr^2 sigma_px^2
+    through ``C``, per px^2)."""
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, _ = _unpack_transfer(q)
     if len(q) > 10 and shrink is not None:
         reproj = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
@@ -82,6 +88,8 @@ def _transfer_cov(q, U, P, RS, speed, reproj, filled, shrink=None):
     fill = np.r_[np.full(3, f_pos), np.full(3, f_rot)] / WORKING_UNITS
     S = (var_px[:, None, None] * U + c**2 * P + np.diag(floor**2)[None]
          + filled[:, None, None] * np.diag(fill**2)[None])  # fmt: skip
+    if s_corr and C is not None:
+        S = S + (s_corr**2 * var_px)[:, None, None] * C
     return s_rs * RS, S
 
 
@@ -93,7 +101,7 @@ def fit_transfer_model(features, errors, shrink=None):
         sigma_px,i^2 = s0^2 + (s_speed v_i)^2 + (s_reproj n_i)^2
         mu_i = s_rs r_i
         Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
-                  + f_i diag(b_fill_pos^2 I3, b_fill_rot^2 I3)
+                  + f_i diag(b_fill_pos^2 I3, b_fill_rot^2 I3) [+ s_corr^2 sigma_px,i^2 C_i]
 
     with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
     saw (it carries the distance, the view angles, the corner count and their spread), v_i the
@@ -107,7 +115,12 @@ def fit_transfer_model(features, errors, shrink=None):
     reference is taken at the mean row; a known error, hence a mean, not a variance), and the
     floors b the Vicon reference's own noise, raised by b_fill where a board marker was
     gap-filled about the frame (f_i = 1, ``vicon_filled``: the filled marker's error moves
-    the rigid fit). The errors are multivariate
+    the rigid fit). When the features carry ``corrcov`` (:func:`measurement_features` with
+    ``corr_length_px``), C_i is the PnP error covariance per px^2 of a corner noise correlated
+    between corners (a video codec's shared error: one PnP absorbs into the pose, so n_i
+    does not show it), whose standard deviation is the share s_corr of the frame's corner
+    noise sigma_px,i (on the rendered sessions' true corner errors the common shift is
+    0.15-0.18 of the iid noise), fitted too; else the term is absent. The errors are multivariate
     Student-t with nu > 2 degrees of freedom and covariance Sigma_i. Every scale is in
     physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
     fitted on some sessions predicts another.
@@ -128,7 +141,8 @@ def fit_transfer_model(features, errors, shrink=None):
     model : dict
         ``kind: T``, ``dims``, one entry per :data:`TRANSFER_PARAMS` (px, -, -, -, -, m, rad,
         -),
-        ``nll`` (mean per frame), ``n_train``; with ``shrink`` also ``k_shrink``.
+        ``nll`` (mean per frame), ``n_train``; with ``shrink`` also ``k_shrink``; with
+        ``corrcov`` features also ``s_corr`` (-).
 
     Raises
     ------
@@ -142,7 +156,8 @@ def fit_transfer_model(features, errors, shrink=None):
     if missing:
         raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
     E = errors[cols].to_numpy(float) / WORKING_UNITS
-    U, P, RS, speed, reproj, filled = _transfer_terms(features)
+    U, P, RS, speed, reproj, filled, C = _transfer_terms(features)
+    fit_corr = _has_corr(features)
     if len(E) != len(U) or len(E) < 20:
         raise OptimiseError(
             f"fit_transfer_model: {len(E)} error rows and {len(U)} feature rows; need equal, >= 20"
@@ -163,12 +178,14 @@ def fit_transfer_model(features, errors, shrink=None):
     k_fixed = [] if shrink is None or fit_k else [np.log(max(float(shrink), 1e-12))]
 
     def full(q):
+        q = q[:-1] if fit_corr else q
         q = q if fit_rs else np.r_[q[:4], 0.0, q[4:]]
         return np.r_[q, k_fixed]
 
     def nll(q):
+        s_corr = float(np.exp(q[-1])) if fit_corr else 0.0
         q = full(q)
-        mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, sh)
+        mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, sh, s_corr)
         nu = _unpack_transfer(q)[9]
         try:
             L = np.linalg.cholesky(S * ((nu - 2.0) / nu))
@@ -195,6 +212,9 @@ def fit_transfer_model(features, errors, shrink=None):
         starts = [np.r_[x[keep], np.log(30.0)] for x in starts]
     else:
         starts = [x[keep] for x in starts]
+    if fit_corr:
+        bounds.append((-25, 5))
+        starts = [np.r_[x, np.log(0.15)] for x in starts]
     for start in starts:
         sol = minimize(nll, start, method="L-BFGS-B", bounds=bounds, options={"maxiter": 500})
         if best is None or sol.fun < best.fun:
@@ -206,6 +226,8 @@ def fit_transfer_model(features, errors, shrink=None):
     model.update({name: float(v) for name, v in zip(TRANSFER_PARAMS, vals, strict=True)})
     if shrink is not None:
         model["k_shrink"] = float(np.exp(q_best[10]))
+    if fit_corr:
+        model["s_corr"] = float(np.exp(best.x[-1]))
     return model
 
 
@@ -218,7 +240,12 @@ def _q_from_model(model):
 
 def _model_cov(model, features):
     sh = _shrink_terms(features) if model.get("k_shrink") is not None else None
-    return _transfer_cov(_q_from_model(model), *_transfer_terms(features), sh)
+    s_corr = float(model.get("s_corr") or 0.0)
+    if s_corr and not _has_corr(features):
+        raise OptimiseError("model (T) has s_corr but the features lack corrcov columns "
+                            "(measurement_features(corr_length_px=...))")
+    return _transfer_cov(_q_from_model(model), *_transfer_terms(features), shrink=sh,
+                         s_corr=s_corr)
 
 
 def transfer_covariance(model, features):

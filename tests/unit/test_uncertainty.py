@@ -520,3 +520,67 @@ def test_flight_reference_covariance_takes_the_shrinkage_option():
     high = n_i > 1.05 * np.median(n_i)
     assert low.sum() >= 5 and high.sum() >= 5
     assert (pooled[low] > base[low]).all() and (pooled[high] < base[high]).all()
+
+
+def test_correlated_noise_terms_limits_are_iid_noise_and_a_common_shift():
+    """A correlation length far below the corner spacing gives the iid term (frame_noise_terms'
+    unit covariance); an infinite one gives the covariance of the pose change that
+    PnP makes when every corner shifts by the same unit (re-solved by cv2.solvePnP for a
+    0.01 px shift along u and along v)."""
+    p_B = se3.board_points_B(BOARD)
+    rvec, tvec = np.array([0.3, -0.4, 0.1]), np.array([-0.1, 0.05, 2.0])
+    uv, _ = cv2.projectPoints(p_B.reshape(-1, 1, 3), rvec, tvec, K, DIST)
+    uv = uv.reshape(1, -1, 2)
+    uv[0, 3] = np.nan  # an unseen corner is left out
+    unit, _ = un.frame_noise_terms(uv, np.zeros_like(uv), rvec[None], tvec[None], p_B, K, DIST)
+    tiny = un.correlated_noise_terms(uv, rvec[None], tvec[None], p_B, K, DIST, 1e-3)
+    np.testing.assert_allclose(tiny, unit, rtol=1e-9, atol=1e-9 * np.abs(unit).max())
+    huge = un.correlated_noise_terms(uv, rvec[None], tvec[None], p_B, K, DIST, np.inf)[0]
+    seen = np.isfinite(uv[0]).all(axis=1)
+    T0 = tf.T_from_rvec_tvec(rvec[None], tvec[None])
+    cols = [f"err_{d}" for d in ev.ERROR_DIMS]
+    eps, expect = 0.01, np.zeros((6, 6))
+    for axis in range(2):
+        shifted = uv[0, seen] + eps * np.eye(2)[axis]
+        _, r, t = cv2.solvePnP(p_B[seen].reshape(-1, 1, 3), shifted.reshape(-1, 1, 2), K, DIST,
+                               rvec.copy()[:, None], tvec.copy()[:, None],
+                               useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)  # fmt: skip
+        T1 = tf.T_from_rvec_tvec(r.reshape(1, 3), t.reshape(1, 3))
+        e = ev.pose_errors(T0, T1)[cols].to_numpy()[0] / eps
+        expect += np.outer(e, e)
+    np.testing.assert_allclose(huge, expect, rtol=0.02, atol=0.02 * np.abs(expect).max())
+    with pytest.raises(OptimiseError, match="length_px"):
+        un.correlated_noise_terms(uv, rvec[None], tvec[None], p_B, K, DIST, 0.0)
+
+
+def test_transfer_model_fits_the_correlated_corner_term():
+    """Errors of model (T) plus a correlated corner noise of 0.4 times the frame's corner noise
+    (covariance per px^2 C_i in ``corrcov``): the fit recovers s_corr within 20 % and the band coverage holds on new
+    frames; without ``corrcov`` columns the model has no such term, and a model with it
+    refuses features without the columns."""
+    rng = np.random.default_rng(7)
+
+    def draw(rng, n):
+        feats, E, _ = _draw_transfer(rng, n, TRUTH_T, n_blocks=100)
+        B = rng.normal(size=(n, 6, 2)) * np.r_[2e-3, 2e-3, 5e-3, 3e-3, 3e-3, 1e-3][None, :, None]
+        C = B @ np.swapaxes(B, 1, 2) + np.eye(6) * 1e-10  # a shift-like term: rank 2 per frame
+        iu = np.triu_indices(6)
+        for c, name in enumerate(un.cov_columns("corrcov")):
+            feats[name] = C[:, iu[0][c], iu[1][c]]
+        var_px = (TRUTH_T["s0_px"] ** 2 + (TRUTH_T["s_speed"] * feats["speed_px"]) ** 2
+                  + (TRUTH_T["s_reproj"] * feats["reproj_rms_px"] / np.sqrt(2.0)) ** 2)  # fmt: skip
+        z = rng.normal(size=(n, 2)) * (0.4 * np.sqrt(var_px.to_numpy()))[:, None]
+        return feats, E + np.einsum("nij,nj->ni", B, z)
+
+    feats, E = draw(rng, 2000)
+    m = un.fit_transfer_model(feats, E)
+    assert m["s_corr"] == pytest.approx(0.4, rel=0.2)
+    f2, E2 = draw(np.random.default_rng(8), 2000)
+    sc = un.score_covariance(un.transfer_covariance(m, f2), E2, nu=m["nu"])
+    assert 5.0 < sc["nees_mean"] < 7.0
+    for d in ev.ERROR_DIMS:
+        assert 0.93 < sc["inside_95"][d] < 0.97, d
+    plain = feats.drop(columns=un.cov_columns("corrcov"))
+    assert "s_corr" not in un.fit_transfer_model(plain.iloc[:300], E.iloc[:300])
+    with pytest.raises(OptimiseError, match="corrcov"):
+        un.transfer_covariance(m, plain)
