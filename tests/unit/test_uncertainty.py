@@ -527,7 +527,7 @@ def test_correlated_noise_terms_limits_are_iid_noise_and_a_common_shift():
     unit covariance); an infinite one gives the covariance of the pose change that
     PnP makes when every corner shifts by the same unit (re-solved by cv2.solvePnP for a
     0.01 px shift along u and along v)."""
-    p_B = se3.board_points_B(BOARD)
+    p_B = board_object_points(BOARD)
     rvec, tvec = np.array([0.3, -0.4, 0.1]), np.array([-0.1, 0.05, 2.0])
     uv, _ = cv2.projectPoints(p_B.reshape(-1, 1, 3), rvec, tvec, K, DIST)
     uv = uv.reshape(1, -1, 2)
