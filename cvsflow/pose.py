@@ -1439,7 +1439,9 @@ def extract_corners(
     keep_partial : bool
         Frames where the tracked board is partly hidden (a hand over it: ``partial``; the
         image border: ``out_of_view``) keep the corners that pass their local checks, with
-        their indices; False counts them as not found (the former table).
+        their indices, as do frames where the detector finds the grid but some corners fail
+        the neighbour check (``partial``: a hand over the board with no full view before);
+        False counts them as not found (the former table).
 
     Returns
     -------
