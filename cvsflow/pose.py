@@ -476,6 +476,7 @@ def detect_corners(
     flags: int = VIDEO_FIND_FLAGS,
     max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
     full_size: bool = True,
+    keep_partial: bool = False,
 ) -> tuple[np.ndarray | None, str]:
     """Chessboard corners of one frame, refined and in board order.
 
@@ -498,15 +499,22 @@ def detect_corners(
     full_size : bool
         Where the search on the shrunk image (``DETECT_LONG_SIDE_PX``) fails, search the
         full-size image too (slow: ~0.3 s at 1280x720 on a frame with a partly hidden board).
+    keep_partial : bool
+        Where OpenCV finds the grid but some corners fail the neighbour check (a hand over
+        them), keep the others (``"partial"``) instead of counting the frame as not found.
 
     Returns
     -------
     corners_px : ndarray, shape (nx * ny, 2), float64, or None
         Corner k at board point (k % nx, k // nx) * square_m (see
-        ``cvsflow.calibration.order_corners``).
+        ``cvsflow.calibration.order_corners``); with ``"partial"``, NaN for the corners
+        dropped.
     method : str
         How the 180-degree ambiguity was decided (``"colour"``, ``"continuity"``,
-        ``"unresolved"``), or ``"not_found"`` / ``"inconsistent"``.
+        ``"unresolved"``), ``"partial"`` (``keep_partial``: the corners that agree with their
+        grid neighbours, show the chessboard's saddle in their own colours and bound squares
+        of the right colours, as for a tracked board partly hidden, ``_follow_partial``), or
+        ``"not_found"`` / ``"inconsistent"``.
 
     Notes
     -----
@@ -519,10 +527,34 @@ def detect_corners(
     found, corners = _find_on_pyramid(gray, pattern, flags, full_size)
     if not found:
         return None, "not_found"
-    corners = refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
-    if corners is None:
+    refined, first = _refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
+    if refined is not None:
+        return order_corners(refined, gray, board, previous_px)
+    if not keep_partial:
         return None, "inconsistent"
-    return order_corners(corners, gray, board, previous_px)
+    return _detected_partial(gray, corners, first, board, subpix_window_px, max_grid_deviation,
+                             previous_px)
+
+
+def _detected_partial(gray, corners_px, first, board, subpix_window_px, max_grid_deviation,
+                      previous_px):
+    """``detect_corners``' fallback for a grid OpenCV found whose corners fail the neighbour
+    check: those of ``first`` (``_refine_corners``' first cornerSubPix) that pass the partial
+    checks of a tracked board. A grid in the wrong 180-degree order puts every corner's saddle
+    and every square on the wrong colour (boards whose ends differ), so it keeps none."""
+    h, w = gray.shape
+    start = np.asarray(corners_px, np.float64).reshape(-1, 2) if first is None else first[0]
+    ordered, _ = order_corners(start, gray, board, previous_px)
+    sc = _track_scales(ordered, board, gray.shape)
+    inner = _inside(ordered, w, h, sc["border"])
+    # The first cornerSubPix serves where every corner is inside (its limits are recomputed
+    # in board order); near the border the inner ones are refined afresh, as when tracking.
+    refined = (ordered, None, None) if first is not None and inner.all() else None
+    partial, _ = _follow_partial(gray, ordered, inner, _grid_points(board), board,
+                                 subpix_window_px, sc, max_grid_deviation, "partial", refined)
+    if partial is None:
+        return None, "inconsistent"
+    return partial, "partial"
 
 
 # findChessboardCorners runs first on the image shrunk to this long side (its cost grows with
@@ -1276,12 +1308,12 @@ class _CornerFollower:
             prev = self.flags if self.flags is not None else VIDEO_SEARCH_FLAGS
             corners_px, method = self._guard(detect_corners, "cv_error", frame, gray,
                                              self.board, self.subpix, None, prev,
-                                             self.max_dev, False)
+                                             self.max_dev, False, self.keep_partial)
         if corners_px is None:
             self._wait(frame, t_s, gray, True, out)
             return out
-        out += self._track_back(gray, corners_px, frame)
-        self._keep(gray, corners_px, frame, found=True)
+        out += self._track_back(gray, corners_px, frame, method)
+        self._keep(gray, corners_px, frame, found=True, method=method)
         out.append((frame, t_s, corners_px, method))
         return out
 
@@ -1298,15 +1330,24 @@ class _CornerFollower:
 
     def finish(self):
         """Decide the frames still waiting: the last one is searched (if the back-off skipped
-        it) and the others tracked back from it; else no board was found to track from."""
+        it; then, if the quick search fails, with the full detector) and the others tracked
+        back from it; else no board was found to track from."""
         if self.pending and not self.pending[-1][3]:
             frame, t_s, gray, _ = self.pending.pop()
             self.pending_bytes -= gray.nbytes
             corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
                                              self.board, self.subpix, self.max_dev,
                                              self._quick_scale())
+            if corners_px is None:
+                # A board the quick search misses (a hand over it from the start, low
+                # contrast) in a take, or a piece before a restart, shorter than
+                # DEEP_SEARCH_EVERY frames: the full detector once, on the shrunk image.
+                corners_px, method = self._guard(detect_corners, "cv_error", frame, gray,
+                                                 self.board, self.subpix, None,
+                                                 self.flags or VIDEO_SEARCH_FLAGS,
+                                                 self.max_dev, False, self.keep_partial)
             if corners_px is not None:
-                return self._track_back(gray, corners_px, frame) + [
+                return self._track_back(gray, corners_px, frame, method) + [
                     (frame, t_s, corners_px, method)]
             self.pending.append((frame, t_s, gray, True))
             self.pending_bytes += gray.nbytes
@@ -1359,17 +1400,19 @@ class _CornerFollower:
         if flags is None:
             flags = VIDEO_FIND_FLAGS if prev is not None else VIDEO_SEARCH_FLAGS
         corners_px, method = self._guard(detect_corners, "cv_error", frame, gray, self.board,
-                                         self.subpix, prev, flags, self.max_dev, full_size)
+                                         self.subpix, prev, flags, self.max_dev, full_size,
+                                         self.keep_partial)
         if corners_px is not None:
-            self._keep(gray, corners_px, frame, found=True)
+            self._keep(gray, corners_px, frame, found=True, method=method)
         return frame, t_s, corners_px, method
 
-    def _track_back(self, gray, corners_px, frame):
-        """Results of the waiting frames, tracked backwards from a frame with the board; where
-        that fails, the detector once (the board may have been whole there), then nothing."""
+    def _track_back(self, gray, corners_px, frame, found_by=None):
+        """Results of the waiting frames, tracked backwards from a frame with the board (found
+        by the method ``found_by``); where that fails, the detector once (the board may have been whole
+        there), then nothing."""
         pending, self.pending = list(self.pending), collections.deque()
         self.pending_bytes = 0
-        ref = (gray, corners_px, frame, None)
+        ref = (gray, corners_px, frame, _hand_hidden(corners_px, found_by))
         out = []
         tried_detect = False
         for f, t_s, g, searched in reversed(pending):
@@ -1385,9 +1428,9 @@ class _CornerFollower:
                     px, method = self._guard(detect_corners, "cv_error", f, g, self.board,
                                              self.subpix, None,
                                              self.flags or VIDEO_SEARCH_FLAGS, self.max_dev,
-                                             False)
+                                             False, self.keep_partial)
                     if px is not None:
-                        ref = (g, px, f, None)
+                        ref = (g, px, f, _hand_hidden(px, method))
                     result = (f, t_s, px, method)
             if result is None:
                 result = (f, t_s, None, "not_found" if searched else "not_searched")
@@ -1447,7 +1490,9 @@ def extract_corners(
     keep_partial : bool
         Frames where the tracked board is partly hidden (a hand over it: ``partial``; the
         image border: ``out_of_view``) keep the corners that pass their local checks, with
-        their indices; False counts them as not found (the former table).
+        their indices, as do frames where the detector finds the grid but some corners fail
+        the neighbour check (``partial``: a hand over the board with no full view before);
+        False counts them as not found (the former table).
 
     Returns
     -------

@@ -499,6 +499,54 @@ def test_a_hand_over_the_board_keeps_the_visible_corners_with_true_indices():
         assert (uv_true[:, 0] < hands[i][0, 0]).all()
 
 
+
+def _board_with_a_finger_on_corner_12(monkeypatch):
+    """A demo board with a grey disc (a fingertip) over corner 12, its true corners, and
+    findChessboardCorners stubbed to find the whole grid (as it does on the realistic render
+    with a hand over two corners) in the reversed order, half a pixel off."""
+    from board_images import render_board_distorted
+
+    import cvsflow.pose as pose
+
+    K = np.array([[700.0, 0.0, 319.5], [0.0, 700.0, 239.5], [0.0, 0.0, 1.0]])
+    T = board_centre_pose([0.2, -0.15, 0.1], [0.0, 0.0, 1.3])
+    _, uv = render_board_distorted(T, K, np.zeros(5), (W, H))
+    step = np.linalg.norm(uv[1] - uv[0])
+    a = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+    finger = uv[12] + step * (0.5 * np.c_[np.cos(a), np.sin(a)] + [0.15, 0.1])
+    gray, uv = render_board_distorted(T, K, np.zeros(5), (W, H), occluder=finger, seed=3)
+    rng = np.random.default_rng(0)
+    found = (uv[::-1] + rng.normal(0.0, 0.5, uv.shape)).astype(np.float32).reshape(-1, 1, 2)
+    monkeypatch.setattr(pose, "_find_on_pyramid", lambda *args: (True, found.copy()))
+    return gray, uv
+
+
+def test_detect_corners_keeps_the_corners_a_finger_leaves_with_true_indices(monkeypatch):
+    gray, uv = _board_with_a_finger_on_corner_12(monkeypatch)
+    corners, method = detect_corners(gray, BOARD)
+    assert corners is None and method == "inconsistent"  # the default: not found
+    corners, method = detect_corners(gray, BOARD, keep_partial=True)
+    assert method == "partial"
+    known = np.isfinite(corners).all(axis=1)
+    assert not known[12] and known.sum() >= 17
+    # in board order despite OpenCV's reversed one: each kept corner is its true corner
+    assert np.linalg.norm(corners[known] - uv[known], axis=1).max() < 0.3
+
+
+def test_detect_corners_keeps_no_partial_board_in_the_wrong_order(monkeypatch):
+    # The grid turned by 180 degrees puts every corner's saddle and every square on the wrong
+    # colour (the demo board's ends differ): nothing is kept rather than corners misnamed.
+    import cvsflow.pose as pose
+
+    gray, _ = _board_with_a_finger_on_corner_12(monkeypatch)
+
+    def turned(corners_px, *args):
+        return order_corners(corners_px, *args)[0][::-1].copy(), "colour"
+
+    monkeypatch.setattr(pose, "order_corners", turned)
+    corners, method = detect_corners(gray, BOARD, keep_partial=True)
+    assert corners is None and method == "inconsistent"
+
 def test_grid_deviation_is_the_displacement_of_a_misplaced_corner():
     # An exact perspective view of the grid with one corner moved: its neighbours (exact)
     # predict its true place, so its deviation is its displacement; corners farther than two
