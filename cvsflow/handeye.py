@@ -1,19 +1,7 @@
 """Hand-eye calibration from chessboard stills, each with a pose of the camera's carrier.
 
-Frames (design.md): ``W`` the pose source's world (robot base, motion-capture world), ``C`` the
-camera optical frame, ``B`` the board (origin at inner corner 0, z into the board). The carrier
-X is what the pose source tracks: the robot end-effector or a marker body.
-
-- ``eye_in_hand``: the camera rides on the carrier (X = ``Cm``), the board is fixed in W.
-  Unknowns ``T_Cm_C`` (camera in carrier) and ``T_W_B`` (board in world);
-  ``T_C_B,i = inv(T_Cm_C) @ inv(T_W_Cm,i) @ T_W_B``.
-- ``eye_to_hand``: the board rides on the carrier (X = ``Bm``), the camera is fixed in W.
-  Unknowns ``T_W_C`` (camera in world) and ``T_Bm_B`` (board in carrier);
-  ``T_C_B,i = inv(T_W_C) @ T_W_Bm,i @ T_Bm_B``.
-
-Both are ``T_C_B,i = inv(H) @ A_i @ G`` with ``A_i = inv(T_W_Cm,i)`` or ``T_W_Bm,i``; H is the
-"hand-eye" transform (``T_Cm_C`` or ``T_W_C``) and G the target (``T_W_B`` or ``T_Bm_B``): the
-robot-world/hand-eye problem ``A_i G = H B_i`` with ``B_i = T_C_B,i`` from PnP.
+Frames, the two modes (``eye_in_hand``, ``eye_to_hand``) and the problem
+``T_C_B,i = inv(H) @ A_i @ G`` (``A_i G = H B_i``) are set out in :mod:`cvsflow.handeye_model`.
 
 Method
 ------

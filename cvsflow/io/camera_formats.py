@@ -19,6 +19,7 @@ import numpy as np
 import yaml
 
 from cvsflow.errors import InputError
+from cvsflow.geometry.transforms import invert_T
 from cvsflow.io.files import atomic_output
 
 log = logging.getLogger(__name__)
@@ -235,11 +236,7 @@ def write_kalibr_rig_camchain(cameras: list[dict], T_Ci_C0: list, path, topics=N
         block = _kalibr_camera(K, dist, width, height,
                                topics[i] if topics else f"/cam{i}/image_raw")
         if i > 0:
-            T_prev = np.asarray(T_Ci_C0[i - 1], float)
-            T_prev_inv = np.eye(4)
-            T_prev_inv[:3, :3] = T_prev[:3, :3].T
-            T_prev_inv[:3, 3] = -T_prev[:3, :3].T @ T_prev[:3, 3]
-            block["T_cn_cnm1"] = (T @ T_prev_inv).tolist()
+            block["T_cn_cnm1"] = (T @ invert_T(np.asarray(T_Ci_C0[i - 1], float))).tolist()
         data[f"cam{i}"] = block
         shifts.append(k3_drop_shift_px(camera))
     header = ("Kalibr camchain of a camera rig written by cvsflow (cvsflow.stereo.stereo_extrinsics).\n"
