@@ -177,8 +177,8 @@ def _plain(video: Path, board: dict):
 def _run_variant(name: str, video: Path, out: Path, board: dict) -> dict:
     """One variant in this process (one core); writes its table to ``out``; returns timings."""
     _one_core()
+    from cvsflow.corners import extract_corners
     from cvsflow.io.media import iter_video_gray
-    from cvsflow.pose import extract_corners
 
     wall0, cpu0 = time.perf_counter(), time.process_time()
     table = None

@@ -52,12 +52,13 @@ def run_stages(seed, duration_s, work):
     truth : dict
     """
     from cvsflow.calibration import calibrate_camera
+    from cvsflow.corners import extract_corners
     from cvsflow.io.markers import select_markers
     from cvsflow.io.media import iter_video_gray, list_stills, read_gray, video_info
     from cvsflow.io.mocap_formats import read_markers
     from cvsflow.mocap import fit_bodies
     from cvsflow.mocap_repair import repair_markers
-    from cvsflow.pose import estimate_poses, extract_corners
+    from cvsflow.pose import estimate_poses
     from cvsflow.synth.render import render_session
 
     work = Path(work)

@@ -461,7 +461,7 @@ def extract_charuco_corners(
     keep_partial: bool = True,
     max_marker_deviation: float = MAX_MARKER_DEVIATION_FRAC,
 ) -> pd.DataFrame:
-    """ChArUco corners of every video frame: the corners table of ``cvsflow.pose.extract_corners``.
+    """ChArUco corners of every video frame: the corners table of ``cvsflow.corners.extract_corners``.
 
     Every frame is detected on its own (the markers name the corners, so nothing is tracked
     and a video cut into chunks gives the table of one pass).

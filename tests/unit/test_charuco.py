@@ -18,10 +18,12 @@ import yaml
 
 from cvsflow import charuco as ch
 from cvsflow import transforms as tf
+from cvsflow.board import CORNER_COLUMNS
 from cvsflow.calibration import board_object_points, calibrate_camera
+from cvsflow.corners import extract_corners
 from cvsflow.errors import ConfigError
 from cvsflow.optimise.se3_start import corner_arrays
-from cvsflow.pose import CORNER_COLUMNS, estimate_poses, extract_corners
+from cvsflow.pose import estimate_poses
 from cvsflow.sessions import check_sessions
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.effects import Grip, make_hand_texture, occluded_corners
@@ -277,7 +279,7 @@ def test_rendered_charuco_session_end_to_end(tmp_path):
     corners throughout.)"""
     from functools import partial
 
-    from cvsflow.corners_fast import extract_corners_parallel
+    from cvsflow.corners import extract_corners_parallel
     from cvsflow.io.media import iter_video_gray
     from cvsflow.synth.render import render_session
 

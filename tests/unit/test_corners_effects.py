@@ -25,8 +25,8 @@ import pandas as pd
 import pytest
 import yaml
 
+from cvsflow.corners import extract_corners
 from cvsflow.io.media import iter_video_gray
-from cvsflow.pose import extract_corners
 from cvsflow.synth.render import render_session
 
 pytest.importorskip("av")

@@ -14,20 +14,17 @@ import yaml
 from board_images import render_board
 
 from cvsflow import transforms as tf
-from cvsflow.corners_fast import (
+from cvsflow.corners import (
     chunk_ranges,
+    extract_corners,
     extract_corners_parallel,
     extract_corners_range,
     merge_corner_chunks,
 )
+from cvsflow.corners_detect import detect_corners, quick_detect_corners
+from cvsflow.corners_track import track_corners
 from cvsflow.errors import InputError
 from cvsflow.io.media import iter_video_gray
-from cvsflow.pose import (
-    detect_corners,
-    extract_corners,
-    quick_detect_corners,
-    track_corners,
-)
 
 BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}  # the demo board, 5x4 inner corners
 W, H = 640, 480
@@ -277,7 +274,7 @@ def test_waiting_frames_are_bounded_in_memory(monkeypatch):
     """Frames waiting for a board are bounded by bytes, not by the session's length: with room
     for 3 frames, a long run without a board leaves at most 3 waiting, and every frame gets
     its row (not_found / not_searched)."""
-    import cvsflow.pose as pose
+    import cvsflow.corners_track as pose
 
     blank = np.full((H, W), 128, np.uint8)
     monkeypatch.setattr(pose, "MAX_PENDING_BYTES", 3 * blank.nbytes)

@@ -12,10 +12,9 @@ import pandas as pd
 import pytest
 from board_images import BOARD, board_centre_pose, render_board
 
-from cvsflow.corners_fast import extract_corners_parallel
+from cvsflow.corners import extract_corners, extract_corners_parallel, summarise_corners
 from cvsflow.errors import InputError
 from cvsflow.io.media import iter_video_gray, video_info, video_timing
-from cvsflow.pose import extract_corners, summarise_corners
 
 K = np.array([[700.0, 0.0, 319.5], [0.0, 700.0, 239.5], [0.0, 0.0, 1.0]])
 

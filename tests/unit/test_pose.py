@@ -9,15 +9,12 @@ import pytest
 from board_images import board_centre_pose, render_board
 
 from cvsflow import transforms as tf
+from cvsflow.board import CORNER_COLUMNS
 from cvsflow.calibration import board_object_points, order_corners
+from cvsflow.corners import extract_corners
+from cvsflow.corners_detect import detect_corners
 from cvsflow.errors import InputError
-from cvsflow.pose import (
-    CORNER_COLUMNS,
-    POSE_COLUMNS,
-    detect_corners,
-    estimate_poses,
-    extract_corners,
-)
+from cvsflow.pose import POSE_COLUMNS, estimate_poses
 
 BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}  # the demo board, 5x4 inner corners
 W, H = 640, 480
@@ -433,24 +430,10 @@ def test_detect_corners_keeps_blurred_wide_lens_boards_at_every_resolution(size,
         assert np.linalg.norm(corners - uv, axis=1).max() < 0.3
 
 
-def test_refine_corners_from_corners_outside_the_image_does_not_raise():
-    """Initial corners beyond the image border (cornerSubPix used to assert 'initial corner is
-    outside the image') are clipped into it: a result or None, never a cv2.error."""
-    from cvsflow.pose import refine_corners
-
-    T = board_centre_pose([0.0, 0.0, 0.0], [0.0, 0.0, 1.2])
-    gray, uv = render_board(T, K_CENTRED, seed=3)
-    shifted = uv.copy()
-    shifted[0] = [-3.0, -7.5]
-    shifted[-1] = [W + 2.0, H + 0.4]
-    refine_corners(gray, shifted, BOARD)  # must not raise
-    assert refine_corners(gray, uv + 0.8, BOARD) is not None
-
-
 def test_extract_corners_survives_an_opencv_error_on_one_frame(monkeypatch):
     """An OpenCV error on one frame makes it found=False (counted as cv_error); the other
     frames keep their boards."""
-    import cvsflow.pose as pose
+    import cvsflow.corners_track as pose
 
     T = board_centre_pose([0.1, 0.0, 0.0], [0.0, 0.0, 1.2])
     frames = [(i, i / 30.0, render_board(T, K_CENTRED, seed=i)[0]) for i in range(4)]
@@ -506,7 +489,7 @@ def _board_with_a_finger_on_corner_12(monkeypatch):
     with a hand over two corners) in the reversed order, half a pixel off."""
     from board_images import render_board_distorted
 
-    import cvsflow.pose as pose
+    import cvsflow.corners_detect as pose
 
     K = np.array([[700.0, 0.0, 319.5], [0.0, 700.0, 239.5], [0.0, 0.0, 1.0]])
     T = board_centre_pose([0.2, -0.15, 0.1], [0.0, 0.0, 1.3])
@@ -536,7 +519,7 @@ def test_detect_corners_keeps_the_corners_a_finger_leaves_with_true_indices(monk
 def test_detect_corners_keeps_no_partial_board_in_the_wrong_order(monkeypatch):
     # The grid turned by 180 degrees puts every corner's saddle and every square on the wrong
     # colour (the demo board's ends differ): nothing is kept rather than corners misnamed.
-    import cvsflow.pose as pose
+    import cvsflow.corners_detect as pose
 
     gray, _ = _board_with_a_finger_on_corner_12(monkeypatch)
 
@@ -546,153 +529,3 @@ def test_detect_corners_keeps_no_partial_board_in_the_wrong_order(monkeypatch):
     monkeypatch.setattr(pose, "order_corners", turned)
     corners, method = detect_corners(gray, BOARD, keep_partial=True)
     assert corners is None and method == "inconsistent"
-
-def test_grid_deviation_is_the_displacement_of_a_misplaced_corner():
-    # An exact perspective view of the grid with one corner moved: its neighbours (exact)
-    # predict its true place, so its deviation is its displacement; corners farther than two
-    # grid steps from it are predicted exactly; a NaN corner predicts nothing.
-    from cvsflow.pose import _neighbour_weights, grid_deviation
-
-    board = {"squares_x": 9, "squares_y": 7, "square_m": 0.03}
-    nx, ny = 8, 6
-    k = np.arange(nx * ny)
-    grid = np.stack([k % nx, k // nx], axis=1).astype(np.float64)
-    H = np.array([[38.0, 4.0, 120.0], [-3.0, 35.0, 90.0], [4e-3, -6e-3, 1.0]])
-    uv = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
-    moved = uv.copy()
-    moved[19] += (1.5, -2.0)
-    predicted, dev = grid_deviation(moved, board)
-    assert dev[19] == pytest.approx(2.5, abs=1e-6)
-    np.testing.assert_allclose(predicted[19], uv[19], atol=1e-6)
-    far = _neighbour_weights(nx, ny)[:, 19] == 0
-    far[19] = False
-    assert dev[far].max() < 1e-6
-    assert dev[~far].max() > 1e-3  # its neighbours see it
-    moved[19] = np.nan
-    _, dev = grid_deviation(moved, board)
-    assert np.isinf(dev[19]) and np.delete(dev, 19).max() < 1e-6
-
-
-def test_sort_median_equals_numpy_median():
-    from cvsflow.pose import _median
-
-    rng = np.random.default_rng(3)
-    for n in (1, 2, 7, 48, 101):
-        x = rng.normal(size=n)
-        assert _median(x) == np.median(x)
-    x = rng.normal(size=(6, 4))
-    assert _median(x) == np.median(x)
-
-
-def test_shrunk_by_four_is_the_area_average_by_halvings():
-    from cvsflow.pose import _shrunk
-
-    rng = np.random.default_rng(4)
-    gray = cv2.GaussianBlur(rng.integers(0, 256, (480, 640), dtype=np.uint8), (5, 5), 1.5)
-    small = _shrunk(gray, 4)
-    ref = cv2.resize(gray, None, fx=0.25, fy=0.25, interpolation=cv2.INTER_AREA)
-    assert small.shape == ref.shape
-    assert np.abs(small.astype(int) - ref.astype(int)).max() <= 1
-    assert _shrunk(gray, 4) is small  # cached for the flow out of this frame
-
-
-def test_grid_deviation_equals_a_least_squares_homography_per_corner():
-    # Each corner's prediction is the h33 = 1 least-squares DLT homography of its known
-    # neighbours within two grid steps (normalised pixels), solved here row by row with lstsq;
-    # a corner whose known neighbours lie on a line gets no prediction (inf).
-    from cvsflow.pose import _neighbour_weights, grid_deviation
-
-    board = {"squares_x": 9, "squares_y": 7, "square_m": 0.03}
-    nx, ny = 8, 6
-    k = np.arange(nx * ny)
-    grid = np.stack([k % nx, k // nx], axis=1).astype(np.float64)
-    H = np.array([[31.0, 5.0, 140.0], [-4.0, 29.0, 70.0], [3e-3, -5e-3, 1.0]])
-    rng = np.random.default_rng(11)
-    uv = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
-    uv += rng.normal(scale=0.4, size=uv.shape)
-    uv[[5, 17, 18, 30, 44]] = np.nan
-    predicted, dev = grid_deviation(uv, board)
-    known = np.isfinite(uv).all(axis=1)
-    centre = uv[known].mean(axis=0)
-    scale = np.sqrt(2.0) / np.linalg.norm(uv[known] - centre, axis=1).mean()
-    un = (uv - centre) * scale
-    near = _neighbour_weights(nx, ny) > 0
-    for c in np.flatnonzero(known):
-        rows, rhs = [], []
-        for j in np.flatnonzero(near[c] & known):
-            x, y = grid[j]
-            u, v = un[j]
-            rows += [[x, y, 1, 0, 0, 0, -u * x, -u * y], [0, 0, 0, x, y, 1, -v * x, -v * y]]
-            rhs += [u, v]
-        h = np.append(np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)[0], 1.0)
-        p = h.reshape(3, 3) @ np.append(grid[c], 1.0)
-        expected = p[:2] / p[2] / scale + centre
-        np.testing.assert_allclose(predicted[c], expected, atol=1e-6)
-        assert dev[c] == pytest.approx(np.linalg.norm(expected - uv[c]), abs=1e-6)
-    assert np.isinf(dev[~known]).all()
-    line = np.full_like(uv, np.nan)
-    line[:nx] = uv[:nx] if np.isfinite(uv[:nx]).all() else grid[:nx] * 30.0
-    assert np.isinf(grid_deviation(line, board)[1]).all()
-
-
-def test_local_spacing_is_the_mean_distance_to_known_neighbours():
-    from cvsflow.pose import local_spacing
-
-    board = {"squares_x": 6, "squares_y": 5, "square_m": 0.03}
-    nx, ny = 5, 4
-    rng = np.random.default_rng(12)
-    uv = rng.normal(scale=40.0, size=(nx * ny, 2))
-    uv[[0, 1, 5, 12]] = np.nan
-    got = local_spacing(uv, board)
-    expected = np.full(nx * ny, np.nan)
-    for c in range(nx * ny):
-        i, j = c % nx, c // nx
-        d = [np.linalg.norm(uv[c] - uv[jj * nx + ii])
-             for ii, jj in ((i - 1, j), (i + 1, j), (i, j - 1), (i, j + 1))
-             if 0 <= ii < nx and 0 <= jj < ny]
-        d = [x for x in d if np.isfinite(x)]
-        if d:
-            expected[c] = np.mean(d)
-    expected[np.isnan(expected)] = np.median(expected[np.isfinite(expected)])
-    np.testing.assert_allclose(got, expected, rtol=1e-12)
-
-
-def test_a_corner_hidden_before_and_still_off_skips_the_second_refinement():
-    # A corner put a quarter of a square off: cornerSubPix from there cannot reach it, the
-    # second refinement (from where its neighbours put it) can. Marked as hidden by a hand in
-    # the earlier frame, it fails the refinement at once instead (the partial check follows).
-    from cvsflow.pose import _refine_corners
-
-    T = board_centre_pose([0.0, 0.0, 0.0], [0.0, 0.0, 1.2])
-    gray, uv = render_board(T, K_CENTRED, seed=5)
-    start = uv.copy()
-    step = np.linalg.norm(uv[1] - uv[0])
-    start[7] += (0.25 * step, 0.1 * step)
-    hidden = np.zeros(len(uv), bool)
-    rescued, first = _refine_corners(gray, start, BOARD, 5, 0.08)
-    assert rescued is not None and np.abs(rescued - uv).max() < 0.5
-    assert first[2][7] > first[1][7]  # off its neighbours after the first cornerSubPix
-    hidden[3] = True  # another corner hidden before: the retry still runs
-    assert _refine_corners(gray, start, BOARD, 5, 0.08, hidden)[0] is not None
-    hidden[7] = True
-    corners, again = _refine_corners(gray, start, BOARD, 5, 0.08, hidden)
-    assert corners is None and np.array_equal(again[0], first[0])
-
-
-@pytest.mark.parametrize("sigma_px", [1.0, 2.0, 3.5])
-def test_edge_blur_px_measures_a_known_gaussian_blur(sigma_px):
-    """A chessboard blurred by a known Gaussian: the edge-profile estimate is within 15 %."""
-    from cvsflow.pose import edge_blur_px
-
-    board = {"squares_x": 7, "squares_y": 6, "square_m": 0.03}
-    sq, x0, y0 = 40, 60, 50  # square size and the outer corner of square (0, 0), px
-    img = np.full((360, 400), 220.0)
-    for j in range(6):
-        for i in range(7):
-            if (i + j) % 2 == 0:
-                img[y0 + j * sq:y0 + (j + 1) * sq, x0 + i * sq:x0 + (i + 1) * sq] = 30.0
-    gray = cv2.GaussianBlur(img, (0, 0), sigma_px).round().astype(np.uint8)
-    k = np.arange(6 * 5)
-    corners = np.column_stack([x0 + sq * (1 + k % 6), y0 + sq * (1 + k // 6)]).astype(float) - 0.5
-    got = edge_blur_px(gray, corners, board)
-    assert abs(got - sigma_px) < 0.15 * sigma_px, got

@@ -4,11 +4,10 @@ from functools import partial
 
 import cv2
 
-from cvsflow.corners_fast import extract_corners_parallel
+from cvsflow.corners import extract_corners_parallel, summarise_corners
 from cvsflow.io import write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import iter_video_gray, video_info, video_timing
-from cvsflow.pose import summarise_corners
 
 # One OpenCV thread per worker process: the workers are the parallelism.
 cv2.setNumThreads(1)

@@ -1,0 +1,386 @@
+"""Refining and checking a candidate chessboard grid: sub-pixel corners and the board's looks.
+
+cornerSubPix with a window adapted to the squares and to the edges' blur
+(``refine_corners``, ``edge_blur_px``), the square-colour check (``board_squares_pattern_ok``),
+the saddle check of each corner, and keeping the consistent part of a partly seen board
+(``_follow_partial``). Shared by the detector (:mod:`cvsflow.corners_detect`) and the tracker
+(:mod:`cvsflow.corners_track`).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import cv2
+import numpy as np
+
+from cvsflow.calibration import SUBPIX_CRITERIA, board_pattern
+from cvsflow.corners_grid import (
+    MAX_GRID_DEVIATION_FRAC,
+    MIN_GRID_DEVIATION_PX,
+    MIN_TRACKED_CORNERS,
+    _keep_consistent,
+    _median,
+    _pair_distances,
+    _spacing_from_pairs,
+    _subpix_window,
+    grid_deviation,
+    keep_consistent_corners,
+)
+
+# A blurred corner spreads its saddle over a few blur sigmas; a window smaller than that sees
+# only the flat middle and lands up to twice as far off (defocus of a fixed-focus webcam at
+# 0.5 m: 0.49 px against 0.24 px). A refined board whose edges show a blur sigma with
+# BLUR_WINDOW_SIGMAS * sigma above its window is refined once more with that window, capped
+# at BLUR_WINDOW_MAX_FRAC of the spacing and short of the neighbouring corners; a sharp board
+# (every frame of the demo) keeps its first window.
+BLUR_WINDOW_SIGMAS = 3.5
+BLUR_WINDOW_MAX_FRAC = 0.3
+# Edge profiles count towards the blur estimate only with this light-dark step (grey levels).
+BLUR_MIN_EDGE_CONTRAST = 20.0
+
+
+def _clip_into(points_px: np.ndarray, gray: np.ndarray) -> np.ndarray | None:
+    """Points (N, 2) clipped into the image for cornerSubPix (float32, (N, 1, 2)); None if NaN."""
+    pts = np.asarray(points_px, dtype=np.float64).reshape(-1, 2)
+    if not np.isfinite(pts).all():
+        return None
+    h, w = gray.shape[:2]
+    # np.clip's bounds per column (finite points: the same values), straight into float32.
+    out = np.empty((len(pts), 1, 2), np.float32)
+    np.minimum(np.maximum(pts, 0.0), (w - 1.001, h - 1.001), out=out[:, 0, :], casting="same_kind")
+    return out
+
+
+def _subpix(gray: np.ndarray, points_px: np.ndarray, w: int) -> np.ndarray | None:
+    """cornerSubPix from points clipped into the image; (N, 2) float32, or None."""
+    pts = _clip_into(points_px, gray)
+    if pts is None or not len(pts):
+        return None
+    return cv2.cornerSubPix(gray, pts, (w, w), (-1, -1), SUBPIX_CRITERIA).reshape(-1, 2)
+
+
+def refine_corners(
+    gray: np.ndarray,
+    corners_px: np.ndarray,
+    board: dict,
+    subpix_window_px: int = 5,
+    max_grid_deviation: float = MAX_GRID_DEVIATION_FRAC,
+) -> np.ndarray | None:
+    """cornerSubPix from initial corners, then the grid-neighbour check (``detect_corners``).
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), uint8
+    corners_px : ndarray, shape (nx * ny, 2) or (nx * ny, 1, 2)
+        Initial corners in grid order, pixels.
+    board : dict
+    subpix_window_px : int
+        Largest cornerSubPix half window, pixels (see ``_subpix_window``).
+    max_grid_deviation : float
+        Largest distance of a refined corner from where its neighbours put it, as a share of
+        its local grid spacing (``deviation_limit_px``); a corner beyond it is refined once
+        more from that prediction.
+
+    Returns
+    -------
+    corners_px : ndarray, shape (nx * ny, 2), float64, or None
+        Refined corners in the order given; None when a corner still deviates.
+    """
+    return _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation)[0]
+
+
+def _refine_corners(gray, corners_px, board, subpix_window_px, max_grid_deviation,
+                    no_retry=None):
+    """``refine_corners``, and the corners of its first cornerSubPix (None where it failed)
+    with their ``(deviation_limit_px, grid_deviation)``, which a caller that falls back to
+    ``_follow_partial`` reuses. ``no_retry``: (N,) bool, corners whose deviation after the
+    first cornerSubPix fails the refinement at once (no second cornerSubPix)."""
+    corners = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+    w = _subpix_window(corners, board, subpix_window_px)
+    first = _subpix(gray, corners, w)
+    if first is None:
+        return None, None
+    corners = first.copy()
+    predicted, deviation = grid_deviation(corners, board)
+    # deviation_limit_px, with the neighbour distances kept for _refine_for_blur.
+    pairs = _pair_distances(corners, board)
+    limit = np.maximum(MIN_GRID_DEVIATION_PX,
+                       max_grid_deviation * _spacing_from_pairs(pairs, board))
+    first = (first, limit, deviation)
+    bad = deviation > limit
+    if bad.any():
+        pairs = None  # the corners change
+        if no_retry is not None and (bad & no_retry).any():
+            return None, first
+        retry = _subpix(gray, predicted[bad], w)
+        if retry is None:
+            return None, first
+        corners[bad] = retry
+        _, deviation = grid_deviation(corners, board)
+        if (deviation > limit).any():
+            return None, first
+    return _refine_for_blur(gray, corners, board, w, limit, pairs), first
+
+
+def edge_blur_px(gray: np.ndarray, corners_px: np.ndarray, board: dict) -> float:
+    """Blur sigma of the board's square edges, px, from their profiles (0 when none is usable).
+
+    Across a step edge of contrast C blurred by a Gaussian of sigma s, the steepest slope is
+    C / (sqrt(2 pi) s). The edges are sampled across their midpoints between grid neighbours
+    (away from the corners' saddles), every half pixel over 0.3 squares either side.
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), uint8
+    corners_px : ndarray, shape (nx * ny, 2)
+        Corners in grid order, pixels (NaN where unknown).
+    board : dict
+
+    Returns
+    -------
+    sigma_px : float
+        Median over the edges with at least ``BLUR_MIN_EDGE_CONTRAST`` grey levels of step.
+    """
+    nx, ny = board_pattern(board)
+    g = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
+    p0 = np.concatenate([g[:, :-1].reshape(-1, 2), g[:-1].reshape(-1, 2)])
+    p1 = np.concatenate([g[:, 1:].reshape(-1, 2), g[1:].reshape(-1, 2)])
+    d = p1 - p0
+    dx, dy = d[:, 0], d[:, 1]
+    length = np.sqrt(dx * dx + dy * dy)
+    ok = np.isfinite(length) & (length > 4.0)
+    if not ok.any():
+        return 0.0
+    mid, d, length = 0.5 * (p0[ok] + p1[ok]), d[ok], length[ok]
+    normal = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
+    half = 0.3 * _median(length)
+    s = np.arange(-half, half + 1e-9, 0.5)
+    pts = (mid[:, None, :] + s[None, :, None] * normal[:, None, :]).astype(np.float32)
+    prof = cv2.remap(gray, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
+    # (np.mean and ndarray.max as their reductions, without the wrappers: the same values.)
+    step = np.abs(np.add.reduce(prof[:, -3:], axis=1) / 3 - np.add.reduce(prof[:, :3], axis=1) / 3)
+    slope = np.maximum.reduce(np.abs(prof[:, 1:] - prof[:, :-1]), axis=1) / 0.5
+    use = (step >= BLUR_MIN_EDGE_CONTRAST) & (slope > 0)
+    if not use.any():
+        return 0.0
+    return _median(step[use] / (np.sqrt(2.0 * np.pi) * slope[use]))
+
+
+def _refine_for_blur(gray, corners, board, w, limit, pairs=None):
+    """Corners refined again with a window that covers the blur (``BLUR_WINDOW_SIGMAS``), when
+    the first window was smaller and the result still agrees with its neighbours; else as given.
+    ``pairs``: the corners' ``_pair_distances`` where the caller has them."""
+    d = _pair_distances(corners, board) if pairs is None else pairs
+    d = d[np.isfinite(d)]
+    if not len(d):
+        return corners.astype(np.float64)
+    cap = int(min(BLUR_WINDOW_MAX_FRAC * _median(d), np.floor((d.min() - 1.0) / 2.0)))
+    if cap <= w:
+        return corners.astype(np.float64)
+    w_blur = min(cap, int(np.ceil(BLUR_WINDOW_SIGMAS * edge_blur_px(gray, corners, board))))
+    if w_blur <= w:
+        return corners.astype(np.float64)
+    again = _subpix(gray, corners, w_blur)
+    if again is None or (grid_deviation(again, board)[1] > limit).any():
+        return corners.astype(np.float64)
+    return again.astype(np.float64)
+
+
+# The checkerboard seen through the tracked corners must have this much contrast (grey levels)
+# between its white and black squares, and every square on the right side of the midpoint.
+MIN_PATTERN_CONTRAST = 20.0
+
+
+@functools.lru_cache(maxsize=16)
+def _square_samples(sx: int, sy: int) -> tuple[np.ndarray, np.ndarray]:
+    """``board_squares_pattern_ok``'s sample points in grid coordinates, (3, sx * sy, 9)
+    homogeneous, and which squares are black, (sx * sy,)."""
+    jj, ii = np.mgrid[0:sy, 0:sx]
+    a = np.array([-0.25, 0.0, 0.25])
+    da, db = (g.ravel() for g in np.meshgrid(a, a))
+    # Square (i, j) spans grid x in [i - 1, i], y in [j - 1, j] (corner 0 at (0, 0)).
+    gx = (ii.ravel() - 0.5)[:, None] + da[None]
+    gy = (jj.ravel() - 0.5)[:, None] + db[None]
+    samples = np.stack([gx, gy, np.ones_like(gx)])
+    black = (ii.ravel() + jj.ravel()) % 2 == 0
+    for arr in (samples, black):
+        arr.flags.writeable = False  # cached: shared by every call
+    return samples, black
+
+
+def board_squares_pattern_ok(
+    gray: np.ndarray, H_img_grid: np.ndarray, board: dict, min_contrast: float = 20.0,
+    corner_known: np.ndarray | None = None,
+) -> bool:
+    """Whether the board's squares seen through a homography have the chessboard's colours.
+
+    Every square of the board (``squares_x`` by ``squares_y``, the outer ring included) whose
+    centre region is inside the image is sampled at 9 points (25 % to 75 % across); square
+    (i, j) must be darker than the midpoint of the black and white means when black
+    (``i + j`` even), lighter when white, with white minus black at least ``min_contrast``.
+    A grid shifted by one square fails on colour, one shifted by two on the outer ring (the
+    white border of the sheet where black squares belong).
+
+    Parameters
+    ----------
+    gray : ndarray, shape (H, W), uint8
+    H_img_grid : ndarray, shape (3, 3)
+        Homography from grid coordinates (corner k at (k % nx, k // nx)) to pixels.
+    board : dict
+    min_contrast : float
+        Smallest mean white-minus-black difference, grey levels.
+    corner_known : ndarray of bool, shape (nx * ny,), optional
+        Corners seen; only squares all of whose inner corners are seen are sampled (a hand
+        over the others).
+
+    Returns
+    -------
+    ok : bool
+    """
+    sx, sy = int(board["squares_x"]), int(board["squares_y"])
+    samples, black_all = _square_samples(sx, sy)
+    p = np.einsum("ij,jsk->isk", H_img_grid, samples)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = p[0] / p[2], p[1] / p[2]
+    h, w = gray.shape
+    inside = np.logical_and.reduce(
+        (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1) & (p[2] > 0), axis=1)
+    if corner_known is not None:
+        # Square (i, j) has corners (i-1..i, j-1..j) where they exist (the index nx * ny,
+        # always known, stands for those that do not).
+        known = np.append(np.asarray(corner_known, bool), True)
+        inside &= known[_square_corners(sx, sy)].all(axis=1)
+    if not inside.any():
+        return False
+    # (The means are np.mean's: float64 sums divided by the count, without its wrapper.)
+    samples_in = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)]
+    level = np.add.reduce(samples_in, axis=1, dtype=np.float64) / samples_in.shape[1]
+    black = black_all[inside]
+    n_black = int(np.count_nonzero(black))
+    if n_black == len(black) or not n_black:
+        return False
+    lo, hi = level[black], level[~black]
+    lo_mean, hi_mean = np.add.reduce(lo) / len(lo), np.add.reduce(hi) / len(hi)
+    if hi_mean - lo_mean < min_contrast:
+        return False
+    mid = 0.5 * (hi_mean + lo_mean)
+    return bool(lo.max() < mid < hi.min())
+
+
+@functools.lru_cache(maxsize=16)
+def _square_corners(sx: int, sy: int) -> np.ndarray:
+    """(sx * sy, 4): the inner corners of each square (``_square_samples``' order), nx * ny
+    where a square of the outer ring has none."""
+    nx, ny = sx - 1, sy - 1
+    jj, ii = np.mgrid[0:sy, 0:sx]
+    out = []
+    for di in (0, 1):
+        for dj in (0, 1):
+            ci, cj = ii.ravel() - 1 + di, jj.ravel() - 1 + dj
+            ok = (ci >= 0) & (ci < nx) & (cj >= 0) & (cj < ny)
+            out.append(np.where(ok, cj * nx + ci, nx * ny))
+    idx = np.stack(out, axis=1)
+    idx.flags.writeable = False  # cached: shared by every call
+    return idx
+
+
+# Smallest grey-level step between the light and the dark quadrants around a kept corner:
+# this share of the board's contrast (median light minus median dark over all kept corners),
+# and never below MIN_SADDLE_CONTRAST grey levels. A finger over part of a corner's squares
+# puts skin (between the two) into a quadrant and fails it.
+MIN_SADDLE_CONTRAST = 10.0
+SADDLE_CONTRAST_FRAC = 0.5
+# Sample points along the diagonals, as a share of a square from the corner.
+SADDLE_RADII = (0.2, 0.4)
+
+
+def _saddle_ok(gray, H_img_grid, corners_px, grid) -> np.ndarray:
+    """(N,) bool: corner k shows dark squares on one diagonal, light on the other (its own
+    colours: square (x+1, y+1) black when x + y is even), sampled along the diagonals at
+    ``SADDLE_RADII`` squares from the corner, every sample of a quadrant on its side."""
+    h, w = gray.shape
+    grid_pts, pts = _saddle_points(grid.tobytes(), grid.shape)
+    n_off = pts.shape[0] // grid_pts.shape[0]
+    ref = cv2.perspectiveTransform(grid_pts, H_img_grid)
+    q = cv2.perspectiveTransform(pts, H_img_grid)
+    q = q.reshape(-1, n_off, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
+    finite = np.isfinite(q)
+    n = len(q)
+    ok = np.logical_and.reduce(finite.reshape(n, -1), axis=1)
+    # (Rows with a non-finite sample fail whatever their levels.)
+    qi = np.rint(np.where(finite, q, 0.0)).astype(int)
+    ok &= np.logical_and.reduce(((qi >= 0) & (qi < (w, h))).reshape(n, -1), axis=1)
+    np.minimum(np.maximum(qi, 0, out=qi), (w - 1, h - 1), out=qi)  # np.clip per column
+    level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, M)
+    half = n_off // 2  # the (1, 1) and (-1, -1) diagonal first, then the other
+    black_first = ((grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0)
+    dark = np.where(black_first[:, None], level[:, :half], level[:, half:])
+    light = np.where(black_first[:, None], level[:, half:], level[:, :half])
+    corners_finite = np.isfinite(np.asarray(corners_px))
+    known = ok & corners_finite[:, 0] & corners_finite[:, 1]
+    contrast = _median(light[known]) - _median(dark[known]) if known.any() else 0.0
+    need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
+    return ok & (np.minimum.reduce(light, axis=1) - np.maximum.reduce(dark, axis=1) >= need)
+
+
+@functools.lru_cache(maxsize=16)
+def _saddle_points(grid_bytes: bytes, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """``_saddle_ok``'s grid points, (N, 1, 2), and its sample points around each, (N * M, 1,
+    2): dark-or-light pairs along the diagonals, the (1, 1) and (-1, -1) ones first."""
+    grid = np.frombuffer(grid_bytes, dtype=np.float32).reshape(shape)
+    off = np.array([[r * a, r * b] for a, b in ((1, 1), (-1, -1), (1, -1), (-1, 1))
+                    for r in SADDLE_RADII])  # dark-or-light pairs: first 2 radii x 2 = 4
+    pts = grid[:, None, :] + off[None]  # (N, M, 2)
+    out = (grid.reshape(-1, 1, 2).astype(np.float64), pts.reshape(-1, 1, 2).astype(np.float64))
+    for arr in out:
+        arr.flags.writeable = False  # cached: shared by every call
+    return out
+
+
+def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
+                    method="out_of_view", refined=None):
+    """Refine the corners ``inner`` of a board partly hidden (image border, a hand), keep those
+    consistent with their neighbours, check the squares they bound; NaN for the others.
+    ``refined``: ``_refine_corners``' first cornerSubPix of ``p`` (every corner ``inner``),
+    with its limits and deviations."""
+    if inner.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    limit = deviation = None
+    if refined is None:
+        w = _subpix_window(p, board, subpix_window_px)
+        refined = _subpix(gray, p[inner], w)
+    else:
+        refined, limit, deviation = refined
+    if refined is None:
+        return None, "lost"
+    out = np.full((len(grid), 2), np.nan)
+    out[inner] = refined
+    out = _keep_consistent(out, board, max_grid_deviation, limit, deviation)
+    known = np.isfinite(out).all(axis=1)
+    if known.sum() < MIN_TRACKED_CORNERS:
+        return None, "lost"
+    # A corner under a hand (a flat region) stays where it was put and agrees with its
+    # neighbours: it must also show the chessboard's saddle (dark-light-dark-light around it).
+    H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
+    if H is None:
+        return None, "lost"
+    saddle = _saddle_ok(gray, H, out, grid)
+    if not saddle[known].all():
+        out[~saddle] = np.nan
+        out = keep_consistent_corners(out, board, max_grid_deviation)
+        known = np.isfinite(out).all(axis=1)
+        if known.sum() < MIN_TRACKED_CORNERS:
+            return None, "lost"
+        H, _ = cv2.findHomography(grid[known], out[known].astype(np.float32), 0)
+        if H is None:
+            return None, "lost"
+    # (else the corners are those H was fitted to)
+    fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
+    rms = np.sqrt(np.mean(np.sum((fit[known] - out[known]) ** 2, axis=1)))
+    if rms > sc["homography_rms"] or not board_squares_pattern_ok(
+        gray, H, board, MIN_PATTERN_CONTRAST, corner_known=known
+    ):
+        return None, "lost"
+    return out, method
