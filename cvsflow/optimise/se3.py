@@ -70,10 +70,8 @@ from cvsflow.optimise import OptimiseResult
 from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
 from cvsflow.optimise.se3_cov import (
     DEFAULT_INTRINSIC_STD,
-    correlation,
-    covariances,
     fixed_intrinsic_std,
-    fixed_sensitivity,
+    parameter_covariance,
 )
 from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, loss_weights, robust_cost
 from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model
@@ -270,15 +268,7 @@ def optimise_se3(
     bad_free = [f for f in free if f not in INTRINSIC_NAMES]
     if bad_free:
         raise OptimiseError(f"se3: free {bad_free} unknown; expected names from {INTRINSIC_NAMES}")
-    try:
-        K0 = np.asarray(camera["K"], float).reshape(3, 3)
-        dist0 = np.zeros(5)
-        d = np.asarray(camera["dist"], float).ravel()[:5]
-        dist0[: d.size] = d
-    except (KeyError, TypeError, ValueError) as exc:
-        raise OptimiseError(
-            f"se3: camera {camera!r}: expected K (3x3, px) and dist [k1 k2 p1 p2 k3]"
-        ) from exc
+    K0, dist0 = camera_start(camera)
     if not (np.isfinite(line_delay_s) and line_delay_s >= 0.0):
         raise OptimiseError(f"se3: line_delay_s {line_delay_s!r}; expected a finite value >= 0 s")
     if not np.isfinite(dt_offset_s):
@@ -296,10 +286,7 @@ def optimise_se3(
     )
     brd = BodyTrack(*body_track(bodies, "board"), smooth_s=board_smooth_s)
     log.info("se3: camera body %s", "static (mean pose used)" if cam.static else "moving")
-    usable = np.ones(len(frame), bool)
-    for off in (-DT_MARGIN_S, 0.0, DT_MARGIN_S):
-        tq = t_video + dt_offset_s + off
-        usable &= cam.ok(tq) & brd.ok(tq)
+    usable = usable_frames(t_video, dt_offset_s, cam, brd)
     n_skip = int((~usable).sum())
     if n_skip:
         log.warning(
@@ -374,14 +361,6 @@ def optimise_se3(
     J = model.jacobian(x)
     frame_of_row = np.repeat(np.nonzero(model.seen)[0], 2)
     block = np.floor((t_video - t_video[0]) / max(cluster_s, 1e-9)).astype(int)
-    cov_gn, cov_cl, JtJ_inv, sigma2, n_clusters = covariances(
-        J, r, loss, f_scale_px, block[frame_of_row]
-    )
-    se_gn = np.sqrt(np.diag(cov_gn))
-    se_cl = np.sqrt(np.diag(cov_cl))
-    se_data = np.maximum(se_gn, se_cl)
-    corr = correlation(JtJ_inv)
-    cov_data = corr * np.outer(se_data, se_data)
     # uncertainty of the intrinsics held fixed, carried into the free estimates (Notes)
     fixed_names = [n for n in INTRINSIC_NAMES if n not in set(free)]
     warnings_out = []
@@ -389,8 +368,6 @@ def optimise_se3(
     if fixed_names:
         sd_fixed, defaulted = fixed_intrinsic_std(camera, fixed_names)
         J_fixed = model.jacobian_intrinsics(x)[:, ~model.free]
-        S = fixed_sensitivity(J, J_fixed, r, loss, f_scale_px)
-        cov_fixed = (S * sd_fixed**2) @ S.T
         if defaulted:
             msg = (
                 f"se3: camera has no std for the fixed {defaulted}; their uncertainty is taken "
@@ -400,21 +377,13 @@ def optimise_se3(
             log.warning(msg)
     else:
         sd_fixed, defaulted = np.zeros(0), []
-        S = np.zeros((len(names), 0))
-        cov_fixed = np.zeros_like(cov_data)
-    se_fixed = np.sqrt(np.clip(np.diag(cov_fixed), 0.0, None))
-    cov_total = cov_data + cov_fixed
-    se = np.sqrt(np.diag(cov_total))
-    corr_total = correlation(cov_total)
-    for i in range(len(names)):
-        for j in range(i + 1, len(names)):
-            if abs(corr[i, j]) > corr_warn:
-                msg = (
-                    f"se3: {names[i]} and {names[j]} correlate at {corr[i, j]:+.3f} "
-                    f"(|corr| > {corr_warn}): the data hardly separate them"
-                )
-                warnings_out.append(msg)
-                log.warning(msg)
+        J_fixed = np.zeros((len(r), 0))
+    pc = parameter_covariance(J, r, loss, f_scale_px, block[frame_of_row], J_fixed, sd_fixed)
+    se_gn, se_cl, se_data, se_fixed, se = (pc[k] for k in ("se_gn", "se_cl", "se_data",
+                                                           "se_fixed", "se"))  # fmt: skip
+    corr, corr_total, S = pc["corr"], pc["corr_total"], pc["S"]
+    sigma2, n_clusters = pc["sigma2"], pc["n_clusters"]
+    warnings_out += correlation_warnings(corr, names, corr_warn, "se3")
     if sol.status <= 0:
         msg = f"se3: solver stopped before converging: {sol.message}"
         warnings_out.append(msg)
@@ -503,6 +472,92 @@ def optimise_se3(
         intr[0], intr[1], dt, result["rms_px"], sol.nfev, elapsed,
     )  # fmt: skip
     return OptimiseResult(iterations=pd.DataFrame(history), errors=per_frame, result=result)
+
+
+def camera_start(camera, label="se3"):
+    """Camera matrix and 5-term distortion of a camera.yaml mapping (the se3 start).
+
+    Parameters
+    ----------
+    camera : dict
+        ``K`` (3x3, px) and ``dist`` (up to 5 terms [k1 k2 p1 p2 k3]; missing ones are 0).
+    label : str
+        Prefix of the error message.
+
+    Returns
+    -------
+    K : ndarray, shape (3, 3)
+    dist : ndarray, shape (5,)
+
+    Raises
+    ------
+    OptimiseError
+        ``K`` or ``dist`` missing or malformed.
+    """
+    try:
+        K0 = np.asarray(camera["K"], float).reshape(3, 3)
+        dist0 = np.zeros(5)
+        d = np.asarray(camera["dist"], float).ravel()[:5]
+        dist0[: d.size] = d
+    except (KeyError, TypeError, ValueError) as exc:
+        raise OptimiseError(
+            f"{label}: camera {camera!r}: expected K (3x3, px) and dist [k1 k2 p1 p2 k3]"
+        ) from exc
+    return K0, dist0
+
+
+def usable_frames(t_video, dt_offset_s, cam, brd):
+    """Frames with valid Vicon poses of both bodies within ``DT_MARGIN_S`` of t + dt.
+
+    Parameters
+    ----------
+    t_video : ndarray, shape (F,)
+        Video times, s.
+    dt_offset_s : float
+        Time offset, s (t_vicon = t_video + dt).
+    cam, brd : BodyTrack
+        Camera-marker and board-marker tracks.
+
+    Returns
+    -------
+    usable : ndarray of bool, shape (F,)
+    """
+    usable = np.ones(len(t_video), bool)
+    for off in (-DT_MARGIN_S, 0.0, DT_MARGIN_S):
+        tq = t_video + dt_offset_s + off
+        usable &= cam.ok(tq) & brd.ok(tq)
+    return usable
+
+
+def correlation_warnings(corr, names, corr_warn, label):
+    """Warnings (logged) for every pair of estimates correlated beyond ``corr_warn``.
+
+    Parameters
+    ----------
+    corr : ndarray, shape (n, n)
+        Correlation of the estimates (data only).
+    names : sequence of str
+        Parameter names, in the order of ``corr``.
+    corr_warn : float
+        Absolute correlation above which a pair is reported.
+    label : str
+        Prefix of the messages (``"se3"``).
+
+    Returns
+    -------
+    warnings : list of str
+    """
+    out = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if abs(corr[i, j]) > corr_warn:
+                msg = (
+                    f"{label}: {names[i]} and {names[j]} correlate at {corr[i, j]:+.3f} "
+                    f"(|corr| > {corr_warn}): the data hardly separate them"
+                )
+                out.append(msg)
+                log.warning(msg)
+    return out
 
 
 def apply_se3(params, corners, bodies, board, frames=None):

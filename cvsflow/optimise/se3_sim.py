@@ -99,31 +99,7 @@ def simulate_session(
     )
     T_W_Cm0 = tf.T_from_pose6([-1.0, 0.5, 1.2, 0.05, -0.1, 0.3])
 
-    # smooth hand motion: sums of sines per channel (board centre in C, tilt angles)
-    def sines(n, f_lo, f_hi):
-        f = speed * rng.uniform(f_lo, f_hi, (n, 3))
-        ph = rng.uniform(0, 2 * np.pi, (n, 3))
-        a = rng.uniform(0.5, 1.0, (n, 3))
-        a /= a.sum(axis=1, keepdims=True)
-        return lambda t: np.sum(
-            a[:, None, :] * np.sin(2 * np.pi * f[:, None, :] * np.asarray(t)[None, :, None]
-                                   + ph[:, None, :]), axis=0,
-        )  # fmt: skip
-
-    s_pos = sines(6, 0.03, 0.4)
-    s_rot = sines(6, 0.05, 0.6)
-
-    def T_C_B_at(t):
-        t = np.atleast_1d(np.asarray(t, float))
-        s = s_pos(t).T  # (t,) per channel
-        z = 2.5 + 1.3 * s[2]
-        x = z * 0.22 * s[0]
-        y = z * 0.16 * s[1]
-        rpy = max_tilt_rad * s_rot(t)
-        R = tf.R_from_euler(rpy)
-        centre_C = np.stack([x, y, z], axis=1)
-        t_C_B = centre_C - (R @ centre_B)
-        return tf.make_T(R, t_C_B)
+    T_C_B_at = hand_motion(rng, centre_B, speed, max_tilt_rad)
 
     def sway_at(t):
         t = np.atleast_1d(np.asarray(t, float))
@@ -175,6 +151,99 @@ def simulate_session(
     t_vid_of_vicon = t_vicon - dt_offset_s
     T_W_Cm = T_W_Cm_at(t_vid_of_vicon)
     T_W_Bm = T_W_Cm @ T_Cm_C @ T_C_B_at(t_vid_of_vicon) @ tf.invert_T(T_Bm_B)
+    bodies = vicon_bodies(rng, t_vicon, T_W_Cm, T_W_Bm, marker_noise_m)
+    truth = {
+        "K": K,
+        "dist": dist,
+        "T_Cm_C": T_Cm_C,
+        "T_Bm_B": T_Bm_B,
+        "dt_offset_s": float(dt_offset_s),
+        "frame": np.arange(n_frames),
+        "t_s": t_video,
+        "T_C_B": T_C_B,
+        "uv_true_px": uv_true,
+        "t_corner_s": t_corner,
+        "line_delay_s": float(line_delay_s),
+        "T_W_Cm": T_W_Cm_at(t_video),
+    }
+    return {
+        "corners": corners,
+        "bodies": bodies,
+        "camera": {"K": K.tolist(), "dist": dist.tolist()},
+        "board": board,
+        "truth": truth,
+    }
+
+
+def hand_motion(rng, centre_B, speed=1.0, max_tilt_rad=0.7):
+    """A smooth hand-held board motion T_C_B(t): sums of sines per channel, drawn from rng.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Draws the frequencies, phases and amplitudes (12 channels x 6 sines).
+    centre_B : ndarray, shape (3,)
+        The board's centre in B, m (the point the motion keeps in view).
+    speed : float
+        Factor on the frequencies.
+    max_tilt_rad : float
+        Largest roll/pitch/yaw about the facing pose, rad.
+
+    Returns
+    -------
+    T_C_B_at : callable
+        t (s, array) -> board poses in the camera, (len(t), 4, 4), m; the centre 1.2-3.8 m
+        ahead.
+    """
+
+    # sums of sines per channel (board centre in C, tilt angles)
+    def sines(n, f_lo, f_hi):
+        f = speed * rng.uniform(f_lo, f_hi, (n, 3))
+        ph = rng.uniform(0, 2 * np.pi, (n, 3))
+        a = rng.uniform(0.5, 1.0, (n, 3))
+        a /= a.sum(axis=1, keepdims=True)
+        return lambda t: np.sum(
+            a[:, None, :] * np.sin(2 * np.pi * f[:, None, :] * np.asarray(t)[None, :, None]
+                                   + ph[:, None, :]), axis=0,
+        )  # fmt: skip
+
+    s_pos = sines(6, 0.03, 0.4)
+    s_rot = sines(6, 0.05, 0.6)
+
+    def T_C_B_at(t):
+        t = np.atleast_1d(np.asarray(t, float))
+        s = s_pos(t).T  # (t,) per channel
+        z = 2.5 + 1.3 * s[2]
+        x = z * 0.22 * s[0]
+        y = z * 0.16 * s[1]
+        rpy = max_tilt_rad * s_rot(t)
+        R = tf.R_from_euler(rpy)
+        centre_C = np.stack([x, y, z], axis=1)
+        t_C_B = centre_C - (R @ centre_B)
+        return tf.make_T(R, t_C_B)
+
+    return T_C_B_at
+
+
+def vicon_bodies(rng, t_vicon, T_W_Cm, T_W_Bm, marker_noise_m):
+    """A bodies table (``camera``, ``board``) from true body poses: rigid fits of 4 noisy markers.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        Draws the marker noise (camera first, then board).
+    t_vicon : ndarray, shape (N,)
+        Vicon times, s.
+    T_W_Cm, T_W_Bm : ndarray, shape (N, 4, 4)
+        True camera-marker and board-marker body poses, m.
+    marker_noise_m : float
+        Standard deviation of each marker position per axis, m.
+
+    Returns
+    -------
+    bodies : DataFrame
+        bodies.parquet table (docs/contracts.md).
+    """
     layout = {
         "camera": np.array([[0, 0, 0], [0, 0.16, 0], [0, 0, 0.12], [0, 0.11, 0.17]], float),
         "board": np.array([[0, 0, 0], [0.76, 0, 0], [0, 0.52, 0], [0.58, 0.5, 0]], float),
@@ -203,25 +272,4 @@ def simulate_session(
                 }
             )
         )
-    bodies = pd.concat(rows, ignore_index=True)
-    truth = {
-        "K": K,
-        "dist": dist,
-        "T_Cm_C": T_Cm_C,
-        "T_Bm_B": T_Bm_B,
-        "dt_offset_s": float(dt_offset_s),
-        "frame": np.arange(n_frames),
-        "t_s": t_video,
-        "T_C_B": T_C_B,
-        "uv_true_px": uv_true,
-        "t_corner_s": t_corner,
-        "line_delay_s": float(line_delay_s),
-        "T_W_Cm": T_W_Cm_at(t_video),
-    }
-    return {
-        "corners": corners,
-        "bodies": bodies,
-        "camera": {"K": K.tolist(), "dist": dist.tolist()},
-        "board": board,
-        "truth": truth,
-    }
+    return pd.concat(rows, ignore_index=True)
