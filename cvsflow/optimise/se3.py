@@ -560,6 +560,66 @@ def correlation_warnings(corr, names, corr_warn, label):
     return out
 
 
+def pose_columns(prefix, T):
+    """Columns of a per-frame pose table: position, quaternion (rvec for ``cvs_``), Euler.
+
+    Parameters
+    ----------
+    prefix : str
+        ``"cvs_"`` (with ``cvs_rvec_0..2``) or ``"ref_"``.
+    T : ndarray, shape (F, 4, 4)
+        Poses, m.
+
+    Returns
+    -------
+    columns : dict
+        ``{prefix}x_m, y_m, z_m, qx, qy, qz, qw`` (, ``cvs_rvec_0..2``), ``roll_rad, pitch_rad,
+        yaw_rad`` -> ndarray (F,).
+    """
+    out = {}
+    q = tf.quat_from_R(T[:, :3, :3])
+    rpy = tf.euler_from_R(T[:, :3, :3]).reshape(-1, 3)
+    for j, ax in enumerate("xyz"):
+        out[f"{prefix}{ax}_m"] = T[:, j, 3]
+    for j, ax in enumerate(("qx", "qy", "qz", "qw")):
+        out[f"{prefix}{ax}"] = q[:, j]
+    if prefix == "cvs_":
+        rv = tf.rvec_from_R(T[:, :3, :3]).reshape(-1, 3)
+        for j in range(3):
+            out[f"cvs_rvec_{j}"] = rv[:, j]
+    for j, ax in enumerate(("roll", "pitch", "yaw")):
+        out[f"{prefix}{ax}_rad"] = rpy[:, j]
+    return out
+
+
+def tracks_from_params(params, bodies):
+    """The camera-marker and board-marker tracks with a fit's smoothing options.
+
+    Parameters
+    ----------
+    params : dict
+        Optional ``camera_smooth_s``, ``board_smooth_s`` (s, default 0), ``camera_static_tol``
+        ((m, rad), default None), ``camera_moving_smooth_s`` (s, default
+        ``CAMERA_MOVING_SMOOTH_S``), as in a ``result.yaml``.
+    bodies : DataFrame
+        bodies.parquet.
+
+    Returns
+    -------
+    cam, brd : BodyTrack
+    """
+    board_smooth_s = float(params.get("board_smooth_s", 0.0))
+    moving_smooth_s = params.get("camera_moving_smooth_s")
+    cam = BodyTrack(
+        *body_track(bodies, "camera"),
+        smooth_s=float(params.get("camera_smooth_s", 0.0)),
+        static_tol=params.get("camera_static_tol"),
+        moving_smooth_s=CAMERA_MOVING_SMOOTH_S if moving_smooth_s is None else float(moving_smooth_s),
+    )
+    brd = BodyTrack(*body_track(bodies, "board"), smooth_s=board_smooth_s)
+    return cam, brd
+
+
 def apply_se3(params, corners, bodies, board, frames=None):
     """Per-frame CVS pose (PnP at the fitted intrinsics) and Vicon reference pose (eq. 1).
 
@@ -601,15 +661,7 @@ def apply_se3(params, corners, bodies, board, frames=None):
     T_Cm_C = np.asarray(params["T_Cm_C"], float)
     T_Bm_B = np.asarray(params["T_Bm_B"], float)
     dt = float(params["dt_offset_s"])
-    board_smooth_s = float(params.get("board_smooth_s", 0.0))
-    moving_smooth_s = params.get("camera_moving_smooth_s")
-    cam = BodyTrack(
-        *body_track(bodies, "camera"),
-        smooth_s=float(params.get("camera_smooth_s", 0.0)),
-        static_tol=params.get("camera_static_tol"),
-        moving_smooth_s=CAMERA_MOVING_SMOOTH_S if moving_smooth_s is None else float(moving_smooth_s),
-    )
-    brd = BodyTrack(*body_track(bodies, "board"), smooth_s=board_smooth_s)
+    cam, brd = tracks_from_params(params, bodies)
     tq = t_video + dt
     ld = float(params.get("line_delay_s", 0.0) or 0.0)
     if ld != 0.0:
@@ -623,18 +675,7 @@ def apply_se3(params, corners, bodies, board, frames=None):
     err2 = np.sum((project_points(p_C, K, dist) - uv[keep]) ** 2, axis=-1)  # NaN where unseen
     rms = np.sqrt(np.nanmean(err2, axis=1))
     out = {"frame": frame[keep], "t_s": t_video[keep], "t_vicon_s": tq[keep]}
-    for prefix, T in (("cvs_", T_cvs), ("ref_", T_ref)):
-        q = tf.quat_from_R(T[:, :3, :3])
-        rpy = tf.euler_from_R(T[:, :3, :3]).reshape(-1, 3)
-        for j, ax in enumerate("xyz"):
-            out[f"{prefix}{ax}_m"] = T[:, j, 3]
-        for j, ax in enumerate(("qx", "qy", "qz", "qw")):
-            out[f"{prefix}{ax}"] = q[:, j]
-        if prefix == "cvs_":
-            rv = tf.rvec_from_R(T[:, :3, :3]).reshape(-1, 3)
-            for j in range(3):
-                out[f"cvs_rvec_{j}"] = rv[:, j]
-        for j, ax in enumerate(("roll", "pitch", "yaw")):
-            out[f"{prefix}{ax}_rad"] = rpy[:, j]
+    out.update(pose_columns("cvs_", T_cvs))
+    out.update(pose_columns("ref_", T_ref))
     out["reproj_rms_px"] = rms
     return pd.DataFrame(out)
