@@ -70,10 +70,8 @@ from cvsflow.optimise import OptimiseResult
 from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
 from cvsflow.optimise.se3_cov import (
     DEFAULT_INTRINSIC_STD,
-    correlation,
-    covariances,
     fixed_intrinsic_std,
-    fixed_sensitivity,
+    parameter_covariance,
 )
 from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, loss_weights, robust_cost
 from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model
@@ -270,15 +268,7 @@ def optimise_se3(
     bad_free = [f for f in free if f not in INTRINSIC_NAMES]
     if bad_free:
         raise OptimiseError(f"se3: free {bad_free} unknown; expected names from {INTRINSIC_NAMES}")
-    try:
-        K0 = np.asarray(camera["K"], float).reshape(3, 3)
-        dist0 = np.zeros(5)
-        d = np.asarray(camera["dist"], float).ravel()[:5]
-        dist0[: d.size] = d
-    except (KeyError, TypeError, ValueError) as exc:
-        raise OptimiseError(
-            f"se3: camera {camera!r}: expected K (3x3, px) and dist [k1 k2 p1 p2 k3]"
-        ) from exc
+    K0, dist0 = camera_start(camera)
     if not (np.isfinite(line_delay_s) and line_delay_s >= 0.0):
         raise OptimiseError(f"se3: line_delay_s {line_delay_s!r}; expected a finite value >= 0 s")
     if not np.isfinite(dt_offset_s):
@@ -296,10 +286,7 @@ def optimise_se3(
     )
     brd = BodyTrack(*body_track(bodies, "board"), smooth_s=board_smooth_s)
     log.info("se3: camera body %s", "static (mean pose used)" if cam.static else "moving")
-    usable = np.ones(len(frame), bool)
-    for off in (-DT_MARGIN_S, 0.0, DT_MARGIN_S):
-        tq = t_video + dt_offset_s + off
-        usable &= cam.ok(tq) & brd.ok(tq)
+    usable = usable_frames(t_video, dt_offset_s, cam, brd)
     n_skip = int((~usable).sum())
     if n_skip:
         log.warning(
@@ -374,14 +361,6 @@ def optimise_se3(
     J = model.jacobian(x)
     frame_of_row = np.repeat(np.nonzero(model.seen)[0], 2)
     block = np.floor((t_video - t_video[0]) / max(cluster_s, 1e-9)).astype(int)
-    cov_gn, cov_cl, JtJ_inv, sigma2, n_clusters = covariances(
-        J, r, loss, f_scale_px, block[frame_of_row]
-    )
-    se_gn = np.sqrt(np.diag(cov_gn))
-    se_cl = np.sqrt(np.diag(cov_cl))
-    se_data = np.maximum(se_gn, se_cl)
-    corr = correlation(JtJ_inv)
-    cov_data = corr * np.outer(se_data, se_data)
     # uncertainty of the intrinsics held fixed, carried into the free estimates (Notes)
     fixed_names = [n for n in INTRINSIC_NAMES if n not in set(free)]
     warnings_out = []
@@ -389,8 +368,6 @@ def optimise_se3(
     if fixed_names:
         sd_fixed, defaulted = fixed_intrinsic_std(camera, fixed_names)
         J_fixed = model.jacobian_intrinsics(x)[:, ~model.free]
-        S = fixed_sensitivity(J, J_fixed, r, loss, f_scale_px)
-        cov_fixed = (S * sd_fixed**2) @ S.T
         if defaulted:
             msg = (
                 f"se3: camera has no std for the fixed {defaulted}; their uncertainty is taken "
@@ -400,21 +377,13 @@ def optimise_se3(
             log.warning(msg)
     else:
         sd_fixed, defaulted = np.zeros(0), []
-        S = np.zeros((len(names), 0))
-        cov_fixed = np.zeros_like(cov_data)
-    se_fixed = np.sqrt(np.clip(np.diag(cov_fixed), 0.0, None))
-    cov_total = cov_data + cov_fixed
-    se = np.sqrt(np.diag(cov_total))
-    corr_total = correlation(cov_total)
-    for i in range(len(names)):
-        for j in range(i + 1, len(names)):
-            if abs(corr[i, j]) > corr_warn:
-                msg = (
-                    f"se3: {names[i]} and {names[j]} correlate at {corr[i, j]:+.3f} "
-                    f"(|corr| > {corr_warn}): the data hardly separate them"
-                )
-                warnings_out.append(msg)
-                log.warning(msg)
+        J_fixed = np.zeros((len(r), 0))
+    pc = parameter_covariance(J, r, loss, f_scale_px, block[frame_of_row], J_fixed, sd_fixed)
+    se_gn, se_cl, se_data, se_fixed, se = (pc[k] for k in ("se_gn", "se_cl", "se_data",
+                                                           "se_fixed", "se"))  # fmt: skip
+    corr, corr_total, S = pc["corr"], pc["corr_total"], pc["S"]
+    sigma2, n_clusters = pc["sigma2"], pc["n_clusters"]
+    warnings_out += correlation_warnings(corr, names, corr_warn, "se3")
     if sol.status <= 0:
         msg = f"se3: solver stopped before converging: {sol.message}"
         warnings_out.append(msg)
@@ -505,6 +474,152 @@ def optimise_se3(
     return OptimiseResult(iterations=pd.DataFrame(history), errors=per_frame, result=result)
 
 
+def camera_start(camera, label="se3"):
+    """Camera matrix and 5-term distortion of a camera.yaml mapping (the se3 start).
+
+    Parameters
+    ----------
+    camera : dict
+        ``K`` (3x3, px) and ``dist`` (up to 5 terms [k1 k2 p1 p2 k3]; missing ones are 0).
+    label : str
+        Prefix of the error message.
+
+    Returns
+    -------
+    K : ndarray, shape (3, 3)
+    dist : ndarray, shape (5,)
+
+    Raises
+    ------
+    OptimiseError
+        ``K`` or ``dist`` missing or malformed.
+    """
+    try:
+        K0 = np.asarray(camera["K"], float).reshape(3, 3)
+        dist0 = np.zeros(5)
+        d = np.asarray(camera["dist"], float).ravel()[:5]
+        dist0[: d.size] = d
+    except (KeyError, TypeError, ValueError) as exc:
+        raise OptimiseError(
+            f"{label}: camera {camera!r}: expected K (3x3, px) and dist [k1 k2 p1 p2 k3]"
+        ) from exc
+    return K0, dist0
+
+
+def usable_frames(t_video, dt_offset_s, cam, brd):
+    """Frames with valid Vicon poses of both bodies within ``DT_MARGIN_S`` of t + dt.
+
+    Parameters
+    ----------
+    t_video : ndarray, shape (F,)
+        Video times, s.
+    dt_offset_s : float
+        Time offset, s (t_vicon = t_video + dt).
+    cam, brd : BodyTrack
+        Camera-marker and board-marker tracks.
+
+    Returns
+    -------
+    usable : ndarray of bool, shape (F,)
+    """
+    usable = np.ones(len(t_video), bool)
+    for off in (-DT_MARGIN_S, 0.0, DT_MARGIN_S):
+        tq = t_video + dt_offset_s + off
+        usable &= cam.ok(tq) & brd.ok(tq)
+    return usable
+
+
+def correlation_warnings(corr, names, corr_warn, label):
+    """Warnings (logged) for every pair of estimates correlated beyond ``corr_warn``.
+
+    Parameters
+    ----------
+    corr : ndarray, shape (n, n)
+        Correlation of the estimates (data only).
+    names : sequence of str
+        Parameter names, in the order of ``corr``.
+    corr_warn : float
+        Absolute correlation above which a pair is reported.
+    label : str
+        Prefix of the messages (``"se3"``).
+
+    Returns
+    -------
+    warnings : list of str
+    """
+    out = []
+    for i in range(len(names)):
+        for j in range(i + 1, len(names)):
+            if abs(corr[i, j]) > corr_warn:
+                msg = (
+                    f"{label}: {names[i]} and {names[j]} correlate at {corr[i, j]:+.3f} "
+                    f"(|corr| > {corr_warn}): the data hardly separate them"
+                )
+                out.append(msg)
+                log.warning(msg)
+    return out
+
+
+def pose_columns(prefix, T):
+    """Columns of a per-frame pose table: position, quaternion (rvec for ``cvs_``), Euler.
+
+    Parameters
+    ----------
+    prefix : str
+        ``"cvs_"`` (with ``cvs_rvec_0..2``) or ``"ref_"``.
+    T : ndarray, shape (F, 4, 4)
+        Poses, m.
+
+    Returns
+    -------
+    columns : dict
+        ``{prefix}x_m, y_m, z_m, qx, qy, qz, qw`` (, ``cvs_rvec_0..2``), ``roll_rad, pitch_rad,
+        yaw_rad`` -> ndarray (F,).
+    """
+    out = {}
+    q = tf.quat_from_R(T[:, :3, :3])
+    rpy = tf.euler_from_R(T[:, :3, :3]).reshape(-1, 3)
+    for j, ax in enumerate("xyz"):
+        out[f"{prefix}{ax}_m"] = T[:, j, 3]
+    for j, ax in enumerate(("qx", "qy", "qz", "qw")):
+        out[f"{prefix}{ax}"] = q[:, j]
+    if prefix == "cvs_":
+        rv = tf.rvec_from_R(T[:, :3, :3]).reshape(-1, 3)
+        for j in range(3):
+            out[f"cvs_rvec_{j}"] = rv[:, j]
+    for j, ax in enumerate(("roll", "pitch", "yaw")):
+        out[f"{prefix}{ax}_rad"] = rpy[:, j]
+    return out
+
+
+def tracks_from_params(params, bodies):
+    """The camera-marker and board-marker tracks with a fit's smoothing options.
+
+    Parameters
+    ----------
+    params : dict
+        Optional ``camera_smooth_s``, ``board_smooth_s`` (s, default 0), ``camera_static_tol``
+        ((m, rad), default None), ``camera_moving_smooth_s`` (s, default
+        ``CAMERA_MOVING_SMOOTH_S``), as in a ``result.yaml``.
+    bodies : DataFrame
+        bodies.parquet.
+
+    Returns
+    -------
+    cam, brd : BodyTrack
+    """
+    board_smooth_s = float(params.get("board_smooth_s", 0.0))
+    moving_smooth_s = params.get("camera_moving_smooth_s")
+    cam = BodyTrack(
+        *body_track(bodies, "camera"),
+        smooth_s=float(params.get("camera_smooth_s", 0.0)),
+        static_tol=params.get("camera_static_tol"),
+        moving_smooth_s=CAMERA_MOVING_SMOOTH_S if moving_smooth_s is None else float(moving_smooth_s),
+    )
+    brd = BodyTrack(*body_track(bodies, "board"), smooth_s=board_smooth_s)
+    return cam, brd
+
+
 def apply_se3(params, corners, bodies, board, frames=None):
     """Per-frame CVS pose (PnP at the fitted intrinsics) and Vicon reference pose (eq. 1).
 
@@ -546,15 +661,7 @@ def apply_se3(params, corners, bodies, board, frames=None):
     T_Cm_C = np.asarray(params["T_Cm_C"], float)
     T_Bm_B = np.asarray(params["T_Bm_B"], float)
     dt = float(params["dt_offset_s"])
-    board_smooth_s = float(params.get("board_smooth_s", 0.0))
-    moving_smooth_s = params.get("camera_moving_smooth_s")
-    cam = BodyTrack(
-        *body_track(bodies, "camera"),
-        smooth_s=float(params.get("camera_smooth_s", 0.0)),
-        static_tol=params.get("camera_static_tol"),
-        moving_smooth_s=CAMERA_MOVING_SMOOTH_S if moving_smooth_s is None else float(moving_smooth_s),
-    )
-    brd = BodyTrack(*body_track(bodies, "board"), smooth_s=board_smooth_s)
+    cam, brd = tracks_from_params(params, bodies)
     tq = t_video + dt
     ld = float(params.get("line_delay_s", 0.0) or 0.0)
     if ld != 0.0:
@@ -568,18 +675,7 @@ def apply_se3(params, corners, bodies, board, frames=None):
     err2 = np.sum((project_points(p_C, K, dist) - uv[keep]) ** 2, axis=-1)  # NaN where unseen
     rms = np.sqrt(np.nanmean(err2, axis=1))
     out = {"frame": frame[keep], "t_s": t_video[keep], "t_vicon_s": tq[keep]}
-    for prefix, T in (("cvs_", T_cvs), ("ref_", T_ref)):
-        q = tf.quat_from_R(T[:, :3, :3])
-        rpy = tf.euler_from_R(T[:, :3, :3]).reshape(-1, 3)
-        for j, ax in enumerate("xyz"):
-            out[f"{prefix}{ax}_m"] = T[:, j, 3]
-        for j, ax in enumerate(("qx", "qy", "qz", "qw")):
-            out[f"{prefix}{ax}"] = q[:, j]
-        if prefix == "cvs_":
-            rv = tf.rvec_from_R(T[:, :3, :3]).reshape(-1, 3)
-            for j in range(3):
-                out[f"cvs_rvec_{j}"] = rv[:, j]
-        for j, ax in enumerate(("roll", "pitch", "yaw")):
-            out[f"{prefix}{ax}_rad"] = rpy[:, j]
+    out.update(pose_columns("cvs_", T_cvs))
+    out.update(pose_columns("ref_", T_ref))
     out["reproj_rms_px"] = rms
     return pd.DataFrame(out)

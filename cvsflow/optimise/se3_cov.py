@@ -141,3 +141,54 @@ def correlation(cov):
     d = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
     return cov / np.outer(d, d)
 
+
+def parameter_covariance(J, r, loss, f_scale, clusters, J_fixed, sd_fixed):
+    """Data-only and total covariance of an se3 estimate: the one recipe mono and rig share.
+
+    The data-only standard errors are the larger of the Gauss-Newton and the cluster-robust
+    ones per parameter, with the correlations of ``(J^T J)^-1``; the fixed intrinsics add
+    ``S Sigma_theta S^T`` (``Sigma_theta = diag(sd_fixed^2)``, :func:`fixed_sensitivity`).
+
+    Parameters
+    ----------
+    J : ndarray, shape (m, n)
+        Jacobian of the residuals at the solution (free parameters).
+    r : ndarray, shape (m,)
+        Residuals, px.
+    loss : {"linear", "soft_l1", "huber"}
+    f_scale : float
+        Loss scale, px.
+    clusters : array_like, shape (m,)
+        Cluster label (time block) of each residual.
+    J_fixed : ndarray, shape (m, k)
+        Jacobian w.r.t. the intrinsics held fixed (k may be 0).
+    sd_fixed : ndarray, shape (k,)
+        Their 1-sigma.
+
+    Returns
+    -------
+    cov : dict
+        ``se_gn``, ``se_cl``, ``se_data``, ``se_fixed``, ``se`` (n,); ``corr`` (data only,
+        from (J^T J)^-1), ``cov_data``, ``cov_fixed``, ``cov_total``, ``corr_total`` (n, n);
+        ``S`` (n, k); ``sigma2`` (px^2), ``n_clusters``.
+    """
+    cov_gn, cov_cl, JtJ_inv, sigma2, n_clusters = covariances(J, r, loss, f_scale, clusters)
+    se_gn = np.sqrt(np.diag(cov_gn))
+    se_cl = np.sqrt(np.diag(cov_cl))
+    se_data = np.maximum(se_gn, se_cl)
+    corr = correlation(JtJ_inv)
+    cov_data = corr * np.outer(se_data, se_data)
+    if J_fixed.shape[1]:
+        S = fixed_sensitivity(J, J_fixed, r, loss, f_scale)
+        cov_fixed = (S * sd_fixed**2) @ S.T
+    else:
+        S = np.zeros((J.shape[1], 0))
+        cov_fixed = np.zeros_like(cov_data)
+    se_fixed = np.sqrt(np.clip(np.diag(cov_fixed), 0.0, None))
+    cov_total = cov_data + cov_fixed
+    return {
+        "se_gn": se_gn, "se_cl": se_cl, "se_data": se_data, "se_fixed": se_fixed,
+        "se": np.sqrt(np.diag(cov_total)), "corr": corr, "cov_data": cov_data,
+        "cov_fixed": cov_fixed, "cov_total": cov_total, "corr_total": correlation(cov_total),
+        "S": S, "sigma2": sigma2, "n_clusters": n_clusters,
+    }  # fmt: skip

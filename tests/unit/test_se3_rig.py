@@ -1,0 +1,222 @@
+"""Tests of the N-camera se3 fit (cvsflow.optimise.se3_rig) on corner-level simulated rigs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cvsflow import transforms as tf
+from cvsflow.board import board_object_points
+from cvsflow.errors import OptimiseError
+from cvsflow.geometry.camera import INTRINSIC_NAMES
+from cvsflow.optimise import se3
+from cvsflow.optimise.body_tracks import BodyTrack, body_track
+from cvsflow.optimise.se3_model import Se3Model
+from cvsflow.optimise.se3_rig import (
+    RigModel,
+    cross_validate_se3_rig,
+    fused_rig_poses,
+    optimise_se3_rig,
+)
+from cvsflow.optimise.se3_sim import simulate_rig_session
+from cvsflow.optimise.se3_start import corner_arrays
+
+#: Intrinsics fitted in these tests; the others are held at the truth with std 0, so that
+#: the standard errors are the data's alone and a z-score tests them.
+FREE = ("fx", "fy", "k1", "k2")
+HELD_STD = {n: 0.0 for n in INTRINSIC_NAMES if n not in FREE}
+
+
+def _entries(session, df_px=(6.0, -5.0), ddt_s=0.01):
+    """Camera entries from a simulated rig: fx, fy off by df_px, dt by ddt_s."""
+    out = []
+    for c, t in zip(session["cameras"], session["truth"]["cameras"], strict=True):
+        K0 = t["K"] + np.diag([df_px[0], df_px[1], 0.0])
+        camera = {"K": K0.tolist(), "dist": t["dist"].tolist(), "std": HELD_STD}
+        out.append({"corners": c["corners"], "camera": camera, "dt_offset_s": t["dt_offset_s"] + ddt_s})
+    return out
+
+
+def _truth_vector(result, truth):
+    """The true parameters in the fit's parametrisation (rotations as perturbations of the start)."""
+    out = {}
+    T_Bm_B0 = np.asarray(result["init_T_Bm_B"])
+    w_B = tf.rvec_from_R(T_Bm_B0[:3, :3].T @ truth["T_Bm_B"][:3, :3])
+    for name in result["estimates"]:
+        if name.startswith("T_Bm_B_"):
+            s = name[len("T_Bm_B_") :]
+            out[name] = w_B["xyz".index(s[1])] if s[0] == "r" else truth["T_Bm_B"]["xyz".index(s[0]), 3]
+            continue
+        i = int(name[3 : name.index("_")])
+        s = name[name.index("_") + 1 :]
+        tc = truth["cameras"][i]
+        if s == "dt_offset_s":
+            out[name] = tc["dt_offset_s"]
+        elif s.startswith("T_Cm_C_"):
+            s = s[len("T_Cm_C_") :]
+            R0 = np.asarray(result["cameras"][i]["init"]["T_Cm_C"])[:3, :3]
+            w = tf.rvec_from_R(R0.T @ tc["T_Cm_C"][:3, :3])
+            out[name] = w["xyz".index(s[1])] if s[0] == "r" else tc["T_Cm_C"]["xyz".index(s[0]), 3]
+        else:
+            intr = [tc["K"][0, 0], tc["K"][1, 1], tc["K"][0, 2], tc["K"][1, 2], *tc["dist"]]
+            out[name] = intr[INTRINSIC_NAMES.index(s)]
+    return out
+
+
+def _z(result, truth):
+    tv = _truth_vector(result, truth)
+    return {n: (result["estimates"][n] - tv[n]) / result["std_errors"][n] for n in tv}
+
+
+@pytest.fixture(scope="module")
+def rig():
+    """Two cameras (30 fps each, genlocked, own clocks), 6 s, 15 % hidden from each."""
+    return simulate_rig_session(3, n_cameras=2, duration_s=6.0)
+
+
+@pytest.fixture(scope="module")
+def fitted(rig):
+    return optimise_se3_rig(_entries(rig), rig["bodies"], rig["board"], free=FREE)
+
+
+def test_rig_jacobian_matches_finite_differences(rig):
+    """RigModel's stacked analytic Jacobian equals central differences (shared T_Bm_B columns too)."""
+    p_B = board_object_points(rig["board"])
+    cam = BodyTrack(*body_track(rig["bodies"], "camera"))
+    brd = BodyTrack(*body_track(rig["bodies"], "board"), smooth_s=0.01)
+    models, per_cam = [], []
+    tb = rig["truth"]
+    for c, t in zip(rig["cameras"], tb["cameras"], strict=True):
+        _, tv, uv = corner_arrays(c["corners"], len(p_B))
+        intr = np.array([t["K"][0, 0], t["K"][1, 1], t["K"][0, 2], t["K"][1, 2], *t["dist"]])
+        models.append(Se3Model(intr, set(FREE), t["T_Cm_C"][:3, :3], tb["T_Bm_B"][:3, :3], True,
+                               t["dt_offset_s"], tv[::10], uv[::10], p_B, cam, brd))  # fmt: skip
+        per_cam.append((intr, t["T_Cm_C"][:3, 3], t["dt_offset_s"] + 0.003, 0.0))
+    model = RigModel(models)
+    x = model.pack(per_cam, tb["T_Bm_B"][:3, 3])
+    x[model.b_cols[:3]] += [0.002, -0.001, 0.003]
+    J = model.jacobian(x)
+    J_fd = model.jacobian_fd(x)
+    scale = np.abs(J_fd).max(axis=0)
+    assert np.max(np.abs(J - J_fd) / scale) < 1e-5
+    # camera 0's rows do not depend on camera 1's own parameters, and the reverse
+    assert not J[model.rows[0]][:, model.index[1][:10]].any()
+    assert not J[model.rows[1]][:, model.index[0][:10]].any()
+    assert J[model.rows[1]][:, model.b_cols].any() and J[model.rows[0]][:, model.b_cols].any()
+
+
+def test_rig_recovers_every_parameter(fitted, rig):
+    """Every parameter of both cameras and the shared T_Bm_B within 4 of its standard errors."""
+    z = _z(fitted.result, rig["truth"])
+    assert len(z) == 2 * (4 + 6 + 1) + 6
+    worst = max(z, key=lambda n: abs(z[n]))
+    assert abs(z[worst]) < 4.0, (worst, z[worst])
+    assert fitted.result["status"] == 1
+    # rig frames seen by one camera and by both, each counted once
+    by = fitted.result["n_rig_frames_by_cameras"]
+    assert by.get(1, 0) > 10 and by.get(2, 0) > 10
+
+
+def test_rig_fused_pose_against_truth(fitted, rig):
+    """Fused T_C0_B is near the truth; NEES of its covariance near 6; two cameras tighten depth."""
+    e = fitted.errors
+    dt0 = rig["truth"]["cameras"][0]["dt_offset_s"]
+    T_true = rig["truth"]["T_C0_B_at"](e["t_vicon_s"].to_numpy() - dt0)
+    q = e[["cvs_qx", "cvs_qy", "cvs_qz", "cvs_qw"]].to_numpy()
+    T_est = tf.make_T(tf.R_from_quat(q), e[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy())
+    d_t = T_est[:, :3, 3] - T_true[:, :3, 3]
+    d_r = tf.rvec_from_R(T_est[:, :3, :3] @ np.swapaxes(T_true[:, :3, :3], 1, 2)).reshape(-1, 3)
+    d = np.concatenate([d_t, d_r], axis=1)
+    S = e[[f"S{a}{b}" for a in range(6) for b in range(6)]].to_numpy().reshape(-1, 6, 6)
+    nees = np.einsum("fi,fij,fj->f", d, np.linalg.inv(S), d)
+    assert 4.0 < nees.mean() < 9.0
+    two = e["n_cameras"].to_numpy() == 2
+    depth_sd = np.sqrt(S[:, 2, 2])
+    assert np.median(depth_sd[two]) < 0.8 * np.median(depth_sd[~two])
+
+
+def test_rig_standard_errors_monte_carlo():
+    """Over 6 simulated rigs, the z-scores of all 28 parameters have an RMS near 1."""
+    zs = []
+    for seed in range(6):
+        s = simulate_rig_session(100 + seed, n_cameras=2, duration_s=4.0, hidden_share=0.1)
+        fit = optimise_se3_rig(_entries(s), s["bodies"], s["board"], free=FREE)
+        zs.append(list(_z(fit.result, s["truth"]).values()))
+    z = np.array(zs)
+    rms = float(np.sqrt(np.mean(z**2)))
+    assert 0.6 < rms < 1.4, rms
+    assert np.abs(z).max() < 4.5
+
+
+def test_two_cameras_beat_one_on_T_Bm_B(fitted, rig):
+    """Adding the second camera shrinks every T_Bm_B standard error, and the truth stays inside."""
+    one = optimise_se3_rig(_entries(rig)[:1], rig["bodies"], rig["board"], free=FREE).result
+    two = fitted.result
+    names = [n for n in two["std_errors"] if n.startswith("T_Bm_B_")]
+    ratio = np.array([two["std_errors"][n] / one["std_errors"][n] for n in names])
+    assert (ratio < 0.95).all(), dict(zip(names, ratio, strict=True))
+    z_two = _z(two, rig["truth"])
+    assert max(abs(z_two[n]) for n in names) < 4.0
+
+
+def test_one_camera_rig_equals_mono(rig):
+    """A one-camera rig is the mono solve: estimates and standard errors to 1e-9."""
+    e = _entries(rig)[0]
+    e["camera"]["std"] = {"cx": 0.5}  # others defaulted: the fixed-intrinsics path of both
+    mono = se3.optimise_se3(e["corners"], rig["bodies"], e["camera"], rig["board"], e["dt_offset_s"],
+                            free=FREE).result  # fmt: skip
+    one = optimise_se3_rig([e], rig["bodies"], rig["board"], free=FREE).result
+    assert list(one["estimates"]) == [f"cam0_{n}" if not n.startswith("T_Bm_B") else n
+                                      for n in mono["estimates"]]  # fmt: skip
+    for key in ("estimates", "std_errors", "std_errors_data", "std_errors_fixed"):
+        a = np.array(list(mono[key].values()))
+        b = np.array(list(one[key].values()))
+        np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12, err_msg=key)
+    assert one["sigma_px"] == pytest.approx(mono["sigma_px"], rel=1e-9)
+
+
+def test_rig_cross_validation(rig):
+    """Held-out fused poses: every rig frame scored once, by a fit that did not see its block."""
+    held, fits = cross_validate_se3_rig(_entries(rig), rig["bodies"], rig["board"], n_folds=2,
+                                        block_s=1.5, free=FREE)  # fmt: skip
+    assert len(fits) == 2 and set(held["fold"]) == {0, 1}
+    assert held["t_vicon_s"].is_unique
+    assert held["err_dist_m"].quantile(0.9) < 0.01
+    assert set(held["n_cameras"]) == {1, 2}
+
+
+def test_rig_three_cameras_own_rates(rig):
+    """Three cameras, the third at 25 fps on its own clock: its dt and mounting recovered."""
+    s = simulate_rig_session(5, n_cameras=3, duration_s=4.0)
+    fit = optimise_se3_rig(_entries(s), s["bodies"], s["board"], free=FREE).result
+    z = _z(fit, s["truth"])
+    assert max(abs(v) for v in z.values()) < 4.5
+    assert set(fit["n_rig_frames_by_cameras"]) >= {1, 2, 3}
+    T_C0_C2 = np.asarray(fit["cameras"][2]["T_C0_C"])
+    assert np.linalg.norm(T_C0_C2[:3, 3] - s["truth"]["cameras"][2]["T_C0_C"][:3, 3]) < 0.003
+
+
+def test_rig_named_errors(rig):
+    """A camera with no corners, all frames lost, a frame with two times, or unordered times."""
+    good = _entries(rig)
+    bad = [dict(good[0]), dict(good[1], corners=good[1]["corners"].iloc[:0])]
+    with pytest.raises(OptimiseError, match="camera 1: corners table is empty"):
+        optimise_se3_rig(bad, rig["bodies"], rig["board"])
+    lost = good[1]["corners"].assign(found=False)
+    with pytest.raises(OptimiseError, match="camera 1: .*no found frame"):
+        optimise_se3_rig([good[0], dict(good[1], corners=lost)], rig["bodies"], rig["board"])
+    c = good[1]["corners"].copy()
+    f = c.loc[c["found"], "frame"].iloc[5]
+    c.loc[(c["frame"] == f) & (c["corner"] == 3), "t_s"] += 0.5
+    with pytest.raises(OptimiseError, match=f"camera 1: frame {f} has rows with different t_s"):
+        optimise_se3_rig([good[0], dict(good[1], corners=c)], rig["bodies"], rig["board"])
+    c = good[0]["corners"].copy()
+    c.loc[c["frame"] == 40, "t_s"] = 0.0
+    with pytest.raises(OptimiseError, match="camera 0: t_s does not increase with frame"):
+        optimise_se3_rig([dict(good[0], corners=c), good[1]], rig["bodies"], rig["board"])
+    with pytest.raises(OptimiseError, match="camera 1: entry lacks"):
+        optimise_se3_rig([good[0], {"corners": good[1]["corners"]}], rig["bodies"], rig["board"])
+    with pytest.raises(OptimiseError, match="camera 1: 0 frames"):
+        optimise_se3_rig([good[0], dict(good[1], dt_offset_s=500.0)], rig["bodies"], rig["board"])
+    with pytest.raises(OptimiseError, match="3 corner tables for 2 cameras"):
+        fused_rig_poses({"cameras": [{}, {}]}, [good[0]["corners"]] * 3, rig["bodies"], rig["board"])
