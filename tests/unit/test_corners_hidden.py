@@ -1,7 +1,8 @@
 """A fingertip over one corner of a board that the detector or the tracker otherwise keeps
 whole: the corner under it agrees with its grid neighbours (cornerSubPix leaves it where it
 was put, or puts it on the finger's edge, within the neighbour check's limit), so only the
-saddle check can drop it (issue 13: up to 3 px off the truth on the realistic 640x480 render)."""
+saddle check can drop it (issue 13: kept up to 3.4 px off the truth on the realistic 640x480
+render)."""
 
 from __future__ import annotations
 
