@@ -16,7 +16,9 @@ from cvsflow.corners_grid import MAX_GRID_DEVIATION_FRAC, _grid_points, _inside,
 from cvsflow.corners_refine import (
     MIN_PATTERN_CONTRAST,
     _follow_partial,
+    _partial_without,
     _refine_corners,
+    _saddle_ok,
     board_squares_pattern_ok,
     refine_corners,
 )
@@ -62,8 +64,9 @@ def detect_corners(
         Where the search on the shrunk image (``DETECT_LONG_SIDE_PX``) fails, search the
         full-size image too (slow: ~0.3 s at 1280x720 on a frame with a partly hidden board).
     keep_partial : bool
-        Where OpenCV finds the grid but some corners fail the neighbour check (a hand over
-        them), keep the others (``"partial"``) instead of counting the frame as not found.
+        Where OpenCV finds the grid but some corners fail the neighbour check or show no
+        chessboard saddle (a hand over them), keep the others (``"partial"``) instead of
+        counting the frame as not found.
 
     Returns
     -------
@@ -83,7 +86,10 @@ def detect_corners(
     Under motion blur, findChessboardCorners' estimate of an outer corner can be more than a
     search window away from the true corner; cornerSubPix then leaves it where it was
     (it refuses moves larger than its window). Near the image border the window is cut off.
-    The neighbour check catches both.
+    The neighbour check catches both. A corner under a fingertip can pass it (cornerSubPix
+    leaves it where it was put, or puts it on the finger's edge, within the limit); every
+    corner of a whole board must also show the chessboard's saddle (``_saddle_ok``, where its
+    samples are inside the image), else the frame is ``"partial"`` or not found.
     """
     pattern = board_pattern(board)
     found, corners = _find_on_pyramid(gray, pattern, flags, full_size)
@@ -91,7 +97,22 @@ def detect_corners(
         return None, "not_found"
     refined, first = _refine_corners(gray, corners, board, subpix_window_px, max_grid_deviation)
     if refined is not None:
-        return order_corners(refined, gray, board, previous_px)
+        ordered, method = order_corners(refined, gray, board, previous_px)
+        grid = _grid_points(board)
+        H, _ = cv2.findHomography(grid, ordered.astype(np.float32), 0)
+        if H is None:
+            return None, "inconsistent"
+        saddle = _saddle_ok(gray, H, ordered, grid, border_ok=True)
+        if saddle.all():
+            return ordered, method
+        # A corner under a fingertip that agrees with its neighbours (cornerSubPix left it
+        # where it was, or put it on the finger's edge): the others, checked as partial.
+        if not keep_partial:
+            return None, "inconsistent"
+        partial, _ = _partial_without(gray, ordered, saddle, grid, board,
+                                      _track_scales(ordered, board, gray.shape),
+                                      max_grid_deviation)
+        return (None, "inconsistent") if partial is None else (partial, "partial")
     if not keep_partial:
         return None, "inconsistent"
     return _detected_partial(gray, corners, first, board, subpix_window_px, max_grid_deviation,
@@ -206,7 +227,8 @@ def quick_detect_corners(
     if refined is not None and _inside(refined, w, h, sc["border"]).all():
         ordered, _ = order_corners(refined, gray, board)
         H, _ = cv2.findHomography(grid, ordered.astype(np.float32), 0)
-        if H is not None and board_squares_pattern_ok(gray, H, board, MIN_PATTERN_CONTRAST):
+        if (H is not None and board_squares_pattern_ok(gray, H, board, MIN_PATTERN_CONTRAST)
+                and _saddle_ok(gray, H, ordered, grid, border_ok=True).all()):
             return ordered, "quick"
     # A hand over some corners or squares, or corners at the border (OpenCV still found the
     # grid): keep the corners that agree with their neighbours and show the chessboard's

@@ -37,7 +37,9 @@ from cvsflow.corners_grid import (
 from cvsflow.corners_refine import (
     MIN_PATTERN_CONTRAST,
     _follow_partial,
+    _partial_without,
     _refine_corners,
+    _saddle_ok,
     board_squares_pattern_ok,
 )
 
@@ -82,8 +84,10 @@ def track_corners(
         None with ``"lost"``.
     method : str
         ``"tracked"``: every corner inside the image, refined, consistent with its grid
-        neighbours, in the order the colours of the squares confirm (``order_corners``), and
-        every square of the board of the right colour (``board_squares_pattern_ok``).
+        neighbours, showing the chessboard's saddle (``_saddle_ok``), in the order the colours
+        of the squares confirm (``order_corners``), and every square of the board of the right
+        colour (``board_squares_pattern_ok``). ``"partial"``: some corners under a hand
+        dropped (NaN), the others passing the checks of a partly hidden board.
         ``"out_of_view"``: the board is followed but a corner is within the border margin
         (``TRACK_BORDER_PX`` or ``TRACK_BORDER_FRAC`` of the square size) of the border or
         outside (the frame has no whole board). ``"lost"``: any check failed; the caller
@@ -146,12 +150,18 @@ def track_corners(
     # No order_corners here: the flow cannot mirror the grid, and a grid turned by 180 degrees
     # on a board whose ends differ puts every square on the wrong colour, which the square
     # check below refuses (on a board whose ends look alike nothing can tell, as in detection).
-    H_fit, _ = cv2.findHomography(grid, corners.astype(np.float32), 0)
-    if H_fit is None:
-        return None, "lost"
-    if not board_squares_pattern_ok(gray, H_fit, board, MIN_PATTERN_CONTRAST):
-        # A hand over squares (and the corners it hides, which stay where they were put and
-        # agree with their neighbours): keep the corners that show the chessboard's saddle.
+    # The saddles and squares are sampled through the flow's homography, not one fitted
+    # again: its corners are within the flow's error (a fraction of a pixel) of the refined
+    # ones, and every sample is a fifth of a square or more from a corner.
+    saddle = _saddle_ok(gray, H, corners, grid, border_ok=True)
+    if not saddle.all():
+        # A hand over corners, which stay where they were put and agree with their
+        # neighbours: those without the chessboard's saddle go, the others are checked as a
+        # partly hidden board's (the squares they bound).
+        return _partial_without(gray, corners, saddle, grid, board, sc, max_grid_deviation,
+                                consistent=True)
+    if not board_squares_pattern_ok(gray, H, board, MIN_PATTERN_CONTRAST):
+        # A hand over squares only: the partial checks decide.
         return _follow_partial(gray, corners, np.ones(len(corners), bool), grid, board,
                                subpix_window_px, sc, max_grid_deviation, "partial")
     return corners, "tracked"
