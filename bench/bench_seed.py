@@ -43,9 +43,9 @@ import numpy as np
 import pandas as pd
 import yaml
 
-import cvsflow.evaluate as evaluate
+import cvsflow.evaluate_seed as evaluate_seed
 import cvsflow.optimise.seed as seed_after
-from cvsflow.evaluate import cross_validate_seed
+from cvsflow.evaluate_seed import cross_validate_seed
 from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.optimise.seed import POSE_DIMS, board_object_points
 from cvsflow.transforms import T_from_pose6, rvec_tvec_from_T
@@ -104,15 +104,15 @@ def load_before(rev):
 def using(module):
     """Let cross_validate_seed call ``module``'s optimiser.
 
-    cvsflow.evaluate binds ``optimise_seed`` by name at import, so its name is the one to swap
+    cvsflow.evaluate_seed binds ``optimise_seed`` by name at import, so its name is the one to swap
     (swapping the seed module's attribute alone left the held-out scoring on the new code).
     """
-    saved = seed_after.optimise_seed, evaluate.optimise_seed
-    seed_after.optimise_seed = evaluate.optimise_seed = module.optimise_seed
+    saved = seed_after.optimise_seed, evaluate_seed.optimise_seed
+    seed_after.optimise_seed = evaluate_seed.optimise_seed = module.optimise_seed
     try:
         yield
     finally:
-        seed_after.optimise_seed, evaluate.optimise_seed = saved
+        seed_after.optimise_seed, evaluate_seed.optimise_seed = saved
 
 
 def sha(path):

@@ -34,7 +34,7 @@ from cvsflow.metrics import (  # noqa: F401
 )
 from cvsflow.optimise.se3 import apply_se3, optimise_se3
 from cvsflow.optimise.se3_start import corner_arrays
-from cvsflow.optimise.seed import DIVERGED_EPS_STD_M, compute_eps, optimise_seed
+from cvsflow.optimise.seed import DIVERGED_EPS_STD_M
 
 log = logging.getLogger(__name__)
 
@@ -294,71 +294,6 @@ def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C"):
     return iterations, errors, result
 
 
-def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.0, seed=0,
-                        folds=None, **seed_options):
-    """Fit the chapter's method on all folds but one, score the held-out fold; every fold.
-
-    The fit gives f and P̄ (eqs. 1.10-1.12) from the training frames only; the held-out
-    frames' poses are re-estimated at that f and their error is eq. 1.11 with the training P̄.
-
-    Parameters
-    ----------
-    pairs, corners : DataFrame
-        pairs.parquet and corners.parquet.
-    K, dist : array_like
-        Calibrated intrinsics (the seed method's start).
-    board : dict
-    n_folds, block_s, seed
-        As :func:`make_time_blocks`, used when ``folds`` is not given.
-    folds : DataFrame, optional
-        ``t_s`` and ``fold`` of another method's held-out frames (e.g. :func:`cross_validate_se3`
-        output): each pair frame takes the fold of the nearest of those frames in time, so that
-        both methods are scored on the same held-out blocks.
-    **seed_options
-        Passed to :func:`cvsflow.optimise.seed.optimise_seed`.
-
-    Returns
-    -------
-    heldout : DataFrame
-        ``frame, t_s, fold, fx_px, fy_px``, ``eps_{dim}`` (6-vector errors, m and rad), and
-        ``diverged``, ``diverged_reason`` of the fold's fit (:func:`optimise_seed`).
-    """
-    t_s = pairs["t_s"].to_numpy(float)
-    if folds is None:
-        fold = make_time_blocks(t_s, block_s, n_folds, seed)
-    else:
-        order = np.argsort(folds["t_s"].to_numpy(float))
-        t_other = folds["t_s"].to_numpy(float)[order]
-        f_other = folds["fold"].to_numpy(int)[order]
-        i = np.clip(np.searchsorted(t_other, t_s), 1, len(t_other) - 1)
-        nearer_left = np.abs(t_s - t_other[i - 1]) <= np.abs(t_other[i] - t_s)
-        fold = np.where(nearer_left, f_other[i - 1], f_other[i])
-        n_folds = int(f_other.max()) + 1
-    dims = list(ERROR_DIMS)
-    parts = []
-    for k in range(n_folds):
-        train, test = pairs[fold != k], pairs[fold == k]
-        if len(test) == 0:
-            continue
-        fit = optimise_seed(train, corners, K, dist, board, **seed_options)
-        f = (fit.result["fx_px"], fit.result["fy_px"])
-        opts = {**seed_options, "k_iterations": 0, "f_init_px": f}
-        scored = optimise_seed(test, corners, K, dist, board, **opts).errors
-        F = scored[[f"cvs_{d}" for d in dims]].to_numpy(float)
-        P_star = scored[[f"vic_{d}" for d in dims]].to_numpy(float)
-        eps = compute_eps(F, P_star, np.asarray(fit.result["P_bar"], float))  # eq. 1.11
-        part = pd.DataFrame({"frame": scored["frame"].to_numpy(), "t_s": scored["t_s"].to_numpy()})
-        part["fold"], part["fx_px"], part["fy_px"] = k, f[0], f[1]
-        part["diverged"] = bool(fit.result.get("diverged", False))
-        part["diverged_reason"] = fit.result.get("diverged_reason") or ""
-        for j, d in enumerate(dims):
-            part[f"eps_{d}"] = eps[:, j]
-        parts.append(part)
-        log.info("seed cross-validation fold %d: %d train, %d test frames, f = (%.1f, %.1f) px",
-                 k, len(train), len(test), *f)
-    return pd.concat(parts, ignore_index=True).sort_values("frame", ignore_index=True)
-
-
 def crossfit_error_model(heldout, features, cov_err=None):
     """Train the error model on the held-out errors of all folds but one, score the last.
 
@@ -472,7 +407,7 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     Parameters
     ----------
     seed_heldout : DataFrame
-        :func:`cross_validate_seed` output (``eps_*``, 6-vector errors).
+        :func:`cvsflow.evaluate_seed.cross_validate_seed` output (``eps_*``, 6-vector errors).
     se3_heldout : DataFrame
         :func:`cross_validate_se3` output (``err_*`` composed errors, ``fold``, ``sigma_px``).
     se3_result : dict
@@ -562,16 +497,17 @@ def mark_seed_divergence(comparison, seed_heldout):
     The seed section becomes ``{diverged: true, diverged_reason, n,
     statistics_not_measurements: {per_dim}}`` and ``rms_ratio_se3_to_seed`` moves to
     ``rms_ratio_se3_to_seed_not_measurements`` (the top-level key is None), when any fold's fit
-    diverged (``diverged`` column of :func:`cross_validate_seed`) or a held-out translation
-    error std exceeds ``cvsflow.optimise.seed.DIVERGED_EPS_STD_M``. Otherwise the section gets
-    ``diverged: false``.
+    diverged (``diverged`` column of :func:`cvsflow.evaluate_seed.cross_validate_seed`) or a
+    held-out translation error std exceeds ``cvsflow.optimise.seed.DIVERGED_EPS_STD_M``.
+    Otherwise the section gets ``diverged: false``.
 
     Parameters
     ----------
     comparison : dict
         :func:`compare_methods` output with a ``seed`` section (edited in place).
     seed_heldout : DataFrame
-        :func:`cross_validate_seed` output (``fold``, ``diverged``, ``diverged_reason``).
+        :func:`cvsflow.evaluate_seed.cross_validate_seed` output (``fold``, ``diverged``,
+        ``diverged_reason``).
 
     Returns
     -------

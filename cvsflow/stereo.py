@@ -155,12 +155,23 @@ def _linearise(T_Ci_C0, T_C0_B, obs, K, dist):
         if c > 0:
             J[sel, :, 6 * (c - 1): 6 * (c - 1) + 3] = -d_uv_d_p @ skew(Rp)
             J[sel, :, 6 * (c - 1) + 3: 6 * c] = d_uv_d_p
-        d_uv_d_pc0 = d_uv_d_p @ R
-        J_rot = -d_uv_d_pc0 @ skew(Rp_B[sel])
+        J_rot, d_uv_d_pc0 = _board_pose_jacobian(d_uv_d_p, R, Rp_B[sel])
         for k in range(3):
             J[sel, :, cols_v[sel] + k] = J_rot[:, :, k]
             J[sel, :, cols_v[sel] + 3 + k] = d_uv_d_pc0[:, :, k]
     return r.ravel(), J.reshape(2 * M, n_params), J_k.reshape(2 * M, 9 * n_cam)
+
+
+def _board_pose_jacobian(d_uv_d_p, R_Ci_C0, Rp_B):
+    """Jacobians of a camera's pixels w.r.t. the board pose T_C0_B perturbed on the left.
+
+    With R_C0_B <- exp([w]x) R_C0_B and t_C0_B <- t_C0_B + dt, a corner's point in Ci moves by
+    R_Ci_C0 (w x R_C0_B p_B + dt). ``d_uv_d_p`` (..., 2, 3) is the projection's Jacobian at the
+    point in Ci, ``Rp_B`` (..., 3) the corner rotated into C0 (R_C0_B p_B). Returns d uv / d w
+    and d uv / d dt, each (..., 2, 3).
+    """
+    d_uv_d_pc0 = d_uv_d_p @ R_Ci_C0
+    return -d_uv_d_pc0 @ skew(Rp_B), d_uv_d_pc0
 
 
 def _retract(T, delta):
@@ -340,9 +351,9 @@ def _board_pose_residuals(T_C0_B, uv, seen, p_B, K, dist, T_Ci_C0):
         uv_hat, d_uv_d_p, _ = project_points_jac(p_C, K[c], dist[c])
         m = seen[:, c] & front
         r[:, c] = np.where(m[..., None], uv_hat - np.nan_to_num(uv[:, c]), 0.0)
-        d_uv_d_pc0 = d_uv_d_p @ R
-        J[:, c, :, :, :3] = d_uv_d_pc0
-        J[:, c, :, :, 3:] = -d_uv_d_pc0 @ skew(Rp_B)
+        J_rot, J_t = _board_pose_jacobian(d_uv_d_p, R, Rp_B)
+        J[:, c, :, :, :3] = J_t
+        J[:, c, :, :, 3:] = J_rot
         J[:, c] *= m[..., None, None]
     return r, J
 

@@ -16,7 +16,8 @@ import cv2
 import numpy as np
 
 from cvsflow.errors import ConfigError
-from cvsflow.synth.camera import Board, BoardTexture, texture_pyramid
+from cvsflow.synth.board_image import BoardTexture, texture_pyramid
+from cvsflow.synth.camera import Board
 from cvsflow.synth.motion import random_sine_sum
 
 log = logging.getLogger(__name__)

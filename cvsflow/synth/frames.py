@@ -10,17 +10,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cvsflow.synth.camera import (
+from cvsflow.synth.board_image import (
     BoardTexture,
     board_roi,
-    expose,
-    make_background,
     make_board_texture,
     render_board,
     render_board_region,
-    undistortion_grid,
-    vignetting,
 )
+from cvsflow.synth.camera import expose, make_background, undistortion_grid, vignetting
 from cvsflow.synth.effects import SKIN_BGR
 from cvsflow.synth.motion import board_poses
 from cvsflow.synth.spec import FOCUS_DEPTH_M, SynthSpec

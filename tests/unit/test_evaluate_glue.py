@@ -5,6 +5,7 @@ import pandas as pd
 import pytest
 
 from cvsflow import evaluate as ev
+from cvsflow.evaluate_seed import cross_validate_seed
 from cvsflow.metrics import poses_from_table
 from cvsflow.optimise import se3
 from cvsflow.optimise.se3_sim import simulate_session
@@ -63,7 +64,7 @@ def test_cross_validate_seed_scores_each_frame_once_with_training_offset():
         pairs[f"vic_{d}"] = p6[:, j] - offset[j]
     for j in range(3):
         pairs[f"cvs_rvec_{j}"] = rv[:, j]
-    held = ev.cross_validate_seed(pairs, s["corners"], s["camera"]["K"], s["camera"]["dist"],
+    held = cross_validate_seed(pairs, s["corners"], s["camera"]["K"], s["camera"]["dist"],
                                   s["board"], n_folds=3, block_s=2.0, seed=1, k_iterations=1)
     assert held["frame"].is_unique and len(held) == len(pairs)
     assert set(held["fold"]) == {0, 1, 2}
@@ -121,7 +122,7 @@ def test_cross_validate_seed_takes_the_given_folds():
     # the other method saw every other frame only, in 3 folds by thirds of the take
     other = pairs.iloc[::2][["t_s"]].copy()
     other["fold"] = np.minimum((other["t_s"] / 3.0).astype(int), 2)
-    held = ev.cross_validate_seed(pairs, s["corners"], s["camera"]["K"], s["camera"]["dist"],
+    held = cross_validate_seed(pairs, s["corners"], s["camera"]["K"], s["camera"]["dist"],
                                   s["board"], folds=other, k_iterations=0)
     expected = np.minimum((held["t_s"] / 3.0 + 1e-9).astype(int), 2)
     assert (held["fold"].to_numpy() == expected.to_numpy()).mean() > 0.97

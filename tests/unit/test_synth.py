@@ -15,7 +15,8 @@ import yaml
 from cvsflow.calibration import calibrate_camera
 from cvsflow.errors import ConfigError
 from cvsflow.io import synth_out
-from cvsflow.synth.camera import Board, make_board_texture, project_points
+from cvsflow.synth.board_image import make_board_texture
+from cvsflow.synth.camera import Board, project_points
 from cvsflow.synth.frames import Renderer
 from cvsflow.synth.markers import fit_rigid, true_mounting
 from cvsflow.synth.motion import board_poses, make_hand_motion, still_poses

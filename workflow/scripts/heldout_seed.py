@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from cvsflow.evaluate import cross_validate_seed
+from cvsflow.evaluate_seed import cross_validate_seed
 from cvsflow.io import read_parquet, read_yaml, write_parquet
 from cvsflow.io.logs import stage_logging
 

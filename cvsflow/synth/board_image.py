@@ -1,0 +1,335 @@
+"""The board's texture and its image in the camera, for the demo session's renderer.
+
+The board is rendered in one resampling step per instant: for every pixel of the distorted
+image, its undistorted normalised ray (computed once per camera,
+:func:`cvsflow.synth.camera.undistortion_grid`) is mapped by the plane homography into the
+board texture, and ``cv2.remap`` samples the texture there. A pyramid of area-averaged
+textures keeps far boards free of aliasing. Motion blur is the mean of several such renders
+over the exposure time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from cvsflow.charuco import charuco_board
+from cvsflow.synth.camera import Board, project_points, rectangle_outline_B
+from cvsflow.transforms import invert_T
+
+INK_REFLECTANCE = 0.06
+MARKER_RADIUS_M = 0.007  # 14 mm Vicon marker
+PAPER_REFLECTANCE = 0.88
+
+
+@dataclass(frozen=True)
+class BoardTexture:
+    """Board texture pyramid: level l has ``ppm[l]`` texels per metre.
+
+    ``levels[l]`` has shape (rows, cols, 2), float32: channel 0 reflectance times coverage
+    (premultiplied), channel 1 coverage of the sheet (alpha). Texel (c, r) has its centre at
+    B = (x0 + (c + 0.5) / ppm, y0 + (r + 0.5) / ppm).
+    """
+
+    levels: tuple
+    ppm: tuple
+    x0_m: float
+    y0_m: float
+
+
+def make_board_texture(board: Board, ppm=1200.0, n_levels=5, markers_B=None) -> BoardTexture:
+    """Render the A1 sheet with its chessboard as a texture pyramid.
+
+    The square diagonally outside inner corner 0 (negative x and y) is black, so the corner
+    order is unambiguous (6x5 squares: a 180 degree turn makes that square white).
+
+    Parameters
+    ----------
+    board : Board
+    ppm : float
+        Texels per metre of the finest level.
+    n_levels : int
+        Pyramid levels, each half the resolution of the previous one.
+    markers_B : ndarray, shape (M, 3), optional
+        Vicon markers stuck on the sheet (frame B, metres); those over the sheet are drawn
+        as grey discs of ``MARKER_RADIUS_M`` seen face-on (their relief is ignored).
+
+    Returns
+    -------
+    BoardTexture
+        ``n_levels`` levels, the finest at ``ppm`` texels per metre, with texel edges on the
+        square edges and one empty texel ring round the sheet.
+    """
+    s = board.square_m
+    x_min, _, y_min, _ = board.printed_B()
+    sx0, sx1, sy0, sy1 = board.sheet_B()
+    # Put texel boundaries on the square edges (x_min + k s), one empty texel ring outside.
+    step = 2**n_levels
+    x0 = x_min - np.ceil((x_min - sx0) * ppm + 1) / ppm
+    y0 = y_min - np.ceil((y_min - sy0) * ppm + 1) / ppm
+    cols = int(np.ceil(((sx1 - x0) * ppm + 2) / step) * step)
+    rows = int(np.ceil(((sy1 - y0) * ppm + 2) / step) * step)
+    # Area coverage of the sheet by each texel, exact for axis-aligned edges.
+    edges_x = x0 + np.arange(cols + 1) / ppm
+    edges_y = y0 + np.arange(rows + 1) / ppm
+    cover_x = np.clip(np.minimum(edges_x[1:], sx1) - np.maximum(edges_x[:-1], sx0), 0, None) * ppm
+    cover_y = np.clip(np.minimum(edges_y[1:], sy1) - np.maximum(edges_y[:-1], sy0), 0, None) * ppm
+    alpha = np.outer(cover_y, cover_x)
+    xc = x0 + (np.arange(cols) + 0.5) / ppm
+    yc = y0 + (np.arange(rows) + 0.5) / ppm
+    ix = np.floor((xc - x_min) / s).astype(int)
+    iy = np.floor((yc - y_min) / s).astype(int)
+    in_x = (ix >= 0) & (ix < board.squares_x)
+    in_y = (iy >= 0) & (iy < board.squares_y)
+    black = ((iy[:, None] + ix[None, :]) % 2 == 0) & in_y[:, None] & in_x[None, :]
+    if board.kind == "charuco":
+        black |= _charuco_marker_ink(board, xc - x_min, yc - y_min)
+    reflectance = np.where(black, INK_REFLECTANCE, PAPER_REFLECTANCE)
+    if markers_B is not None:
+        reflectance = _draw_markers(reflectance, markers_B, x0, y0, ppm, board.sheet_B())
+    level = np.dstack([reflectance * alpha, alpha]).astype(np.float32)
+    return texture_pyramid(level, ppm, n_levels, x0, y0)
+
+
+# Pixels per marker bit of the ChArUco image the markers are copied from (many more than
+# texels per bit: the copy's edges are off by at most half a texel).
+CHARUCO_PX_PER_BIT = 24
+
+
+def _charuco_marker_ink(board: Board, x_m, y_m):
+    """(len(y_m), len(x_m)) bool: texel centres (x_m, y_m: metres from the printed squares'
+    outer corner, along B's x and y) on a marker's black bit.
+
+    The markers come from ``cv2.aruco.CharucoBoard.generateImage`` (image row = B's y, square
+    (0, 0) black, markers in the white squares); only marker pixels inside white squares are
+    taken, so the squares, and with them every corner, stay exactly the chessboard's.
+    """
+    cb = charuco_board(board.config())
+    bits = cb.getDictionary().markerSize + 2  # the marker and its one-bit black border
+    pps = int(np.ceil(CHARUCO_PX_PER_BIT * bits * board.square_m / board.marker_m))
+    image = cb.generateImage((board.squares_x * pps, board.squares_y * pps), marginSize=0,
+                             borderBits=1)
+    s = board.square_m
+    ci = np.floor(np.asarray(x_m) / s * pps).astype(int)
+    ri = np.floor(np.asarray(y_m) / s * pps).astype(int)
+    in_c = (ci >= 0) & (ci < image.shape[1])
+    in_r = (ri >= 0) & (ri < image.shape[0])
+    ink = image[np.clip(ri, 0, image.shape[0] - 1)][:, np.clip(ci, 0, image.shape[1] - 1)] < 128
+    white_square = ((ri[:, None] // pps + ci[None, :] // pps) % 2) == 1
+    return ink & white_square & in_r[:, None] & in_c[None, :]
+
+
+def texture_pyramid(level, ppm, n_levels, x0, y0) -> BoardTexture:
+    """A BoardTexture of ``n_levels`` halvings (area-averaged) of a (rows, cols, 2) level.
+
+    Parameters
+    ----------
+    level : ndarray, shape (rows, cols, 2), float32
+        Finest level: premultiplied reflectance and coverage (see :class:`BoardTexture`).
+        ``rows`` and ``cols`` should divide by ``2 ** (n_levels - 1)``.
+    ppm : float
+        Texels per metre of ``level``.
+    n_levels : int
+        Levels in all, ``level`` included.
+    x0, y0 : float
+        Board-frame B position of the texture's top-left texel corner, metres.
+
+    Returns
+    -------
+    BoardTexture
+        Level l at ``ppm / 2**l`` texels per metre.
+    """
+    levels, ppms = [level], [ppm]
+    for _ in range(n_levels - 1):
+        level = cv2.resize(level, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+        levels.append(level)
+        ppms.append(ppms[-1] / 2)
+    return BoardTexture(tuple(levels), tuple(ppms), float(x0), float(y0))
+
+
+def _draw_markers(reflectance, markers_B, x0, y0, ppm, sheet):
+    """Paint retro-reflective markers (grey, darker rim) on the sheet texture."""
+    reflectance = reflectance.astype(np.float32).copy()
+    shift = 4  # cv2.circle sub-texel precision, 1/16 texel
+    sx0, sx1, sy0, sy1 = sheet
+    for x, y, _ in np.asarray(markers_B, dtype=float):
+        if not (sx0 < x < sx1 and sy0 < y < sy1):
+            continue  # a marker off the sheet (on a stick or a tab) is not in the texture
+        centre = (int(round(((x - x0) * ppm - 0.5) * 16)), int(round(((y - y0) * ppm - 0.5) * 16)))
+        radius = MARKER_RADIUS_M * ppm
+        cv2.circle(reflectance, centre, int(radius * 16), 0.35, -1, cv2.LINE_AA, shift)
+        cv2.circle(reflectance, centre, int(0.75 * radius * 16), 0.6, -1, cv2.LINE_AA, shift)
+    return reflectance
+
+
+def _texel_from_ray(T_C_B, texture: BoardTexture, level: int):
+    """Homography (3, 3) from a normalised ray (x, y, 1) in C to texel coordinates of a level."""
+    T_B_C = invert_T(T_C_B)
+    # Plane z_B = 0 seen from C: ray d (in C) hits it at B point o + lambda R d, with
+    # lambda = -o_z / (R d)_z; the homography is that map up to scale.
+    R, o = T_B_C[:3, :3], T_B_C[:3, 3]
+    H_B = np.zeros((3, 3))
+    H_B[0] = o[0] * R[2] - o[2] * R[0]
+    H_B[1] = o[1] * R[2] - o[2] * R[1]
+    H_B[2] = R[2]
+    ppm = texture.ppm[level]
+    A = np.array(
+        [
+            [ppm, 0.0, -texture.x0_m * ppm - 0.5],
+            [0.0, ppm, -texture.y0_m * ppm - 0.5],
+            [0.0, 0.0, 1.0],
+        ]
+    )
+    return A @ H_B
+
+
+def choose_level(T_C_B, K, texture: BoardTexture) -> int:
+    """Finest pyramid level with at most ~1.4 texels per pixel at the board centre.
+
+    Parameters
+    ----------
+    T_C_B : ndarray, shape (4, 4)
+        Board in camera, metres; its origin's depth (held at >= 1 mm) sets the scale.
+    K : ndarray, shape (3, 3)
+        Camera matrix, px (``fx`` is used).
+    texture : BoardTexture
+
+    Returns
+    -------
+    int
+        Level index, 0 (finest) to ``len(texture.levels) - 1``.
+    """
+    depth_m = max(float(T_C_B[2, 3]), 1e-3)
+    px_per_m = K[0, 0] / depth_m
+    level = 0
+    while level + 1 < len(texture.levels) and texture.ppm[level] > 1.4 * px_per_m:
+        level += 1
+    return level
+
+
+def render_board(T_C_B, texture: BoardTexture, xy_n, K, dist, roi=None):
+    """Premultiplied board reflectance and sheet coverage at one instant.
+
+    Parameters
+    ----------
+    T_C_B : ndarray, shape (4, 4)
+        Board in camera, metres.
+    texture : BoardTexture
+    xy_n : ndarray, shape (H, W, 2)
+        ``undistortion_grid`` of the camera.
+    K, dist : ndarray
+        Camera matrix and distortion (only used to choose the level and the region).
+    roi : tuple of int, optional
+        (x0, y0, x1, y1) pixel region to render; by default the board's bounding box.
+
+    Returns
+    -------
+    layer : ndarray, shape (H, W, 2), float32
+        Channel 0 reflectance times coverage, channel 1 coverage (0..1).
+    """
+    height, width = xy_n.shape[:2]
+    layer = np.zeros((height, width, 2), np.float32)
+    if roi is None:
+        roi = board_roi(T_C_B, texture, K, dist, (width, height))
+    if roi is None:
+        return layer
+    x0, y0, x1, y1 = roi
+    layer[y0:y1, x0:x1] = render_board_region(T_C_B, texture, xy_n, K, roi)
+    return layer
+
+
+def render_board_region(T_C_B, texture: BoardTexture, xy_n, K, roi):
+    """``render_board`` inside the pixel box ``roi`` = (x0, y0, x1, y1) only: shape (y1-y0, x1-x0, 2).
+
+    Parameters
+    ----------
+    T_C_B : ndarray, shape (4, 4)
+        Board in camera, metres.
+    texture : BoardTexture
+    xy_n : ndarray, shape (H, W, 2)
+        ``undistortion_grid`` of the camera.
+    K : ndarray, shape (3, 3)
+        Camera matrix, px (only used to choose the level).
+    roi : (int, int, int, int)
+        ``(x0, y0, x1, y1)``, pixels, end-exclusive, inside the image.
+
+    Returns
+    -------
+    layer : ndarray, shape (y1 - y0, x1 - x0, 2), float32
+        Channel 0 reflectance times coverage, channel 1 coverage (0..1); 0 where the pixel's
+        ray misses the sheet or meets the board plane behind the camera.
+    """
+    x0, y0, x1, y1 = roi
+    level = choose_level(T_C_B, K, texture)
+    G = _texel_from_ray(T_C_B, texture, level)
+    rays = xy_n[y0:y1, x0:x1]
+    den = G[2, 0] * rays[..., 0] + G[2, 1] * rays[..., 1] + G[2, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        map_c = (G[0, 0] * rays[..., 0] + G[0, 1] * rays[..., 1] + G[0, 2]) / den
+        map_r = (G[1, 0] * rays[..., 0] + G[1, 1] * rays[..., 1] + G[1, 2]) / den
+    # Rays that meet the board plane behind the camera must sample nothing.
+    hits = _rays_hit_front(T_C_B, rays) > 0
+    map_c = np.where(hits, map_c, -10.0).astype(np.float32)
+    map_r = np.where(hits, map_r, -10.0).astype(np.float32)
+    return cv2.remap(
+        texture.levels[level],
+        map_c,
+        map_r,
+        interpolation=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_CONSTANT,
+        borderValue=0,
+    )
+
+
+def _rays_hit_front(T_C_B, rays):
+    """Positive where the ray (x, y, 1) meets the board plane in front of the camera."""
+    n_C = T_C_B[:3, 2]  # board z axis in C
+    d = float(n_C @ T_C_B[:3, 3])  # plane: n . p = d
+    dot = n_C[0] * rays[..., 0] + n_C[1] * rays[..., 1] + n_C[2]
+    return dot * d
+
+
+def board_roi(T_C_B, texture: BoardTexture, K, dist, size, pad_px=3):
+    """Pixel box (x0, y0, x1, y1) holding the sheet, the whole image if unsure, None if unseen.
+
+    Parameters
+    ----------
+    T_C_B : ndarray, shape (4, 4)
+        Board in camera, metres.
+    texture : BoardTexture
+        Its extent in B (the whole texture, empty ring included) is what is boxed.
+    K : ndarray, shape (3, 3)
+        Camera matrix, px.
+    dist : ndarray, shape (5,)
+        Distortion [k1, k2, p1, p2, k3].
+    size : (int, int)
+        Image (width, height), px.
+    pad_px : int
+        Margin added round the projected outline, px.
+
+    Returns
+    -------
+    roi : (int, int, int, int) or None
+        ``(x0, y0, x1, y1)`` clipped to the image, end-exclusive, px. The whole image when an
+        outline point cannot be projected (NaN: behind the camera or off the lens model's
+        domain); None when the box lies outside the image.
+    """
+    width, height = size
+    x_a = texture.x0_m
+    y_a = texture.y0_m
+    rows, cols = texture.levels[0].shape[:2]
+    extent = (x_a, x_a + cols / texture.ppm[0], y_a, y_a + rows / texture.ppm[0])
+    outline = rectangle_outline_B(extent, n_per_edge=16)
+    uv = project_points(T_C_B, outline, K, dist)
+    if not np.all(np.isfinite(uv)):
+        # part of the sheet is off the lens model's domain: render the whole frame
+        return (0, 0, width, height)
+    x0 = int(max(np.floor(uv[:, 0].min()) - pad_px, 0))
+    y0 = int(max(np.floor(uv[:, 1].min()) - pad_px, 0))
+    x1 = int(min(np.ceil(uv[:, 0].max()) + pad_px + 1, width))
+    y1 = int(min(np.ceil(uv[:, 1].max()) + pad_px + 1, height))
+    if x1 <= x0 or y1 <= y0:
+        return None
+    return (x0, y0, x1, y1)
