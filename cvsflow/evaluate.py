@@ -32,7 +32,8 @@ from cvsflow.metrics import (  # noqa: F401
     pose_errors,
     poses_from_table,
 )
-from cvsflow.optimise.se3 import apply_se3, optimise_se3
+from cvsflow.optimise.se3 import optimise_se3
+from cvsflow.optimise.se3_apply import apply_se3
 from cvsflow.optimise.se3_start import corner_arrays
 from cvsflow.optimise.seed import DIVERGED_EPS_STD_M
 

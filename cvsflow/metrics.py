@@ -70,7 +70,7 @@ def poses_from_table(frames, prefix):
     -------
     T_C_B : ndarray, shape (F, 4, 4)
         One transform per row (the board in the camera for the ``cvs_``/``ref_`` columns of
-        :func:`cvsflow.optimise.se3.apply_se3`), metres.
+        :func:`cvsflow.optimise.se3_apply.apply_se3`), metres.
     """
     q = frames[[f"{prefix}qx", f"{prefix}qy", f"{prefix}qz", f"{prefix}qw"]].to_numpy(float)
     t = frames[[f"{prefix}x_m", f"{prefix}y_m", f"{prefix}z_m"]].to_numpy(float)
@@ -147,7 +147,7 @@ def frame_errors(frames, frame="C"):
     Parameters
     ----------
     frames : DataFrame
-        Output of :func:`cvsflow.optimise.se3.apply_se3`: ``cvs_`` and ``ref_`` pose columns
+        Output of :func:`cvsflow.optimise.se3_apply.apply_se3`: ``cvs_`` and ``ref_`` pose columns
         (``x_m, y_m, z_m, qx, qy, qz, qw``) of T_C_B, metres.
     frame : {"C", "B"}
         See :func:`pose_errors`.

@@ -59,10 +59,9 @@ from cvsflow.optimise.se3 import (
     MIN_FRAMES,
     camera_start,
     correlation_warnings,
-    pose_columns,
-    tracks_from_params,
     usable_frames,
 )
+from cvsflow.optimise.se3_apply import pose_columns, tracks_from_params
 from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD, fixed_intrinsic_std, parameter_covariance
 from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, robust_cost
 from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model
@@ -563,7 +562,7 @@ def fused_rig_poses(params, corners, bodies, board, frames=None, match_tol_s=Non
         (rig frame number), ``t_vicon_s`` (mean of its cameras' times), ``n_cameras``,
         ``frame_cam{i}`` (camera i's frame, -1 if it did not see the board then),
         ``n_corners_cam{i}``; ``cvs_`` (fused T_C0_B) and ``ref_`` (Vicon, eq. 1 with camera
-        0's mounting) pose columns as :func:`~cvsflow.optimise.se3.apply_se3`'s, in camera
+        0's mounting) pose columns as :func:`~cvsflow.optimise.se3_apply.apply_se3`'s, in camera
         0's frame C0; ``S00 .. S55`` the fused pose's covariance of ``[dt (m), dtheta (rad)]``
         in C0, rotation perturbed on the left (the flight reference's convention); and
         ``reproj_rms_px`` over all its corners.

@@ -57,7 +57,7 @@ def error_features(frames, p_B, K, dist, sigma_px, frame="C", fits=None):
     ----------
     frames : DataFrame
         Per-frame table with the CVS pose ``cvs_rvec_0..2`` (rad) and ``cvs_x_m, cvs_y_m,
-        cvs_z_m`` (m) of T_C_B (:func:`cvsflow.optimise.se3.apply_se3`).
+        cvs_z_m`` (m) of T_C_B (:func:`cvsflow.optimise.se3_apply.apply_se3`).
     p_B : ndarray, shape (P, 3)
         Board corners in B, m.
     K : ndarray, shape (3, 3)

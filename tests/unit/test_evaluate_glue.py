@@ -7,7 +7,7 @@ import pytest
 from cvsflow import evaluate as ev
 from cvsflow.evaluate_seed import cross_validate_seed
 from cvsflow.metrics import poses_from_table
-from cvsflow.optimise import se3
+from cvsflow.optimise import se3, se3_apply
 from cvsflow.optimise.se3_sim import simulate_session
 
 DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
@@ -35,7 +35,7 @@ def test_se3_run_tables_errors_equal_composed_errors_by_hand(session):
                            s["truth"]["dt_offset_s"] + 0.004, free=("fx", "fy"))
     iterations, errors, result = ev.se3_run_tables(fit, s["corners"], s["bodies"], s["board"],
                                                    _poses_raw(s))
-    frames = se3.apply_se3(fit.result, s["corners"], s["bodies"], s["board"])
+    frames = se3_apply.apply_se3(fit.result, s["corners"], s["bodies"], s["board"])
     by_hand = ev.pose_errors(poses_from_table(frames, "ref_"), poses_from_table(frames, "cvs_"))
     for d in DIMS:
         np.testing.assert_allclose(errors[f"eps_{d}"], by_hand[f"err_{d}"], atol=1e-12)
