@@ -186,7 +186,8 @@ def optimise_se3(
     -------
     OptimiseResult
         ``iterations``: one row per accepted-or-tried step (``nfev, cost, fx_px, fy_px,
-        dt_offset_s``); ``errors``: the per-frame table of :func:`~cvsflow.optimise.se3_apply.apply_se3` for the fitted
+        dt_offset_s``); ``errors``: the per-frame table of
+        :func:`~cvsflow.optimise.se3_apply.apply_se3` for the fitted
         frames (plus ``rms_px``, ``weight_min``); ``result``: the result.yaml mapping (see
         Notes).
 
