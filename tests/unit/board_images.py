@@ -1,6 +1,6 @@
 """Rendered chessboard images for the tests: a board seen by a distortion-free camera.
 
-Shared by test_pose, test_corners_fast and test_calibration (not a test module itself).
+Shared by test_pose, the test_corners* files and test_calibration (not a test module itself).
 """
 
 from __future__ import annotations

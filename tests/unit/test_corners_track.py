@@ -1,4 +1,4 @@
-"""Tests of cvsflow.corners_track's helpers (tracking itself: test_corners_fast.py)."""
+"""Tests of cvsflow.corners_track's helpers (tracking itself: test_corners.py)."""
 
 from __future__ import annotations
 

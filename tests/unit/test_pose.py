@@ -1,4 +1,4 @@
-"""Tests of cvsflow.pose: corner order, corner extraction, PnP against exact synthetic truth."""
+"""Tests of cvsflow.pose: PnP against exact synthetic truth, on detected corners and on a rendered session."""
 
 from __future__ import annotations
 
@@ -9,8 +9,7 @@ import pytest
 from board_images import board_centre_pose, render_board
 
 from cvsflow import transforms as tf
-from cvsflow.board import CORNER_COLUMNS
-from cvsflow.calibration import board_object_points, order_corners
+from cvsflow.calibration import board_object_points
 from cvsflow.corners import extract_corners
 from cvsflow.corners_detect import detect_corners
 from cvsflow.errors import InputError
@@ -243,73 +242,6 @@ def test_image_turned_180_degrees_gives_the_same_physical_pose(yaw_deg):
         assert np.degrees(_angle_between(T_expected, T_est)) < 0.3
 
 
-def test_order_corners_undoes_every_reordering_of_the_grid():
-    """Whatever order the detector returns (as is, reversed, rows or columns mirrored), the
-    ordered corners are the same, corner k at board point (k % nx, k // nx)."""
-    T_true = board_centre_pose(np.radians([-20.0, 25.0, 35.0]), [-0.1, 0.05, 1.1])
-    gray, uv_true = render_board(T_true, K_CENTRED, seed=8)
-    grid = uv_true.reshape(4, 5, 2)
-    variants = {
-        "as is": grid,
-        "reversed": grid[::-1, ::-1],
-        "rows mirrored": grid[::-1],
-        "columns mirrored": grid[:, ::-1],
-    }
-    for name, g in variants.items():
-        ordered, method = order_corners(g.reshape(-1, 2), gray, BOARD)
-        assert method == "colour", name
-        np.testing.assert_allclose(ordered, uv_true, atol=1e-12, err_msg=name)
-
-
-def test_order_corners_falls_back_to_continuity_when_ends_look_alike():
-    """For a 7x5-square board (both grid ends alike), the order closest to the previous frame
-    is kept; with no previous frame the method says the order is unresolved."""
-    board = {"squares_x": 7, "squares_y": 5, "square_m": 0.05}
-    T_true = board_centre_pose(np.radians([10.0, 5.0, 20.0]), [0.0, 0.0, 0.9], board)
-    gray, uv_true = render_board(T_true, K_CENTRED, board=board, seed=9)
-    previous = uv_true + 1.5  # the board moved a little since the previous frame
-    ordered, method = order_corners(uv_true[::-1], gray, board, previous_px=previous)
-    assert method == "continuity"
-    np.testing.assert_allclose(ordered, uv_true, atol=1e-12)
-    _, method = order_corners(uv_true[::-1], gray, board)
-    assert method == "unresolved"
-
-
-# --------------------------------------------------------------------------------------------
-# extract_corners: the corners.parquet table
-
-
-def test_extract_corners_table_schema_and_not_found_rows():
-    """A sequence with a blank frame gives one found=False row (corner -1, NaN pixels) for it
-    and 20 ordered rows for each board frame, with the contract's columns and dtypes."""
-    frames = []
-    truths = []
-    for f, T in enumerate(_random_poses(3, seed=20)):
-        gray, uv = render_board(T, K_CENTRED, seed=f)
-        frames.append((f, f / 30.0, gray))
-        truths.append(uv)
-    frames.insert(1, (99, 99 / 30.0, np.full((H, W), 128, np.uint8)))
-    corners = extract_corners(iter(frames), BOARD, n_frames=4)
-    assert list(corners.columns) == CORNER_COLUMNS
-    assert corners["frame"].dtype == np.int64 and corners["corner"].dtype == np.int64
-    assert corners["found"].dtype == bool
-    blank = corners[corners["frame"] == 99]
-    assert len(blank) == 1 and not blank["found"].iloc[0] and blank["corner"].iloc[0] == -1
-    assert blank[["u_px", "v_px"]].isna().all().all()
-    for f, uv in enumerate(truths):
-        block = corners[corners["frame"] == f]
-        assert block["corner"].tolist() == list(range(20)) and block["found"].all()
-        np.testing.assert_allclose(block[["u_px", "v_px"]].to_numpy(), uv, atol=0.3)
-    assert corners.attrs["n_found"] == 3 and corners.attrs["n_frames"] == 4
-
-
-def test_extract_corners_rejects_a_colour_frame():
-    """A frame that is not 8-bit grayscale is an InputError naming the frame."""
-    bad = np.zeros((H, W, 3), np.uint8)
-    with pytest.raises(InputError, match="frame 5"):
-        extract_corners([(5, 0.1, bad)], BOARD)
-
-
 # --------------------------------------------------------------------------------------------
 # Against the renderer's truth (cvsflow.synth): a short rendered session
 
@@ -402,130 +334,3 @@ def test_rendered_pnp_pose_errors(rendered_session):
     assert np.median(angle_deg) < 0.5
     assert np.percentile(angle_deg, 95) < 1.0
     assert p["reproj_rms_px"].median() < 0.3
-
-
-# --- scale-aware checks and frames that used to stop the stage (issue 13) -------------------
-
-BOARD_10x7 = {"squares_x": 11, "squares_y": 8, "square_m": 0.055}
-WIDE_DIST = [-0.30, 0.11, 0.0, 0.0, -0.02]  # a wide lens, k1 ~ -0.3
-
-
-@pytest.mark.parametrize(
-    "size, f_px",
-    [((640, 480), 520.0), ((1280, 720), 900.0), ((1920, 1080), 1350.0), ((1080, 1920), 1350.0)],
-)
-def test_detect_corners_keeps_blurred_wide_lens_boards_at_every_resolution(size, f_px):
-    """A blurred board near the camera through a k1 = -0.3 lens is kept at every image size
-    (the grid check is a share of the square size, not 2 px), corner k within 0.3 px of true k."""
-    from board_images import render_board_distorted
-
-    w, h = size
-    K = np.array([[f_px, 0.0, w / 2], [0.0, f_px, h / 2], [0.0, 0.0, 1.0]])
-    for i, (z, cx) in enumerate([(0.9, 0.0), (1.0, 0.1)]):
-        T = board_centre_pose([0.3, -0.25, 0.1], [cx * z, 0.05, z], BOARD_10x7)
-        gray, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7, blur_sigma=1.5,
-                                          seed=10 + i)
-        corners, method = detect_corners(gray, BOARD_10x7)
-        assert corners is not None, (size, z, method)
-        assert np.linalg.norm(corners - uv, axis=1).max() < 0.3
-
-
-def test_extract_corners_survives_an_opencv_error_on_one_frame(monkeypatch):
-    """An OpenCV error on one frame makes it found=False (counted as cv_error); the other
-    frames keep their boards."""
-    import cvsflow.corners_track as pose
-
-    T = board_centre_pose([0.1, 0.0, 0.0], [0.0, 0.0, 1.2])
-    frames = [(i, i / 30.0, render_board(T, K_CENTRED, seed=i)[0]) for i in range(4)]
-    real = pose.detect_corners
-
-    def failing(gray, *args, **kwargs):
-        if gray is frames[2][2]:
-            raise cv2.error("cornerSubPix: initial corner is outside the image")
-        return real(gray, *args, **kwargs)
-
-    monkeypatch.setattr(pose, "detect_corners", failing)
-    corners = extract_corners(frames, BOARD, track=False, log_every=0)
-    found = corners.groupby("frame")["found"].first()
-    assert found.tolist() == [True, True, False, True]
-    assert corners.attrs["order_methods"].get("cv_error") == 1
-
-
-def test_a_hand_over_the_board_keeps_the_visible_corners_with_true_indices():
-    """A tracked board that a hand (a dark polygon) partly covers stays found: the corners the
-    hand leaves are kept with their true indices (within 0.5 px), hidden ones are dropped."""
-    from board_images import render_board_distorted
-
-    size, K = (1280, 720), np.array([[900.0, 0.0, 640.0], [0.0, 900.0, 360.0], [0.0, 0.0, 1.0]])
-    frames, truths, hands = [], [], []
-    for i in range(8):
-        T = board_centre_pose([0.2, -0.15, 0.0], [-0.05 + 0.004 * i, 0.02, 1.2], BOARD_10x7)
-        hand = None
-        if i >= 4:  # a hand over the right third of the board
-            _, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7)
-            x0 = uv[:, 0].min() + 0.66 * np.ptp(uv[:, 0])
-            hand = np.array([[x0, 0], [size[0], 0], [size[0], size[1]], [x0, size[1]]])
-        gray, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7, blur_sigma=1.0,
-                                          occluder=hand, seed=i)
-        frames.append((i, i / 30.0, gray))
-        truths.append(uv)
-        hands.append(hand)
-    corners = extract_corners(frames, BOARD_10x7, log_every=0)
-    found = corners.groupby("frame")["found"].first()
-    assert found.all()
-    for i in range(4, 8):
-        rows = corners[corners["frame"] == i]
-        uv_true = truths[i][rows["corner"].to_numpy()]
-        assert np.linalg.norm(rows[["u_px", "v_px"]].to_numpy() - uv_true, axis=1).max() < 0.5
-        visible = truths[i][:, 0] < hands[i][0, 0] - 20
-        assert 0.8 * visible.sum() <= len(rows) < len(truths[i])
-        assert (uv_true[:, 0] < hands[i][0, 0]).all()
-
-
-
-def _board_with_a_finger_on_corner_12(monkeypatch):
-    """A demo board with a grey disc (a fingertip) over corner 12, its true corners, and
-    findChessboardCorners stubbed to find the whole grid (as it does on the realistic render
-    with a hand over two corners) in the reversed order, half a pixel off."""
-    from board_images import render_board_distorted
-
-    import cvsflow.corners_detect as pose
-
-    K = np.array([[700.0, 0.0, 319.5], [0.0, 700.0, 239.5], [0.0, 0.0, 1.0]])
-    T = board_centre_pose([0.2, -0.15, 0.1], [0.0, 0.0, 1.3])
-    _, uv = render_board_distorted(T, K, np.zeros(5), (W, H))
-    step = np.linalg.norm(uv[1] - uv[0])
-    a = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
-    finger = uv[12] + step * (0.5 * np.c_[np.cos(a), np.sin(a)] + [0.15, 0.1])
-    gray, uv = render_board_distorted(T, K, np.zeros(5), (W, H), occluder=finger, seed=3)
-    rng = np.random.default_rng(0)
-    found = (uv[::-1] + rng.normal(0.0, 0.5, uv.shape)).astype(np.float32).reshape(-1, 1, 2)
-    monkeypatch.setattr(pose, "_find_on_pyramid", lambda *args: (True, found.copy()))
-    return gray, uv
-
-
-def test_detect_corners_keeps_the_corners_a_finger_leaves_with_true_indices(monkeypatch):
-    gray, uv = _board_with_a_finger_on_corner_12(monkeypatch)
-    corners, method = detect_corners(gray, BOARD)
-    assert corners is None and method == "inconsistent"  # the default: not found
-    corners, method = detect_corners(gray, BOARD, keep_partial=True)
-    assert method == "partial"
-    known = np.isfinite(corners).all(axis=1)
-    assert not known[12] and known.sum() >= 17
-    # in board order despite OpenCV's reversed one: each kept corner is its true corner
-    assert np.linalg.norm(corners[known] - uv[known], axis=1).max() < 0.3
-
-
-def test_detect_corners_keeps_no_partial_board_in_the_wrong_order(monkeypatch):
-    # The grid turned by 180 degrees puts every corner's saddle and every square on the wrong
-    # colour (the demo board's ends differ): nothing is kept rather than corners misnamed.
-    import cvsflow.corners_detect as pose
-
-    gray, _ = _board_with_a_finger_on_corner_12(monkeypatch)
-
-    def turned(corners_px, *args):
-        return order_corners(corners_px, *args)[0][::-1].copy(), "colour"
-
-    monkeypatch.setattr(pose, "order_corners", turned)
-    corners, method = detect_corners(gray, BOARD, keep_partial=True)
-    assert corners is None and method == "inconsistent"

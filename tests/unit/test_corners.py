@@ -1,5 +1,5 @@
-"""Tests of the fast corner path: tracking in cvsflow.pose.extract_corners, and the chunked
-and parallel extraction of cvsflow.corners_fast, against rendered ground truth."""
+"""Tests of cvsflow.corners: the corners table (``extract_corners``, its tracking path), and the
+chunked and parallel extraction, against rendered ground truth."""
 
 from __future__ import annotations
 
@@ -11,9 +11,11 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from board_images import render_board
+from board_images import board_centre_pose, render_board
+from test_pose import _random_poses
 
 from cvsflow import transforms as tf
+from cvsflow.board import CORNER_COLUMNS
 from cvsflow.corners import (
     chunk_ranges,
     extract_corners,
@@ -30,6 +32,9 @@ BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}  # the demo board, 5x
 W, H = 640, 480
 K = np.array([[700.0, 0.0, (W - 1) / 2], [0.0, 700.0, (H - 1) / 2], [0.0, 0.0, 1.0]])
 N_FRAMES = 96
+K_CENTRED = K  # principal point at the pixel centre
+BOARD_10x7 = {"squares_x": 11, "squares_y": 8, "square_m": 0.055}
+WIDE_DIST = [-0.30, 0.11, 0.0, 0.0, -0.02]  # a wide lens, k1 ~ -0.3
 
 
 def _render(T_C_B, seed, pps=24, margin=1, noise_sigma=2.0):
@@ -289,3 +294,90 @@ def test_waiting_frames_are_bounded_in_memory(monkeypatch):
     assert methods <= {"not_found", "not_searched"} and "not_searched" in methods
     # The search backs off: far fewer frames searched than frames seen.
     assert sum(d[3] == "not_found" for d in decided) <= 12
+
+
+# --------------------------------------------------------------------------------------------
+# extract_corners: the corners.parquet table
+
+
+def test_extract_corners_table_schema_and_not_found_rows():
+    """A sequence with a blank frame gives one found=False row (corner -1, NaN pixels) for it
+    and 20 ordered rows for each board frame, with the contract's columns and dtypes."""
+    frames = []
+    truths = []
+    for f, T in enumerate(_random_poses(3, seed=20)):
+        gray, uv = render_board(T, K_CENTRED, seed=f)
+        frames.append((f, f / 30.0, gray))
+        truths.append(uv)
+    frames.insert(1, (99, 99 / 30.0, np.full((H, W), 128, np.uint8)))
+    corners = extract_corners(iter(frames), BOARD, n_frames=4)
+    assert list(corners.columns) == CORNER_COLUMNS
+    assert corners["frame"].dtype == np.int64 and corners["corner"].dtype == np.int64
+    assert corners["found"].dtype == bool
+    blank = corners[corners["frame"] == 99]
+    assert len(blank) == 1 and not blank["found"].iloc[0] and blank["corner"].iloc[0] == -1
+    assert blank[["u_px", "v_px"]].isna().all().all()
+    for f, uv in enumerate(truths):
+        block = corners[corners["frame"] == f]
+        assert block["corner"].tolist() == list(range(20)) and block["found"].all()
+        np.testing.assert_allclose(block[["u_px", "v_px"]].to_numpy(), uv, atol=0.3)
+    assert corners.attrs["n_found"] == 3 and corners.attrs["n_frames"] == 4
+
+
+def test_extract_corners_rejects_a_colour_frame():
+    """A frame that is not 8-bit grayscale is an InputError naming the frame."""
+    bad = np.zeros((H, W, 3), np.uint8)
+    with pytest.raises(InputError, match="frame 5"):
+        extract_corners([(5, 0.1, bad)], BOARD)
+
+
+def test_extract_corners_survives_an_opencv_error_on_one_frame(monkeypatch):
+    """An OpenCV error on one frame makes it found=False (counted as cv_error); the other
+    frames keep their boards."""
+    import cvsflow.corners_track as pose
+
+    T = board_centre_pose([0.1, 0.0, 0.0], [0.0, 0.0, 1.2])
+    frames = [(i, i / 30.0, render_board(T, K_CENTRED, seed=i)[0]) for i in range(4)]
+    real = pose.detect_corners
+
+    def failing(gray, *args, **kwargs):
+        if gray is frames[2][2]:
+            raise cv2.error("cornerSubPix: initial corner is outside the image")
+        return real(gray, *args, **kwargs)
+
+    monkeypatch.setattr(pose, "detect_corners", failing)
+    corners = extract_corners(frames, BOARD, track=False, log_every=0)
+    found = corners.groupby("frame")["found"].first()
+    assert found.tolist() == [True, True, False, True]
+    assert corners.attrs["order_methods"].get("cv_error") == 1
+
+
+def test_a_hand_over_the_board_keeps_the_visible_corners_with_true_indices():
+    """A tracked board that a hand (a dark polygon) partly covers stays found: the corners the
+    hand leaves are kept with their true indices (within 0.5 px), hidden ones are dropped."""
+    from board_images import render_board_distorted
+
+    size, K = (1280, 720), np.array([[900.0, 0.0, 640.0], [0.0, 900.0, 360.0], [0.0, 0.0, 1.0]])
+    frames, truths, hands = [], [], []
+    for i in range(8):
+        T = board_centre_pose([0.2, -0.15, 0.0], [-0.05 + 0.004 * i, 0.02, 1.2], BOARD_10x7)
+        hand = None
+        if i >= 4:  # a hand over the right third of the board
+            _, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7)
+            x0 = uv[:, 0].min() + 0.66 * np.ptp(uv[:, 0])
+            hand = np.array([[x0, 0], [size[0], 0], [size[0], size[1]], [x0, size[1]]])
+        gray, uv = render_board_distorted(T, K, WIDE_DIST, size, BOARD_10x7, blur_sigma=1.0,
+                                          occluder=hand, seed=i)
+        frames.append((i, i / 30.0, gray))
+        truths.append(uv)
+        hands.append(hand)
+    corners = extract_corners(frames, BOARD_10x7, log_every=0)
+    found = corners.groupby("frame")["found"].first()
+    assert found.all()
+    for i in range(4, 8):
+        rows = corners[corners["frame"] == i]
+        uv_true = truths[i][rows["corner"].to_numpy()]
+        assert np.linalg.norm(rows[["u_px", "v_px"]].to_numpy() - uv_true, axis=1).max() < 0.5
+        visible = truths[i][:, 0] < hands[i][0, 0] - 20
+        assert 0.8 * visible.sum() <= len(rows) < len(truths[i])
+        assert (uv_true[:, 0] < hands[i][0, 0]).all()
