@@ -135,7 +135,7 @@ def test_rig_fused_pose_against_truth(fitted, rig):
     nees = np.einsum("fi,fij,fj->f", d, np.linalg.inv(S), d)
     two = e["n_cameras"].to_numpy() == 2
     # with the calibration's uncertainty in: 5.9 (one camera), 7.3 (two); 6.2, 10.4 without
-    # it; over seeds 0-7 two-camera frames 5.6-7.3 (bench/bench_se3_rig.py)
+    # it; over seeds 0-7 of this session, two-camera frames 5.6-7.3 with it
     assert 4.0 < nees[~two].mean() < 8.5
     assert 4.0 < nees[two].mean() < 8.5
     depth_sd = np.sqrt(S[:, 2, 2])
