@@ -4,7 +4,10 @@ One simulated rig session (corner level, 0.3 px, 0.3 mm markers, 15 % of each ta
 from each camera; cameras 0 and 1 at 30 fps genlocked with their own clocks, camera 2 at
 25 fps), fitted with the first 1, 2 and 3 cameras. Prints, per N: CPU time, the largest
 |z| (error / stated standard error) over all parameters, the shared T_Bm_B's translation
-error and standard error, each camera's dt error, and the rig frames by number of cameras.
+error and standard error, each camera's dt error, and the rig frames by number of cameras;
+then, per N, the fused poses' NEES against the true pose (6 expected) on rig frames seen by
+1, 2, 3 cameras, with the calibration's uncertainty in their covariance and without it, and
+the CPU time of :func:`~cvsflow.optimise.se3_rig.fused_rig_poses` each way.
 Usage: ``.venv/bin/python bench/bench_se3_rig.py [seed] [duration_s]``.
 """
 
@@ -15,11 +18,23 @@ import time
 
 import numpy as np
 
+from cvsflow import transforms as tf
 from cvsflow.geometry.camera import INTRINSIC_NAMES
-from cvsflow.optimise.se3_rig import optimise_se3_rig
+from cvsflow.optimise.se3_rig import fused_rig_poses, optimise_se3_rig
 from cvsflow.optimise.se3_sim import simulate_rig_session
 
 FREE = ("fx", "fy", "k1", "k2")
+
+
+def nees(poses, truth):
+    """Per rig frame (d^T S^-1 d), d the fused pose's error [dt, dtheta] against the truth."""
+    T_true = truth["T_C0_B_at"](poses["t_vicon_s"].to_numpy() - truth["cameras"][0]["dt_offset_s"])
+    q = poses[["cvs_qx", "cvs_qy", "cvs_qz", "cvs_qw"]].to_numpy()
+    T_est = tf.make_T(tf.R_from_quat(q), poses[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy())
+    d_r = tf.rvec_from_R(T_est[:, :3, :3] @ np.swapaxes(T_true[:, :3, :3], 1, 2)).reshape(-1, 3)
+    d = np.concatenate([T_est[:, :3, 3] - T_true[:, :3, 3], d_r], axis=1)
+    S = poses[[f"S{a}{b}" for a in range(6) for b in range(6)]].to_numpy().reshape(-1, 6, 6)
+    return np.einsum("fi,fij,fj->f", d, np.linalg.inv(S), d)
 
 
 def main(seed: int = 0, duration_s: float = 20.0) -> None:
@@ -41,10 +56,13 @@ def main(seed: int = 0, duration_s: float = 20.0) -> None:
         "N  cpu_s  params  max|z|_fx,dt,t  T_Bm_B err mm (x y z)   T_Bm_B se mm (x y z)   "
         "dt err ms per camera   rig frames by cameras"
     )
+    fits = {}
     for n in (1, 2, 3):
         c0 = time.process_time()
-        r = optimise_se3_rig(entries[:n], s["bodies"], s["board"], free=FREE).result
+        fit = optimise_se3_rig(entries[:n], s["bodies"], s["board"], free=FREE)
         cpu = time.process_time() - c0
+        fits[n] = fit
+        r = fit.result
         se = r["std_errors"]
         z = []
         for i in range(n):
@@ -65,6 +83,20 @@ def main(seed: int = 0, duration_s: float = 20.0) -> None:
             f"{np.array2string(eB, precision=3):24s} {np.array2string(sB, precision=3):22s} "
             f"{np.array2string(np.array(ddt), precision=3):22s} {r['n_rig_frames_by_cameras']}"
         )
+
+    print("N  calibration  fused_cpu_s  NEES mean (median) by cameras seeing the frame: 1, 2, 3")
+    for n, fit in fits.items():
+        frames = [f[f >= 0] for f in (fit.errors[f"frame_cam{i}"].to_numpy() for i in range(n))]
+        for on in (False, True):
+            c0 = time.process_time()
+            poses = fused_rig_poses(fit.result, [e["corners"] for e in entries[:n]], s["bodies"], s["board"],
+                                    frames=frames, calibration_cov=on)  # fmt: skip
+            cpu = time.process_time() - c0
+            e = nees(poses, s["truth"])
+            k = poses["n_cameras"].to_numpy()
+            by = "  ".join(f"{e[k == c].mean():6.2f} ({np.median(e[k == c]):5.2f}, {int((k == c).sum())} fr)"
+                           for c in range(1, n + 1) if (k == c).any())  # fmt: skip
+            print(f"{n}  {'with' if on else 'without':11s}  {cpu:11.2f}  {by}")
 
 
 if __name__ == "__main__":
