@@ -12,7 +12,8 @@
   another or a flight (:func:`fit_transfer_model`, :func:`transfer_covariance`,
   :func:`leave_one_session_out`, :data:`RENDERED_TRANSFER_MODEL`).
 - :mod:`cvsflow.uncertainty.scoring`: band coverage and NEES (:func:`score_covariance`,
-  :func:`nees_values`, :func:`band_multipliers`).
+  :func:`nees_values`, :func:`band_multipliers`), and the same with the errors whitened by
+  an AR(1) in time (:func:`fit_ar1`, :func:`score_time_correlated`).
 - :mod:`cvsflow.uncertainty.crb`: the Cramer-Rao floor (:func:`cramer_rao_sigma`).
 
 The submodules import each other downwards (propagation, scoring < models, features, crb <
@@ -54,9 +55,15 @@ from cvsflow.uncertainty.propagation import (
 from cvsflow.uncertainty.scoring import (
     BANDS,
     WORKING_UNITS,
+    ar1_innovations,
     band_multipliers,
+    block_mean_variance,
+    fit_ar1,
+    frame_runs,
     nees_values,
     score_covariance,
+    score_time_correlated,
+    standardised_errors,
 )
 from cvsflow.uncertainty.transfer import (
     RENDERED_TRANSFER_MODEL,
@@ -65,6 +72,7 @@ from cvsflow.uncertainty.transfer import (
     fit_transfer_model,
     leave_one_session_out,
     score_transfer,
+    time_correlation_of,
     transfer_covariance,
     transfer_mean,
 )
@@ -73,13 +81,15 @@ __all__ = [
     "BANDS", "CORNER_CORRELATION_PX", "FEATURES", "FILL_WINDOW_S", "MEASUREMENT_FEATURES",
     "NOISE_POOL_COLUMN",
     "PARAM_BLOCKS", "RENDERED_TRANSFER_MODEL", "TRANSFER_PARAMS", "WORKING_UNITS",
-    "band_multipliers", "corner_noise_from_reproj", "corner_noise_pool", "correlated_noise_terms",
+    "ar1_innovations", "band_multipliers", "block_mean_variance", "fit_ar1", "frame_runs",
+    "corner_noise_from_reproj", "corner_noise_pool", "correlated_noise_terms",
     "cov_columns",
     "cov_from_columns", "cramer_rao_sigma", "crossfit_transfer", "error_features",
     "fit_error_model", "fit_transfer_model", "frame_noise_terms", "leave_one_session_out",
     "measurement_features", "nees_values", "parameter_covariance", "pnp_covariance",
     "pose6_covariance", "predict_error_sigma", "predicted_covariance",
-    "propagated_pose_covariance", "score_covariance", "score_error_model", "score_transfer",
-    "seen_corners", "shrink_corner_noise", "transfer_covariance", "transfer_mean",
+    "propagated_pose_covariance", "score_covariance", "score_error_model", "score_time_correlated",
+    "score_transfer", "seen_corners", "shrink_corner_noise", "standardised_errors",
+    "time_correlation_of", "transfer_covariance", "transfer_mean",
     "vicon_filled",
 ]  # fmt: skip

@@ -111,3 +111,190 @@ def nees_values(cov, errors, mean=None):
     E = (E if mean is None else E - mean) / WORKING_UNITS
     S = cov / np.outer(WORKING_UNITS, WORKING_UNITS)
     return np.einsum("ni,ni->n", E, np.linalg.solve(S, E[:, :, None])[:, :, 0])
+
+
+def frame_runs(frame, fold=None):
+    """Run label of each row: a run is consecutive frames (step 1) of one fold.
+
+    Parameters
+    ----------
+    frame : array_like, shape (N,)
+        Frame index of each row, in row order (int).
+    fold : array_like, shape (N,), optional
+        Cross-validation fold of each row; a change of fold starts a run. None: one fold.
+
+    Returns
+    -------
+    runs : ndarray, shape (N,)
+        Run label (int, 0, 1, ... in row order); rows t-1 and t are one run's neighbours
+        exactly when their labels are equal.
+    """
+    frame = np.asarray(frame).astype(np.int64)
+    fold = np.zeros(len(frame), np.int64) if fold is None else np.asarray(fold).astype(np.int64)
+    start = np.r_[True, (np.diff(frame) != 1) | (fold[1:] != fold[:-1])]
+    return np.cumsum(start) - 1
+
+
+def standardised_errors(cov, errors, mean=None):
+    """Errors over their predicted standard deviation per axis, z (N, 6), dimensionless.
+
+    Parameters
+    ----------
+    cov : ndarray, shape (N, 6, 6)
+        Predicted error covariance, SI.
+    errors : DataFrame
+        ``err_{dim}`` of the same frames, SI.
+    mean : ndarray, shape (N, 6), optional
+        Predicted error (the bands' centres), SI; default 0.
+
+    Returns
+    -------
+    z : ndarray, shape (N, 6)
+        ``(err - mean) / sqrt(diag(cov))`` per axis of ``ERROR_DIMS``.
+    """
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
+    if mean is not None:
+        E = E - mean
+    return E / np.sqrt(np.einsum("nii->ni", cov))
+
+
+def fit_ar1(z, runs, max_rho=0.95):
+    """Lag-1 autocorrelation per axis of standardised errors within runs: an AR(1) fit.
+
+    Parameters
+    ----------
+    z : ndarray, shape (N, 6)
+        Standardised errors (:func:`standardised_errors`) of the fitting frames.
+    runs : ndarray, shape (N,)
+        :func:`frame_runs` of the same rows (neighbours across a run break are not paired).
+    max_rho : float
+        Upper clip of the coefficient (dimensionless, < 1); the lower clip is 0.
+
+    Returns
+    -------
+    rho : ndarray, shape (6,)
+        AR(1) coefficient of each axis in ``[0, max_rho]``; 0 where no two rows are neighbours.
+    """
+    same = runs[1:] == runs[:-1]
+    a, b = z[:-1][same], z[1:][same]
+    if not len(a):
+        return np.zeros(z.shape[1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = np.sum(a * b, axis=0) / np.sqrt(np.sum(a * a, axis=0) * np.sum(b * b, axis=0))
+    return np.clip(np.nan_to_num(rho), 0.0, max_rho)
+
+
+def ar1_innovations(z, runs, rho):
+    """AR(1)-whitened standardised errors: (z_t - rho z_{t-1}) / sqrt(1 - rho^2) within a run.
+
+    Under an AR(1) with unit marginal variance and coefficient rho (per axis) the result is
+    independent from frame to frame with the marginal's variance; a run's first row has no
+    predecessor and is kept as it is.
+
+    Parameters
+    ----------
+    z : ndarray, shape (N, 6)
+        Standardised errors.
+    runs : ndarray, shape (N,)
+        :func:`frame_runs` of the rows.
+    rho : array_like, shape (6,) or scalar
+        AR(1) coefficient per axis, in [0, 1).
+
+    Returns
+    -------
+    innovations : ndarray, shape (N, 6)
+        Dimensionless.
+    """
+    rho = np.broadcast_to(np.asarray(rho, float), (z.shape[1],))
+    out = z.copy()
+    same = np.r_[False, runs[1:] == runs[:-1]]
+    out[same] = (z[same] - rho * z[np.flatnonzero(same) - 1]) / np.sqrt(1.0 - rho**2)
+    return out
+
+
+def block_mean_variance(n, rho):
+    """Variance of the mean of n consecutive AR(1) values of unit variance: (1/n^2) sum rho^|i-j|.
+
+    Parameters
+    ----------
+    n : int
+        Block length, frames (>= 1).
+    rho : array_like, shape (K,) or scalar
+        AR(1) coefficient(s), in [0, 1).
+
+    Returns
+    -------
+    var : ndarray, shape (K,) or float
+        Dimensionless; 1 / n for rho = 0.
+    """
+    rho = np.asarray(rho, float)
+    lag = np.arange(1, n)
+    return (n + 2.0 * np.sum((n - lag) * rho[..., None] ** lag, axis=-1)) / n**2
+
+
+def score_time_correlated(cov, errors, rho, runs, nu=None, mean=None, block_frames=15):
+    """Band coverage and NEES of the errors whitened by an AR(1) in time (a fitted ``rho``).
+
+    A per-frame covariance says nothing of how a frame's error follows the previous one;
+    with errors that come in runs, a fold's share inside a band then scatters far more than
+    a binomial's. Here each axis's standardised error is whitened by the AR(1)
+    (:func:`ar1_innovations`) before it is scored, so the scores test the per-frame
+    covariance together with the time correlation, frame by frame. The NEES is that of the
+    whitened vector under the frame's correlation matrix, ``zeta^T R^-1 zeta`` (exact when
+    the correlation matrix is constant over neighbouring frames and rho is the same on every
+    axis). Blocks of ``block_frames`` consecutive frames of a run add the RMS of their mean
+    standardised error over its AR(1) standard deviation (:func:`block_mean_variance`; 1 for
+    a calibrated model, above 1 when the errors are more persistent than the AR(1)).
+
+    Parameters
+    ----------
+    cov : ndarray, shape (N, 6, 6)
+        Predicted error covariance, SI.
+    errors : DataFrame
+        ``err_{dim}`` of the same frames, SI.
+    rho : array_like, shape (6,)
+        AR(1) coefficient per axis of ``ERROR_DIMS``, fitted on other frames than these
+        (:func:`fit_ar1`).
+    runs : ndarray, shape (N,)
+        :func:`frame_runs` of the rows.
+    nu : float, optional
+        Student-t degrees of freedom of the prediction (the band quantiles); None: normal.
+    mean : ndarray, shape (N, 6), optional
+        Predicted error, SI; default 0.
+    block_frames : int
+        Frames per block of the block-mean score.
+
+    Returns
+    -------
+    score : dict
+        ``n``; ``rho`` per axis; ``inside_68``, ``inside_95`` per dimension and ``_all`` and
+        ``z_rms`` per dimension, all of the whitened errors; ``nees_mean``,
+        ``nees_inside_95``; ``block_z_rms`` per dimension and ``n_blocks``.
+    """
+    rho = np.broadcast_to(np.asarray(rho, float), (6,))
+    runs = np.asarray(runs)
+    z = standardised_errors(cov, errors, mean)
+    w = ar1_innovations(z, runs, rho)
+    out = {"n": int(len(z)), "rho": {d: float(rho[j]) for j, d in enumerate(ERROR_DIMS)}}
+    for band, k in band_multipliers({"nu": nu}).items():
+        inside = np.abs(w) <= k
+        out[f"inside_{band}"] = {d: float(inside[:, j].mean()) for j, d in enumerate(ERROR_DIMS)}
+        out[f"inside_{band}_all"] = float(inside.mean())
+    out["z_rms"] = {d: float(np.sqrt(np.mean(w[:, j] ** 2))) for j, d in enumerate(ERROR_DIMS)}
+    sd = np.sqrt(np.einsum("nii->ni", cov))
+    R = cov / (sd[:, :, None] * sd[:, None, :])
+    nees = np.einsum("ni,ni->n", w, np.linalg.solve(R, w[:, :, None])[:, :, 0])
+    out["nees_mean"] = float(nees.mean())
+    out["nees_inside_95"] = float(np.mean(nees <= chi2.ppf(0.95, 6)))
+    means = []
+    for r in np.unique(runs):
+        zr = z[runs == r]
+        for b in range(len(zr) // block_frames):
+            means.append(zr[b * block_frames:(b + 1) * block_frames].mean(axis=0))
+    out["n_blocks"] = len(means)
+    if means:
+        m = np.array(means) / np.sqrt(block_mean_variance(block_frames, rho))
+        out["block_z_rms"] = {d: float(np.sqrt(np.mean(m[:, j] ** 2))) for j, d in enumerate(ERROR_DIMS)}
+    else:
+        out["block_z_rms"] = {d: float("nan") for d in ERROR_DIMS}
+    return out

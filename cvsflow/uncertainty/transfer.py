@@ -26,7 +26,14 @@ from cvsflow.uncertainty.features import (
     shrink_corner_noise,
 )
 from cvsflow.uncertainty.propagation import cov_columns, cov_from_columns
-from cvsflow.uncertainty.scoring import WORKING_UNITS, score_covariance
+from cvsflow.uncertainty.scoring import (
+    WORKING_UNITS,
+    fit_ar1,
+    frame_runs,
+    score_covariance,
+    score_time_correlated,
+    standardised_errors,
+)
 
 log = logging.getLogger(__name__)
 
@@ -301,7 +308,7 @@ def _autocorr_lag1(z, fold):
     return np.sum(a * b, axis=0) / np.sqrt(np.sum(a * a, axis=0) * np.sum(b * b, axis=0))
 
 
-def score_transfer(model, features, errors, folds=None, sigma_px=None):
+def score_transfer(model, features, errors, folds=None, sigma_px=None, ar1_rho=None):
     """Model (T) scored on one session: overall and per cross-validation fold.
 
     Parameters
@@ -315,13 +322,18 @@ def score_transfer(model, features, errors, folds=None, sigma_px=None):
     sigma_px : float or ndarray, optional
         Corner noise for the Cramer-Rao bound (the se3 fits' ``sigma_px``); adds
         ``error_over_crb`` (RMS of error / CRB per axis) and ``crb_median`` per axis.
+    ar1_rho : array_like, shape (6,), optional
+        AR(1) coefficient per axis of the standardised errors, fitted on other frames
+        (:func:`time_correlation_of`); adds ``ar1``, the time-correlated scores
+        (:func:`cvsflow.uncertainty.scoring.score_time_correlated`, runs of consecutive
+        ``frame`` within a fold) of the session, and ``ar1`` in each fold's score.
 
     Returns
     -------
     score : dict
         :func:`score_covariance` keys, ``lag1_autocorr`` per axis (of the errors standardised
         by their predicted sigma, within folds), ``folds`` (list of per-fold scores with
-        ``fold``), and with ``sigma_px`` the CRB keys.
+        ``fold``), with ``sigma_px`` the CRB keys and with ``ar1_rho`` the ``ar1`` scores.
     """
     cov = transfer_covariance(model, features)
     mu = transfer_mean(model, features)
@@ -338,15 +350,54 @@ def score_transfer(model, features, errors, folds=None, sigma_px=None):
     out["folds"] = []
     rho = np.clip(np.mean(list(out["lag1_autocorr"].values())), 0.0, 0.95)
     out.update(_sampling_band(len(E), rho))
+    runs = _runs(errors, fold) if ar1_rho is not None else None
+    if ar1_rho is not None:
+        out["ar1"] = score_time_correlated(cov, errors, ar1_rho, runs, nu=model["nu"], mean=mu)
     if folds is not None:
         for k in np.unique(fold):
             sel = fold == k
-            s = score_covariance(cov[sel], errors[sel].reset_index(drop=True), nu=model["nu"],
-                                 mean=mu[sel])
+            err_k = errors[sel].reset_index(drop=True)
+            s = score_covariance(cov[sel], err_k, nu=model["nu"], mean=mu[sel])
             s["fold"] = int(k)
             s.update(_sampling_band(int(sel.sum()), rho))
+            if ar1_rho is not None:
+                s["ar1"] = score_time_correlated(cov[sel], err_k, ar1_rho, runs[sel],
+                                                 nu=model["nu"], mean=mu[sel])  # fmt: skip
             out["folds"].append(s)
     return out
+
+
+def _runs(errors, fold):
+    """Runs of consecutive frames within a fold (rows in order; all one run per fold without
+    a ``frame`` column)."""
+    frame = errors["frame"].to_numpy() if "frame" in errors else np.arange(len(errors))
+    return frame_runs(frame, fold)
+
+
+def time_correlation_of(model, features, errors):
+    """AR(1) coefficient per axis of the errors standardised by model (T), within runs.
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output.
+    features, errors : DataFrame
+        :func:`measurement_features` and the held-out rows (``err_{dim}``, optional
+        ``frame``, ``fold`` and ``session``: a run is consecutive frames of one fold of one
+        session) of the frames to fit it on, usually the model's own training frames.
+
+    Returns
+    -------
+    rho : ndarray, shape (6,)
+        :func:`cvsflow.uncertainty.scoring.fit_ar1` of ``ERROR_DIMS``, dimensionless.
+    """
+    z = standardised_errors(transfer_covariance(model, features), errors,
+                            transfer_mean(model, features))  # fmt: skip
+    fold = errors["fold"].to_numpy().astype(int) if "fold" in errors else np.zeros(len(z), int)
+    if "session" in errors:
+        # a session change breaks a run like a fold change does
+        fold = fold + 1000 * pd.factorize(errors["session"])[0]
+    return fit_ar1(z, _runs(errors, fold))
 
 
 def _sampling_band(n, rho):
@@ -359,7 +410,7 @@ def _sampling_band(n, rho):
             "inside_68_tolerance": float(2.0 * np.sqrt(0.6827 * 0.3173 / n_eff))}
 
 
-def leave_one_session_out(sessions, shrink=None):
+def leave_one_session_out(sessions, shrink=None, time_correlation=False):
     """Fit model (T) on all sessions but one, score the one left out; every session in turn.
 
     Parameters
@@ -370,13 +421,17 @@ def leave_one_session_out(sessions, shrink=None):
         scalar, for the Cramer-Rao bound).
     shrink : None, "fit" or float
         Corner-noise shrinkage of every fit (:func:`fit_transfer_model`).
+    time_correlation : bool
+        Also fit the AR(1) of the standardised errors on the training sessions
+        (:func:`time_correlation_of`, the model's ``ar1_rho``) and score the session left out
+        whitened by it (``ar1`` in its score and in each fold's, :func:`score_transfer`).
 
     Returns
     -------
     result : dict
         ``sessions``: name -> {``model`` (fitted without it), ``score``
         (:func:`score_transfer`)}; ``pooled_model`` (fitted on every session, the one to
-        use on new data).
+        use on new data; with ``time_correlation`` its ``ar1_rho`` too).
 
     Raises
     ------
@@ -389,22 +444,28 @@ def leave_one_session_out(sessions, shrink=None):
 
     def stack(keep):
         f = pd.concat([sessions[n]["features"] for n in keep], ignore_index=True)
-        e = pd.concat([sessions[n]["errors"] for n in keep], ignore_index=True)
+        e = pd.concat([sessions[n]["errors"].assign(session=n) for n in keep], ignore_index=True)
         return f, e
+
+    def fit(keep):
+        f, e = stack(keep)
+        model = fit_transfer_model(f, e, shrink)
+        if time_correlation:
+            model["ar1_rho"] = [float(v) for v in time_correlation_of(model, f, e)]
+        return model
 
     out = {"sessions": {}}
     for name in names:
-        f, e = stack([n for n in names if n != name])
-        model = fit_transfer_model(f, e, shrink)
+        model = fit([n for n in names if n != name])
         s = sessions[name]
         err = s["errors"].reset_index(drop=True)
         folds = err["fold"].to_numpy() if "fold" in err else None
         score = score_transfer(model, s["features"].reset_index(drop=True), err, folds,
-                               s.get("sigma_px"))  # fmt: skip
+                               s.get("sigma_px"), model.get("ar1_rho"))  # fmt: skip
         out["sessions"][name] = {"model": model, "score": score}
         log.info("LOSO %s: NEES %.2f, inside 95 %% %s", name, score["nees_mean"],
                  {d: round(v, 3) for d, v in score["inside_95"].items()})
-    out["pooled_model"] = fit_transfer_model(*stack(names), shrink)
+    out["pooled_model"] = fit(names)
     return out
 
 
