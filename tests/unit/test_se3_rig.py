@@ -1,4 +1,6 @@
-"""Tests of the N-camera se3 fit (cvsflow.optimise.se3_rig) on corner-level simulated rigs."""
+"""Tests of the N-camera se3 fit and its fused poses (optimise.se3_rig, se3_rig_poses) on
+corner-level simulated rigs.
+"""
 
 from __future__ import annotations
 
@@ -12,13 +14,11 @@ from cvsflow.geometry.camera import INTRINSIC_NAMES
 from cvsflow.optimise import se3
 from cvsflow.optimise.body_tracks import BodyTrack, body_track
 from cvsflow.optimise.se3_model import Se3Model
-from cvsflow.optimise.se3_rig import (
-    RigModel,
+from cvsflow.optimise.se3_rig import RigModel, cross_validate_se3_rig, optimise_se3_rig
+from cvsflow.optimise.se3_rig_poses import (
     calibration_covariance,
-    cross_validate_se3_rig,
     fused_pose_calibration_covariance,
     fused_rig_poses,
-    optimise_se3_rig,
     rig_geometry,
 )
 from cvsflow.optimise.se3_sim import simulate_rig_session
