@@ -24,7 +24,7 @@ from cvsflow.errors import (
     StaticBoardError,
     UnitsError,
 )
-from cvsflow.transforms import rotation_angle
+from cvsflow.transforms import R_from_rvec, mean_rotation, rotation_angle
 
 log = logging.getLogger(__name__)
 
@@ -245,9 +245,7 @@ def _valid_rotations(poses):
     p = poses.sort_values("frame", kind="stable")
     rvec = p[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
     valid = p["valid"].to_numpy(bool) & np.isfinite(rvec).all(axis=1)
-    from scipy.spatial.transform import Rotation
-
-    R = Rotation.from_rotvec(np.where(valid[:, None], rvec, 0.0)).as_matrix()
+    R = R_from_rvec(np.where(valid[:, None], rvec, 0.0))
     return p["t_s"].to_numpy(float), R, valid
 
 
@@ -307,10 +305,8 @@ def check_sync_inputs(poses, bodies, method="angular_speed", source_poses="poses
     pair = valid[:-1] & valid[1:]
     speed = np.degrees(rotation_angle(np.swapaxes(R[:-1][pair], 1, 2) @ R[1:][pair]) / np.diff(t)[pair])
     p95 = float(np.percentile(speed, 95)) if speed.size else 0.0
-    from scipy.spatial.transform import Rotation
-
     Rv = R[valid]
-    R_med = Rotation.from_matrix(Rv).mean().as_matrix()
+    R_med = mean_rotation(Rv)
     turn = float(np.degrees(np.percentile(rotation_angle(R_med.T @ Rv), 99)))
     if p95 < min_motion_deg_s or turn < min_turn_deg:
         raise StaticBoardError(
