@@ -227,10 +227,29 @@ class Se3Model:
 
     def jacobian_fd(self, x, h=1e-6):
         """Central-difference Jacobian (for tests), shape (m, n)."""
-        cols = []
-        for j in range(len(x)):
-            xp, xm = x.copy(), x.copy()
-            xp[j] += h
-            xm[j] -= h
-            cols.append((self.residuals(xp) - self.residuals(xm)) / (2.0 * h))
-        return np.stack(cols, axis=1)
+        return jacobian_fd(self.residuals, x, h)
+
+
+def jacobian_fd(residuals, x, h=1e-6):
+    """Central-difference Jacobian of ``residuals`` at ``x`` (for tests against the analytic one).
+
+    Parameters
+    ----------
+    residuals : callable
+        ``residuals(x) -> ndarray (m,)``.
+    x : ndarray, shape (n,)
+        Parameter vector.
+    h : float
+        Step, in the parameters' units.
+
+    Returns
+    -------
+    J : ndarray, shape (m, n)
+    """
+    cols = []
+    for j in range(len(x)):
+        xp, xm = x.copy(), x.copy()
+        xp[j] += h
+        xm[j] -= h
+        cols.append((residuals(xp) - residuals(xm)) / (2.0 * h))
+    return np.stack(cols, axis=1)

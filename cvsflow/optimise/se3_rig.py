@@ -64,7 +64,7 @@ from cvsflow.optimise.se3 import (
 )
 from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD, fixed_intrinsic_std, parameter_covariance
 from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, robust_cost
-from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model
+from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model, jacobian_fd
 from cvsflow.optimise.se3_rig_poses import fused_rig_poses
 from cvsflow.optimise.se3_start import corner_arrays, solve_hand_eye, solve_pnp_frames
 
@@ -157,13 +157,7 @@ class RigModel:
 
     def jacobian_fd(self, x, h=1e-6):
         """Central-difference Jacobian (for tests), shape (m, n)."""
-        cols = []
-        for j in range(len(x)):
-            xp, xm = x.copy(), x.copy()
-            xp[j] += h
-            xm[j] -= h
-            cols.append((self.residuals(xp) - self.residuals(xm)) / (2.0 * h))
-        return np.stack(cols, axis=1)
+        return jacobian_fd(self.residuals, x, h)
 
 
 def _camera_frames(i, entry, p_B, cam, brd, frames):
