@@ -7,7 +7,8 @@ from each camera; cameras 0 and 1 at 30 fps genlocked with their own clocks, cam
 error and standard error, each camera's dt error, and the rig frames by number of cameras;
 then, per N, the fused poses' NEES against the true pose (6 expected) on rig frames seen by
 1, 2, 3 cameras, with the calibration's uncertainty in their covariance and without it, and
-the CPU time of :func:`~cvsflow.optimise.se3_rig_poses.fused_rig_poses` each way.
+the CPU time of :func:`~cvsflow.optimise.se3_rig_poses.fused_rig_poses` each way (frames of
+cameras not triggered together moved to one instant, its default).
 Usage: ``.venv/bin/python bench/bench_se3_rig.py [seed] [duration_s]``.
 """
 

@@ -376,8 +376,10 @@ def fused_board_pose(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B_start, sigma_px=
         Each camera's pose from camera 0 (identity first), m.
     T_C0_B_start : ndarray, shape (F, 4, 4)
         Start of each frame's solve (e.g. one camera's PnP mapped to C0), m.
-    sigma_px : float, optional
-        Corner noise per image axis, px; None: each frame's residual RMS (dof-corrected).
+    sigma_px : float or ndarray of shape (F, C), optional
+        Corner noise per image axis, px; an array gives each camera on each frame its own
+        (corners interpolated between two frames are less noisy than one frame's) and weights
+        the solve by it; None: each frame's residual RMS (dof-corrected).
     n_iterations : int
         Gauss-Newton steps (it converges in 3-5 from a PnP start).
 
@@ -407,19 +409,34 @@ def fused_board_pose(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B_start, sigma_px=
     ok = n_seen.sum(axis=1) >= 4
     T[~ok] = np.eye(4)
     n_frames = len(T)
+    weighted = sigma_px is not None and np.ndim(sigma_px) > 0
+    if weighted:
+        sigma_fc = np.broadcast_to(np.asarray(sigma_px, float), seen.shape[:2])
+        if not np.all(sigma_fc[n_seen > 0] > 0):
+            raise ValueError("fused_board_pose: sigma_px must be positive wherever a camera saw corners")
+        # 1/sigma per residual row: (F, C) -> (F, C, N, 2), flattened like J's rows
+        scale = np.broadcast_to((1.0 / np.where(sigma_fc > 0, sigma_fc, 1.0))[:, :, None, None],
+                                seen.shape + (2,)).reshape(n_frames, -1)  # fmt: skip
     for _ in range(n_iterations):
         r, J = _board_pose_residuals(T, uv, seen, p_B, K, dist, T_Ci_C0)
         Jf = J.reshape(n_frames, -1, 6)
+        r_f = r.reshape(n_frames, -1)
+        if weighted:
+            Jf, r_f = Jf * scale[..., None], r_f * scale
         H = np.einsum("fmi,fmj->fij", Jf, Jf) + 1e-12 * np.eye(6)
-        g = np.einsum("fmi,fm->fi", Jf, r.reshape(n_frames, -1))
+        g = np.einsum("fmi,fm->fi", Jf, r_f)
         step = -np.linalg.solve(H, g[..., None])[..., 0]
         step[~ok] = 0.0
         T[:, :3, 3] += step[:, :3]
         T[:, :3, :3] = np.einsum("fij,fjk->fik", R_from_rvec(step[:, 3:]), T[:, :3, :3])
     r, J = _board_pose_residuals(T, uv, seen, p_B, K, dist, T_Ci_C0)
     Jf = J.reshape(n_frames, -1, 6)
+    if weighted:
+        Jf = Jf * scale[..., None]
     H = np.einsum("fmi,fmj->fij", Jf, Jf) + 1e-12 * np.eye(6)
-    if sigma_px is None:
+    if weighted:
+        s2 = np.ones(n_frames)
+    elif sigma_px is None:
         r_f = r.reshape(n_frames, -1)
         s2 = np.einsum("fm,fm->f", r_f, r_f) / np.maximum(2 * n_seen.sum(axis=1) - 6, 1)
     else:

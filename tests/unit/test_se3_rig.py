@@ -16,6 +16,7 @@ from cvsflow.optimise.body_tracks import BodyTrack, body_track
 from cvsflow.optimise.se3_model import Se3Model
 from cvsflow.optimise.se3_rig import RigModel, cross_validate_se3_rig, optimise_se3_rig
 from cvsflow.optimise.se3_rig_poses import (
+    _corners_at_instants,
     calibration_covariance,
     fused_pose_calibration_covariance,
     fused_rig_poses,
@@ -146,7 +147,9 @@ def test_rig_fused_calibration_covariance_monte_carlo(fitted, rig):
     """The fused pose's calibration covariance matches re-solves at sampled calibrations."""
     p_B = board_object_points(rig["board"])
     res = fitted.result
-    e = fitted.errors
+    # the frames as they are (not moved to one instant), so that uv below is what was fused
+    e = fused_rig_poses(res, [c["corners"] for c in rig["cameras"]], rig["bodies"], rig["board"],
+                        instant="nearest")  # fmt: skip
     rows = np.flatnonzero(e["n_cameras"].to_numpy() == 2)[::20]
     rows = np.concatenate([rows, np.flatnonzero(e["n_cameras"].to_numpy() == 1)[::20]])
     uv = np.full((len(rows), 2, len(p_B), 2), np.nan)
@@ -237,6 +240,95 @@ def test_rig_three_cameras_own_rates(rig):
     assert set(fit["n_rig_frames_by_cameras"]) >= {1, 2, 3}
     T_C0_C2 = np.asarray(fit["cameras"][2]["T_C0_C"])
     assert np.linalg.norm(T_C0_C2[:3, 3] - s["truth"]["cameras"][2]["T_C0_C"][:3, 3]) < 0.003
+
+
+def _fused_nees(poses, truth):
+    dt0 = truth["cameras"][0]["dt_offset_s"]
+    T_true = truth["T_C0_B_at"](poses["t_vicon_s"].to_numpy() - dt0)
+    q = poses[["cvs_qx", "cvs_qy", "cvs_qz", "cvs_qw"]].to_numpy()
+    T_est = tf.make_T(tf.R_from_quat(q), poses[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy())
+    d_r = tf.rvec_from_R(T_est[:, :3, :3] @ np.swapaxes(T_true[:, :3, :3], 1, 2)).reshape(-1, 3)
+    d = np.concatenate([T_est[:, :3, 3] - T_true[:, :3, 3], d_r], axis=1)
+    S = poses[[f"S{a}{b}" for a in range(6) for b in range(6)]].to_numpy().reshape(-1, 6, 6)
+    return np.einsum("fi,fij,fj->f", d, np.linalg.inv(S), d)
+
+
+def test_corners_at_instants_interpolates_and_extrapolates():
+    """Corners moving linearly are moved to the instant exactly; across a gap the neighbour
+    before serves (at most half an interval), and with neither the frame is left out."""
+    t = np.array([0.0, 0.04, 0.08, 0.20, 0.24])
+    v = np.array([[30.0, -12.0], [5.0, 40.0]])  # px/s of two corners
+    uv = 100.0 + t[:, None, None] * v[None]
+    target = t + np.array([0.01, -0.03, 0.015, 0.02, 0.005])
+    uv_at, noise, moved, usable = _corners_at_instants(uv, t, target, max_gap_s=0.06)
+    assert moved.all()
+    # frame 2's next frame is 0.12 s away: extrapolated from frame 1 (w = -0.375);
+    # frame 4 has no next frame: extrapolated from frame 3 (w = -0.125)
+    np.testing.assert_array_equal(usable, [True, True, True, True, True])
+    np.testing.assert_allclose(uv_at, 100.0 + target[:, None, None] * v[None], atol=1e-9)
+    w = np.array([0.25, 0.75, -0.375, 0.5, -0.125])
+    np.testing.assert_allclose(noise, np.sqrt((1 - w) ** 2 + w**2))
+    # more than half an interval past the last frame of a run: nothing to move it with
+    target2 = t + np.array([0.0, 0.0, 0.03, 0.0, 0.0])
+    uv_at2, noise2, moved2, usable2 = _corners_at_instants(uv, t, target2, max_gap_s=0.06)
+    np.testing.assert_array_equal(moved2, [False, False, True, False, False])
+    assert not usable2[2] and np.isnan(uv_at2[2]).all()
+    np.testing.assert_array_equal(uv_at2[[0, 1, 3, 4]], uv[[0, 1, 3, 4]])
+    assert np.all(noise2[[0, 1, 3, 4]] == 1.0)
+    # a corner missing from the neighbour is missing from the moved frame, the other kept
+    uv3 = uv.copy()
+    uv3[1, 0] = np.nan
+    uv_at3 = _corners_at_instants(uv3, t, target, max_gap_s=0.06)[0]
+    assert np.isnan(uv_at3[0, 0]).all() and np.isfinite(uv_at3[0, 1]).all()
+
+
+def test_fused_board_pose_per_camera_noise(rig):
+    """A per-camera noise array equal everywhere gives the scalar's solve; a camera given a
+    huge noise drops out, leaving the other camera's own PnP and covariance."""
+    p_B = board_object_points(rig["board"])
+    tr = rig["truth"]["cameras"]
+    rng = np.random.default_rng(2)
+    T_C0_B = rig["truth"]["T_C0_B_at"](np.linspace(0.5, 5.0, 12))
+    T_Ci_C0 = [np.linalg.inv(c["T_C0_C"]) for c in tr]
+    cameras = [(c["K"], c["dist"]) for c in tr]
+    from cvsflow.geometry.camera import project_points
+
+    uv = np.stack([project_points(np.einsum("ij,fnj->fni", T[:3, :3], np.einsum("fij,nj->fni",
+                   T_C0_B[:, :3, :3], p_B) + T_C0_B[:, None, :3, 3]) + T[:3, 3], K, d)
+                   for T, (K, d) in zip(T_Ci_C0, cameras, strict=True)], axis=1)  # fmt: skip
+    uv = uv + rng.normal(0, 0.3, uv.shape)
+    seen = np.isfinite(uv).all(axis=-1)
+    T_s, S_s, _ = fused_board_pose(uv, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma_px=0.3)
+    T_a, S_a, _ = fused_board_pose(uv, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma_px=np.full((12, 2), 0.3))
+    np.testing.assert_allclose(T_a, T_s, atol=1e-12)
+    np.testing.assert_allclose(S_a, S_s, rtol=1e-9)
+    T_1, S_1, _ = fused_board_pose(uv, seen, p_B, cameras, T_Ci_C0, T_C0_B,
+                                   sigma_px=np.tile([0.3, 1e4], (12, 1)))  # fmt: skip
+    T_m, S_m, _ = fused_board_pose(uv[:, :1], seen[:, :1], p_B, cameras[:1], T_Ci_C0[:1], T_C0_B, sigma_px=0.3)
+    np.testing.assert_allclose(T_1[:, :3, 3], T_m[:, :3, 3], atol=1e-7)
+    np.testing.assert_allclose(S_1, S_m, rtol=1e-4, atol=1e-14)
+    with pytest.raises(ValueError, match="positive"):
+        fused_board_pose(uv, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma_px=np.zeros((12, 2)))
+
+
+def test_rig_fuses_unsynchronised_cameras_at_one_instant():
+    """A 25 fps camera on its own clock shares rig frames with a 30 fps pair: moved to the
+    pair's instant its corners fuse consistently (NEES near 6), where fusing the frames as
+    if simultaneous (``instant="nearest"``) is 3-4 times overconfident."""
+    s = simulate_rig_session(3, n_cameras=3, duration_s=6.0)
+    fit = optimise_se3_rig(_entries(s), s["bodies"], s["board"], free=FREE)
+    entries = [e["corners"] for e in _entries(s)]
+    out = {}
+    for instant in ("interpolate", "nearest"):
+        poses = fused_rig_poses(fit.result, entries, s["bodies"], s["board"], instant=instant)
+        shared = (poses["frame_cam2"].to_numpy() >= 0) & (poses["n_cameras"].to_numpy() >= 2)
+        out[instant] = _fused_nees(poses, s["truth"])[shared]
+        assert shared.sum() > 60
+    # seed 3: 5.8 moved to one instant, 21.2 as if simultaneous (seeds 0-2: 5.9-7.6, 29-60)
+    assert 4.0 < out["interpolate"].mean() < 8.5
+    assert out["nearest"].mean() > 2.0 * out["interpolate"].mean()
+    with pytest.raises(OptimiseError, match="instant"):
+        fused_rig_poses(fit.result, entries, s["bodies"], s["board"], instant="mean")
 
 
 def test_rig_named_errors(rig):
