@@ -19,7 +19,7 @@ from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points
 from cvsflow.optimise.se3_apply import pose_columns, tracks_from_params
 from cvsflow.optimise.se3_model import K_from_intrinsics
 from cvsflow.optimise.se3_start import corner_arrays, solve_pnp_frames
-from cvsflow.stereo import fused_board_pose
+from cvsflow.stereo import fused_board_pose, fused_pose_jacobian
 
 log = logging.getLogger(__name__)
 
@@ -354,15 +354,14 @@ def fused_pose_calibration_covariance(params, uv_px, seen, p_B, T_C0_B, sigma_px
 
     ``D Sigma_theta D^T`` per frame, Sigma_theta the joint covariance of every camera's
     intrinsics and mounting (:func:`calibration_covariance`), D = d T_C0_B / d theta by
-    central differences of one Gauss-Newton step of
-    :func:`cvsflow.stereo.fused_board_pose` from the solution (the step's derivative is the
-    solve's, to first order, because the gradient is zero there); steps of ``rel_step``
-    standard errors. tests/unit/test_se3_rig.py checks it against full re-solves at
-    sampled calibrations. Cost: two one-step solves (four residual and Jacobian
-    evaluations of every frame) per parameter, p = 10 per camera with four free
-    intrinsics: in bench/bench_se3_rig.py (seed 3, 6 s, CPU) :func:`fused_rig_poses` takes
-    0.66 s instead of 0.16 s for two cameras (191 rig frames; the fit 1.1 s) and 1.8 s
-    instead of 0.3 s for three (250 frames; the fit 2.7 s).
+    :func:`cvsflow.stereo.fused_pose_jacobian` (central differences of three Gauss-Newton
+    steps from the solution), steps of ``rel_step`` standard errors.
+    tests/unit/test_se3_rig.py checks it against full re-solves at sampled calibrations.
+    Cost: two three-step solves (eight residual and Jacobian evaluations of every frame)
+    per parameter, p = 10 per camera with four free intrinsics: in bench/bench_se3_rig.py
+    (seed 3, 6 s, CPU) :func:`fused_rig_poses` takes 1.2 s instead of 0.17 s for two
+    cameras (191 rig frames; the fit 1.0 s) and 3.0 s instead of 0.26 s for three (250
+    frames; the fit 2.1 s).
 
     Parameters
     ----------
@@ -384,16 +383,11 @@ def fused_pose_calibration_covariance(params, uv_px, seen, p_B, T_C0_B, sigma_px
         ``[dt (m), dtheta (rad)]`` in C0, rotation perturbed on the left.
     """
     names, values, cov = calibration_covariance(params)
-    D = np.zeros((len(T_C0_B), 6, len(names)))
-    for j, h in enumerate(rel_step * np.sqrt(np.diag(cov))):
-        T = []
-        for sign in (1.0, -1.0):
-            v = values.copy()
-            v[j] += sign * h
-            cameras, T_Ci_C0 = rig_geometry(params, names, v)
-            T.append(fused_board_pose(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma_px=sigma_px,
-                                      n_iterations=1)[0])  # fmt: skip
-        D[:, :3, j] = (T[0][:, :3, 3] - T[1][:, :3, 3]) / (2.0 * h)
-        R_diff = np.einsum("fij,fkj->fik", T[0][:, :3, :3], T[1][:, :3, :3])
-        D[:, 3:, j] = tf.rvec_from_R(R_diff).reshape(-1, 3) / (2.0 * h)
+
+    def geometry_at(j, h):
+        v = values.copy()
+        v[j] += h
+        return rig_geometry(params, names, v)
+
+    D = fused_pose_jacobian(uv_px, seen, p_B, T_C0_B, sigma_px, geometry_at, rel_step * np.sqrt(np.diag(cov)))
     return np.einsum("fip,pq,fjq->fij", D, cov, D)

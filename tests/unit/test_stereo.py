@@ -13,7 +13,7 @@ from cvsflow.board import board_object_points
 from cvsflow.errors import CalibrationError, InputError
 from cvsflow.geometry.camera import project_points
 from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T, rvec_from_R
-from cvsflow.stereo import calibrate_rig, fused_board_pose, stereo_extrinsics
+from cvsflow.stereo import calibrate_rig, fused_board_pose, rig_calibration_covariance, stereo_extrinsics
 from cvsflow.synth.stereo import render_shared_stills
 
 REPO = Path(__file__).resolve().parents[2]
@@ -228,3 +228,55 @@ def test_fused_board_pose_keeps_frames_one_camera_saw():
     ok = [0, 1, 2, 4, 5]
     err = np.linalg.norm(T_hat[ok, :3, 3] - T_true[ok, :3, 3], axis=1)
     assert np.all(err < 5 * np.sqrt(np.trace(Sigma[ok, :3, :3], axis1=1, axis2=2)))
+
+
+def test_rig_calibration_covariance_matches_resolves_at_sampled_calibrations():
+    """The fused pose's spread over calibrations drawn from the intrinsics' std and the rig's
+    extrinsic covariance equals the propagated covariance; an exact calibration adds nothing."""
+    rng = np.random.default_rng(4)
+    T_true = _board_poses(rng, 12, (1.8, 2.4))
+    rig = [(CAM0, np.eye(4)), (CAM1, T_C1_C0)]
+    uv, seen, p_B = _rig_views(T_true, rig, rng)
+    seen[:4, 1] = False  # camera 0 alone on four frames
+    cams = [(np.array(c["K"]), np.array(c["dist"])) for c, _ in rig]
+    T_Ci_C0 = [T for _, T in rig]
+    T_hat = fused_board_pose(uv, seen, p_B, cams, T_Ci_C0, T_true, sigma_px=0.3)[0]
+    std = [{"fx": 1.5, "fy": 1.5, "cx": 1.0, "cy": 1.0, "k1": 0.004},
+           {"fx": 2.0, "fy": 2.0, "cx": 1.5, "cy": 1.5, "k2": 0.01}]
+    A = rng.normal(size=(6, 6))
+    C_ext = np.diag([3e-4, 3e-4, 2e-4, 1e-3, 1e-3, 2e-3]) ** 2 + 1e-9 * (A @ A.T)  # rad, m
+    S = rig_calibration_covariance(uv, seen, p_B, cams, T_Ci_C0, T_hat, 0.3, std, [C_ext])
+    names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+    d = []
+    for _ in range(150):
+        cams_s = []
+        for (K, dist), sd in zip(cams, std, strict=True):
+            x = np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist] + [sd.get(n, 0.0) * rng.standard_normal()
+                                                                  for n in names]
+            cams_s.append((np.array([[x[0], 0, x[2]], [0, x[1], x[3]], [0, 0, 1.0]]), x[4:]))
+        e = rng.multivariate_normal(np.zeros(6), C_ext)
+        T1 = T_C1_C0.copy()
+        T1[:3, :3] = cv2.Rodrigues(e[:3])[0] @ T1[:3, :3]
+        T1[:3, 3] += e[3:]
+        T = fused_board_pose(uv, seen, p_B, cams_s, [np.eye(4), T1], T_hat, sigma_px=0.3)[0]
+        dr = [rvec_from_R(a @ b.T) for a, b in zip(T[:, :3, :3], T_hat[:, :3, :3], strict=True)]
+        d.append(np.column_stack([T[:, :3, 3] - T_hat[:, :3, 3], dr]))
+    sd = np.sqrt(np.diagonal(S, axis1=1, axis2=2))
+    ratio = np.sqrt(np.mean(np.array(d) ** 2, axis=0)) / sd
+    # 150 draws: the ratio's own spread is about 6 %. Components the calibration barely
+    # moves (a lone camera's roll about its axis: 1e-5 rad against 3e-3) are second order.
+    big = np.concatenate([sd[:, :3] > 0.1 * sd[:, :3].max(axis=1, keepdims=True),
+                          sd[:, 3:] > 0.1 * sd[:, 3:].max(axis=1, keepdims=True)], axis=1)
+    assert big.sum() >= 60
+    assert np.all((ratio[big] > 0.75) & (ratio[big] < 1.3)), ratio
+    # frames camera 0 saw alone do not depend on the rig's extrinsics
+    S_int = rig_calibration_covariance(uv, seen, p_B, cams, T_Ci_C0, T_hat, 0.3, std, [0 * C_ext])
+    np.testing.assert_allclose(S[:4], S_int[:4], rtol=1e-6, atol=1e-16)
+    # on the frames both cameras saw the extrinsics add a positive semi-definite term
+    extra = S[4:] - S_int[4:]
+    assert np.all(np.linalg.eigvalsh(extra).min(axis=1) > -1e-9 * np.abs(S[4:]).max())
+    assert np.all(extra[:, 2, 2] > 0.02 * S_int[4:, 2, 2])
+    zero = rig_calibration_covariance(uv, seen, p_B, cams, T_Ci_C0, T_hat, 0.3, [{}, {}], [0 * C_ext])
+    assert zero.shape == (12, 6, 6) and not zero.any()
+    with pytest.raises(InputError, match="2 cameras"):
+        rig_calibration_covariance(uv, seen, p_B, cams, T_Ci_C0, T_hat, 0.3, std, [])
