@@ -37,6 +37,14 @@ from cvsflow.flight.trajectory import interpolate_trajectory, traj_from_T
 from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points
 from cvsflow.optimise.se3_model import K_from_intrinsics
 from cvsflow.pose import estimate_poses
+from cvsflow.stereo import (
+    board_pose_starts,
+    fused_board_pose_best,
+    rig_calibration_covariance,
+    stereo_extrinsics,
+)
+from cvsflow.synth.camera import Board as SynthBoard
+from cvsflow.synth.stereo import shared_view_poses
 from cvsflow.transforms import R_from_euler, euler_from_R, invert_T, make_T, wrap_angle
 
 # Board mounting: board x = body right (y_Q), board y = body down (z_Q), board z (into the
@@ -225,6 +233,204 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
     return T_meas, valid, Sigma, poses, corners
 
 
+def stereo_rig(baseline_m: float, cross_m: float = 10.0) -> list:
+    """``T_Ci_C0`` of a two-camera rig: camera 1 ``baseline_m`` to the right of camera 0,
+    turned in so that the optical axes cross ``cross_m`` ahead.
+
+    Parameters
+    ----------
+    baseline_m : float
+        Distance between the camera centres along camera 0's x axis, m (> 0).
+    cross_m : float
+        Distance ahead of camera 0 where the axes cross, m (> 0).
+
+    Returns
+    -------
+    list of ndarray, shape (4, 4)
+        ``[I, T_C1_C0]``: a point in C0 maps to Ci.
+    """
+    if not (baseline_m > 0 and cross_m > 0):
+        raise ConfigError(f"flight demo: rig baseline_m={baseline_m}, cross_m={cross_m}; both must be > 0")
+    T_C0_C1 = make_T(R_from_euler([0.0, -np.arctan2(baseline_m, cross_m), 0.0]), [baseline_m, 0.0, 0.0])
+    return [np.eye(4), invert_T(T_C0_C1)]
+
+
+def observe_rig(T_C0_B, T_Ci_C0, p_B, cameras, noise_px=None):
+    """Each rig camera's image of the board's corners, and which of them it detects.
+
+    Parameters
+    ----------
+    T_C0_B : ndarray, shape (F, 4, 4)
+        Board poses in camera 0, m.
+    T_Ci_C0 : sequence of ndarray, shape (4, 4)
+        Each camera's pose from camera 0.
+    p_B : ndarray, shape (N, 3)
+        The corners in B, m.
+    cameras : sequence of dict
+        Each camera as ``CAMERA_DEMO`` (``fx_px .. dist, width_px, height_px``).
+    noise_px : ndarray, shape (F, C, N, 2), optional
+        Detection error added to the projections, px.
+
+    Returns
+    -------
+    uv : ndarray, shape (F, C, N, 2)
+        Corner k in camera c on frame f, px.
+    seen : ndarray of bool, shape (F, C, N)
+        Corners in front of the camera and at least ``BORDER_PX`` inside its image, on frames
+        where the camera has at least 6 of them (fewer: it does not find the board).
+    """
+    uv = np.zeros((len(T_C0_B), len(T_Ci_C0), len(p_B), 2))
+    seen = np.zeros(uv.shape[:3], bool)
+    for c, (T, camera) in enumerate(zip(T_Ci_C0, cameras, strict=True)):
+        K, dist = _K_dist(camera)
+        w, h = float(camera.get("width_px", 640)), float(camera.get("height_px", 480))
+        T_C_B = np.asarray(T, float) @ T_C0_B
+        p_C = np.einsum("fij,nj->fni", T_C_B[:, :3, :3], p_B) + T_C_B[:, None, :3, 3]
+        uv[:, c] = project_points(p_C, K, dist)
+        if noise_px is not None:
+            uv[:, c] += noise_px[:, c]
+        inside = ((p_C[..., 2] > 0) & (uv[:, c, :, 0] >= BORDER_PX) & (uv[:, c, :, 0] <= w - 1 - BORDER_PX)
+                  & (uv[:, c, :, 1] >= BORDER_PX) & (uv[:, c, :, 1] <= h - 1 - BORDER_PX))  # fmt: skip
+        seen[:, c] = inside & (inside.sum(axis=1) >= 6)[:, None]
+    return uv, seen
+
+
+def calibrate_rig_views(rng, T_Ci_C0, cameras, cameras_cal, calib_std, board, n_views=20, sigma_px=0.1):
+    """The rig's relative poses as a user finds them: from shared views, with the drawn lens.
+
+    ``n_views`` board poses that every camera sees whole (:func:`cvsflow.synth.stereo.
+    shared_view_poses`, at 1.5-4 m or 1.5-4 baselines), their corners projected with the
+    true cameras plus ``sigma_px`` of noise, solved by :func:`cvsflow.stereo.stereo_extrinsics`
+    with the calibration the CVS uses (``cameras_cal``, stated ``calib_std``). The fitted
+    poses take up part of the intrinsics' error, as a real rig calibration does.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+    T_Ci_C0 : sequence of ndarray, shape (4, 4)
+        The true rig.
+    cameras : sequence of dict
+        The true cameras (``CAMERA_DEMO`` form).
+    cameras_cal : sequence of (K, dist)
+        The calibration used.
+    calib_std : dict
+        Its stated 1-sigma, the same for every camera.
+    board : dict
+        The board of the views.
+    n_views : int
+        Shared views.
+    sigma_px : float
+        Corner noise of the views (sharp stills), px.
+
+    Returns
+    -------
+    dict
+        :func:`cvsflow.stereo.stereo_extrinsics`' result.
+    """
+    b_m = max(float(np.linalg.norm(invert_T(np.asarray(T, float))[:3, 3])) for T in T_Ci_C0)
+    sboard = SynthBoard(int(board["squares_x"]), int(board["squares_y"]), float(board["square_m"]))
+    true = [(*_K_dist(c), (int(c.get("width_px", 640)), int(c.get("height_px", 480)))) for c in cameras]
+    depth_m = (max(1.5, 1.5 * b_m), max(4.0, 4.0 * b_m))
+    T_C0_V = shared_view_poses(rng, n_views, true, T_Ci_C0, sboard, depth_m=depth_m, min_square_px=10.0)
+    p_B = board_object_points(board)
+    noise = sigma_px * rng.standard_normal((n_views, len(T_Ci_C0), len(p_B), 2))
+    uv, seen = observe_rig(T_C0_V, T_Ci_C0, p_B, cameras, noise)
+    tables = []
+    for c in range(len(T_Ci_C0)):
+        v, k = np.nonzero(seen[:, c])
+        tables.append(pd.DataFrame({"image": [f"shared_{x:03d}" for x in v], "corner": k,
+                                    "u_px": uv[v, c, k, 0], "v_px": uv[v, c, k, 1],
+                                    "X_m": p_B[k, 0], "Y_m": p_B[k, 1]}))  # fmt: skip
+    cal = [{"K": np.asarray(K).tolist(), "dist": np.asarray(d).tolist(), "std": dict(calib_std),
+            "width": w, "height": h}
+           for (K, d), (_, _, (w, h)) in zip(cameras_cal, true, strict=True)]  # fmt: skip
+    return stereo_extrinsics(tables, cal)
+
+
+def measure_reference_rig(T_C0_B, seen, rng, T_Ci_C0, cameras=None, board=None, sigma_px=0.3,
+                          shared_px=0.0, shared_squares=1.0, calib_std=None, n_views=20, view_sigma_px=0.1):
+    """The camera reference of a flight measured by a rig of cameras exposed together.
+
+    Every camera detects the board's corners (:func:`observe_rig`, :func:`corner_noise`). The
+    rig's calibration is what a user gets: each camera's intrinsics the truth off by one draw
+    of ``calib_std``, the relative poses fitted with them on shared views
+    (:func:`calibrate_rig_views`). The board pose is fused from all corners
+    (:func:`cvsflow.stereo.fused_board_pose_best`, started from both IPPE solutions of every
+    camera's own view, with the mirrored solution's flip term). Its stated covariance is the
+    corner noise's plus the calibration's, with the intrinsics' cross-covariance with the
+    fitted poses (:func:`cvsflow.stereo.rig_calibration_covariance`).
+
+    Parameters
+    ----------
+    T_C0_B : ndarray, shape (N, 4, 4)
+        True board poses in camera 0, m.
+    seen : ndarray of bool, shape (N,) or (N, C)
+        Frames on which each camera's detector works (if enough corners are in its image).
+    rng : numpy.random.Generator
+    T_Ci_C0 : sequence of ndarray, shape (4, 4)
+        The true rig (:func:`stereo_rig`), identity first.
+    cameras : sequence of dict, optional
+        Each camera as ``CAMERA_DEMO`` (the default for all).
+    board : dict, optional
+        ``BOARD_DEFAULT`` by default (also the rig calibration's board).
+    sigma_px, shared_px, shared_squares : float
+        Corner noise (:func:`corner_noise`), the same for every camera.
+    calib_std : dict, optional
+        Each camera's calibration 1-sigma; default ``CALIB_STD_DEFAULT``.
+    n_views, view_sigma_px : int, float
+        The rig calibration's shared views and their corner noise (:func:`calibrate_rig_views`).
+
+    Returns
+    -------
+    T_meas : ndarray, shape (N, 4, 4)
+        Measured T_C0_B, NaN where not valid.
+    valid : ndarray of bool, shape (N,)
+    Sigma_ref : ndarray, shape (N, 6, 6)
+        Stated covariance ([dt m, dtheta rad] in C0, rotation perturbed on the left), NaN
+        where not valid.
+    rig : dict
+        The rig calibration (:func:`cvsflow.stereo.stereo_extrinsics`).
+
+    Notes
+    -----
+    The stated corner noise is ``sqrt(sigma_px^2 + shared_px^2)`` per corner, treated as
+    independent: a shared part makes that optimistic.
+    """
+    n_cam = len(T_Ci_C0)
+    cameras = [CAMERA_DEMO] * n_cam if cameras is None else list(cameras)
+    board = BOARD_DEFAULT if board is None else board
+    calib_std = CALIB_STD_DEFAULT if calib_std is None else calib_std
+    if len(cameras) != n_cam or n_cam < 2:
+        raise ConfigError(f"flight demo: {len(cameras)} cameras for a rig of {n_cam} (2 or more)")
+    T_C0_B = np.asarray(T_C0_B, float)
+    p_B = board_object_points(board)
+    noise = np.stack([corner_noise(rng, len(T_C0_B), board, sigma_px, shared_px, shared_squares)
+                      for _ in range(n_cam)], axis=1)  # fmt: skip
+    uv, det = observe_rig(T_C0_B, T_Ci_C0, p_B, cameras, noise)
+    det &= np.broadcast_to(np.asarray(seen, bool).reshape(len(T_C0_B), -1), det.shape[:2])[..., None]
+    # the calibration the CVS uses: the truth plus one draw of its stated error, then the rig
+    sd = np.array([float(calib_std.get(n, 0.0)) for n in INTRINSIC_NAMES])
+    cams_cal = []
+    for camera in cameras:
+        K, dist = _K_dist(camera)
+        intr = np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist] + sd * rng.standard_normal(len(sd))
+        cams_cal.append((K_from_intrinsics(*intr[:4]), intr[4:]))
+    rig = calibrate_rig_views(rng, T_Ci_C0, cameras, cams_cal, calib_std, board, n_views, view_sigma_px)
+    T_cal = [np.eye(4)] + [np.asarray(c["T_Ci_C0"], float) for c in rig["cameras"]]
+    n_det = det.sum(axis=2)
+    starts = board_pose_starts(uv, det, p_B, cams_cal, T_cal)
+    sigma_eff = float(np.hypot(sigma_px, shared_px))
+    T_meas, Sigma, _ = fused_board_pose_best(uv, det, p_B, cams_cal, T_cal, starts, sigma_px=sigma_eff,
+                                             flip_term=True)  # fmt: skip
+    valid = np.isfinite(T_meas[:, 0, 0]) & (n_det.max(axis=1) >= 6)
+    ext_cov = [c["covariance"] for c in rig["cameras"]]
+    ext_sens = [c["intrinsics_sensitivity"] for c in rig["cameras"]]
+    Sigma[valid] += rig_calibration_covariance(uv[valid], det[valid], p_B, cams_cal, T_cal, T_meas[valid],
+                                               sigma_eff, [calib_std] * n_cam, ext_cov, ext_sens)  # fmt: skip
+    T_meas[~valid], Sigma[~valid] = np.nan, np.nan
+    return T_meas, valid, Sigma, rig
+
+
 def camera_pose(height_m: float = 1.0, tilt_up_rad: float = np.deg2rad(8.0)) -> np.ndarray:
     """T_L_C of a camera on a tripod ``height_m`` above the ground, looking north, tilted up.
 
@@ -328,6 +534,7 @@ def render_flight(
     corner_shared_px: float = 0.0,
     corner_shared_squares: float = 1.0,
     calib_std=None,
+    rig=None,
 ) -> FlightDemo:
     """Render a flight: truth, on-board estimate on its own clock, camera reference.
 
@@ -359,17 +566,24 @@ def render_flight(
         ``reference``).
     T_Q_B : ndarray, shape (4, 4), optional
         Board mounting; default ``T_Q_B_DEFAULT``.
-    reference : {"pnp", "model"}
+    reference : {"pnp", "stereo", "model"}
         ``"pnp"``: the reference is measured from noisy corners (:func:`measure_reference`)
-        and states model (T)'s covariance; ``"model"``: its noise is drawn from the distance
-        model, which it states.
+        and states model (T)'s covariance; ``"stereo"``: measured by a rig of cameras
+        exposed together (:func:`measure_reference_rig`, the board pose fused from every
+        camera's corners), stating the fused pose's covariance; ``"model"``: its noise is
+        drawn from the distance model, which it states.
     camera, board : dict, optional
-        The reference camera (``CAMERA_DEMO``) and the board on the body (``BOARD_DEFAULT``),
-        ``"pnp"`` only.
+        The reference camera (``CAMERA_DEMO``; with ``"stereo"`` every camera's) and the
+        board on the body (``BOARD_DEFAULT``), ``"pnp"`` and ``"stereo"`` only.
     corner_shared_px, corner_shared_squares : float
         The part of the corner noise shared by neighbouring corners (:func:`corner_noise`).
     calib_std : dict, optional
-        The calibration's 1-sigma (``CALIB_STD_DEFAULT``), ``"pnp"`` only.
+        The calibration's 1-sigma (``CALIB_STD_DEFAULT``), ``"pnp"`` and ``"stereo"`` only.
+    rig : dict, optional
+        ``"stereo"`` only: ``baseline_m`` (default 1.0), ``cross_m`` (10.0) of
+        :func:`stereo_rig`; ``n_views`` (20) and ``view_sigma_px`` (0.1) of the rig's
+        calibration (:func:`calibrate_rig_views`). Camera 0 is the reference camera
+        (``T_L_C``, the reference's frame C).
 
     Returns
     -------
@@ -390,8 +604,15 @@ def render_flight(
         raise ConfigError(f"flight demo: range_m={range_m}; expected 0 < near < far (m)")
     if abs(skew) >= 1e-2:
         raise ConfigError(f"flight demo: skew={skew}; expected |skew| < 0.01")
-    if reference not in ("pnp", "model"):
-        raise ConfigError(f"flight demo: reference={reference!r}; expected 'pnp' or 'model'")
+    if reference not in ("pnp", "stereo", "model"):
+        raise ConfigError(f"flight demo: reference={reference!r}; expected 'pnp', 'stereo' or 'model'")
+    if rig is not None and reference != "stereo":
+        raise ConfigError(f"flight demo: a rig is given with reference={reference!r}; it needs 'stereo'")
+    rig = {} if rig is None else dict(rig)
+    unknown = set(rig) - {"baseline_m", "cross_m", "n_views", "view_sigma_px"}
+    if unknown:
+        raise ConfigError(f"flight demo: unknown rig keys {sorted(unknown)}; expected baseline_m, "
+                          "cross_m, n_views, view_sigma_px")  # fmt: skip
     rng = np.random.default_rng(seed)
     T_L_C = camera_pose()
     T_Q_B = T_Q_B_DEFAULT if T_Q_B is None else np.asarray(T_Q_B, float)
@@ -409,6 +630,13 @@ def render_flight(
         T_meas, seen, Sigma_ref, _, _ = measure_reference(
             T_C_B, t_cam, seen, rng, camera, board, sigma_px, corner_shared_px,
             corner_shared_squares, calib_std)  # fmt: skip
+    elif Sigma_ref is None and reference == "stereo":
+        seen = rng.random(n_fr) >= missed_frame_rate
+        T_Ci_C0 = stereo_rig(float(rig.get("baseline_m", 1.0)), float(rig.get("cross_m", 10.0)))
+        T_meas, seen, Sigma_ref, _ = measure_reference_rig(
+            T_C_B, seen, rng, T_Ci_C0, None if camera is None else [camera] * len(T_Ci_C0), board,
+            sigma_px, corner_shared_px, corner_shared_squares, calib_std, int(rig.get("n_views", 20)),
+            float(rig.get("view_sigma_px", 0.1)))  # fmt: skip
     else:
         if Sigma_ref is None:
             Sigma_ref = reference_covariance_model(T_C_B, f_px, board_m, sigma_px, n_corners)

@@ -225,7 +225,11 @@ def stereo_extrinsics(
         propagated), ``std_data_only`` (the views' noise alone: too small whenever the
         intrinsics are less certain than the views, as with sharp stills),
         ``baseline_std_m``, ``covariance`` (6x6 list, [r, t] order as ``std``, the same
-        total as ``std``), ``n_shared_views``,
+        total as ``std``), ``intrinsics_sensitivity`` (6 x 9C list: d[r, t] / d(every
+        camera's ``fx fy cx cy k1 k2 p1 p2 k3``, camera by camera); with the intrinsics'
+        std it gives their cross-covariance with the pose, which
+        :func:`rig_calibration_covariance` needs: a cx error is largely taken up by the
+        rotation fitted with it), ``n_shared_views``,
         ``start_T_Ci_C0`` (stereoCalibrate's, before the joint refinement); ``rms_px`` (per
         camera, the joint fit's reprojection RMS), ``n_views`` (views seen by two or more
         cameras), ``views`` (their names), ``T_C0_B`` (dict view -> 4x4 list, m),
@@ -323,6 +327,7 @@ def stereo_extrinsics(
             "std": dict(zip(POSE_STD_NAMES, np.sqrt(np.diag(C + C_k)).tolist(), strict=True)),
             "std_data_only": dict(zip(POSE_STD_NAMES, np.sqrt(np.diag(C)).tolist(), strict=True)),
             "covariance": (C + C_k).tolist(),
+            "intrinsics_sensitivity": G[s].tolist(),
             "n_shared_views": int(sum(1 for v in views if 0 in seen_by[v] and i in seen_by[v])),
             "start_T_Ci_C0": starts[i].tolist(),
         })
@@ -341,7 +346,7 @@ def _board_pose_residuals(T_C0_B, uv, seen, p_B, K, dist, T_Ci_C0):
     n_frames, n_cam, n_pts = seen.shape
     r = np.zeros((n_frames, n_cam, n_pts, 2))
     J = np.zeros((n_frames, n_cam, n_pts, 2, 6))
-    Rp_B = np.einsum("fij,nj->fni", T_C0_B[:, :3, :3], p_B)
+    Rp_B = np.matmul(T_C0_B[:, None, :3, :3], p_B[None, :, :, None])[..., 0]
     p_C0 = Rp_B + T_C0_B[:, None, :3, 3]
     for c in range(n_cam):
         R, t = T_Ci_C0[c][:3, :3], T_Ci_C0[c][:3, 3]
@@ -423,17 +428,18 @@ def fused_board_pose(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B_start, sigma_px=
         r_f = r.reshape(n_frames, -1)
         if weighted:
             Jf, r_f = Jf * scale[..., None], r_f * scale
-        H = np.einsum("fmi,fmj->fij", Jf, Jf) + 1e-12 * np.eye(6)
-        g = np.einsum("fmi,fm->fi", Jf, r_f)
+        JfT = np.swapaxes(Jf, 1, 2)
+        H = JfT @ Jf + 1e-12 * np.eye(6)
+        g = (JfT @ r_f[..., None])[..., 0]
         step = -np.linalg.solve(H, g[..., None])[..., 0]
         step[~ok] = 0.0
         T[:, :3, 3] += step[:, :3]
-        T[:, :3, :3] = np.einsum("fij,fjk->fik", R_from_rvec(step[:, 3:]), T[:, :3, :3])
+        T[:, :3, :3] = R_from_rvec(step[:, 3:]) @ T[:, :3, :3]
     r, J = _board_pose_residuals(T, uv, seen, p_B, K, dist, T_Ci_C0)
     Jf = J.reshape(n_frames, -1, 6)
     if weighted:
         Jf = Jf * scale[..., None]
-    H = np.einsum("fmi,fmj->fij", Jf, Jf) + 1e-12 * np.eye(6)
+    H = np.swapaxes(Jf, 1, 2) @ Jf + 1e-12 * np.eye(6)
     if weighted:
         s2 = np.ones(n_frames)
     elif sigma_px is None:
@@ -533,14 +539,20 @@ def fused_pose_jacobian(uv_px, seen, p_B, T_C0_B, sigma_px, geometry_at, steps, 
 
 
 def rig_calibration_covariance(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma_px, intrinsics_std,
-                               extrinsics_cov, rel_step=0.01):
+                               extrinsics_cov, extrinsics_sensitivity=None, rel_step=0.01):
     """Covariance of fused board poses from a rig calibration's uncertainty, first order.
 
     ``D Sigma_theta D^T`` (:func:`fused_pose_jacobian`) over every camera's intrinsics (their
     calibration ``std``, independent) and every camera's pose from camera 0 (its 6x6
     covariance, as :func:`stereo_extrinsics` states it: ``[r, t]``, the rotation a small
-    rotation of Ci on the left). The rig's extrinsics are taken independent of the
-    intrinsics, which :func:`stereo_extrinsics`' total ``std`` already folds in.
+    rotation of Ci on the left), with their cross-covariance ``S_i V`` (S_i the pose's
+    sensitivity to the intrinsics, V their variances) when the sensitivities are given.
+
+    The cross-covariance is what makes a stereo rig's depth hold: the relative pose is
+    fitted with the intrinsics as they are, so a principal point off by 0.5 px is mostly
+    absorbed by a turn of the camera, and the disparity of a far point moves far less than
+    0.5 px. Left out (``extrinsics_sensitivity=None``), the two are treated as independent,
+    which overstates the depth term of a far board several times.
 
     Parameters
     ----------
@@ -557,7 +569,11 @@ def rig_calibration_covariance(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma
     intrinsics_std : sequence of dict
         Per camera, 1-sigma of ``fx fy cx cy k1 k2 p1 p2 k3`` (missing names: 0).
     extrinsics_cov : sequence of array_like, shape (6, 6)
-        Per camera i >= 1 (camera 0's pose is the identity by definition).
+        Per camera i >= 1 (camera 0's pose is the identity by definition): the total, the
+        intrinsics' part included (:func:`stereo_extrinsics` ``covariance``).
+    extrinsics_sensitivity : sequence of array_like, shape (6, 9 C), optional
+        Per camera i >= 1, d[r, t] / d(intrinsics) (:func:`stereo_extrinsics`
+        ``intrinsics_sensitivity``).
     rel_step : float
         Difference step, in standard deviations of each parameter.
 
@@ -567,28 +583,33 @@ def rig_calibration_covariance(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma
         ``[dt (m), dtheta (rad)]`` in C0, rotation perturbed on the left.
     """
     n_cam = len(cameras)
-    if len(T_Ci_C0) != n_cam or len(intrinsics_std) != n_cam or len(extrinsics_cov) != n_cam - 1:
+    n_sens = n_cam - 1 if extrinsics_sensitivity is None else len(extrinsics_sensitivity)
+    if (len(T_Ci_C0) != n_cam or len(intrinsics_std) != n_cam or len(extrinsics_cov) != n_cam - 1
+            or n_sens != n_cam - 1):
         raise InputError(f"rig calibration covariance: {n_cam} cameras, {len(T_Ci_C0)} poses, "
-                         f"{len(intrinsics_std)} intrinsics std and {len(extrinsics_cov)} extrinsics "
-                         "covariances (one per camera after the first)")  # fmt: skip
+                         f"{len(intrinsics_std)} intrinsics std, {len(extrinsics_cov)} extrinsics "
+                         f"covariances and {n_sens} sensitivities (one per camera after the "
+                         "first)")  # fmt: skip
     intr = [np.r_[np.asarray(K, float)[[0, 1, 0, 1], [0, 1, 2, 2]], np.asarray(d, float).ravel()[:5]]
             for K, d in cameras]  # fmt: skip
-    params, blocks = [], []
-    for c, std in enumerate(intrinsics_std):
-        for k, n in enumerate(INTRINSIC_NAMES):
-            sd = float(std.get(n, 0.0))
-            if sd > 0:
-                params.append(("intr", c, k))
-                blocks.append(np.array([[sd**2]]))
-    for i, C in enumerate(extrinsics_cov, start=1):
-        C = np.asarray(C, float).reshape(6, 6)
-        params += [("extr", i, k) for k in range(6)]
-        blocks.append(C)
+    params = [("intr", c, k) for c in range(n_cam) for k in range(9)]
+    params += [("extr", i, k) for i in range(1, n_cam) for k in range(6)]
+    var = np.array([float(std.get(n, 0.0)) ** 2 for std in intrinsics_std for n in INTRINSIC_NAMES])
+    n_int = 9 * n_cam
     cov = np.zeros((len(params), len(params)))
-    pos = 0
-    for b in blocks:
-        cov[pos : pos + len(b), pos : pos + len(b)] = b
-        pos += len(b)
+    cov[:n_int, :n_int] = np.diag(var)
+    S = [None if extrinsics_sensitivity is None else np.asarray(a, float).reshape(6, n_int)
+         for a in (extrinsics_sensitivity or [None] * (n_cam - 1))]  # fmt: skip
+    for i in range(n_cam - 1):
+        a = slice(n_int + 6 * i, n_int + 6 * i + 6)
+        cov[a, a] = np.asarray(extrinsics_cov[i], float).reshape(6, 6)
+        if S[i] is not None:
+            cov[a, :n_int] = S[i] * var
+            cov[:n_int, a] = cov[a, :n_int].T
+            for j in range(i):
+                b = slice(n_int + 6 * j, n_int + 6 * j + 6)
+                cov[a, b] = (S[i] * var) @ S[j].T
+                cov[b, a] = cov[a, b].T
     keep = np.flatnonzero(np.diag(cov) > 0)  # an exactly known parameter moves nothing
     params, cov = [params[k] for k in keep], cov[np.ix_(keep, keep)]
 
@@ -607,3 +628,120 @@ def rig_calibration_covariance(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma
     D = fused_pose_jacobian(uv_px, seen, p_B, T_C0_B, sigma_px, geometry_at,
                             rel_step * np.sqrt(np.diag(cov)))  # fmt: skip
     return np.einsum("fip,pq,fjq->fij", D, cov, D)
+
+
+def board_pose_starts(uv_px, seen, p_B, cameras, T_Ci_C0):
+    """Starts for the fused solve: both IPPE solutions of every camera's own view, in C0.
+
+    A far board's view is nearly ambiguous: its tilt mirrored about the line of sight fits a
+    single camera almost as well, and a second camera too close to it (a baseline that is
+    small against the distance) does not pull a solve started on the wrong side across. So
+    the fused solve is started from each candidate (:func:`fused_board_pose_best`).
+
+    Parameters
+    ----------
+    uv_px, seen, p_B, cameras, T_Ci_C0
+        As :func:`fused_board_pose`.
+
+    Returns
+    -------
+    starts : ndarray, shape (2 C, F, 4, 4)
+        Candidate T_C0_B (camera c's two solutions at 2c, 2c + 1), m; NaN where camera c saw
+        fewer than 4 corners or IPPE gave one solution only.
+    """
+    uv = np.asarray(uv_px, float)
+    seen = np.asarray(seen, bool)
+    n_frames, n_cam = seen.shape[:2]
+    starts = np.full((2 * n_cam, n_frames, 4, 4), np.nan)
+    obj = np.asarray(p_B, np.float64)
+    for c, ((K, dist), T) in enumerate(zip(cameras, T_Ci_C0, strict=True)):
+        K, dist = np.asarray(K, np.float64), np.asarray(dist, np.float64).ravel()
+        T_C0_Ci = invert_T(np.asarray(T, float))
+        for f in np.flatnonzero(seen[:, c].sum(axis=1) >= 4):
+            m = seen[f, c]
+            n, rvs, tvs, _ = cv2.solvePnPGeneric(np.ascontiguousarray(obj[m]),
+                                                 np.ascontiguousarray(uv[f, c, m]), K, dist,
+                                                 flags=cv2.SOLVEPNP_IPPE)  # fmt: skip
+            for k in range(min(int(n), 2)):
+                starts[2 * c + k, f] = T_C0_Ci @ make_T(R_from_rvec(np.ravel(rvs[k])), np.ravel(tvs[k]))
+    return starts
+
+
+def fused_board_pose_best(uv_px, seen, p_B, cameras, T_Ci_C0, starts, sigma_px=None, n_iterations=10,
+                          flip_term=False):
+    """:func:`fused_board_pose` from several starts per frame, keeping the lowest cost.
+
+    Parameters
+    ----------
+    uv_px, seen, p_B, cameras, T_Ci_C0, sigma_px, n_iterations
+        As :func:`fused_board_pose`.
+    starts : ndarray, shape (S, F, 4, 4)
+        Candidate starts (:func:`board_pose_starts`); NaN candidates are skipped.
+    flip_term : bool
+        Add the ambiguity of a nearly mirrored solution to the covariance: ``w d d^T``, d the
+        kept pose minus the best solution whose rotation differs from it by more than
+        1 mrad, and ``w = 1 / (1 + exp(dc / 2))`` the chance that it is the true one given
+        its cost excess dc in units of the corner variance (the mixture's covariance about
+        the kept pose, as :func:`cvsflow.flight.reference.reference_covariance_transfer`'s
+        flip term for one camera).
+
+    Returns
+    -------
+    T_C0_B, Sigma, n_seen
+        As :func:`fused_board_pose`, from the start whose solution has the least (weighted)
+        sum of squared reprojection residuals.
+    """
+    seen = np.asarray(seen, bool)
+    uv = np.asarray(uv_px, float)
+    starts = np.asarray(starts, float)
+    n_frames = seen.shape[0]
+    K = [np.asarray(c[0], float) for c in cameras]
+    dist = [np.asarray(c[1], float).ravel()[:5] for c in cameras]
+    per_camera = sigma_px is not None and np.ndim(sigma_px) > 0
+    sigma_fc = np.broadcast_to(np.asarray(sigma_px if per_camera else 1.0, float), seen.shape[:2])
+    cost = np.full((len(starts), n_frames), np.inf)
+    T_all = np.full((len(starts), n_frames, 4, 4), np.nan)
+    Sigma_all = np.full((len(starts), n_frames, 6, 6), np.nan)
+    for k, start in enumerate(starts):
+        rows = np.flatnonzero(np.isfinite(start[:, 0, 0]))
+        if not len(rows):
+            continue
+        sig = sigma_fc[rows] if per_camera else sigma_px
+        T, Sigma, _ = fused_board_pose(uv[rows], seen[rows], p_B, cameras, T_Ci_C0, start[rows],
+                                       sigma_px=sig, n_iterations=n_iterations)  # fmt: skip
+        ok = np.isfinite(T[:, 0, 0])
+        if ok.any():
+            r, _ = _board_pose_residuals(T[ok], uv[rows[ok]], seen[rows[ok]], p_B, K, dist, T_Ci_C0)
+            cost[k, rows[ok]] = np.einsum("fcnk,fc->f", r**2, 1.0 / sigma_fc[rows[ok]] ** 2)
+        T_all[k, rows], Sigma_all[k, rows] = T, Sigma
+    best = np.argmin(cost, axis=0)
+    f = np.arange(n_frames)
+    T_best, Sigma_best = T_all[best, f], Sigma_all[best, f]
+    found = np.isfinite(cost[best, f])
+    T_best[~found], Sigma_best[~found] = np.nan, np.nan
+    if flip_term and found.any():
+        # cost in units of the corner variance: sigma_px's, or each frame's own residual's
+        if sigma_px is None:
+            dof = np.maximum(2 * seen.sum(axis=(1, 2)) - 6, 1)
+            var = np.where(found, cost[best, f] / dof, 1.0)
+        elif per_camera:
+            var = np.ones(n_frames)
+        else:
+            var = np.full(n_frames, float(sigma_px) ** 2)
+        def rotations(T):  # identity where unsolved (their cost is inf anyway)
+            return np.where(np.isfinite(T[:, :3, :3]), T[:, :3, :3], np.eye(3))
+
+        R_best = rotations(T_best)
+        ang = np.stack([np.linalg.norm(rvec_from_R(np.einsum("fij,fkj->fik", rotations(T_all[k]), R_best))
+                                       .reshape(-1, 3), axis=1) for k in range(len(starts))])  # fmt: skip
+        alt_cost = np.where(ang > 1e-3, cost, np.inf)
+        alt = np.argmin(alt_cost, axis=0)
+        has = found & np.isfinite(alt_cost[alt, f])
+        if has.any():
+            T_alt = T_all[alt[has], f[has]]
+            d_r = rvec_from_R(np.einsum("fij,fkj->fik", R_best[has], T_alt[:, :3, :3])).reshape(-1, 3)
+            d = np.concatenate([T_best[has, :3, 3] - T_alt[:, :3, 3], d_r], axis=1)
+            dc = (alt_cost[alt[has], f[has]] - cost[best[has], f[has]]) / var[has]
+            w = 1.0 / (1.0 + np.exp(np.clip(dc / 2.0, -50.0, 50.0)))
+            Sigma_best[has] += w[:, None, None] * d[:, :, None] * d[:, None, :]
+    return T_best, Sigma_best, seen.sum(axis=2)

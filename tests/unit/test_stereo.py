@@ -280,3 +280,63 @@ def test_rig_calibration_covariance_matches_resolves_at_sampled_calibrations():
     assert zero.shape == (12, 6, 6) and not zero.any()
     with pytest.raises(InputError, match="2 cameras"):
         rig_calibration_covariance(uv, seen, p_B, cams, T_Ci_C0, T_hat, 0.3, std, [])
+
+
+def test_intrinsics_sensitivity_matches_refits():
+    """``intrinsics_sensitivity`` predicts how the fitted pose moves when an intrinsic does:
+    a camera's principal point off by 0.5 px is mostly taken up by a turn of camera 1."""
+    rng = np.random.default_rng(21)
+    tables = _views(rng, 12, 0.05)
+    out = stereo_extrinsics(tables, [CAM0, CAM1])
+    S = np.array(out["cameras"][0]["intrinsics_sensitivity"])
+    assert S.shape == (6, 18)
+    T0 = np.array(out["cameras"][0]["T_Ci_C0"])
+    for col, key, h in ((2, "cx", 0.5), (0, "fx", 1.0), (9 + 3, "cy", 0.5), (4, "k1", 0.005)):
+        cams = copy.deepcopy([CAM0, CAM1])
+        c, r, k = divmod(col, 9)[0], *{"fx": (0, 0), "cx": (0, 2), "cy": (1, 2), "k1": (None, 0)}[key]
+        if r is None:
+            cams[c]["dist"][k] += h
+        else:
+            cams[c]["K"][r][k] += h
+        T1 = np.array(stereo_extrinsics(tables, cams)["cameras"][0]["T_Ci_C0"])
+        moved = _pose_error(T1, T0)
+        np.testing.assert_allclose(moved, S[:, col] * h, atol=0.05 * np.abs(S[:, col] * h).max() + 1e-9)
+
+
+def test_fused_board_pose_best_escapes_the_mirrored_start():
+    """A small board 8-12 m from a 1 m rig: started from the mirrored IPPE pose, one solve stays there; from all
+    candidates the fused pose is the true one, and the flip term is in its covariance."""
+    from cvsflow.stereo import board_pose_starts, fused_board_pose_best
+
+    rng = np.random.default_rng(3)
+    board = {"squares_x": 6, "squares_y": 5, "square_m": 0.125}
+    p_B = board_object_points(board)
+    R = R_from_euler(np.deg2rad([15.0, 25.0, 5.0]))
+    T_true = np.array([make_T(R, [0.3 + 0.1 * i, 0.2, 8.0 + 0.5 * i] - R @ p_B.mean(axis=0)) for i in range(8)])
+    K = np.array(CAM0["K"])
+    cams = [(K, np.zeros(5)), (K, np.zeros(5))]
+    T_C0_C1 = make_T(R_from_euler([0.0, -np.arctan2(1.0, 10.0), 0.0]), [1.0, 0.0, 0.0])
+    T_Ci_C0 = [np.eye(4), invert_T(T_C0_C1)]
+    uv = np.stack([project_points(np.einsum("ij,fnj->fni", T[:3, :3], np.einsum("fij,nj->fni", T_true[:, :3, :3], p_B)
+                   + T_true[:, None, :3, 3]) + T[:3, 3], K, np.zeros(5)) for T in T_Ci_C0], axis=1)  # fmt: skip
+    uv += rng.normal(0.0, 0.3, uv.shape)
+    seen = np.ones(uv.shape[:3], bool)
+    starts = board_pose_starts(uv, seen, p_B, cams, T_Ci_C0)
+    assert starts.shape == (4, 8, 4, 4)
+
+    def tilt_err(T):
+        return np.degrees([np.linalg.norm(rvec_from_R(a[:3, :3] @ b[:3, :3].T)) for a, b in zip(T, T_true, strict=True)])
+
+    # the mirrored candidate of camera 0: the one farther from the truth
+    far = np.where(tilt_err(starts[0]) > tilt_err(starts[1]), 0, 1)
+    mirrored = starts[far, np.arange(8)]
+    assert np.all(tilt_err(mirrored) > 10.0)
+    T_one = fused_board_pose(uv, seen, p_B, cams, T_Ci_C0, mirrored, sigma_px=0.3)[0]
+    T_best, S_best, _ = fused_board_pose_best(uv, seen, p_B, cams, T_Ci_C0, starts, sigma_px=0.3)
+    _, S_flip, _ = fused_board_pose_best(uv, seen, p_B, cams, T_Ci_C0, starts, sigma_px=0.3, flip_term=True)
+    assert np.median(tilt_err(T_one)) > 10.0  # a single solve stays mirrored
+    assert np.all(tilt_err(T_best) < 5.0)
+    # the flip term only adds: positive semi-definite, and it widens the rotation
+    extra = S_flip - S_best
+    assert np.all(np.linalg.eigvalsh(extra).min(axis=1) > -1e-12)
+    assert np.all(np.trace(extra[:, 3:, 3:], axis1=1, axis2=2) >= 0.0)
