@@ -59,3 +59,7 @@ class ResultRangeError(ImplausibleError, OptimiseError):
 
 class BoardNotSeenError(NoUsableRowsError, SyncError):
     """The board has a pose in (almost) no video frame: nothing to pose or synchronise."""
+
+
+class ImageSizeError(ImplausibleError, InputError):
+    """The video's frames are not the size the camera was calibrated at."""

@@ -17,6 +17,7 @@ import numpy as np
 
 from cvsflow.errors import (
     BoardNotSeenError,
+    ImageSizeError,
     NoUsableRowsError,
     OverlapError,
     ResultRangeError,
@@ -574,3 +575,52 @@ def check_rows(table, source, what="rows"):
     if len(table) == 0:
         raise NoUsableRowsError(f"{source}: 0 {what} (expected at least one); see the earlier stages' logs")
     return []
+
+
+def check_image_size(camera, width, height, camera_source="camera.yaml", video_source="video",
+                     rotation_deg=0.0):
+    """The video's frames must be the size the camera's intrinsics were calibrated at.
+
+    Intrinsics do not carry over between image sizes: a phone's or webcam's video mode crops
+    and scales the sensor, so stills at another resolution (or the same stills turned a
+    quarter) give a camera matrix that is wrong for the video, and every pose from it wrong
+    with no error of its own.
+
+    Parameters
+    ----------
+    camera : dict
+        camera.yaml content; ``width`` and ``height`` (px) are compared when present.
+    width, height : int
+        The video's frames as read (display rotation applied), px.
+    camera_source, video_source : str
+        Names for the message.
+    rotation_deg : float
+        The video's display rotation (for the message).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    ImageSizeError
+        The sizes differ; the message says whether they are a quarter turn apart.
+    """
+    if "width" not in camera or "height" not in camera:
+        return
+    cw, ch = int(camera["width"]), int(camera["height"])
+    if (cw, ch) == (int(width), int(height)):
+        return
+    where = f"{video_source}: frames are {int(width)}x{int(height)} px"
+    if rotation_deg:
+        where += (f" (stored on their side, display rotation {rotation_deg:g} deg, turned upright as "
+                  "players show them)")
+    if (cw, ch) == (int(height), int(width)):
+        hint = ("the stills are the frames turned a quarter: take the stills and the video with the camera "
+                "held the same way up (a still's EXIF orientation and a video's display rotation are both "
+                "applied)")
+    else:
+        hint = ("intrinsics do not carry over between resolutions (a video mode crops and scales the "
+                "sensor): calibrate on stills at the video's resolution, for example frames taken from "
+                "the video itself")
+    raise ImageSizeError(f"{where}, but {camera_source} was calibrated on {cw}x{ch} px stills; {hint}")

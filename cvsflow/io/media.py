@@ -156,6 +156,50 @@ def video_timing(path) -> dict:
     }
 
 
+def video_size(path) -> dict:
+    """Size of a video's frames as :func:`iter_video_gray` yields them (display rotation applied).
+
+    Parameters
+    ----------
+    path : str or Path
+        The video file.
+
+    Returns
+    -------
+    dict
+        ``width``, ``height`` (px, upright), ``rotation_deg`` (the display rotation, 0 when
+        none), ``stored_width``, ``stored_height`` (px, as encoded).
+
+    Raises
+    ------
+    InputError
+        Not a readable video, or a stream without a frame size.
+    """
+    import av
+
+    container = _open_av(path)
+    rotation = 0.0
+    try:
+        stream = container.streams.video[0]
+        width, height = int(stream.codec_context.width), int(stream.codec_context.height)
+        try:
+            frame = next(container.decode(stream), None)
+        except av.error.FFmpegError as exc:  # a broken first packet: the size is the header's
+            log.warning("%s: first frame does not decode (%s); display rotation taken as 0", path, exc)
+            frame = None
+        if frame is not None:
+            rotation = float(frame.rotation or 0.0)
+            width, height = int(frame.width), int(frame.height)
+    finally:
+        container.close()
+    if width <= 0 or height <= 0:
+        raise InputError(f"{path}: video has no frame size")
+    turns = display_turns(rotation, path)
+    w, h = (height, width) if turns % 2 else (width, height)
+    return {"width": w, "height": h, "rotation_deg": 90.0 * turns, "stored_width": width,
+            "stored_height": height}  # fmt: skip
+
+
 def video_info(path) -> dict:
     """Frame count, rate (Hz) and size of a video.
 
@@ -173,7 +217,7 @@ def video_info(path) -> dict:
     dict
         ``n_frames`` (demuxed), ``n_frames_header``, ``n_dropped`` (frames missing from the
         timestamp gaps), ``fps`` (Hz; the stream's average rate when the period is unknown),
-        ``width``, ``height`` (px).
+        and :func:`video_size`'s keys.
 
     Raises
     ------
@@ -181,23 +225,19 @@ def video_info(path) -> dict:
         Not a readable video, or a stream without a frame size.
     """
     timing = video_timing(path)
+    size = video_size(path)
     container = _open_av(path)
     try:
-        stream = container.streams.video[0]
-        width, height = int(stream.codec_context.width), int(stream.codec_context.height)
-        rate = float(stream.average_rate or 0.0)
+        rate = float(container.streams.video[0].average_rate or 0.0)
     finally:
         container.close()
-    if width <= 0 or height <= 0:
-        raise InputError(f"{path}: video has no frame size")
     fps = 1.0 / timing["period_s"] if timing["period_s"] > 0 else rate
     return {
         "n_frames": timing["n_frames"],
         "n_frames_header": timing["n_frames_header"],
         "n_dropped": timing["n_dropped"],
         "fps": fps,
-        "width": width,
-        "height": height,
+        **size,
     }
 
 
@@ -207,7 +247,9 @@ def iter_video_gray(path, start=0, stop=None) -> Iterator[tuple[int, float, np.n
     Decoded with PyAV. Frame k is the k-th frame in presentation order; its time is its
     presentation timestamp (pts * time_base) from the stream's start, so variable frame rate
     and dropped frames show in the times, not in the indices. ``start`` > 0 seeks to the key
-    frame before it and decodes up to it: exact, whatever the codec.
+    frame before it and decodes up to it: exact, whatever the codec. A frame with a display
+    rotation (a phone held upright stores its frames on their side) is turned upright, as
+    players show it and as ``cv2.imread`` turns a still by its EXIF orientation.
 
     Parameters
     ----------
@@ -265,7 +307,7 @@ def iter_video_gray(path, start=0, stop=None) -> Iterator[tuple[int, float, np.n
                 origin = all_pts[0]
             elif t0 is not None:
                 origin = t0
-            yield index, float((frame.pts - origin) * tb), _gray(frame)
+            yield index, float((frame.pts - origin) * tb), _gray(frame, display_turns(frame.rotation, path))
             index += 1
     except av.error.FFmpegError as exc:
         log.warning("%s: decoding stopped at frame %s (%s)", path, index, exc)
@@ -283,15 +325,42 @@ _LIMITED_TO_FULL = np.clip(np.rint((np.arange(256) - 16.0) * 255.0 / 219.0), 0, 
 )
 
 
-def _gray(frame) -> np.ndarray:
-    """8-bit grey image (H, W) of a decoded PyAV frame (a copy: the decoder reuses buffers)."""
+def display_turns(rotation_deg, path="video") -> int:
+    """Quarter turns (counter-clockwise, ``np.rot90``'s k) that show a stored frame upright.
+
+    Parameters
+    ----------
+    rotation_deg : float
+        The stream's display rotation (PyAV ``VideoFrame.rotation``: the display matrix's
+        counter-clockwise angle, as FFmpeg and OpenCV's auto-orientation apply it).
+    path : str or Path
+        Named in the warning for an angle that is not a multiple of 90 degrees.
+
+    Returns
+    -------
+    int
+        0, 1, 2 or 3.
+    """
+    k = int(round(float(rotation_deg) / 90.0))
+    if abs(float(rotation_deg) - 90.0 * k) > 1.0:
+        log.warning("%s: display rotation %.1f deg is not a multiple of 90; frames are read as stored",
+                    path, rotation_deg)  # fmt: skip
+        return 0
+    return k % 4
+
+
+def _gray(frame, turns=0) -> np.ndarray:
+    """8-bit grey image (H, W) of a decoded PyAV frame (a copy: the decoder reuses buffers),
+    turned by ``turns`` quarter turns counter-clockwise."""
     name = frame.format.name
     if name not in _LUMA_FORMATS or name.endswith("10le"):
-        return np.ascontiguousarray(frame.to_ndarray(format="gray"))
-    plane = frame.planes[0]
-    y = np.frombuffer(plane, np.uint8).reshape(-1, plane.line_size)[: frame.height, : frame.width]
-    full = name.startswith("yuvj") or name == "gray" or getattr(frame, "color_range", 0) == 2
-    return np.array(y) if full else cv2.LUT(y, _LIMITED_TO_FULL)
+        y = frame.to_ndarray(format="gray")
+    else:
+        plane = frame.planes[0]
+        y = np.frombuffer(plane, np.uint8).reshape(-1, plane.line_size)[: frame.height, : frame.width]
+        full = name.startswith("yuvj") or name == "gray" or getattr(frame, "color_range", 0) == 2
+        y = np.array(y) if full else cv2.LUT(y, _LIMITED_TO_FULL)
+    return np.ascontiguousarray(np.rot90(y, turns) if turns else y)
 
 
 def _packet_pts(path) -> np.ndarray:

@@ -125,3 +125,80 @@ def test_bad_video_files_raise_input_error_naming_the_file(tmp_path, kind):
     for call in (video_info, video_timing, lambda p: list(iter_video_gray(p))):
         with pytest.raises(InputError, match="board.mp4"):
             call(path)
+
+
+def _write_rotated_mp4(path, frames, rotation_deg):
+    """H.264 mp4 of grey frames stored as given, with a display rotation (a phone held upright)."""
+    container = av.open(str(path), "w")
+    stream = container.add_stream("libx264", rate=30)
+    stream.height, stream.width = frames[0].shape
+    stream.pix_fmt = "yuv420p"
+    stream.set_display_rotation(rotation_deg)
+    for img in frames:
+        frame = av.VideoFrame.from_ndarray(cv2.cvtColor(img, cv2.COLOR_GRAY2BGR), format="bgr24")
+        for packet in stream.encode(frame.reformat(format="yuv420p")):
+            container.mux(packet)
+    for packet in stream.encode():
+        container.mux(packet)
+    container.close()
+
+
+@pytest.mark.parametrize("rotation_deg", [90, -90, 180])
+def test_display_rotation_is_applied_as_players_apply_it(tmp_path, rotation_deg):
+    """Frames stored on their side come out upright: as OpenCV's auto-orientation (FFmpeg's
+    rule) shows them, with video_size's width and height swapped for a quarter turn, and the
+    board's corners found in the upright frame where they are in the upright truth."""
+    from cvsflow.io.media import video_size
+
+    T = board_centre_pose([0.1, 0.05, 0.0], [-0.05, 0.02, 1.3])
+    img, truth = render_board(T, K, seed=1)
+    path = tmp_path / "phone.mp4"
+    _write_rotated_mp4(path, [img] * 3, rotation_deg)
+    size = video_size(path)
+    quarter = rotation_deg % 180 != 0
+    assert (size["width"], size["height"]) == ((480, 640) if quarter else (640, 480))
+    assert (size["stored_width"], size["stored_height"]) == (640, 480)
+    assert size["rotation_deg"] == rotation_deg % 360
+    assert video_info(path)["width"] == size["width"]
+    frames = list(iter_video_gray(path))
+    assert len(frames) == 3 and frames[0][2].shape == (size["height"], size["width"])
+    cap = cv2.VideoCapture(str(path))
+    ok, bgr = cap.read()
+    auto = cap.get(cv2.CAP_PROP_ORIENTATION_AUTO)
+    cap.release()
+    assert ok and auto == 1.0
+    reference = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    assert reference.shape == frames[0][2].shape
+    assert np.abs(reference.astype(int) - frames[0][2]).mean() < 2.0  # the same codec's pixels
+    # the stored frame turned by np.rot90's k = rotation / 90 is what is read
+    k = (rotation_deg // 90) % 4
+    stored = next(av.open(str(path)).decode(video=0)).to_ndarray(format="gray")
+    np.testing.assert_array_equal(frames[0][2], np.rot90(stored, k))
+    corners = extract_corners(iter(frames), BOARD, track=False)
+    found = corners[corners["found"]]
+    assert found["frame"].nunique() == 3
+    # truth turned the same way: a pixel (u, v) of the stored image after k quarter turns
+    h, w = img.shape
+    uv = truth.reshape(-1, 2)
+    for _ in range(k):
+        uv = np.column_stack([uv[:, 1], w - 1 - uv[:, 0]])
+        w, h = h, w
+    got = found[found["frame"] == 0].sort_values("corner")[["u_px", "v_px"]].to_numpy()
+    # the corner order may start at either end of the board; compare as sets of points
+    d = np.linalg.norm(got[:, None] - uv[None], axis=-1).min(axis=1)
+    assert np.median(d) < 0.2
+
+
+def test_image_size_check_names_a_quarter_turn_and_a_resolution_change():
+    from cvsflow.errors import ImageSizeError
+    from cvsflow.plausibility import check_image_size
+
+    camera = {"width": 1080, "height": 1920}
+    check_image_size(camera, 1080, 1920)
+    check_image_size({"K": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}, 640, 480)  # no size stated: nothing to check
+    with pytest.raises(ImageSizeError, match=r"phone.mp4: frames are 1920x1080 px.*cam.yaml.*1080x1920.*quarter"):
+        check_image_size(camera, 1920, 1080, "cam.yaml", "phone.mp4")
+    with pytest.raises(ImageSizeError, match=r"1280x720 px.*do not carry over between resolutions"):
+        check_image_size(camera, 1280, 720, "cam.yaml", "webcam.mp4")
+    with pytest.raises(ImageSizeError, match="display rotation 90 deg"):
+        check_image_size(camera, 1920, 1080, rotation_deg=90.0)

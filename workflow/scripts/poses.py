@@ -5,7 +5,8 @@ import numpy as np
 
 from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
-from cvsflow.plausibility import check_poses_found
+from cvsflow.io.media import video_size
+from cvsflow.plausibility import check_image_size, check_poses_found
 from cvsflow.plots import camera as plots
 from cvsflow.pose import estimate_poses
 
@@ -14,6 +15,9 @@ cv2.setNumThreads(snakemake.threads)
 
 with stage_logging(snakemake.log[0], "poses") as log:
     camera = read_yaml(snakemake.input.camera)
+    size = video_size(snakemake.params.video)
+    check_image_size(camera, size["width"], size["height"], snakemake.input.camera, snakemake.params.video,
+                     size["rotation_deg"])
     corners = read_parquet(snakemake.input.corners)
     poses = estimate_poses(
         corners,
