@@ -10,6 +10,7 @@ import runpy
 from pathlib import Path
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pandas as pd
 import pytest
@@ -196,12 +197,44 @@ def test_board_never_appears_stops_poses(tmp_path):
     cam = tmp_path / "camera.yaml"
     write_yaml({"K": K, "dist": [0.0] * 5}, cam)
     outs = {"poses": tmp_path / "poses_raw.parquet", "fig": tmp_path / "poses_raw.png"}
+    video = _black_video(tmp_path / "data" / "black" / "video.mp4")
     params = {"board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
               "pnp": {"ransac_reproj_px": 3.0, "ransac_iterations": 200, "ransac_confidence": 0.999, "seed": 0},
-              "video": "data/black/video.mp4"}
+              "video": str(video)}
     with pytest.raises(BoardNotSeenError, match=r"data/black/video\.mp4: 0 of 90 video frames have a board "
                        r"pose; the board was found in 0 of them \(.*corners\.parquet\)"):
-        run_stage("poses", tmp_path, {"corners": src, "camera": cam}, outs, params)
+        run_stage("poses", tmp_path, {"corners": src, "camera": cam, "video": video}, outs, params)
+    assert not any(p.exists() for p in outs.values())
+
+
+def _black_video(path, size=(640, 480), n=3):
+    path.parent.mkdir(parents=True, exist_ok=True)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30, size)
+    for _ in range(n):
+        writer.write(np.zeros((size[1], size[0], 3), np.uint8))
+    writer.release()
+    return path
+
+
+def test_video_of_another_size_than_the_calibration_stops_poses(tmp_path):
+    """Row 'a video at another size than the calibration stills': poses stops with
+    ImageSizeError naming the video, its size, camera.yaml and the stills' size; no output."""
+    from cvsflow.errors import ImageSizeError
+
+    corners = pd.DataFrame({"frame": np.arange(3), "t_s": np.arange(3) / 30.0, "found": False,
+                            "corner": -1, "u_px": np.nan, "v_px": np.nan})
+    src = tmp_path / "corners.parquet"
+    write_parquet(corners, src)
+    cam = tmp_path / "camera.yaml"
+    write_yaml({"K": K, "dist": [0.0] * 5, "width": 480, "height": 640}, cam)
+    video = _black_video(tmp_path / "video.mp4")
+    outs = {"poses": tmp_path / "poses_raw.parquet", "fig": tmp_path / "poses_raw.png"}
+    params = {"board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
+              "pnp": {"ransac_reproj_px": 3.0, "ransac_iterations": 200, "ransac_confidence": 0.999, "seed": 0},
+              "video": str(video)}
+    with pytest.raises(ImageSizeError, match=r"video\.mp4: frames are 640x480 px, but .*camera\.yaml was "
+                       r"calibrated on 480x640 px stills; the stills are the frames turned a quarter"):
+        run_stage("poses", tmp_path, {"corners": src, "camera": cam, "video": video}, outs, params)
     assert not any(p.exists() for p in outs.values())
 
 

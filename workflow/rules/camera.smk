@@ -61,6 +61,7 @@ rule poses:
     input:
         corners="results/{session}/corners.parquet",
         camera=camera_yaml,
+        video=video_path,  # its frame size is checked against the camera's
     output:
         poses="results/{session}/poses_raw.parquet",
         fig=report(

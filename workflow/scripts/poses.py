@@ -15,7 +15,7 @@ cv2.setNumThreads(snakemake.threads)
 
 with stage_logging(snakemake.log[0], "poses") as log:
     camera = read_yaml(snakemake.input.camera)
-    size = video_size(snakemake.params.video)
+    size = video_size(snakemake.input.video)
     check_image_size(camera, size["width"], size["height"], snakemake.input.camera, snakemake.params.video,
                      size["rotation_deg"])
     corners = read_parquet(snakemake.input.corners)
