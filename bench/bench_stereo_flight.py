@@ -14,7 +14,8 @@ cannot resolve (sigma > |error|) per axis. It prints:
 - the fused pose's calibration: NEES of Monte-Carlo solves (noisy corners, Gauss-Newton from
   the truth kicked by 1 cm / 5 cm in depth / 10 mrad) against the stated covariance, per distance bin (6 is right).
 
-    PYTHONPATH=. .venv/bin/python bench/bench_stereo_flight.py [--seed 1] [--mc-frames 300]
+    PYTHONPATH=. .venv/bin/python bench/bench_stereo_flight.py [--seed 1] [--mc-frames 300] [--design]
+                                                                 [--no-calibrated]
 
 The covariance is the corner noise's only (calibration and rig extrinsics exact), for the
 mono rig too, so the rigs compare like for like; the flight stage's own reference model adds
@@ -33,9 +34,14 @@ from cvsflow import flight as F
 from cvsflow.board import board_object_points
 from cvsflow.flight_synth import BOARD_DEFAULT, CAMERA_DEMO, observe_rig, render_flight, stereo_rig
 from cvsflow.geometry.transforms import R_from_rvec, invert_T
+from cvsflow.optimise.se3_model import K_from_intrinsics
 from cvsflow.stereo import board_pose_starts, fused_board_pose, fused_board_pose_best
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+#: --design: a 1080p camera and a board of twice the side (8 x 6 squares of 12.5 cm).
+FHD = {"fx_px": 1400.0, "fy_px": 1400.0, "cx_px": 959.5, "cy_px": 539.5, "dist": [0.0] * 5,
+       "width_px": 1920, "height_px": 1080}
+BOARD_LARGE = {"squares_x": 8, "squares_y": 6, "square_m": 0.125}
 BASELINES_M = (0.3, 1.0, 3.0)
 CROSS_M = 10.0
 DIST_BINS_M = (3.0, 5.0, 8.0, 12.0, 16.0, 20.5)
@@ -50,6 +56,8 @@ def main():
     ap.add_argument("--mc-frames", type=int, default=300)
     ap.add_argument("--iterations", type=int, default=10, help="Gauss-Newton steps of the Monte-Carlo solves")
     ap.add_argument("--no-calibrated", action="store_true", help="leave out the flights with a calibration error")
+    ap.add_argument("--design", action="store_true",
+                    help="also sweep camera (640x480 at 702 px, 1920x1080 at 1400 px) x board (0.5, 1.0 m) x rig")
     args = ap.parse_args()
     t0 = time.process_time()
     K = np.array([[CAMERA_DEMO["fx_px"], 0, CAMERA_DEMO["cx_px"]], [0, CAMERA_DEMO["fy_px"], CAMERA_DEMO["cy_px"]],
@@ -146,6 +154,25 @@ def main():
             ax = r.stats["axes"]
             print(f"{name:18s} " + " ".join(f"{100 * ax[a]['unresolved_fraction']:6.1f}" for a in AXES) + "   | "
                   + " ".join(f"{chk['z_rms'][a]:5.2f}" for a in AXES))
+    if args.design:
+        print("\nunresolved share % (x y z roll pitch yaw), corner noise only, by camera, board and rig:")
+        for cam_name, cam in (("640x480 702px", CAMERA_DEMO), ("1920x1080 1400px", FHD)):
+            for board_name, board in (("0.5 m", BOARD_DEFAULT), ("1.0 m", BOARD_LARGE)):
+                p_d = board_object_points(board)
+                for name, b in rigs.items():
+                    T_Ci_C0 = [np.eye(4)] if b is None else stereo_rig(b, CROSS_M)
+                    uv, seen = observe_rig(T_C0_B, T_Ci_C0, p_d, [cam] * len(T_Ci_C0))
+                    K_d = K_from_intrinsics(cam["fx_px"], cam["fy_px"], cam["cx_px"], cam["cy_px"])
+                    cams_d = [(K_d, np.asarray(cam["dist"], float))] * len(T_Ci_C0)
+                    _, Sigma, _ = fused_board_pose(uv, seen, p_d, cams_d, T_Ci_C0, T_C0_B, sigma_px=SIGMA_PX,
+                                                   n_iterations=0)  # fmt: skip
+                    lost = ~np.isfinite(Sigma[:, 0, 0])
+                    Sigma[lost] = np.diag([1e2] * 3 + [1.0] * 3)
+                    d = render_flight(seed=args.seed, duration_s=args.duration_s, Sigma_ref=Sigma)
+                    d.reference.loc[lost, ["pos_valid", "rot_valid"]] = False
+                    ax = F.evaluate_flight(d.reference, d.onboard, d.T_Q_B, d.Sigma_ref, clock=d.clock).stats["axes"]
+                    print(f"{cam_name:17s} {board_name:6s} {name:14s} "
+                          + " ".join(f"{100 * ax[a]['unresolved_fraction']:6.1f}" for a in AXES))
     print(f"\n{time.process_time() - t0:.1f} s CPU")
 
 
