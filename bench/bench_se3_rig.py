@@ -33,8 +33,7 @@ def nees(poses, truth):
     T_true = truth["T_C0_B_at"](poses["t_vicon_s"].to_numpy() - truth["cameras"][0]["dt_offset_s"])
     q = poses[["cvs_qx", "cvs_qy", "cvs_qz", "cvs_qw"]].to_numpy()
     T_est = tf.make_T(tf.R_from_quat(q), poses[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy())
-    d_r = tf.rvec_from_R(T_est[:, :3, :3] @ np.swapaxes(T_true[:, :3, :3], 1, 2)).reshape(-1, 3)
-    d = np.concatenate([T_est[:, :3, 3] - T_true[:, :3, 3], d_r], axis=1)
+    d = tf.pose_error_left(T_est, T_true)
     S = poses[[f"S{a}{b}" for a in range(6) for b in range(6)]].to_numpy().reshape(-1, 6, 6)
     return np.einsum("fi,fij,fj->f", d, np.linalg.inv(S), d)
 

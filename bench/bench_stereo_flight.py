@@ -28,12 +28,11 @@ import argparse
 import time
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from cvsflow import flight as F
 from cvsflow.board import board_object_points
 from cvsflow.flight_synth import BOARD_DEFAULT, CAMERA_DEMO, observe_rig, render_flight, stereo_rig
-from cvsflow.geometry.transforms import R_from_rvec, invert_T
+from cvsflow.geometry.transforms import R_from_rvec, invert_T, pose_error_left
 from cvsflow.optimise.se3_model import K_from_intrinsics
 from cvsflow.stereo import board_pose_starts, fused_board_pose, fused_board_pose_best
 
@@ -110,11 +109,9 @@ def main():
         starts = board_pose_starts(uv_n, seen_n, p_B, cams, T_Ci_C0)
         T_b, S_b, _ = fused_board_pose_best(uv_n, seen_n, p_B, cams, T_Ci_C0, starts, sigma_px=SIGMA_PX,
                                             n_iterations=args.iterations, flip_term=True)  # fmt: skip
-        R_b = np.einsum("fij,fkj->fik", T_b[:, :3, :3], T_C0_B[pick, :3, :3])
-        e_b = np.column_stack([T_b[:, :3, 3] - T_C0_B[pick, :3, 3], Rotation.from_matrix(R_b).as_rotvec()])
+        e_b = pose_error_left(T_b, T_C0_B[pick])
         nees_b = np.einsum("fi,fij,fj->f", e_b, np.linalg.inv(S_b), e_b)
-        R_err = np.einsum("fij,fkj->fik", T_hat[:, :3, :3], T_C0_B[pick, :3, :3])
-        e = np.column_stack([T_hat[:, :3, 3] - T_C0_B[pick, :3, 3], Rotation.from_matrix(R_err).as_rotvec()])
+        e = pose_error_left(T_hat, T_C0_B[pick])
         nees = np.einsum("fi,fij,fj->f", e, np.linalg.inv(S_hat), e)
         nb = bins[pick]
         nees_rows[name] = [float(np.mean(nees[nb == k])) if np.any(nb == k) else np.nan

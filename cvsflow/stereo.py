@@ -27,7 +27,7 @@ import pandas as pd
 from cvsflow.calibration import calibrate_camera
 from cvsflow.errors import CalibrationError, InputError
 from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points_jac
-from cvsflow.geometry.transforms import R_from_rvec, invert_T, make_T, rvec_from_R, skew
+from cvsflow.geometry.transforms import R_from_rvec, invert_T, make_T, pose_error_left, rvec_from_R, skew
 
 #: Columns of the per-camera corner tables (calibration's ``calib_corners``; ``image`` names the
 #: shared view: stills taken at the same instant carry the same name in every camera's table).
@@ -739,8 +739,7 @@ def fused_board_pose_best(uv_px, seen, p_B, cameras, T_Ci_C0, starts, sigma_px=N
         has = found & np.isfinite(alt_cost[alt, f])
         if has.any():
             T_alt = T_all[alt[has], f[has]]
-            d_r = rvec_from_R(np.einsum("fij,fkj->fik", R_best[has], T_alt[:, :3, :3])).reshape(-1, 3)
-            d = np.concatenate([T_best[has, :3, 3] - T_alt[:, :3, 3], d_r], axis=1)
+            d = pose_error_left(T_best[has], T_alt)
             dc = (alt_cost[alt[has], f[has]] - cost[best[has], f[has]]) / var[has]
             w = 1.0 / (1.0 + np.exp(np.clip(dc / 2.0, -50.0, 50.0)))
             Sigma_best[has] += w[:, None, None] * d[:, :, None] * d[:, None, :]

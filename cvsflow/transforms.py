@@ -19,6 +19,7 @@ from cvsflow.geometry.transforms import (  # noqa: F401  (re-exported)
     mean_rotation,
     pose6_from_T,
     pose_difference,
+    pose_error_left,
     quat_from_R,
     rotation_angle,
     rvec_from_R,

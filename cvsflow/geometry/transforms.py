@@ -418,3 +418,26 @@ def pose_difference(T_ref, T_est):
         T_ref^-1 T_est: identity for a perfect estimate; translation in the reference's B.
     """
     return invert_T(T_ref) @ np.asarray(T_est, dtype=float)
+
+
+def pose_error_left(T_est, T_ref):
+    """Error of poses as ``[dt, dtheta]`` with the rotation perturbed on the left.
+
+    ``T_est = (exp([dtheta]x) R_ref, t_ref + dt)``: the convention of the fused board pose's
+    and the flight reference's covariances (``cvsflow.stereo.fused_board_pose``), in the
+    poses' own frame A of ``T_A_B``.
+
+    Parameters
+    ----------
+    T_est, T_ref : array_like, shape (..., 4, 4)
+        Estimated and reference transforms T_A_B, metres.
+
+    Returns
+    -------
+    ndarray, shape (..., 6)
+        ``t_est - t_ref`` (m), then ``log(R_est R_ref^T)`` (rad), both in A.
+    """
+    T_est, T_ref = np.asarray(T_est, dtype=float), np.asarray(T_ref, dtype=float)
+    R = T_est[..., :3, :3] @ np.swapaxes(T_ref[..., :3, :3], -1, -2)
+    d_r = rvec_from_R(R.reshape(-1, 3, 3)).reshape(R.shape[:-2] + (3,))
+    return np.concatenate([T_est[..., :3, 3] - T_ref[..., :3, 3], d_r], axis=-1)

@@ -129,9 +129,7 @@ def test_rig_fused_pose_against_truth(fitted, rig):
     T_true = rig["truth"]["T_C0_B_at"](e["t_vicon_s"].to_numpy() - dt0)
     q = e[["cvs_qx", "cvs_qy", "cvs_qz", "cvs_qw"]].to_numpy()
     T_est = tf.make_T(tf.R_from_quat(q), e[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy())
-    d_t = T_est[:, :3, 3] - T_true[:, :3, 3]
-    d_r = tf.rvec_from_R(T_est[:, :3, :3] @ np.swapaxes(T_true[:, :3, :3], 1, 2)).reshape(-1, 3)
-    d = np.concatenate([d_t, d_r], axis=1)
+    d = tf.pose_error_left(T_est, T_true)
     S = e[[f"S{a}{b}" for a in range(6) for b in range(6)]].to_numpy().reshape(-1, 6, 6)
     nees = np.einsum("fi,fij,fj->f", d, np.linalg.inv(S), d)
     two = e["n_cameras"].to_numpy() == 2
@@ -169,8 +167,7 @@ def test_rig_fused_calibration_covariance_monte_carlo(fitted, rig):
     for v in rng.multivariate_normal(values, cov, size=100):
         cameras, T_Ci_C0 = rig_geometry(res, names, v)
         T = fused_board_pose(uv, seen, p_B, cameras, T_Ci_C0, T0)[0]
-        dr = tf.rvec_from_R(T[:, :3, :3] @ np.swapaxes(T0[:, :3, :3], 1, 2)).reshape(-1, 3)
-        d.append(np.concatenate([T[:, :3, 3] - T0[:, :3, 3], dr], axis=1))
+        d.append(tf.pose_error_left(T, T0))
     d = np.array(d)
     # per frame and axis, the sampled spread over the propagated one (camera 0's frames alone
     # have a singular S_cal: four intrinsics move six pose components)
@@ -247,8 +244,7 @@ def _fused_nees(poses, truth):
     T_true = truth["T_C0_B_at"](poses["t_vicon_s"].to_numpy() - dt0)
     q = poses[["cvs_qx", "cvs_qy", "cvs_qz", "cvs_qw"]].to_numpy()
     T_est = tf.make_T(tf.R_from_quat(q), poses[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy())
-    d_r = tf.rvec_from_R(T_est[:, :3, :3] @ np.swapaxes(T_true[:, :3, :3], 1, 2)).reshape(-1, 3)
-    d = np.concatenate([T_est[:, :3, 3] - T_true[:, :3, 3], d_r], axis=1)
+    d = tf.pose_error_left(T_est, T_true)
     S = poses[[f"S{a}{b}" for a in range(6) for b in range(6)]].to_numpy().reshape(-1, 6, 6)
     return np.einsum("fi,fij,fj->f", d, np.linalg.inv(S), d)
 

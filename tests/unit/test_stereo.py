@@ -12,7 +12,7 @@ import yaml
 from cvsflow.board import board_object_points
 from cvsflow.errors import CalibrationError, InputError
 from cvsflow.geometry.camera import project_points
-from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T, rvec_from_R
+from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T, pose_error_left, rvec_from_R
 from cvsflow.stereo import calibrate_rig, fused_board_pose, rig_calibration_covariance, stereo_extrinsics
 from cvsflow.synth.stereo import render_shared_stills
 
@@ -203,8 +203,7 @@ def test_fused_board_pose_errors_match_its_covariance():
     uv, seen, p_B = _rig_views(T_true, rig, rng)
     cams = [(np.array(c["K"]), np.array(c["dist"])) for c, _ in rig]
     T_hat, Sigma, _ = fused_board_pose(uv, seen, p_B, cams, [T for _, T in rig], T_true, sigma_px=0.3)
-    e = np.column_stack([T_hat[:, :3, 3] - T_true[:, :3, 3],
-                         [rvec_from_R(a @ b.T) for a, b in zip(T_hat[:, :3, :3], T_true[:, :3, :3], strict=True)]])
+    e = pose_error_left(T_hat, T_true)
     nees = np.einsum("fi,fij,fj->f", e, np.linalg.inv(Sigma), e)
     # 400 draws of chi-square(6): mean 6 +- 0.17 (1 sigma)
     assert 5.4 < nees.mean() < 6.6, nees.mean()
@@ -259,8 +258,7 @@ def test_rig_calibration_covariance_matches_resolves_at_sampled_calibrations():
         T1[:3, :3] = cv2.Rodrigues(e[:3])[0] @ T1[:3, :3]
         T1[:3, 3] += e[3:]
         T = fused_board_pose(uv, seen, p_B, cams_s, [np.eye(4), T1], T_hat, sigma_px=0.3)[0]
-        dr = [rvec_from_R(a @ b.T) for a, b in zip(T[:, :3, :3], T_hat[:, :3, :3], strict=True)]
-        d.append(np.column_stack([T[:, :3, 3] - T_hat[:, :3, 3], dr]))
+        d.append(pose_error_left(T, T_hat))
     sd = np.sqrt(np.diagonal(S, axis1=1, axis2=2))
     ratio = np.sqrt(np.mean(np.array(d) ** 2, axis=0)) / sd
     # 150 draws: the ratio's own spread is about 6 %. Components the calibration barely
@@ -325,7 +323,7 @@ def test_fused_board_pose_best_escapes_the_mirrored_start():
     assert starts.shape == (4, 8, 4, 4)
 
     def tilt_err(T):
-        return np.degrees([np.linalg.norm(rvec_from_R(a[:3, :3] @ b[:3, :3].T)) for a, b in zip(T, T_true, strict=True)])
+        return np.degrees(np.linalg.norm(pose_error_left(T, T_true)[:, 3:], axis=1))
 
     # the mirrored candidate of camera 0: the one farther from the truth
     far = np.where(tilt_err(starts[0]) > tilt_err(starts[1]), 0, 1)

@@ -204,3 +204,14 @@ def test_R_from_rvec_accepts_read_only_arrays():
     rvec = np.array([0.1, 0.2, 0.3])
     rvec.setflags(write=False)
     np.testing.assert_allclose(tf.R_from_rvec(rvec), tf.R_from_rvec(rvec.copy()), atol=0)
+
+
+def test_pose_error_left_inverts_a_left_perturbation():
+    rng = np.random.default_rng(8)
+    R = tf.R_from_rvec(rng.normal(size=(5, 3)))
+    T_ref = tf.make_T(R, rng.normal(size=(5, 3)))
+    w, dt = 0.05 * rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    T_est = tf.make_T(tf.R_from_rvec(w) @ R, T_ref[:, :3, 3] + dt)
+    np.testing.assert_allclose(tf.pose_error_left(T_est, T_ref), np.concatenate([dt, w], axis=1), atol=1e-12)
+    assert tf.pose_error_left(T_est[0], T_ref[0]).shape == (6,)
+    np.testing.assert_allclose(tf.pose_error_left(T_ref, T_ref), 0.0, atol=1e-15)
