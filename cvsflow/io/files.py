@@ -297,6 +297,32 @@ def read_parquet(path, columns=None) -> pd.DataFrame:
     return pd.read_parquet(path, columns=columns)
 
 
+def read_csv_table(path, columns=()) -> pd.DataFrame:
+    """Read a CSV table with a header; a missing file or column is an InputError naming it.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file.
+    columns : sequence of str
+        Columns the caller needs.
+
+    Returns
+    -------
+    DataFrame
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    table = pd.read_csv(path)
+    missing = [c for c in columns if c not in table.columns]
+    if missing:
+        raise InputError(f"{path}: missing columns {missing}")
+    if table.empty:
+        raise InputError(f"{path}: no rows")
+    return table
+
+
 def save_figure(fig, path, dpi: int = 120) -> None:
     """Save a matplotlib Figure atomically and release its memory.
 
