@@ -12,13 +12,12 @@ beside wall seconds: on a shared machine they are the steadier number.
 
 ``--imports`` times, in fresh interpreters (best of 3), the import lines of every script in
 workflow/scripts/ and of the heavy libraries they pull in: the fixed cost each job pays
-before it reads its first input.
+before it reads its first input (bench/bench_startup.py, which also runs on its own).
 """
 
 from __future__ import annotations
 
 import argparse
-import re
 import shutil
 import subprocess
 import sys
@@ -42,7 +41,9 @@ def main() -> None:
                         help="only time each workflow script's imports")
     args = parser.parse_args()
     if args.imports:
-        import_times()
+        from bench_startup import import_times  # beside this script
+
+        import_times(REPO)
         return
 
     config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
@@ -80,29 +81,6 @@ def main() -> None:
         print(f"working directory kept: {work}")
     else:
         shutil.rmtree(work)
-
-
-def import_times() -> None:
-    """Print the CPU and wall seconds of each workflow script's imports (fresh interpreter)."""
-    cases = [("python (bare)", "pass"), ("numpy", "import numpy"), ("pandas", "import pandas"),
-             ("scipy", "import scipy.optimize, scipy.spatial.transform"), ("cv2", "import cv2"),
-             ("matplotlib.pyplot", "import matplotlib.pyplot"),
-             ("snakemake.script", "import snakemake.script")]
-    for script in sorted((REPO / "workflow" / "scripts").glob("*.py")):
-        lines = [ln for ln in script.read_text().splitlines() if re.match(r"(import|from) \S", ln)]
-        cases.append((f"scripts/{script.name}", "\n".join(lines)))
-    print(f"{'imports of':28s} {'cpu_s':>6s} {'wall_s':>6s}")
-    for name, code in cases:
-        best_wall = best_cpu = float("inf")
-        for _ in range(3):
-            t0 = time.perf_counter()
-            proc = subprocess.run([sys.executable, "-c", f"{code}\nimport time\nprint(time.process_time())"],
-                                  capture_output=True, text=True, cwd=REPO)
-            if proc.returncode != 0:
-                sys.exit(f"{name}: import failed:\n{proc.stderr[-2000:]}")
-            best_wall = min(best_wall, time.perf_counter() - t0)
-            best_cpu = min(best_cpu, float(proc.stdout.split()[-1]))
-        print(f"{name:28s} {best_cpu:6.2f} {best_wall:6.2f}", flush=True)
 
 
 def run(workdir: Path, cores: int, *targets: str) -> None:

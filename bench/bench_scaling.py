@@ -37,7 +37,7 @@ from pathlib import Path
 import pandas as pd
 import yaml
 
-from cvsflow.plots.timing import stage_exponents
+from cvsflow.plots.timing import prefer_whole_runs, stage_exponents
 
 REPO = Path(__file__).resolve().parents[1]
 SIZES = {480: (640, 480), 720: (1280, 720), 1080: (1920, 1080)}
@@ -151,21 +151,6 @@ def write_table_hashes(results: Path, out: Path) -> None:
              for p in sorted(results.rglob("*")) if p.is_file() and p.suffix in TABLE_SUFFIXES]
     out.write_text("\n".join(lines) + "\n")
     print(f"sha256 of {len(lines)} tables: {out}", flush=True)
-
-
-def prefer_whole_runs(table: pd.DataFrame) -> pd.DataFrame:
-    """One stage set per stage: the one run at the most lengths, a whole run's on a tie.
-
-    A stage measured both in whole runs and in front-only runs keeps the rows of one kind
-    only, so that its lengths come from runs made alike (the exponent compares them).
-    """
-    if "stages" not in table:
-        return table
-    counts = table.groupby(["stage", "stages"])["duration_s"].nunique().reset_index()
-    counts["whole"] = counts["stages"] == "all"
-    best = counts.sort_values(["duration_s", "whole"], ascending=False).drop_duplicates("stage")
-    keep = table.set_index(["stage", "stages"]).index.isin(best.set_index(["stage", "stages"]).index)
-    return table[keep]
 
 
 def print_tables(raw: pd.DataFrame) -> None:

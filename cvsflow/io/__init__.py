@@ -2,6 +2,7 @@
 
 from cvsflow.io.files import (
     atomic_output,
+    read_csv_table,
     read_parquet,
     read_yaml,
     save_figure,
@@ -9,4 +10,5 @@ from cvsflow.io.files import (
     write_yaml,
 )
 
-__all__ = ["atomic_output", "read_parquet", "read_yaml", "save_figure", "write_parquet", "write_yaml"]
+__all__ = ["atomic_output", "read_csv_table", "read_parquet", "read_yaml", "save_figure", "write_parquet",
+           "write_yaml"]

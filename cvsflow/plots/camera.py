@@ -59,7 +59,9 @@ def plot_calibration_coverage(calib_corners: pd.DataFrame, camera: dict) -> Figu
         Scatter over the image frame (pixels, v down), one colour per still.
     """
     w, h = camera["width"], camera["height"]
-    fig, ax = plt.subplots(figsize=(7.0, 7.0 * h / w + 0.8), layout="constrained")
+    # the axes get ~5.3 in of the width beside the legend and equal aspect sets their height;
+    # a figure too short for that would let constrained layout clip the labels
+    fig, ax = plt.subplots(figsize=(7.0, 5.6 * h / w + 1.0), layout="constrained")
     cmap = plt.get_cmap("tab20")
     for i, (name, block) in enumerate(calib_corners.groupby("image", sort=True)):
         ax.scatter(block["u_px"], block["v_px"], s=8, color=cmap(i % 20), label=name)

@@ -13,6 +13,34 @@ from matplotlib.ticker import NullFormatter
 
 #: Stages drawn at most, the costliest first (the rest are summed into "other stages").
 MAX_STAGES = 10
+#: Columns of bench/bench_scaling.py's table that the figure reads.
+BENCHMARK_COLUMNS = ("duration_s", "width_px", "height_px", "stage", "s", "cpu_s", "max_rss_MB")
+
+
+def prefer_whole_runs(table):
+    """One stage set per stage: the one run at the most lengths, a whole run's on a tie.
+
+    A stage measured both in whole runs (``stages == "all"``) and in front-only runs keeps
+    the rows of one kind only, so that its lengths come from runs made alike (the exponent
+    compares them).
+
+    Parameters
+    ----------
+    table : pandas.DataFrame
+        bench/bench_scaling.py's CSV; without a ``stages`` column it is returned as it is.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The rows kept, in their order.
+    """
+    if "stages" not in table:
+        return table
+    counts = table.groupby(["stage", "stages"])["duration_s"].nunique().reset_index()
+    counts["whole"] = counts["stages"] == "all"
+    best = counts.sort_values(["duration_s", "whole"], ascending=False).drop_duplicates("stage")
+    keep = table.set_index(["stage", "stages"]).index.isin(best.set_index(["stage", "stages"]).index)
+    return table[keep]
 
 
 def plot_stage_scaling(table, height_px=480):

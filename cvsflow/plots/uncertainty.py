@@ -10,7 +10,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
-from scipy.stats import chi2
+
+from cvsflow.uncertainty.scoring import chi2_pdf, chi2_quantile
 
 DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
@@ -94,13 +95,13 @@ def plot_nees_histogram(errors: pd.DataFrame) -> Figure:
     nees = errors["nees"].to_numpy(float)
     fig, (ax, ax2) = plt.subplots(1, 2, figsize=(11, 4), layout="constrained",
                                   gridspec_kw={"width_ratios": [2, 1]})
-    top = max(float(np.nanpercentile(nees, 99)), chi2.ppf(0.99, 6))
+    top = max(float(np.nanpercentile(nees, 99)), chi2_quantile(0.99, 6))
     bins = np.linspace(0.0, top, 40)
     ax.hist(np.clip(nees, 0, top), bins=bins, density=True, alpha=0.7,
             label=f"held-out frames (mean {np.nanmean(nees):.2f}, median {np.nanmedian(nees):.2f})")
     x = np.linspace(0.0, top, 200)
-    ax.plot(x, chi2.pdf(x, 6), "k-", label="chi-square(6) (mean 6, median 5.35)")
-    ax.axvline(chi2.ppf(0.95, 6), color="grey", ls=":", label="chi-square(6) 95 %")
+    ax.plot(x, chi2_pdf(x, 6), "k-", label="chi-square(6) (mean 6, median 5.35)")
+    ax.axvline(chi2_quantile(0.95, 6), color="grey", ls=":", label="chi-square(6) 95 %")
     ax.set_xlabel("NEES  e^T Sigma^-1 e  (last bin: everything above)")
     ax.set_ylabel("density")
     ax.legend(fontsize=8)

@@ -31,7 +31,6 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import minimize
 from scipy.special import gammaln
-from scipy.stats import chi2
 
 from cvsflow import transforms as tf
 from cvsflow.errors import OptimiseError
@@ -44,7 +43,7 @@ from cvsflow.uncertainty.propagation import (
     pnp_covariance,
     propagated_pose_covariance,
 )
-from cvsflow.uncertainty.scoring import band_multipliers
+from cvsflow.uncertainty.scoring import band_multipliers, chi2_quantile
 
 #: Pose features of the error model (standardised on the training data).
 FEATURES = ("log_distance", "tilt_rad", "radius_norm")
@@ -380,5 +379,5 @@ def score_error_model(model, features, errors, cov_err=None):
     r = E - mu
     nees = np.einsum("ni,ni->n", r, np.linalg.solve(cov, r[:, :, None])[:, :, 0])
     out["nees_mean"] = float(nees.mean())
-    out["nees_inside_95"] = float(np.mean(nees <= chi2.ppf(0.95, 6)))
+    out["nees_inside_95"] = float(np.mean(nees <= chi2_quantile(0.95, 6)))
     return out

@@ -8,8 +8,7 @@ Student-t); :func:`score_covariance` the share of errors inside them and the mea
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2
-from scipy.stats import t as student_t
+from scipy.special import gammaincinv, gammaln, stdtrit, xlogy
 
 from cvsflow.metrics import ERROR_DIMS
 
@@ -17,6 +16,70 @@ from cvsflow.metrics import ERROR_DIMS
 BANDS = {"68": 1.0, "95": 1.959963984540054}
 #: Working units of the fits and scores (mm, mrad): keeps the 6x6 covariances well conditioned.
 WORKING_UNITS = np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3])
+
+
+def chi2_quantile(p, df):
+    """Chi-square quantile: ``scipy.stats.chi2.ppf(p, df)``, bit for bit, without scipy.stats.
+
+    ``chi2.ppf`` is ``2 * scipy.special.gammaincinv(df / 2, p)``; calling it directly spares a
+    job the import of scipy.stats (about 0.3 s of CPU per job).
+
+    Parameters
+    ----------
+    p : float or ndarray
+        Probability, in [0, 1].
+    df : float or ndarray
+        Degrees of freedom (> 0).
+
+    Returns
+    -------
+    float or ndarray
+        The value x with P(X <= x) = p for X chi-square with ``df`` degrees of freedom.
+    """
+    return 2.0 * gammaincinv(np.asarray(df) / 2, p)
+
+
+def chi2_pdf(x, df):
+    """Chi-square density at ``x`` (``scipy.stats.chi2.pdf`` to rounding), without scipy.stats.
+
+    Parameters
+    ----------
+    x : float or ndarray
+        Points (>= 0).
+    df : float
+        Degrees of freedom (> 0).
+
+    Returns
+    -------
+    float or ndarray
+        x^(df/2 - 1) exp(-x/2) / (2^(df/2) Gamma(df/2)); 0 for x < 0.
+    """
+    x = np.asarray(x, float)
+    k = df / 2.0
+    inside = x >= 0
+    xs = np.where(inside, x, 1.0)
+    log_f = xlogy(k - 1.0, xs) - xs / 2.0 - k * np.log(2.0) - gammaln(k)
+    return np.where(inside, np.exp(log_f), 0.0)
+
+
+def student_t_quantile(p, nu):
+    """Student-t quantile: ``scipy.stats.t.ppf(p, nu)``, bit for bit, without scipy.stats.
+
+    ``t.ppf`` is ``scipy.special.stdtrit(nu, p)``.
+
+    Parameters
+    ----------
+    p : float or ndarray
+        Probability, in [0, 1].
+    nu : float or ndarray
+        Degrees of freedom (> 0).
+
+    Returns
+    -------
+    float or ndarray
+        The value x with P(T <= x) = p for T Student-t with ``nu`` degrees of freedom.
+    """
+    return stdtrit(nu, p)
 
 
 def band_multipliers(model):
@@ -42,8 +105,8 @@ def band_multipliers(model):
     if nu is None or not np.isfinite(nu):
         return dict(BANDS)
     sd = np.sqrt(nu / (nu - 2.0))
-    return {"68": float(student_t.ppf(0.5 + 0.6826894921370859 / 2, nu) / sd),
-            "95": float(student_t.ppf(0.975, nu) / sd)}
+    return {"68": float(student_t_quantile(0.5 + 0.6826894921370859 / 2, nu) / sd),
+            "95": float(student_t_quantile(0.975, nu) / sd)}
 
 
 def score_covariance(cov, errors, nu=None, mean=None):
@@ -81,7 +144,7 @@ def score_covariance(cov, errors, nu=None, mean=None):
     r = E / WORKING_UNITS
     nees = np.einsum("ni,ni->n", r, np.linalg.solve(S, r[:, :, None])[:, :, 0])
     out["nees_mean"] = float(nees.mean())
-    out["nees_inside_95"] = float(np.mean(nees <= chi2.ppf(0.95, 6)))
+    out["nees_inside_95"] = float(np.mean(nees <= chi2_quantile(0.95, 6)))
     return out
 
 
@@ -285,7 +348,7 @@ def score_time_correlated(cov, errors, rho, runs, nu=None, mean=None, block_fram
     R = cov / (sd[:, :, None] * sd[:, None, :])
     nees = np.einsum("ni,ni->n", w, np.linalg.solve(R, w[:, :, None])[:, :, 0])
     out["nees_mean"] = float(nees.mean())
-    out["nees_inside_95"] = float(np.mean(nees <= chi2.ppf(0.95, 6)))
+    out["nees_inside_95"] = float(np.mean(nees <= chi2_quantile(0.95, 6)))
     means = []
     for r in np.unique(runs):
         zr = z[runs == r]

@@ -49,3 +49,21 @@ def test_plot_has_a_line_per_stage_and_the_fitted_exponent():
 def test_plot_without_cases_at_the_height_says_so():
     with pytest.raises(ValueError, match="1080"):
         plot_stage_scaling(_table(), height_px=1080)
+
+
+def test_prefer_whole_runs_keeps_one_stage_set_per_stage():
+    """A stage measured in whole runs at two lengths and front-only runs at three keeps the
+    front-only rows (more lengths); on a tie the whole runs win; a table without ``stages``
+    is returned as it is."""
+    from cvsflow.plots.timing import prefer_whole_runs
+
+    t = _table().assign(stages="all")
+    front = t[t["stage"] == "corners"].assign(stages="front")
+    mixed = pd.concat([t[(t["stage"] != "corners") | (t["duration_s"] < 300)], front])
+    kept = prefer_whole_runs(mixed)
+    assert set(kept.loc[kept["stage"] == "corners", "stages"]) == {"front"}
+    assert set(kept.loc[kept["stage"] == "se3", "stages"]) == {"all"}
+    tie = prefer_whole_runs(pd.concat([t, front]))
+    assert set(tie.loc[tie["stage"] == "corners", "stages"]) == {"all"}
+    assert len(tie) == len(t)
+    assert prefer_whole_runs(_table()).equals(_table())

@@ -584,3 +584,21 @@ def test_transfer_model_fits_the_correlated_corner_term():
     assert "s_corr" not in un.fit_transfer_model(plain.iloc[:300], E.iloc[:300])
     with pytest.raises(OptimiseError, match="corrcov"):
         un.transfer_covariance(m, plain)
+
+
+def test_quantiles_without_scipy_stats_equal_scipy_stats_bit_for_bit():
+    """chi2_quantile / student_t_quantile are chi2.ppf / t.ppf exactly (the demo's tables rely on
+    it); chi2_pdf is chi2.pdf to rounding."""
+    from scipy import stats
+
+    from cvsflow.uncertainty.scoring import chi2_pdf, chi2_quantile, student_t_quantile
+
+    p = np.r_[1e-6, np.linspace(0.001, 0.999, 97), 0.6826894921370859 / 2 + 0.5, 0.95, 0.975, 0.99]
+    for df in (1, 2, 3, 6, 6.0, 9.5, 30):
+        assert np.array_equal(chi2_quantile(p, df), stats.chi2.ppf(p, df))
+        assert chi2_quantile(0.95, df) == stats.chi2.ppf(0.95, df)
+    for nu in (2.05, 2.5, 3.0, 4.7, 13.44, 50.0, 1e3):
+        assert np.array_equal(student_t_quantile(p, nu), stats.t.ppf(p, nu))
+        assert student_t_quantile(0.975, nu) == stats.t.ppf(0.975, nu)
+    x = np.linspace(-1.0, 40.0, 401)
+    np.testing.assert_allclose(chi2_pdf(x, 6), stats.chi2.pdf(x, 6), rtol=1e-12, atol=1e-300)

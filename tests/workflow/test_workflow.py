@@ -410,3 +410,19 @@ def test_init_on_the_rendered_recording_gives_a_config_the_workflow_accepts(demo
     proc = snakemake(demo_run, "-n", "results/again/comparison.yaml", "--configfile", str(out))
     assert "calibrate" in jobs_in(proc.stdout + proc.stderr)
     out.unlink()
+
+
+def test_stage_scaling_figure_only_when_its_benchmark_exists(tmp_path):
+    """analyse.scaling_benchmark names bench/bench_scaling.py's table: absent, the DAG has no
+    stage_scaling job (and no error); present, the rule draws the report's figure from it."""
+    config = demo_config()
+    config["analyse"]["scaling_benchmark"] = "bench/scaling.csv"
+    write_config(tmp_path, config)
+    assert "stage_scaling" not in dry_run_jobs(tmp_path)
+    (tmp_path / "bench").mkdir()
+    (tmp_path / "bench" / "scaling.csv").write_text(
+        (REPO / "docs" / "benchmarks" / "scaling.csv").read_text())
+    assert "stage_scaling" in dry_run_jobs(tmp_path)
+    snakemake(tmp_path, "results/figures/stage_scaling.png")
+    assert (tmp_path / "results/figures/stage_scaling.png").stat().st_size > 10_000
+    assert "stage stage_scaling done" in (tmp_path / "logs/stage_scaling.log").read_text()

@@ -108,6 +108,10 @@ def all_targets():
         targets.append("results/summary.csv")
     # The report's landing page shows this table (workflow/report/workflow.rst).
     targets.append("results/headline.csv")
+    # bench/bench_scaling.py's table, drawn when the config names one that exists
+    scaling = config["analyse"].get("scaling_benchmark")
+    if scaling and os.path.isfile(scaling):
+        targets.append("results/figures/stage_scaling.png")
     return targets + flight_targets()
 
 

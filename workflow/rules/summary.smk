@@ -37,6 +37,29 @@ rule summary:
         "../scripts/summary.py"
 
 
+rule stage_scaling:
+    input:
+        table=config["analyse"].get("scaling_benchmark") or [],
+    output:
+        fig=report(
+            "results/figures/stage_scaling.png",
+            caption="../report/stage_scaling.rst",
+            category="Summary",
+            subcategory="pipeline cost",
+            labels={"figure": "time per stage against session length"},
+        ),
+    log:
+        "logs/stage_scaling.log",
+    benchmark:
+        "benchmarks/stage_scaling.tsv"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    script:
+        "../scripts/stage_scaling.py"
+
+
 def headline_inputs(wildcards):
     """Per session the files the headline table reads (only those its stages write)."""
     files = {}

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from cvsflow.analyse import summary_row
 from cvsflow.io import atomic_output, read_parquet, read_yaml, save_figure
 from cvsflow.io.logs import stage_logging
 from cvsflow.plots import summary as plots
+from cvsflow.summary import summary_row
 
 with stage_logging(snakemake.log[0], "summary") as log:
     inp = dict(snakemake.input.items())
