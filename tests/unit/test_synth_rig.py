@@ -13,9 +13,11 @@ import pandas as pd
 import pytest
 import yaml
 
+from cvsflow.calibration import view_corners
 from cvsflow.errors import ConfigError
 from cvsflow.io.vicon import read_nexus_csv
 from cvsflow.sessions import check_sessions, expand_rig_sessions
+from cvsflow.stereo import stereo_extrinsics
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.motion import CameraView, board_poses
 from cvsflow.synth.render import render_rig_camera, render_rig_mocap
@@ -146,20 +148,25 @@ def test_rendered_frames_show_the_board_where_the_rig_truth_puts_it(rendered, tr
 
 
 def test_shared_views_are_seen_whole_by_both_cameras_where_the_truth_says(rendered, truth):
-    """OpenCV finds the board in each camera's shared still within 0.5 px of the true corners."""
+    """view_corners finds the whole board in each camera's shared stills within 0.5 px of the
+    true corners, in board order; stereo_extrinsics on them finds the rendered baseline."""
     T_C0_B = shared_views(truth)
+    tables, cameras = [], []
     for i, cam in enumerate(("left", "right")):
         spec = truth.specs[i]
-        gray = cv2.imread(str(rendered["dir"] / cam / "shared" / "shared_000.png"), cv2.IMREAD_GRAYSCALE)
-        nx, ny = spec.board.nx, spec.board.ny
-        ok, found = cv2.findChessboardCorners(gray, (nx, ny))
-        assert ok, cam
-        found = cv2.cornerSubPix(gray, found, (5, 5), (-1, -1),
-                                 (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3))[:, 0]
-        uv = project_points(truth.T_C_C0(i) @ T_C0_B[0], spec.board.corners_B(), spec.K, spec.dist)
-        if np.linalg.norm(found[0] - uv[0]) > np.linalg.norm(found[0] - uv[-1]):
-            found = found[::-1]  # OpenCV may order the grid from the other end
-        assert np.max(np.linalg.norm(found - uv, axis=1)) < 0.5, cam
+        paths = sorted((rendered["dir"] / cam / "shared").glob("*.png"))
+        table = view_corners([(p.name, cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)) for p in paths],
+                             spec.board.config(), subpix_window_px=5)
+        assert sorted(table["image"].unique()) == [p.name for p in paths]
+        for v, (_, g) in enumerate(table.groupby("image")):
+            uv = project_points(truth.T_C_C0(i) @ T_C0_B[v], spec.board.corners_B(), spec.K, spec.dist)
+            assert np.max(np.linalg.norm(g[["u_px", "v_px"]].to_numpy() - uv, axis=1)) < 0.5, (cam, v)
+        tables.append(table)
+        cameras.append({"K": spec.K.tolist(), "dist": spec.dist.tolist()})
+    rig = stereo_extrinsics(tables, cameras)
+    T = np.asarray(rig["cameras"][0]["T_Ci_C0"])
+    assert np.linalg.norm(T[:3, 3] - truth.T_C_C0(1)[:3, 3]) < 0.01
+    assert rotation_angle(T[:3, :3] @ truth.T_C_C0(1)[:3, :3].T) < 0.005
 
 
 def test_a_rig_camera_with_the_realistic_renderer_is_refused():
