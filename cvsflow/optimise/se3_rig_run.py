@@ -15,6 +15,9 @@ from cvsflow.errors import OptimiseError
 
 #: Options of the config's ``rig`` block passed on to ``optimise_se3_rig``.
 RIG_FIT_OPTIONS = ("free", "fit_dt", "loss", "f_scale_px", "match_tol_s", "fused_calibration_cov")
+#: Intrinsics a rig fit estimates when the config does not say: the mono se3 default of
+#: config.yaml (cx, cy trade off with the mounting's rotation and stay at the calibration).
+RIG_DEFAULT_FREE = ("fx", "fy", "k1", "k2", "p1", "p2")
 
 
 def rig_camera_entries(corners, cameras, dt_offsets_s):
@@ -60,11 +63,11 @@ def rig_fit_options(rig_cfg):
     Returns
     -------
     options : dict
-        The keys of ``RIG_FIT_OPTIONS`` it has (``free`` as a tuple).
+        The keys of ``RIG_FIT_OPTIONS`` it has, ``free`` as a tuple (``RIG_DEFAULT_FREE`` when
+        absent); absent others are ``optimise_se3_rig``'s defaults.
     """
     out = {k: rig_cfg[k] for k in RIG_FIT_OPTIONS if k in rig_cfg}
-    if "free" in out:
-        out["free"] = tuple(out["free"])
+    out["free"] = tuple(out.get("free", RIG_DEFAULT_FREE))
     return out
 
 

@@ -36,6 +36,7 @@ def fitted(rig):
                                  [t["dt_offset_s"] + 0.01 for t in rig["truth"]["cameras"]])
     options = rig_fit_options({"free": list(FREE), "loss": "soft_l1", "unknown_here": 1})
     assert options == {"free": FREE, "loss": "soft_l1"}
+    assert rig_fit_options({}) == {"free": ("fx", "fy", "k1", "k2", "p1", "p2")}
     return optimise_se3_rig(entries, rig["bodies"], rig["board"], **options)
 
 

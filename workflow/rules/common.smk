@@ -102,8 +102,11 @@ def session_targets(session):
         ]
     if runs_stage(session, "vicon"):
         # A rig's mocap session has no video of its own to resample at.
-        out.append(f"results/{session}/bodies_30hz.parquet" if runs_stage(session, "poses")
-                   else f"results/{session}/bodies.parquet")
+        out.append(
+            f"results/{session}/bodies_30hz.parquet"
+            if runs_stage(session, "poses")
+            else f"results/{session}/bodies.parquet"
+        )
         if MOCAP[session]["bodies_from"] == "markers":
             out.append(f"results/{session}/figures/vicon_markers.png")
     if runs_stage(session, "pairs"):

@@ -4,6 +4,7 @@
 # mocap runs as session `<rig>`; the rules here fit the cameras together. None of them is in
 # the DAG of a config without rig sessions.
 
+
 def rig_inputs(wildcards):
     """Per camera its corners, camera.yaml and sync.yaml; the rig's bodies."""
     files = {"bodies": f"results/{wildcards.rig}/bodies.parquet"}
@@ -28,8 +29,15 @@ def rig_targets():
     out = []
     for rig, r in RIGS.items():
         out += [f"results/{s}/sync.yaml" for s in r["sessions"]]
-        out += [f"results/{rig}/rig/{leaf}" for leaf in
-                ("result.yaml", "poses.parquet", "heldout.parquet", "heldout.yaml")]
+        out += [
+            f"results/{rig}/rig/{leaf}"
+            for leaf in (
+                "result.yaml",
+                "poses.parquet",
+                "heldout.parquet",
+                "heldout.yaml",
+            )
+        ]
         if len(r["cameras"]) > 1 and all(r["shared_dirs"]):
             out.append(f"results/{rig}/rig/extrinsics.yaml")
     return out
@@ -40,12 +48,12 @@ rule rig_extrinsics:
         unpack(shared_inputs),
     output:
         "results/{rig}/rig/extrinsics.yaml",
-    wildcard_constraints:
-        rig=RIG_PATTERN,
     log:
         "logs/{rig}/rig_extrinsics.log",
     benchmark:
         "benchmarks/{rig}/rig_extrinsics.tsv"
+    wildcard_constraints:
+        rig=RIG_PATTERN,
     threads: 1
     resources:
         mem_mb=1000,
@@ -65,12 +73,12 @@ rule optimise_se3_rig:
         result="results/{rig}/rig/result.yaml",
         poses="results/{rig}/rig/poses.parquet",
         iterations="results/{rig}/rig/iterations.parquet",
-    wildcard_constraints:
-        rig=RIG_PATTERN,
     log:
         "logs/{rig}/optimise_se3_rig.log",
     benchmark:
         "benchmarks/{rig}/optimise_se3_rig.tsv"
+    wildcard_constraints:
+        rig=RIG_PATTERN,
     threads: 1
     resources:
         mem_mb=3000,
@@ -78,7 +86,7 @@ rule optimise_se3_rig:
     params:
         board=lambda wc: SESSIONS[wc.rig]["board"],
         cameras=lambda wc: RIGS[wc.rig]["cameras"],
-        rig=config["rig"],
+        rig=config.get("rig", {}),
     script:
         "../scripts/optimise_se3_rig.py"
 
@@ -89,12 +97,12 @@ rule heldout_se3_rig:
     output:
         heldout="results/{rig}/rig/heldout.parquet",
         folds="results/{rig}/rig/heldout.yaml",
-    wildcard_constraints:
-        rig=RIG_PATTERN,
     log:
         "logs/{rig}/heldout_se3_rig.log",
     benchmark:
         "benchmarks/{rig}/heldout_se3_rig.tsv"
+    wildcard_constraints:
+        rig=RIG_PATTERN,
     threads: 1
     resources:
         mem_mb=3000,
@@ -102,7 +110,7 @@ rule heldout_se3_rig:
     params:
         board=lambda wc: SESSIONS[wc.rig]["board"],
         cameras=lambda wc: RIGS[wc.rig]["cameras"],
-        rig=config["rig"],
+        rig=config.get("rig", {}),
         evaluate=config["evaluate"],
     script:
         "../scripts/heldout_se3_rig.py"

@@ -29,12 +29,12 @@ rule synth_rig_mocap:
     output:
         vicon="data/{rig}/vicon.csv",
         truth="data/{rig}/truth.yaml",
-    wildcard_constraints:
-        rig=SYNTH_RIG_PATTERN,
     log:
         "logs/{rig}/synth_rig_mocap.log",
     benchmark:
         "benchmarks/{rig}/synth_rig_mocap.tsv"
+    wildcard_constraints:
+        rig=SYNTH_RIG_PATTERN,
     threads: 1
     resources:
         mem_mb=1000,
@@ -53,13 +53,13 @@ rule synth_rig_camera:
         truth="data/{rig}/{camera}/truth.yaml",
         truth_frames="data/{rig}/{camera}/truth_frames.parquet",
         truth_corners="data/{rig}/{camera}/truth_corners.parquet",
-    wildcard_constraints:
-        rig=SYNTH_RIG_PATTERN,
-        camera="[A-Za-z0-9_-]+",
     log:
         "logs/{rig}/synth_rig_camera.{camera}.log",
     benchmark:
         "benchmarks/{rig}/synth_rig_camera.{camera}.tsv"
+    wildcard_constraints:
+        rig=SYNTH_RIG_PATTERN,
+        camera="[A-Za-z0-9_-]+",
     threads: 1
     resources:
         mem_mb=2000,
