@@ -24,6 +24,14 @@ from cvsflow.stereo import fused_board_pose
 log = logging.getLogger(__name__)
 
 
+def _worst_residual_px(T_C_B, uv, p_B, K, dist):
+    """Per frame the largest corner distance (px) from its PnP pose's projection (NaN-safe)."""
+    p_C = np.einsum("fij,pj->fpi", T_C_B[:, :3, :3], p_B) + T_C_B[:, None, :3, 3]
+    with np.errstate(invalid="ignore"):
+        d = np.linalg.norm(project_points(p_C, K, dist) - uv, axis=-1)
+    return np.nanmax(np.where(np.isfinite(d), d, -1.0), axis=1)
+
+
 def _group_frames(t_vicon, tol):
     """Rig frames: per camera the index of each frame's group; groups of at most one frame per
     camera whose times lie within ``tol`` of the group's first."""
@@ -46,7 +54,8 @@ def _group_frames(t_vicon, tol):
 
 
 def fused_rig_poses(
-    params, corners, bodies, board, frames=None, match_tol_s=None, sigma_px=None, calibration_cov=True
+    params, corners, bodies, board, frames=None, match_tol_s=None, sigma_px=None, calibration_cov=True,
+    max_residual_px=None,
 ):
     """Per rig frame: the board pose fused from every camera that saw it, and the reference.
 
@@ -72,6 +81,10 @@ def fused_rig_poses(
         Add the calibration's uncertainty (every camera's intrinsics and mounting, with
         their cross-covariances: :func:`fused_pose_calibration_covariance`) to the corner
         noise's; False: the corner noise's only.
+    max_residual_px : float, optional
+        Leave a camera's view of a rig frame out of the fusion when a corner of it lies
+        farther than this from that camera's own PnP pose of the frame (px): a corner the
+        tracker put on the wrong crossing. None (default): every view is used.
 
     Returns
     -------
@@ -141,6 +154,14 @@ def fused_rig_poses(
         np.add.at(t_sum, g, t_vicon[i])
         np.add.at(t_n, g, 1)
         T_C_B, ok = solve_pnp_frames(uv, p_B, K[i], dist[i])
+        if max_residual_px is not None:
+            bad = ok & (_worst_residual_px(T_C_B, uv, p_B, K[i], dist[i]) > float(max_residual_px))
+            if bad.any():
+                log.info("se3 rig: camera %d: %d views left out of the fusion (a corner > %g px "
+                         "from the view's PnP pose)", i, int(bad.sum()), max_residual_px)
+                uv_g[g[bad], i] = np.nan
+                frame_g[g[bad], i] = -1
+                ok = ok & ~bad
         fill = ok & ~np.isfinite(start[g, 0, 0])
         start[g[fill]] = tf.invert_T(T_Ci_C0[i]) @ T_C_B[fill]
     t_g = t_sum / np.maximum(t_n, 1)

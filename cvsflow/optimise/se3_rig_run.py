@@ -14,7 +14,8 @@ from cvsflow import transforms as tf
 from cvsflow.errors import OptimiseError
 
 #: Options of the config's ``rig`` block passed on to ``optimise_se3_rig``.
-RIG_FIT_OPTIONS = ("free", "fit_dt", "loss", "f_scale_px", "match_tol_s", "fused_calibration_cov")
+RIG_FIT_OPTIONS = ("free", "fit_dt", "loss", "f_scale_px", "match_tol_s", "fused_calibration_cov",
+                   "fused_max_residual_px")
 #: Intrinsics a rig fit estimates when the config does not say: the mono se3 default of
 #: config.yaml (cx, cy trade off with the mounting's rotation and stay at the calibration).
 RIG_DEFAULT_FREE = ("fx", "fy", "k1", "k2", "p1", "p2")

@@ -10,6 +10,7 @@ import pytest
 from cvsflow.errors import OptimiseError
 from cvsflow.geometry.camera import INTRINSIC_NAMES
 from cvsflow.optimise.se3_rig import optimise_se3_rig
+from cvsflow.optimise.se3_rig_poses import fused_rig_poses
 from cvsflow.optimise.se3_rig_run import (
     fused_pose_nees,
     heldout_scores,
@@ -83,3 +84,27 @@ def test_heldout_scores_by_number_of_cameras():
     assert s["n_frames"] == 3 and s["by_cameras"][1]["n_frames"] == 2
     assert s["by_cameras"][1]["rms_dist_m"] == pytest.approx(np.sqrt((0.003**2 + 0.004**2) / 2))
     assert s["rms_angle_rad"] == pytest.approx(np.sqrt(0.000005 / 3))
+
+
+def test_views_with_a_corner_on_the_wrong_crossing_are_left_out_of_the_fusion(fitted, rig):
+    """A camera's view with one corner 40 px off: with max_residual_px it is left out (the frame
+    fused from the other camera or dropped), and the fused poses' NEES stays near 6."""
+    corners = [c["corners"].copy() for c in rig["cameras"]]
+    c1 = corners[1]
+    frames = np.sort(c1.loc[c1["found"], "frame"].unique())[::15][:8]
+    first = c1.index[c1["frame"].isin(frames) & c1["found"]].to_series().groupby(c1["frame"]).first()
+    c1.loc[first.to_numpy(), "u_px"] += 40.0
+    truth = rig["truth"]
+
+    def nees(poses):
+        T = truth["T_C0_B_at"](poses["t_vicon_s"].to_numpy() - truth["cameras"][0]["dt_offset_s"])
+        return fused_pose_nees(poses, T)
+
+    plain = fused_rig_poses(fitted.result, corners, rig["bodies"], rig["board"])
+    gated = fused_rig_poses(fitted.result, corners, rig["bodies"], rig["board"], max_residual_px=2.0)
+    hit = plain["frame_cam1"].isin(frames)
+    assert hit.sum() == len(frames) and nees(plain)[hit.to_numpy()].min() > 100
+    assert not gated["frame_cam1"].isin(frames).any()  # those views are out
+    assert 4.0 < nees(gated).mean() < 8.5
+    # clean views are all kept: the gate takes out only the corrupted ones
+    assert len(gated[gated["frame_cam1"] >= 0]) == len(plain[plain["frame_cam1"] >= 0]) - len(frames)
