@@ -20,6 +20,7 @@ include: "workflow/rules/analyse.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/summary.smk"
 include: "workflow/rules/flight.smk"
+include: "workflow/rules/rig.smk"
 
 
 report: "workflow/report/workflow.rst"

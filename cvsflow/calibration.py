@@ -536,3 +536,50 @@ def calibrate_camera(
     )
     calib_corners = pd.concat(rows, ignore_index=True)[CALIB_CORNER_COLUMNS]
     return camera, calib_corners
+
+
+def view_corners(images: Sequence[tuple[str, np.ndarray]], board: dict, subpix_window_px: int = 11
+                 ) -> pd.DataFrame:
+    """The board's refined corners in each still, as a ``calib_corners`` table, no calibration.
+
+    For stills whose camera is calibrated already, e.g. the shared views of a rig
+    (:func:`cvsflow.stereo.stereo_extrinsics`): the same detection and ordering as
+    :func:`calibrate_camera` (chessboard grid or ChArUco corners); a still without a board is
+    left out (logged).
+
+    Parameters
+    ----------
+    images : sequence of (str, ndarray)
+        ``(name, gray)`` pairs, 8-bit grayscale (H, W).
+    board : dict
+        ``squares_x``, ``squares_y``, ``square_m`` (m); ChArUco keys with ``type: charuco``.
+    subpix_window_px : int
+        cornerSubPix half window, px.
+
+    Returns
+    -------
+    corners : DataFrame
+        ``image, corner, u_px, v_px, X_m, Y_m`` (``CALIB_CORNER_COLUMNS``), px and m; empty
+        when no still shows the board.
+
+    Raises
+    ------
+    InputError
+        A still that is not an 8-bit grayscale image (named).
+    """
+    p_B = board_object_points(board)
+    detector = make_detector(board) if board.get("type", "chessboard") == "charuco" else None
+    rows = []
+    for name, img in images:
+        view = _detect_view(_check_gray(name, img), board, subpix_window_px, detector)
+        if view is None:
+            log.warning("%s: no board found; left out", name)
+            continue
+        ids, uv = view
+        ids = np.arange(len(p_B)) if ids is None else np.asarray(ids, dtype=np.int64)
+        uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+        rows.append(pd.DataFrame({"image": name, "corner": ids.astype(np.int64), "u_px": uv[:, 0],
+                                  "v_px": uv[:, 1], "X_m": p_B[ids, 0], "Y_m": p_B[ids, 1]}))
+    if not rows:
+        return pd.DataFrame({c: [] for c in CALIB_CORNER_COLUMNS})
+    return pd.concat(rows, ignore_index=True)[CALIB_CORNER_COLUMNS]

@@ -209,6 +209,77 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
     return r.rows
 
 
+def _pose_rows(r, group, name, T, T_true, std, std_prefix, src):
+    """Rows of a mounting: x, y, z (mm) with standard errors, roll, pitch, yaw (deg)."""
+    p = _pose6(T)
+    pt = _pose6(T_true) if T_true is not None else np.full(6, NAN)
+    for k, a in enumerate("xyz"):
+        r.add(group, f"{name} {a}", 1e3 * p[k], "mm", f"{src}, std_errors.{std_prefix}{a}_m",
+              std=1e3 * _num(std.get(f"{std_prefix}{a}_m")), truth=1e3 * pt[k])
+    # The fit's rotation standard errors are of a small rotation about the start's axes, not
+    # of Euler angles (the axes differ: roll -90 deg mixes them), so the angles go without one.
+    for k, label in enumerate(("roll", "pitch", "yaw")):
+        r.add(group, f"{name} {label}", np.degrees(p[3 + k]), "deg", src, truth=np.degrees(pt[3 + k]))
+
+
+def rig_headline(rig, result, heldout=None, truth=None):
+    """The headline rows of a rig session: every camera's fit, the board's mounting, held-out scores.
+
+    Parameters
+    ----------
+    rig : str
+        The rig session's name (results/<rig>/rig/).
+    result : dict
+        results/<rig>/rig/result.yaml (``cameras`` named, with ``std_errors``; ``T_Bm_B``,
+        ``T_Bm_B_std_errors``, ``n_rig_frames_by_cameras``, ``warnings``).
+    heldout : dict, optional
+        results/<rig>/rig/heldout.yaml (``scores``).
+    truth : dict, optional
+        data/<rig>/truth.yaml of a rendered rig (``cameras`` by ``name``, ``T_Bm_B``).
+
+    Returns
+    -------
+    list of dict
+        Rows with :data:`COLUMNS`, in report units (px, s, mm, deg).
+    """
+    r = _Rows(rig)
+    src = f"results/{rig}/rig/result.yaml"
+    true_cams = {c["name"]: c for c in (truth or {}).get("cameras", [])}
+    for i, c in enumerate(result.get("cameras", [])):
+        name = c.get("name", f"cam{i}")
+        t = true_cams.get(name)
+        std = c.get("std_errors") or {}
+        group = f"se3 rig: {name}"
+        K = np.asarray(c["K"], float)
+        K_true = np.asarray(t["camera"]["K"], float) if t else None
+        for n, (a, b) in (("fx", (0, 0)), ("fy", (1, 1))):
+            r.add(group, n, K[a, b], "px", f"{src}: cameras[{i}].K, std_errors.{n}", std=std.get(n, NAN),
+                  truth=K_true[a, b] if K_true is not None else NAN, digits=5)
+        r.add(group, "time offset dt", c.get("dt_offset_s"), "s",
+              f"{src}: cameras[{i}].dt_offset_s, std_errors.dt_offset_s", std=std.get("dt_offset_s", NAN),
+              truth=t["dt_offset_s"] if t else NAN, digits=6)
+        _pose_rows(r, group, "T_Cm_C", c["T_Cm_C"], t["T_Cm_C"] if t else None, std, "T_Cm_C_",
+                   f"{src}: cameras[{i}].T_Cm_C")
+        r.add(group, "corner reprojection RMS", c.get("rms_px"), "px", f"{src}: cameras[{i}].rms_px")
+    if "T_Bm_B" in result:
+        _pose_rows(r, "se3 rig: board", "T_Bm_B", result["T_Bm_B"], (truth or {}).get("T_Bm_B"),
+                   result.get("T_Bm_B_std_errors") or {}, "T_Bm_B_", f"{src}: T_Bm_B")
+    by = result.get("n_rig_frames_by_cameras") or {}
+    r.note("se3 rig: board", "rig frames by number of cameras",
+           ", ".join(f"{k}: {v}" for k, v in sorted(by.items(), key=lambda kv: int(kv[0]))) or "none",
+           f"{src}: n_rig_frames_by_cameras")
+    scores = (heldout or {}).get("scores") or {}
+    hsrc = f"results/{rig}/rig/heldout.yaml: scores"
+    for n, s in sorted((scores.get("by_cameras") or {}).items(), key=lambda kv: int(kv[0])):
+        group = f"held-out RMS (se3 rig, fused poses seen by {n})"
+        r.add(group, "distance", 1e3 * _num(s.get("rms_dist_m")), "mm", f"{hsrc}.by_cameras.{n}.rms_dist_m")
+        r.add(group, "angle", np.degrees(_num(s.get("rms_angle_rad"))), "deg",
+              f"{hsrc}.by_cameras.{n}.rms_angle_rad")
+    for w in result.get("warnings") or []:
+        r.note("warnings", "se3 rig", w, f"{src}: warnings")
+    return r.rows
+
+
 def flight_headline(flight, stats):
     """The headline rows of one flight from its ``stats.yaml`` (APE, clock).
 

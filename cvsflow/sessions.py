@@ -149,3 +149,93 @@ def check_sessions(sessions: dict) -> dict[str, tuple[str, ...]]:
         The first session (in order) whose inputs are inconsistent.
     """
     return {name: session_stages(name, sessions) for name in sessions}
+
+
+def rig_camera_session(rig: str, camera: str) -> str:
+    """The session name of camera ``camera`` of rig session ``rig``: ``{rig}-{camera}``.
+
+    Parameters
+    ----------
+    rig : str
+        Rig session key in ``config["sessions"]``.
+    camera : str
+        The camera's ``name`` in the rig's ``cameras`` list.
+
+    Returns
+    -------
+    str
+    """
+    return f"{rig}-{camera}"
+
+
+def expand_rig_sessions(sessions: dict) -> tuple[dict, dict]:
+    """Split rig sessions (a ``cameras:`` list) into per-camera sessions and the rig's mocap.
+
+    A rig session ``r`` with cameras ``a, b`` becomes three plain sessions, which the mono
+    rules run unchanged: ``r`` (the rig's motion-capture export and markers: the vicon
+    stages, bodies.parquet with the rig as the ``camera`` body) and ``r-a``, ``r-b`` (each
+    camera's stills and video: calibrate, corners, poses). Rendered rigs (a ``synth`` block)
+    get the paths the rig's synth rules write: ``data/r/vicon.csv``, ``data/r/<camera>/calib``,
+    ``data/r/<camera>/video.mp4``, ``data/r/<camera>/shared``. Sessions without ``cameras``
+    are passed through as they are, in their order.
+
+    Parameters
+    ----------
+    sessions : dict
+        ``config["sessions"]``, validated against the schema.
+
+    Returns
+    -------
+    plain : dict
+        Session name to a plain session block: the sessions without ``cameras`` (the same
+        objects, in order) and each rig's sessions in its place. Equal to ``sessions`` when
+        no session has ``cameras``.
+    rigs : dict
+        Rig name to ``{"cameras": [names], "sessions": [per-camera session names],
+        "shared_dirs": [per-camera folder of shared-view stills or None], "synth": bool}``.
+
+    Raises
+    ------
+    ConfigError
+        A rig without markers or a Vicon export (or synth), a camera without a name, stills
+        or video, repeated camera names, or a per-camera session name that is already a
+        session.
+    """
+    plain, rigs = {}, {}
+    for name, s in sessions.items():
+        if "cameras" not in s:
+            plain[name] = s
+            continue
+        where = f"config: sessions.{name}"
+        synth = "synth" in s
+        cams = s["cameras"]
+        names = [c.get("name") for c in cams]
+        if not names or not all(names) or len(set(names)) != len(names):
+            raise ConfigError(f"{where}.cameras: every camera needs a distinct name, got {names}")
+        if "markers" not in s:
+            raise ConfigError(f"{where}: a rig needs markers.camera (the rig body) and markers.board")
+        if not synth and "vicon" not in s:
+            raise ConfigError(f"{where}: a rig needs its motion-capture export (vicon) or a synth block")
+        mocap = {k: s[k] for k in ("board", "markers", "mocap") if k in s}
+        plain[name] = {**mocap, "vicon": s.get("vicon", f"data/{name}/vicon.csv")}
+        entry = {"cameras": names, "sessions": [], "shared_dirs": [], "synth": synth}
+        for c in cams:
+            cam = rig_camera_session(name, c["name"])
+            if cam in sessions:
+                raise ConfigError(
+                    f"{where}.cameras: camera {c['name']}'s session name {cam} is already a session")
+            block = {"board": s["board"]}
+            for key, leaf in (("calib_dir", "calib"), ("video", "video.mp4")):
+                if key in c:
+                    block[key] = c[key]
+                elif synth:
+                    block[key] = f"data/{name}/{c['name']}/{leaf}"
+                else:
+                    raise ConfigError(f"{where}.cameras[{c['name']}]: {key} is missing "
+                                      f"(needed unless the rig has a synth block)")
+            plain[cam] = block
+            entry["sessions"].append(cam)
+            shared = f"data/{name}/{c['name']}/shared" if synth else None
+            entry["shared_dirs"].append(c.get("shared_dir", shared))
+        rigs[name] = entry
+    return plain, rigs

@@ -26,10 +26,13 @@ SESSION_FILES = (
     "truth_frames.parquet",
     "truth_corners.parquet",
 )
+#: Files of one camera of a rendered rig (``data/{rig}/{camera}/``): the session's but the
+#: Vicon export (the rig's, one folder up), plus the shared-view stills.
+RIG_CAMERA_FILES = tuple(f for f in SESSION_FILES if f != "vicon.csv") + ("shared",)
 
 
 @contextlib.contextmanager
-def staged_session_dir(out_dir):
+def staged_session_dir(out_dir, allowed=SESSION_FILES):
     """Yield a temporary folder beside ``out_dir``; on success it replaces ``out_dir``.
 
     An existing ``out_dir`` may only hold files a previous render wrote (``SESSION_FILES``,
@@ -40,6 +43,9 @@ def staged_session_dir(out_dir):
     ----------
     out_dir : str or Path
         The session folder to (re)write, ``data/{session}``.
+    allowed : tuple of str
+        Names a previous render may have left in ``out_dir`` (default ``SESSION_FILES``;
+        ``RIG_CAMERA_FILES`` for a rig camera's folder).
 
     Returns
     -------
@@ -57,7 +63,7 @@ def staged_session_dir(out_dir):
         foreign = sorted(
             p.name
             for p in out_dir.iterdir()
-            if p.name not in SESSION_FILES and not p.name.startswith(".snakemake")
+            if p.name not in allowed and not p.name.startswith(".snakemake")
         )
         if foreign:
             raise ConfigError(
@@ -84,8 +90,8 @@ def staged_session_dir(out_dir):
         raise
 
 
-def write_still(folder, name, image):
-    """Write one calibration still (uint8 grey, lossless PNG) as ``folder/calib/name``.
+def write_still(folder, name, image, subdir="calib"):
+    """Write one calibration still (uint8 grey, lossless PNG) as ``folder/subdir/name``.
 
     Parameters
     ----------
@@ -95,6 +101,9 @@ def write_still(folder, name, image):
         File name, e.g. ``calib_000.png``; its suffix picks the format.
     image : ndarray of uint8, shape (H, W)
         The still.
+    subdir : str
+        Sub-folder of ``folder``: ``calib`` (the camera's own stills) or ``shared`` (a rig's
+        shared views).
 
     Returns
     -------
@@ -105,7 +114,7 @@ def write_still(folder, name, image):
     InputError
         OpenCV could not write the file.
     """
-    path = Path(folder) / "calib" / name
+    path = Path(folder) / subdir / name
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), image):
         raise InputError(f"{path}: could not be written as an image")

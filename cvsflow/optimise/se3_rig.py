@@ -266,6 +266,7 @@ def optimise_se3_rig(
     init_T_Bm_B=None,
     match_tol_s=None,
     fused_calibration_cov=True,
+    fused_max_residual_px=None,
 ):
     """Joint se3 estimate for N cameras on one rig body: intrinsics, T_Cm_Ci, dt_i, T_Bm_B.
 
@@ -292,6 +293,9 @@ def optimise_se3_rig(
     fused_calibration_cov : bool
         The fused poses' covariance includes the calibration's uncertainty
         (:func:`fused_rig_poses` ``calibration_cov``).
+    fused_max_residual_px : float, optional
+        :func:`fused_rig_poses` ``max_residual_px`` (a view with a corner this far from its
+        PnP pose is left out of the fused poses; the fit itself keeps every corner).
 
     Returns
     -------
@@ -500,7 +504,8 @@ def optimise_se3_rig(
     result["covariance_total"] = pc["cov_total"].tolist()
     per_frame = fused_rig_poses(result, [e["corners"] for e in cameras], bodies, board,
                                 frames=[d[0] for d in data], match_tol_s=match_tol_s,
-                                calibration_cov=fused_calibration_cov)  # fmt: skip
+                                calibration_cov=fused_calibration_cov,
+                                max_residual_px=fused_max_residual_px)  # fmt: skip
     result["n_rig_frames"] = len(per_frame)
     result["n_rig_frames_by_cameras"] = {
         int(k): int(v) for k, v in per_frame["n_cameras"].value_counts().sort_index().items()
@@ -564,7 +569,8 @@ def cross_validate_se3_rig(cameras, bodies, board, *, n_folds=5, block_s=5.0, se
         test = [fr[f == k] for fr, f in zip(ids, folds, strict=True)]
         scored = frame_errors(fused_rig_poses(res, [e["corners"] for e in cameras], bodies, board,
                                               frames=test, match_tol_s=options.get("match_tol_s"),
-                                              calibration_cov=options.get("fused_calibration_cov", True)),
+                                              calibration_cov=options.get("fused_calibration_cov", True),
+                                              max_residual_px=options.get("fused_max_residual_px")),
                               frame=frame)  # fmt: skip
         scored["fold"] = k
         scored["sigma_px"] = res["sigma_px"]

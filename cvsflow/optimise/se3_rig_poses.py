@@ -24,6 +24,14 @@ from cvsflow.stereo import fused_board_pose, fused_pose_jacobian
 log = logging.getLogger(__name__)
 
 
+def _worst_residual_px(T_C_B, uv, p_B, K, dist):
+    """Per frame the largest corner distance (px) from its PnP pose's projection (NaN-safe)."""
+    p_C = np.einsum("fij,pj->fpi", T_C_B[:, :3, :3], p_B) + T_C_B[:, None, :3, 3]
+    with np.errstate(invalid="ignore"):
+        d = np.linalg.norm(project_points(p_C, K, dist) - uv, axis=-1)
+    return np.nanmax(np.where(np.isfinite(d), d, -1.0), axis=1)
+
+
 def _group_frames(t_vicon, tol):
     """Rig frames: per camera the index of each frame's group; groups of at most one frame per
     camera whose times lie within ``tol`` of the group's first."""
@@ -105,7 +113,7 @@ def _corners_at_instants(uv, t_s, t_target_s, max_gap_s):
 
 def fused_rig_poses(
     params, corners, bodies, board, frames=None, match_tol_s=None, sigma_px=None, calibration_cov=True,
-    instant="interpolate",
+    instant="interpolate", max_residual_px=None,
 ):
     """Per rig frame: the board pose fused from every camera that saw it, and the reference.
 
@@ -139,6 +147,10 @@ def fused_rig_poses(
         member with neither within 1.5 of its frame intervals is left out of that rig
         frame). ``"nearest"``: every member's frame as it is, at the mean of their times
         (cameras not triggered together are then fused as if simultaneous).
+    max_residual_px : float, optional
+        Leave a camera's view of a rig frame out of the fusion when a corner of it lies
+        farther than this from that camera's own PnP pose of the frame (px): a corner the
+        tracker put on the wrong crossing. None (default): every view is used.
 
     Returns
     -------
@@ -225,6 +237,14 @@ def fused_rig_poses(
         np.add.at(t_sum, g, t_vicon[i])
         np.add.at(t_n, g, 1)
         T_C_B, ok = solve_pnp_frames(uv, p_B, K[i], dist[i])
+        if max_residual_px is not None:
+            bad = ok & (_worst_residual_px(T_C_B, uv, p_B, K[i], dist[i]) > float(max_residual_px))
+            if bad.any():
+                log.info("se3 rig: camera %d: %d views left out of the fusion (a corner > %g px "
+                         "from the view's PnP pose)", i, int(bad.sum()), max_residual_px)
+                uv_g[g[bad], i] = np.nan
+                frame_g[g[bad], i] = -1
+                ok = ok & ~bad
         fill = ok & ~np.isfinite(start[g, 0, 0])
         start[g[fill]] = tf.invert_T(T_Ci_C0[i]) @ T_C_B[fill]
     t_g = t_sum / np.maximum(t_n, 1) if t_instant is None else t_instant

@@ -182,12 +182,28 @@ def motion_channels(motion: HandMotion, t_s):
     return channels
 
 
-def board_poses(motion: HandMotion, t_s):
+@dataclass(frozen=True)
+class CameraView:
+    """The hand motion as another camera of a rig sees it, on that camera's own clock.
+
+    ``T_C_B(t) = T_C_C0 T_C0_B(t + t_shift_s)``: ``motion`` is the board's motion in the
+    reference camera C0 on C0's video clock, ``T_C_C0`` (4, 4, m) this camera's pose from C0,
+    and ``t_shift_s`` = ``dt_offset_s`` of this camera less C0's (s), so that this camera's
+    video time t is C0's video time t + ``t_shift_s`` (the same Vicon instant).
+    """
+
+    motion: HandMotion
+    T_C_C0: np.ndarray
+    t_shift_s: float
+
+
+def board_poses(motion: HandMotion | CameraView, t_s):
     """True board poses T_C_B at video times ``t_s``.
 
     Parameters
     ----------
-    motion : HandMotion
+    motion : HandMotion or CameraView
+        The board's motion in the camera (a :class:`CameraView`: in another camera of a rig).
     t_s : ndarray, shape (N,)
         Video time, seconds (t = 0 at the first video frame; negative times are allowed).
 
@@ -196,6 +212,8 @@ def board_poses(motion: HandMotion, t_s):
     T_C_B : ndarray, shape (N, 4, 4)
         Board in the camera optical frame, metres.
     """
+    if isinstance(motion, CameraView):
+        return motion.T_C_C0 @ board_poses(motion.motion, np.asarray(t_s, dtype=float) + motion.t_shift_s)
     ch = motion_channels(motion, t_s)
     tremor = motion.tremor(t_s)
     z_m = motion.depth_center_m * np.exp(ch[:, 2])

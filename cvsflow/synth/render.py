@@ -15,13 +15,16 @@ from pathlib import Path
 import numpy as np
 
 from cvsflow.errors import ConfigError
+from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.io.synth_out import (
+    RIG_CAMERA_FILES,
     PyAvVideoSink,
     VideoSink,
     staged_session_dir,
     write_session_tables,
     write_still,
 )
+from cvsflow.io.vicon import write_nexus_csv
 from cvsflow.synth.effects import (
     PTS_RATE_HZ,
     auto_exposure,
@@ -33,6 +36,13 @@ from cvsflow.synth.effects import (
 )
 from cvsflow.synth.frames import FrameEffects, Lighting, Renderer
 from cvsflow.synth.motion import make_hand_motion, random_sine_sum, still_poses
+from cvsflow.synth.rig import (
+    camera_frame_times,
+    make_rig_truth,
+    rig_truth_document,
+    rig_vicon_recording,
+    shared_views,
+)
 from cvsflow.synth.session import (
     camera_track,
     exposure_times,
@@ -46,7 +56,7 @@ from cvsflow.synth.session import (
 from cvsflow.synth.spec import FPS, VICON_RATE_HZ, parse_session_config, random_streams
 from cvsflow.transforms import invert_T, pose6_from_T, transform_points
 
-__all__ = ["render_session", "render_stills"]
+__all__ = ["render_rig_camera", "render_rig_mocap", "render_session", "render_stills"]
 
 log = logging.getLogger(__name__)
 
@@ -344,4 +354,117 @@ def _render_realistic(spec, rngs, rig, renderer, T_C_B_stills, motion, out_dir, 
         e.preset, len(T_C_B_stills), n_frames, len(timeline.dropped), 100 * summary["in_view_fraction"],
         e.image_size[0], e.image_size[1], summary["video_fps_rendered"], out_dir,
     )
+    return summary
+
+
+def render_rig_mocap(session_cfg: dict, vicon_path, truth_path) -> dict:
+    """Render a rig session's Vicon export and the truth of every camera (``data/{rig}/``).
+
+    Parameters
+    ----------
+    session_cfg : dict
+        ``config["sessions"][rig]`` with ``synth``, ``board``, ``markers`` and ``cameras``
+        (:mod:`cvsflow.synth.rig`).
+    vicon_path, truth_path : str or Path
+        Where ``vicon.csv`` (Nexus form, mm) and ``truth.yaml`` (:func:`rig_truth_document`)
+        go.
+
+    Returns
+    -------
+    summary : dict
+        Cameras, Vicon samples, dropouts and each camera's true ``dt_offset_s``, for the log.
+
+    Raises
+    ------
+    ConfigError
+        As :func:`cvsflow.synth.rig.make_rig_truth` and :func:`shared_views`.
+    """
+    truth = make_rig_truth(session_cfg)
+    vicon_df, _, n_dropouts = rig_vicon_recording(truth)
+    write_nexus_csv(vicon_df, vicon_path, rate_hz=VICON_RATE_HZ)
+    write_yaml(rig_truth_document(truth, shared_views(truth)), truth_path)
+    return {"cameras": list(truth.names), "n_vicon_samples": len(vicon_df), "n_dropouts": n_dropouts,
+            "dt_offset_s": [float(v) for v in truth.dt_offset_s]}
+
+
+def render_rig_camera(session_cfg: dict, camera: str, out_dir) -> dict:
+    """Render one camera of a rig session into ``out_dir`` (``data/{rig}/{camera}/``).
+
+    The mono renderer's fast path for that camera (:func:`cvsflow.synth.rig.camera_session_config`):
+    its calibration stills (``calib/``), the rig's shared views as it sees them
+    (``shared/shared_000.png`` ..., the same names in every camera), its video at its own frame
+    rate and clock, and its mono ``truth.yaml`` (its mounting and offset, plus ``rig``,
+    ``camera_index``, ``clock_offset_s`` and the shared views' ``T_C_B``), ``truth_frames`` and
+    ``truth_corners``. Camera i's random streams are ``random_streams([seed, i + 1])``.
+
+    Parameters
+    ----------
+    session_cfg : dict
+        ``config["sessions"][rig]``.
+    camera : str
+        The camera's ``name``.
+    out_dir : str or Path
+        Its folder; replaced as a whole only on success.
+
+    Returns
+    -------
+    summary : dict
+        Frames, frame rate, in-view share, stills, shared views, seconds.
+
+    Raises
+    ------
+    ConfigError
+        Unknown camera; as :func:`make_rig_truth`; too few still poses in view.
+    """
+    wall_start = time.perf_counter()
+    truth = make_rig_truth(session_cfg)
+    if camera not in truth.names:
+        raise ConfigError(f"rig session config: no camera named {camera!r} (cameras {list(truth.names)})")
+    i = truth.names.index(camera)
+    spec = truth.specs[i]
+    rig = truth.camera_rig(i)
+    rngs = random_streams([spec.seed, i + 1])
+    markers_B = transform_points(invert_T(rig.T_Bm_B), rig.markers_Bm_m)
+    renderer = Renderer(spec, rngs["background"], markers_B)
+    T_C_B_stills = still_poses(rngs["stills"], spec.n_stills, spec.K, spec.dist, spec.image_size,
+                               still_outline_B(spec.board), board=spec.board)
+    if len(T_C_B_stills) < spec.n_stills:
+        raise ConfigError(
+            f"rig session config, cameras[{camera}].synth.n_stills: found only {len(T_C_B_stills)} "
+            f"still poses with the board wholly in view, expected {spec.n_stills}"
+        )
+    T_C_C0 = truth.T_C_C0(i)
+    T_C_B_shared = T_C_C0 @ shared_views(truth)
+    motion = truth.view(i)
+    t_s = camera_frame_times(spec)
+    fps = float(spec.effects.fps)
+    exposure_s = exposure_times(rngs["lighting"], t_s)
+    lighting = Lighting(random_sine_sum(rngs["lighting"], 4, 3, 0.01, 0.1, std=[1.0] * 4))
+    video = video_truth(spec, motion, exposure_s, t_s=t_s)
+    frames_df, corners_df = truth_tables(spec, video)
+    stills_truth = {}
+    with staged_session_dir(out_dir, RIG_CAMERA_FILES) as tmp:
+        for name, image, T_C_B in _still_images(renderer, T_C_B_stills, rngs["images"]):
+            write_still(tmp, name, image)
+            stills_truth[name] = {"T_C_B": T_C_B, "pose6": pose6_from_T(T_C_B)}
+        shared_truth = {}
+        for v, T_C_B in enumerate(T_C_B_shared):
+            name = f"shared_{v:03d}.png"
+            write_still(tmp, name, renderer.still(T_C_B, rngs["images"]), subdir="shared")
+            shared_truth[name] = {"T_C_B": T_C_B, "pose6": pose6_from_T(T_C_B)}
+        with VideoSink(tmp / "video.mp4", fps, spec.image_size, spec.video_quality) as sink:
+            for k in range(len(t_s)):
+                sink.write(renderer.video_frame(motion, t_s[k], video.exposure_s[k], video.blur_px[k],
+                                                lighting, rngs["images"]))
+        extra = {"rig": {"camera": camera, "camera_index": i, "clock_offset_s": truth.clock_offset_s[i],
+                         "T_C0_C": invert_T(T_C_C0)},
+                 "shared": shared_truth}  # fmt: skip
+        write_yaml(truth_document(spec, rig, len(t_s), stills_truth, extra), tmp / "truth.yaml")
+        write_parquet(frames_df, tmp / "truth_frames.parquet")
+        write_parquet(corners_df, tmp / "truth_corners.parquet")
+    summary = {"camera": camera, "n_frames": len(t_s), "fps": fps, "n_stills": len(T_C_B_stills),
+               "n_shared": len(T_C_B_shared), "in_view_fraction": float(np.mean(video.in_view)),
+               "dt_offset_s": rig.dt_offset_s, "total_s": time.perf_counter() - wall_start}  # fmt: skip
+    log.info("rendered rig camera %s: %d stills, %d shared views, %d frames at %.0f fps (%.0f%% in view)",
+             camera, len(T_C_B_stills), len(T_C_B_shared), len(t_s), fps, 100 * summary["in_view_fraction"])
     return summary

@@ -1,7 +1,7 @@
 rule sync:
     input:
         poses="results/{session}/poses_raw.parquet",
-        bodies="results/{session}/bodies.parquet",
+        bodies=bodies_path,  # a rig camera's session: its rig's bodies
     output:
         sync="results/{session}/sync.yaml",
         fig=report(

@@ -2,14 +2,23 @@
 import os
 
 from cvsflow.io.mocap_formats import mocap_settings
-from cvsflow.sessions import camera_session, check_sessions
+from cvsflow.sessions import camera_session, check_sessions, expand_rig_sessions
 
 
 wildcard_constraints:
     session="[A-Za-z0-9_-]+",
 
 
-SESSIONS = config["sessions"]
+# A rig session (a `cameras:` list) runs as plain sessions: its mocap (`<rig>`) and one per
+# camera (`<rig>-<camera>`); RIGS holds what the rig rules (workflow/rules/rig.smk) need.
+# Without rig sessions SESSIONS is config["sessions"] itself and RIGS is empty.
+SESSIONS, RIGS = expand_rig_sessions(config["sessions"])
+# The rig's name in the rig rules' wildcards (rendered rigs: the synth rules'); both match
+# nothing without rig sessions.
+RIG_PATTERN = "|".join(RIGS) if RIGS else "(?!x)x"
+SYNTH_RIG_PATTERN = "|".join(r for r in RIGS if RIGS[r]["synth"]) or "(?!x)x"
+# camera session -> its rig
+RIG_OF_CAMERA = {cam: rig for rig, r in RIGS.items() for cam in r["sessions"]}
 # What each session runs; a session naming an input it cannot use stops here, before any job.
 SESSION_STAGES = check_sessions(SESSIONS)
 
@@ -26,6 +35,11 @@ def session_cfg(session):
 
 def mocap_cfg(session):
     return MOCAP[session]
+
+
+def bodies_path(wildcards):
+    """bodies.parquet of the session, or of its rig for a rig camera's session."""
+    return f"results/{RIG_OF_CAMERA.get(wildcards.session, wildcards.session)}/bodies.parquet"
 
 
 def vicon_bodies_input(wildcards):
@@ -87,7 +101,12 @@ def session_targets(session):
             f"results/{session}/figures/poses_raw.png",
         ]
     if runs_stage(session, "vicon"):
-        out.append(f"results/{session}/bodies_30hz.parquet")
+        # A rig's mocap session has no video of its own to resample at.
+        out.append(
+            f"results/{session}/bodies_30hz.parquet"
+            if runs_stage(session, "poses")
+            else f"results/{session}/bodies.parquet"
+        )
         if MOCAP[session]["bodies_from"] == "markers":
             out.append(f"results/{session}/figures/vicon_markers.png")
     if runs_stage(session, "pairs"):
@@ -112,7 +131,7 @@ def all_targets():
     scaling = config["analyse"].get("scaling_benchmark")
     if scaling and os.path.isfile(scaling):
         targets.append("results/figures/stage_scaling.png")
-    return targets + flight_targets()
+    return targets + flight_targets() + rig_targets()
 
 
 wildcard_constraints:

@@ -83,6 +83,12 @@ def headline_inputs(wildcards):
                 files[f"{session}/comparison"] = f"results/{session}/comparison.yaml"
     for flight in FLIGHTS:
         files[f"flight {flight}/stats"] = f"results/flights/{flight}/stats.yaml"
+    # none in a config without a rig session: the inputs are as they were
+    for rig in RIGS:
+        files[f"rig {rig}/result"] = f"results/{rig}/rig/result.yaml"
+        files[f"rig {rig}/heldout"] = f"results/{rig}/rig/heldout.yaml"
+        if RIGS[rig]["synth"]:
+            files[f"rig {rig}/truth"] = f"data/{rig}/truth.yaml"
     return files
 
 

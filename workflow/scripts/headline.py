@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from cvsflow.headline import flight_headline, headline_rst, headline_table, session_headline
+from cvsflow.headline import flight_headline, headline_rst, headline_table, rig_headline, session_headline
 from cvsflow.io import atomic_output, read_yaml
 from cvsflow.io.logs import stage_logging
 
@@ -22,6 +22,10 @@ with stage_logging(snakemake.log[0], "headline") as log:
         )
     for f in snakemake.params.flights:
         rows += flight_headline(f, load(f"flight {f}/stats"))
+    # rig sessions from the input keys (no params: a config without rigs keeps its headline job)
+    for rig in dict.fromkeys(k[len("rig "):].split("/")[0] for k in inp if k.startswith("rig ")):
+        rows += rig_headline(rig, load(f"rig {rig}/result"), heldout=load(f"rig {rig}/heldout"),
+                             truth=load(f"rig {rig}/truth"))
     table = headline_table(rows)
     log.info("%d headline rows over %d sessions and flights", len(table), table["session"].nunique())
     with atomic_output(snakemake.output.table) as tmp:
