@@ -14,7 +14,7 @@ import logging
 import numpy as np
 import pandas as pd
 from scipy.optimize import minimize
-from scipy.special import gammaln
+from scipy.special import digamma, gammaln
 
 from cvsflow.errors import OptimiseError
 from cvsflow.metrics import ERROR_DIMS
@@ -100,6 +100,92 @@ def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, shrink=None, s_cor
     return s_rs * RS, S
 
 
+def _transfer_nll(q, s_corr, E, terms, shrink=None):
+    """Mean negative log-likelihood of model (T) and its analytic gradient.
+
+    The frames' errors ``E`` (N, 6, working units) are multivariate Student-t with nu degrees
+    of freedom and covariance S_i (:func:`_transfer_cov`), i.e. scale matrix S_i (nu-2)/nu:
+
+        ll_i = lnG((nu+d)/2) - lnG(nu/2) - d/2 ln(pi (nu-2)) - 1/2 ln|S_i|
+               - (nu+d)/2 ln(1 + m_i / (nu-2)),   m_i = r_i^T S_i^-1 r_i,  r_i = E_i - mu_i.
+
+    With w_i = S_i^-1 r_i, d ll_i / d S_i = G_i = -S_i^-1 / 2 + (nu+d) w_i w_i^T / (2 (nu-2+m_i)),
+    so a parameter moving S_i by dS_i moves ll_i by tr(G_i dS_i); every scale enters S_i as
+    its square (d/d ln s of s^2 X is 2 s^2 X).
+
+    Parameters
+    ----------
+    q : ndarray, shape (10,) or (11,)
+        Logs of :data:`TRANSFER_PARAMS` (the last one log(nu - 2)), and log k of the shrinkage
+        when ``shrink`` is given.
+    s_corr : float
+        Correlated share of the corner noise (0: no ``C`` term).
+    E : ndarray, shape (N, 6)
+    terms : tuple
+        :func:`_transfer_terms` of the frames.
+    shrink : tuple, optional
+        :func:`_shrink_terms` of the frames.
+
+    Returns
+    -------
+    nll : float
+        -mean(ll_i); 1e30 where a covariance is not positive definite.
+    grad_q : ndarray, shape of ``q``
+        d nll / d q (zero where the covariance failed).
+    grad_log_s_corr : float
+        d nll / d ln s_corr.
+    """
+    U, P, RS, speed, reproj, filled, C = terms
+    d = E.shape[1]
+    s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, nu = _unpack_transfer(q)
+    mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, shrink, s_corr)
+    try:
+        L = np.linalg.cholesky(S)
+    except np.linalg.LinAlgError:
+        return 1e30, np.zeros(len(q)), 0.0
+    L_inv = np.linalg.inv(L)
+    S_inv = np.matmul(np.swapaxes(L_inv, 1, 2), L_inv)
+    r = E - mu
+    w = np.einsum("nij,nj->ni", S_inv, r)
+    m = np.einsum("ni,ni->n", r, w)
+    logdet = 2.0 * np.log(np.einsum("nii->ni", L)).sum(axis=1)
+    ll = (gammaln((nu + d) / 2) - gammaln(nu / 2) - 0.5 * d * np.log(np.pi * (nu - 2.0))
+          - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(m / (nu - 2.0)))
+    beta = (nu + d) / (nu - 2.0 + m)
+    G = -0.5 * S_inv + (0.5 * beta)[:, None, None] * w[:, :, None] * w[:, None, :]
+    tr_U = np.einsum("nij,nij->n", G, U)
+    tr_P = np.einsum("nij,nij->n", G, P)
+    use_corr = bool(s_corr) and C is not None
+    tr_C = np.einsum("nij,nij->n", G, C) if use_corr else np.zeros(len(E))
+    G_diag = np.einsum("nii->ni", G)
+    n_px = reproj
+    if len(q) > 10 and shrink is not None:
+        n_px = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
+    var_px = s0**2 + (s_speed * speed) ** 2 + (s_reproj * n_px) ** 2
+    tr_var = tr_U + s_corr**2 * tr_C  # d ll / d var_px
+    g = np.zeros(len(q))  # d mean(ll) / d q
+    g[0] = np.mean(tr_var * 2.0 * s0**2)
+    g[1] = np.mean(tr_var * 2.0 * (s_speed * speed) ** 2)
+    g[2] = np.mean(tr_var * 2.0 * (s_reproj * n_px) ** 2)
+    g[3] = np.mean(tr_P * 2.0 * c**2)
+    g[4] = np.mean(beta * np.einsum("ni,ni->n", w, mu))  # d ll / d ln s_rs (mu = s_rs RS)
+    inv_wu2 = 1.0 / WORKING_UNITS**2
+    g_floor = 2.0 * np.mean(G_diag, axis=0) * inv_wu2
+    g_fill = 2.0 * np.mean(filled[:, None] * G_diag, axis=0) * inv_wu2
+    g[5], g[6] = b_pos**2 * g_floor[:3].sum(), b_rot**2 * g_floor[3:].sum()
+    g[7], g[8] = f_pos**2 * g_fill[:3].sum(), f_rot**2 * g_fill[3:].sum()
+    dll_dnu = (0.5 * digamma((nu + d) / 2) - 0.5 * digamma(nu / 2) - 0.5 * d / (nu - 2.0)
+               - 0.5 * np.log1p(m / (nu - 2.0)) + 0.5 * (nu + d) * m / ((nu - 2.0) * (nu - 2.0 + m)))
+    g[9] = (nu - 2.0) * np.mean(dll_dnu)
+    if len(q) > 10 and shrink is not None:
+        k = np.exp(q[10])
+        dof = np.maximum(2.0 * shrink[0] - 6.0, 1.0)
+        dn2_dlogk = k * dof * (shrink[1] ** 2 - reproj**2) / (dof + k) ** 2
+        g[10] = np.mean(tr_var * s_reproj**2 * dn2_dlogk)
+    g_corr = np.mean(tr_C * 2.0 * s_corr**2 * var_px) if use_corr else 0.0
+    return -float(np.mean(ll)), -g, -float(g_corr)
+
+
 def fit_transfer_model(features, errors, shrink=None):
     """Fit model (T) by maximum likelihood on frames of one or more sessions.
 
@@ -130,7 +216,8 @@ def fit_transfer_model(features, errors, shrink=None):
     0.15-0.18 of the iid noise), fitted too; else the term is absent. The errors are multivariate
     Student-t with nu > 2 degrees of freedom and covariance Sigma_i. Every scale is in
     physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
-    fitted on some sessions predicts another.
+    fitted on some sessions predicts another. L-BFGS-B maximises the likelihood from two
+    starts with its analytic gradient (:func:`_transfer_nll`), to ftol 1e-12 and gtol 1e-9.
 
     Parameters
     ----------
@@ -171,7 +258,6 @@ def fit_transfer_model(features, errors, shrink=None):
         )
     if not (np.isfinite(E).all() and np.isfinite(U).all() and np.isfinite(P).all()):
         raise OptimiseError("fit_transfer_model: non-finite errors or covariances")
-    d = 6
     # the shear term is a first-order prediction of the error itself: its scale is 1 in
     # physics (fitted on the rendered rolling-shutter session it comes out at 1.01), and a
     # session without a rolling shutter cannot tell it (fitted line delays of ~1e-7 s would
@@ -189,21 +275,15 @@ def fit_transfer_model(features, errors, shrink=None):
         q = q if fit_rs else np.r_[q[:4], 0.0, q[4:]]
         return np.r_[q, k_fixed]
 
-    def nll(q):
-        s_corr = float(np.exp(q[-1])) if fit_corr else 0.0
-        q = full(q)
-        mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, sh, s_corr)
-        nu = _unpack_transfer(q)[9]
-        try:
-            L = np.linalg.cholesky(S * ((nu - 2.0) / nu))
-        except np.linalg.LinAlgError:
-            return 1e30
-        z = np.linalg.solve(L, (E - mu)[:, :, None])[:, :, 0]
-        m2 = np.einsum("ni,ni->n", z, z)
-        logdet = 2.0 * np.log(np.einsum("nii->ni", L)).sum(axis=1)
-        ll = (gammaln((nu + d) / 2) - gammaln(nu / 2) - 0.5 * d * np.log(nu * np.pi)
-              - 0.5 * logdet - 0.5 * (nu + d) * np.log1p(m2 / nu))
-        return -float(np.mean(ll))
+    terms = (U, P, RS, speed, reproj, filled, C)
+    # which entries of the full vector (10 or 11) the optimiser moves, in its order
+    free = [i for i in range(10) if fit_rs or i != 4] + ([10] if fit_k else [])
+
+    def nll(x):
+        s_corr = float(np.exp(x[-1])) if fit_corr else 0.0
+        f, g_q, g_corr = _transfer_nll(full(x), s_corr, E, terms, sh)
+        g = g_q[free]
+        return f, (np.r_[g, g_corr] if fit_corr else g)
 
     x0 = np.log([0.2, 0.02, 0.3, 1.0, 1.0, 5e-4, 5e-4, 2e-3, 2e-3, 5.0])
     best = None
@@ -223,7 +303,8 @@ def fit_transfer_model(features, errors, shrink=None):
         bounds.append((-25, 5))
         starts = [np.r_[x, np.log(0.15)] for x in starts]
     for start in starts:
-        sol = minimize(nll, start, method="L-BFGS-B", bounds=bounds, options={"maxiter": 500})
+        sol = minimize(nll, start, jac=True, method="L-BFGS-B", bounds=bounds,
+                       options={"maxiter": 500, "ftol": 1e-12, "gtol": 1e-9})
         if best is None or sol.fun < best.fun:
             best = sol
     q_best = full(best.x)
