@@ -296,13 +296,15 @@ SADDLE_CONTRAST_FRAC = 0.5
 SADDLE_RADII = (0.2, 0.4)
 
 
-def _saddle_ok(gray, H_img_grid, corners_px, grid, border_ok=False) -> np.ndarray:
+def _saddle_ok(gray, H_img_grid, corners_px, grid, border_ok=False, reference=None) -> np.ndarray:
     """(N,) bool: corner k shows dark squares on one diagonal, light on the other (its own
     colours: square (x+1, y+1) black when x + y is even), sampled along the diagonals at
     ``SADDLE_RADII`` squares from the corner, every sample of a quadrant on its side.
     ``border_ok``: a corner with a sample outside the image passes (a whole board's corner
     near the border, which the other checks passed: its saddle cannot be seen whole; on the
-    realistic 1920x1080 render 4 of 8549 visible corners failed only for that)."""
+    realistic 1920x1080 render 4 of 8549 visible corners failed only for that).
+    ``reference``: (N,) bool, the rows whose levels set the board's contrast (default: every
+    row with a finite corner)."""
     h, w = gray.shape
     grid_pts, pts = _saddle_points(grid.tobytes(), grid.shape)
     n_off = pts.shape[0] // grid_pts.shape[0]
@@ -324,6 +326,8 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid, border_ok=False) -> np.ndarra
     light = np.where(black_first[:, None], level[:, half:], level[:, :half])
     corners_finite = np.isfinite(np.asarray(corners_px))
     known = ok & corners_finite[:, 0] & corners_finite[:, 1]
+    if reference is not None:
+        known &= np.asarray(reference, bool)
     contrast = _median(light[known]) - _median(dark[known]) if known.any() else 0.0
     need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
     saddle = ok & (np.minimum.reduce(light, axis=1) - np.maximum.reduce(dark, axis=1) >= need)
@@ -396,13 +400,49 @@ def _partial_without(gray, corners_px, keep, grid, board, sc, max_grid_deviation
     return _partial_checked(gray, out, known, H, grid, board, sc, method)
 
 
+@functools.lru_cache(maxsize=16)
+def _ring_grid(nx: int, ny: int) -> np.ndarray:
+    """Grid points one step outside the inner corners, (M, 2) float32: where a board's labels
+    shifted by a square would have corners that a true board does not."""
+    pts = [(i, j) for j in range(-1, ny + 1) for i in range(-1, nx + 1)
+           if not (0 <= i < nx and 0 <= j < ny)]  # fmt: skip
+    ring = np.array(pts, np.float32)
+    ring.flags.writeable = False  # cached: shared by every call
+    return ring
+
+
+#: A partial board whose homography puts this many chessboard saddles just outside its inner
+#: corners is labelled a square off (see ``_saddles_beyond``).
+MAX_SADDLES_BEYOND = 2
+
+
+def _saddles_beyond(gray, H, out, known, grid, board) -> int:
+    """Chessboard saddles at the grid points just outside the board's inner corners.
+
+    A true board has none there: one square beyond its last inner corner is the edge of its
+    outer squares against the margin. A partial board whose corners were given labels one
+    square off diagonally (a (1, 1) shift keeps every square's colour) has the true corners of
+    its far rows there, while the near rows' labels fall on the margin, fail the saddle check
+    and pass for hidden. Saddles are judged against the contrast of the kept corners."""
+    ring = _ring_grid(*board_pattern(board))
+    ring_px = cv2.perspectiveTransform(ring.reshape(-1, 1, 2), H).reshape(-1, 2)
+    pts = np.concatenate([np.asarray(out, np.float64)[known], ring_px])
+    grid_all = np.concatenate([grid[known], ring]).astype(np.float32)
+    reference = np.r_[np.ones(int(known.sum()), bool), np.zeros(len(ring), bool)]
+    saddle = _saddle_ok(gray, H, pts, grid_all, reference=reference)
+    return int(saddle[~reference].sum())
+
+
 def _partial_checked(gray, out, known, H, grid, board, sc, method):
     """The corners ``known`` of ``out`` with ``method`` if they fit the homography ``H`` (fitted
-    to them) within the tracker's RMS and bound squares of the right colours, else lost."""
+    to them) within the tracker's RMS, bound squares of the right colours and show no board
+    beyond them (``_saddles_beyond``: labels a square off), else lost."""
     fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
     rms = np.sqrt(np.mean(np.sum((fit[known] - out[known]) ** 2, axis=1)))
     if rms > sc["homography_rms"] or not board_squares_pattern_ok(
         gray, H, board, MIN_PATTERN_CONTRAST, corner_known=known
     ):
+        return None, "lost"
+    if _saddles_beyond(gray, H, out, known, grid, board) >= MAX_SADDLES_BEYOND:
         return None, "lost"
     return out, method

@@ -63,3 +63,37 @@ def test_tracked_board_drops_a_corner_under_a_fingertip(board_and_fingertip):
     corners, method = track_corners(clear, hidden, uv, BOARD)
     assert method == "partial"
     _assert_only_the_hidden_corner_dropped(corners, uv)
+
+
+def test_partial_board_labelled_a_square_off_is_refused(monkeypatch, board_and_fingertip):
+    """Labels one square off diagonally keep every square's colour: the labels of the near row
+    and column fall on the margin and pass for hidden, the rest is a consistent partial board
+    (seen on a rendered three-camera rig: 11 of 938 frames, every corner 35-68 px off). The
+    true corners just outside the labelled grid give it away."""
+    import cv2
+
+    import cvsflow.corners_refine as refine
+    from cvsflow.corners_grid import MAX_GRID_DEVIATION_FRAC, _grid_points, _track_scales
+
+    clear, _, uv = board_and_fingertip
+    grid = _grid_points(BOARD)
+    sc = _track_scales(uv, BOARD, clear.shape)
+    # label (i, j) put where the true corner (i - 1, j - 1) is: the homography of the true
+    # corners applied to the grid shifted by one square
+    H_true, _ = cv2.findHomography(grid, uv.astype(np.float32), 0)
+    p = cv2.perspectiveTransform((grid - 1.0).reshape(-1, 1, 2), H_true).reshape(-1, 2)
+    inner = np.ones(len(grid), bool)
+    args = (clear, p, inner, grid, BOARD, 5, sc, MAX_GRID_DEVIATION_FRAC, "partial")
+    assert refine._follow_partial(*args) == (None, "lost")
+    # without the check beyond the grid the shifted board is kept, every corner a square off
+    monkeypatch.setattr(refine, "MAX_SADDLES_BEYOND", 10**6)
+    shifted, method = refine._follow_partial(*args)
+    assert method == "partial"
+    known = np.isfinite(shifted).all(axis=1)
+    assert known.sum() >= 8
+    assert np.all(np.linalg.norm(shifted[known] - uv[known], axis=1) > 0.5 * np.linalg.norm(uv[1] - uv[0]))
+    # the true labels pass
+    monkeypatch.undo()
+    good, method = refine._follow_partial(clear, uv, inner, grid, BOARD, 5, sc, MAX_GRID_DEVIATION_FRAC, "partial")
+    assert method == "partial" and np.isfinite(good).all()
+    assert np.linalg.norm(good - uv, axis=1).max() < 0.3
