@@ -3,8 +3,10 @@
 The board is rendered in one resampling step per instant: for every pixel of the distorted
 image, its undistorted normalised ray (computed once per camera,
 :func:`cvsflow.synth.camera.undistortion_grid`) is mapped by the plane homography into the
-board texture, and ``cv2.remap`` samples the texture there. A pyramid of area-averaged
-textures keeps far boards free of aliasing. Motion blur is the mean of several such renders
+board texture, and each pixel's value is the exact mean of the texture over the pixel's footprint there
+(an axis-aligned box in texel space read from the finest level's summed-area table,
+:func:`render_board_region`), so far boards are free of aliasing and an edge's image does not
+depend on where it falls on the texel grid. Motion blur is the mean of several such renders
 over the exposure time.
 """
 
@@ -37,6 +39,7 @@ class BoardTexture:
     ppm: tuple
     x0_m: float
     y0_m: float
+    sums: np.ndarray | None = None  # (rows + 1, cols + 1, 2) float64 summed-area table of levels[0]
 
 
 def make_board_texture(board: Board, ppm=1200.0, n_levels=5, markers_B=None) -> BoardTexture:
@@ -139,14 +142,16 @@ def texture_pyramid(level, ppm, n_levels, x0, y0) -> BoardTexture:
     Returns
     -------
     BoardTexture
-        Level l at ``ppm / 2**l`` texels per metre.
+        Level l at ``ppm / 2**l`` texels per metre, and ``sums``, the summed-area table of
+        ``level`` (``sums[j, i]`` = sum of texels [0, j) x [0, i)) that the renderer reads.
     """
     levels, ppms = [level], [ppm]
     for _ in range(n_levels - 1):
         level = cv2.resize(level, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
         levels.append(level)
         ppms.append(ppms[-1] / 2)
-    return BoardTexture(tuple(levels), tuple(ppms), float(x0), float(y0))
+    sums = cv2.integral(levels[0].astype(np.float64), sdepth=cv2.CV_64F)
+    return BoardTexture(tuple(levels), tuple(ppms), float(x0), float(y0), sums)
 
 
 def _draw_markers(reflectance, markers_B, x0, y0, ppm, sheet):
@@ -185,30 +190,6 @@ def _texel_from_ray(T_C_B, texture: BoardTexture, level: int):
     return A @ H_B
 
 
-def choose_level(T_C_B, K, texture: BoardTexture) -> int:
-    """Finest pyramid level with at most ~1.4 texels per pixel at the board centre.
-
-    Parameters
-    ----------
-    T_C_B : ndarray, shape (4, 4)
-        Board in camera, metres; its origin's depth (held at >= 1 mm) sets the scale.
-    K : ndarray, shape (3, 3)
-        Camera matrix, px (``fx`` is used).
-    texture : BoardTexture
-
-    Returns
-    -------
-    int
-        Level index, 0 (finest) to ``len(texture.levels) - 1``.
-    """
-    depth_m = max(float(T_C_B[2, 3]), 1e-3)
-    px_per_m = K[0, 0] / depth_m
-    level = 0
-    while level + 1 < len(texture.levels) and texture.ppm[level] > 1.4 * px_per_m:
-        level += 1
-    return level
-
-
 def render_board(T_C_B, texture: BoardTexture, xy_n, K, dist, roi=None):
     """Premultiplied board reflectance and sheet coverage at one instant.
 
@@ -240,8 +221,29 @@ def render_board(T_C_B, texture: BoardTexture, xy_n, K, dist, roi=None):
     return layer
 
 
+# Box corners are rounded to 1 / REMAP_STEPS texel before cv2.remap reads the summed-area
+# table: OpenCV's bilinear remap works on that grid (INTER_BITS = 5) whatever the map's
+# precision, so the box that is summed is exactly the one whose area divides the sum.
+REMAP_STEPS = 32
+# Box half-sizes are held in [1 / REMAP_STEPS, MAX_BOX_TEXELS] texels (a board seen nearly
+# edge-on has enormous footprints near its horizon: they are averaged over at most this).
+MAX_BOX_TEXELS = 256.0
+
+
 def render_board_region(T_C_B, texture: BoardTexture, xy_n, K, roi):
     """``render_board`` inside the pixel box ``roi`` = (x0, y0, x1, y1) only: shape (y1-y0, x1-x0, 2).
+
+    Each pixel is the mean of the texture's finest level over a box in texel space: centred
+    on the pixel centre's texel position, with the half-widths of the pixel footprint's
+    second moments (the footprint is the unit pixel square through the local Jacobian of the
+    pixel-to-texel map: the distortion's ray Jacobian from the grid, the plane homography's
+    exactly). The box's sum comes from the summed-area table (:attr:`BoardTexture.sums`),
+    which is bilinear inside each texel, so four bilinear lookups give it exactly at any
+    sub-texel position. For a footprint aligned with the board's axes the value is the exact
+    area coverage; a rotated footprint is replaced by a box of its second moments (a
+    symmetric change of the pixel's aperture, which moves no edge). A single point sample of
+    a mip level instead moved an edge by up to ~0.09 texel with its phase on that level's
+    grid, an error shared by every corner of a frame (docs/findings.md, 2026-12-02).
 
     Parameters
     ----------
@@ -251,36 +253,77 @@ def render_board_region(T_C_B, texture: BoardTexture, xy_n, K, roi):
     xy_n : ndarray, shape (H, W, 2)
         ``undistortion_grid`` of the camera.
     K : ndarray, shape (3, 3)
-        Camera matrix, px (only used to choose the level).
+        Camera matrix, px (unused: the pixel footprint comes from ``xy_n``; kept so that
+        every renderer call has the camera).
     roi : (int, int, int, int)
         ``(x0, y0, x1, y1)``, pixels, end-exclusive, inside the image.
 
     Returns
     -------
     layer : ndarray, shape (y1 - y0, x1 - x0, 2), float32
-        Channel 0 reflectance times coverage, channel 1 coverage (0..1); 0 where the pixel's
-        ray misses the sheet or meets the board plane behind the camera.
+        Channel 0 reflectance times coverage, channel 1 coverage (0..1), pixel-area means;
+        0 where the pixel centre's ray misses the sheet or meets the board plane behind the
+        camera.
     """
     x0, y0, x1, y1 = roi
-    level = choose_level(T_C_B, K, texture)
-    G = _texel_from_ray(T_C_B, texture, level)
+    sums = texture.sums
+    if sums is None:
+        sums = cv2.integral(texture.levels[0].astype(np.float64), sdepth=cv2.CV_64F)
+    G = _texel_from_ray(T_C_B, texture, 0)
     rays = xy_n[y0:y1, x0:x1]
-    den = G[2, 0] * rays[..., 0] + G[2, 1] * rays[..., 1] + G[2, 2]
+    rx, ry = rays[..., 0], rays[..., 1]
+    dx_du, dx_dv = _ray_jacobian(xy_n, roi)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        den = G[2, 0] * rx + G[2, 1] * ry + G[2, 2]
+        map_c = (G[0, 0] * rx + G[0, 1] * ry + G[0, 2]) / den
+        map_r = (G[1, 0] * rx + G[1, 1] * ry + G[1, 2]) / den
+        # d(texel)/d(ray) of the homography, then through the ray's pixel Jacobian
+        jc0, jc1 = (G[0, 0] - map_c * G[2, 0]) / den, (G[0, 1] - map_c * G[2, 1]) / den
+        jr0, jr1 = (G[1, 0] - map_r * G[2, 0]) / den, (G[1, 1] - map_r * G[2, 1]) / den
+        jcu = jc0 * dx_du[..., 0] + jc1 * dx_du[..., 1]
+        jcv = jc0 * dx_dv[..., 0] + jc1 * dx_dv[..., 1]
+        jru = jr0 * dx_du[..., 0] + jr1 * dx_du[..., 1]
+        jrv = jr0 * dx_dv[..., 0] + jr1 * dx_dv[..., 1]
+        # half-widths of the box with the unit square footprint's second moments
+        half_c = 0.5 * np.sqrt(jcu * jcu + jcv * jcv)
+        half_r = 0.5 * np.sqrt(jru * jru + jrv * jrv)
+    # Rays that meet the board plane behind the camera (or nowhere) must sample nothing.
+    ok = (_rays_hit_front(T_C_B, rays) > 0) & np.isfinite(map_c) & np.isfinite(map_r)
+    ok &= np.isfinite(half_c) & np.isfinite(half_r)
+    rows, cols = texture.levels[0].shape[:2]
+    far = -4.0 * MAX_BOX_TEXELS
+    # texel-centre coordinate c is summed-area coordinate c + 0.5 (texel k spans [k, k + 1))
+    cen_c = np.where(ok, np.clip(map_c, far, cols - far), far) + 0.5
+    cen_r = np.where(ok, np.clip(map_r, far, rows - far), far) + 0.5
+    lo = 1.0 / REMAP_STEPS
+    half_c = np.clip(np.where(ok, half_c, lo), lo, MAX_BOX_TEXELS)
+    half_r = np.clip(np.where(ok, half_r, lo), lo, MAX_BOX_TEXELS)
+    q = float(REMAP_STEPS)
+    c_lo, c_hi = np.rint((cen_c - half_c) * q) / q, np.rint((cen_c + half_c) * q) / q
+    r_lo, r_hi = np.rint((cen_r - half_r) * q) / q, np.rint((cen_r + half_r) * q) / q
+    h, w = rays.shape[:2]
+    map_x = np.stack([c_lo, c_hi, c_lo, c_hi]).astype(np.float32).reshape(4 * h, w)
+    map_y = np.stack([r_lo, r_lo, r_hi, r_hi]).astype(np.float32).reshape(4 * h, w)
+    s = cv2.remap(sums, map_x, map_y, interpolation=cv2.INTER_LINEAR,
+                  borderMode=cv2.BORDER_REPLICATE).reshape(4, h, w, 2)
+    area = ((c_hi - c_lo) * (r_hi - r_lo))[..., None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        map_c = (G[0, 0] * rays[..., 0] + G[0, 1] * rays[..., 1] + G[0, 2]) / den
-        map_r = (G[1, 0] * rays[..., 0] + G[1, 1] * rays[..., 1] + G[1, 2]) / den
-    # Rays that meet the board plane behind the camera must sample nothing.
-    hits = _rays_hit_front(T_C_B, rays) > 0
-    map_c = np.where(hits, map_c, -10.0).astype(np.float32)
-    map_r = np.where(hits, map_r, -10.0).astype(np.float32)
-    return cv2.remap(
-        texture.levels[level],
-        map_c,
-        map_r,
-        interpolation=cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_CONSTANT,
-        borderValue=0,
-    )
+        mean = (s[3] - s[1] - s[2] + s[0]) / area
+    return np.where(ok[..., None] & (area > 0), mean, 0.0).astype(np.float32)
+
+
+def _ray_jacobian(xy_n, roi):
+    """d(ray)/du and d(ray)/dv (each (h, w, 2), per px) of the grid inside ``roi``: central
+    differences, one-sided at the image border."""
+    x0, y0, x1, y1 = roi
+    height, width = xy_n.shape[:2]
+    a0, b0 = max(x0 - 1, 0), max(y0 - 1, 0)
+    a1, b1 = min(x1 + 1, width), min(y1 + 1, height)
+    g = xy_n[b0:b1, a0:a1]
+    sl = (slice(y0 - b0, y1 - b0), slice(x0 - a0, x1 - a0))
+    du = np.gradient(g, axis=1) if g.shape[1] > 1 else np.zeros_like(g)
+    dv = np.gradient(g, axis=0) if g.shape[0] > 1 else np.zeros_like(g)
+    return du[sl], dv[sl]
 
 
 def _rays_hit_front(T_C_B, rays):
