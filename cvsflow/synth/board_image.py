@@ -269,69 +269,65 @@ def render_board_region(T_C_B, texture: BoardTexture, xy_n, K, roi):
     sums = texture.sums
     if sums is None:
         sums = cv2.integral(texture.levels[0].astype(np.float64), sdepth=cv2.CV_64F)
-    G = _texel_from_ray(T_C_B, texture, 0)
-    rays = xy_n[y0:y1, x0:x1]
-    rx, ry = rays[..., 0], rays[..., 1]
-    dx_du, dx_dv = _ray_jacobian(xy_n, roi)
+    G = _texel_from_ray(T_C_B, texture, 0).astype(np.float32)
+    planes = _grid_planes(xy_n)  # rx, ry, d(rx, ry)/du, d(rx, ry)/dv: (6, H, W) float32
+    rx, ry, xu, yu, xv, yv = planes[:, y0:y1, x0:x1]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        den = G[2, 0] * rx + G[2, 1] * ry + G[2, 2]
-        map_c = (G[0, 0] * rx + G[0, 1] * ry + G[0, 2]) / den
-        map_r = (G[1, 0] * rx + G[1, 1] * ry + G[1, 2]) / den
-        # d(texel)/d(ray) of the homography, then through the ray's pixel Jacobian
-        jc0, jc1 = (G[0, 0] - map_c * G[2, 0]) / den, (G[0, 1] - map_c * G[2, 1]) / den
-        jr0, jr1 = (G[1, 0] - map_r * G[2, 0]) / den, (G[1, 1] - map_r * G[2, 1]) / den
-        jcu = jc0 * dx_du[..., 0] + jc1 * dx_du[..., 1]
-        jcv = jc0 * dx_dv[..., 0] + jc1 * dx_dv[..., 1]
-        jru = jr0 * dx_du[..., 0] + jr1 * dx_du[..., 1]
-        jrv = jr0 * dx_dv[..., 0] + jr1 * dx_dv[..., 1]
-        # half-widths of the box with the unit square footprint's second moments
-        half_c = 0.5 * np.sqrt(jcu * jcu + jcv * jcv)
-        half_r = 0.5 * np.sqrt(jru * jru + jrv * jrv)
+        inv = 1.0 / (G[2, 0] * rx + G[2, 1] * ry + G[2, 2])
+        map_c = (G[0, 0] * rx + G[0, 1] * ry + G[0, 2]) * inv
+        map_r = (G[1, 0] * rx + G[1, 1] * ry + G[1, 2]) * inv
+        # d(texel)/d(ray) of the homography, then through the ray's pixel Jacobian; the box
+        # half-widths are those of the unit pixel square footprint's second moments
+        half = []
+        for m, g0, g1 in ((map_c, G[0, 0], G[0, 1]), (map_r, G[1, 0], G[1, 1])):
+            a0, a1 = (g0 - m * G[2, 0]) * inv, (g1 - m * G[2, 1]) * inv
+            du, dv = a0 * xu + a1 * yu, a0 * xv + a1 * yv
+            half.append(0.5 * np.sqrt(du * du + dv * dv))  # not hypot: libm's may vary
+        half_c, half_r = half
     # Rays that meet the board plane behind the camera (or nowhere) must sample nothing.
-    ok = (_rays_hit_front(T_C_B, rays) > 0) & np.isfinite(map_c) & np.isfinite(map_r)
-    ok &= np.isfinite(half_c) & np.isfinite(half_r)
+    n_C = T_C_B[:3, 2].astype(np.float32)
+    front = (n_C[0] * rx + n_C[1] * ry + n_C[2]) * np.float32(n_C @ T_C_B[:3, 3].astype(np.float32)) > 0
+    ok = front & np.isfinite(map_c) & np.isfinite(map_r) & np.isfinite(half_c) & np.isfinite(half_r)
     rows, cols = texture.levels[0].shape[:2]
     far = -4.0 * MAX_BOX_TEXELS
+    lo, q = 1.0 / REMAP_STEPS, np.float32(REMAP_STEPS)
+    h, w = rx.shape
+    map_x = np.empty((4, h, w), np.float32)
+    map_y = np.empty((4, h, w), np.float32)
     # texel-centre coordinate c is summed-area coordinate c + 0.5 (texel k spans [k, k + 1))
-    cen_c = np.where(ok, np.clip(map_c, far, cols - far), far) + 0.5
-    cen_r = np.where(ok, np.clip(map_r, far, rows - far), far) + 0.5
-    lo = 1.0 / REMAP_STEPS
-    half_c = np.clip(np.where(ok, half_c, lo), lo, MAX_BOX_TEXELS)
-    half_r = np.clip(np.where(ok, half_r, lo), lo, MAX_BOX_TEXELS)
-    q = float(REMAP_STEPS)
-    c_lo, c_hi = np.rint((cen_c - half_c) * q) / q, np.rint((cen_c + half_c) * q) / q
-    r_lo, r_hi = np.rint((cen_r - half_r) * q) / q, np.rint((cen_r + half_r) * q) / q
-    h, w = rays.shape[:2]
-    map_x = np.stack([c_lo, c_hi, c_lo, c_hi]).astype(np.float32).reshape(4 * h, w)
-    map_y = np.stack([r_lo, r_lo, r_hi, r_hi]).astype(np.float32).reshape(4 * h, w)
-    s = cv2.remap(sums, map_x, map_y, interpolation=cv2.INTER_LINEAR,
+    for centre, half, size, out, order in ((map_c, half_c, cols, map_x, (0, 1, 0, 1)),
+                                           (map_r, half_r, rows, map_y, (0, 0, 1, 1))):
+        centre = np.where(ok, np.clip(centre, far, size - far), far) + np.float32(0.5)
+        half = np.clip(np.where(ok, half, lo), lo, MAX_BOX_TEXELS)
+        ends = (np.rint((centre - half) * q) / q, np.rint((centre + half) * q) / q)
+        for k, e in enumerate(order):
+            out[k] = ends[e]
+    s = cv2.remap(sums, map_x.reshape(4 * h, w), map_y.reshape(4 * h, w),
+                  interpolation=cv2.INTER_LINEAR,
                   borderMode=cv2.BORDER_REPLICATE).reshape(4, h, w, 2)
-    area = ((c_hi - c_lo) * (r_hi - r_lo))[..., None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mean = (s[3] - s[1] - s[2] + s[0]) / area
-    return np.where(ok[..., None] & (area > 0), mean, 0.0).astype(np.float32)
+    area = (map_x[1] - map_x[0]) * (map_y[2] - map_y[0])
+    scale = np.where(ok & (area > 0), 1.0 / np.maximum(area, lo * lo), 0.0)[..., None]
+    return ((s[3] - s[1] - s[2] + s[0]) * scale).astype(np.float32)
 
 
-def _ray_jacobian(xy_n, roi):
-    """d(ray)/du and d(ray)/dv (each (h, w, 2), per px) of the grid inside ``roi``: central
-    differences, one-sided at the image border."""
-    x0, y0, x1, y1 = roi
-    height, width = xy_n.shape[:2]
-    a0, b0 = max(x0 - 1, 0), max(y0 - 1, 0)
-    a1, b1 = min(x1 + 1, width), min(y1 + 1, height)
-    g = xy_n[b0:b1, a0:a1]
-    sl = (slice(y0 - b0, y1 - b0), slice(x0 - a0, x1 - a0))
-    du = np.gradient(g, axis=1) if g.shape[1] > 1 else np.zeros_like(g)
-    dv = np.gradient(g, axis=0) if g.shape[0] > 1 else np.zeros_like(g)
-    return du[sl], dv[sl]
+# Undistortion grids seen lately and their planes (_grid_planes), matched by identity: a
+# renderer passes the same grid for every frame.
+_GRID_PLANES: list = []
 
 
-def _rays_hit_front(T_C_B, rays):
-    """Positive where the ray (x, y, 1) meets the board plane in front of the camera."""
-    n_C = T_C_B[:3, 2]  # board z axis in C
-    d = float(n_C @ T_C_B[:3, 3])  # plane: n . p = d
-    dot = n_C[0] * rays[..., 0] + n_C[1] * rays[..., 1] + n_C[2]
-    return dot * d
+def _grid_planes(xy_n):
+    """(6, H, W) float32: the grid's rays x, y and their derivatives along u then v (x_u, y_u,
+    x_v, y_v, per px; central differences, one-sided at the image border), cached per grid."""
+    for grid, planes in _GRID_PLANES:
+        if grid is xy_n:
+            return planes
+    du = np.gradient(xy_n, axis=1) if xy_n.shape[1] > 1 else np.zeros_like(xy_n)
+    dv = np.gradient(xy_n, axis=0) if xy_n.shape[0] > 1 else np.zeros_like(xy_n)
+    planes = np.stack([xy_n[..., 0], xy_n[..., 1], du[..., 0], du[..., 1], dv[..., 0],
+                       dv[..., 1]]).astype(np.float32)
+    _GRID_PLANES.insert(0, (xy_n, planes))
+    del _GRID_PLANES[4:]
+    return planes
 
 
 def board_roi(T_C_B, texture: BoardTexture, K, dist, size, pad_px=3):

@@ -43,13 +43,13 @@ REPO = Path(__file__).resolve().parents[2]
 # its design rotations come from numpy's sin/cos, whose last bit differs between CPUs' SIMD paths.
 FAST_1S_TRUTH = Path(__file__).parent / "data" / "fast_1s_truth.yaml"
 FAST_1S_SHA256 = {
-    "calib/still_00.png": "7a4b72823f13fa70862f3e153ac5657a06e7bdcf9d0e1e4fc0613b3f6b898a15",
-    "calib/still_01.png": "022fd480e10dee304e7b1d80d40f383daec61ea625c7c8239f932aea6cee4edb",
-    "calib/still_02.png": "f3c21ede993cad2605364f285a4e351b81356ee7cfdce8959b5e3c379fef9edc",
+    "calib/still_00.png": "31781fa93879efb6dfd2ea0cf2bc9cce484fb2f730f2d434fe10b66ce9df2cef",
+    "calib/still_01.png": "bbeae694155e30acbbaad28a71f738b72c14337735ee0149624b6be125751d60",
+    "calib/still_02.png": "7f9c6b8ae93a6a584a898779494258e610319203a7a9bb274b13662ae6b072c2",
     "truth_corners.parquet": "5cbefef8226a28e8b58074b7a472080a06183a4607b03b33c00752d9a62056cd",
     "truth_frames.parquet": "ab6863f3f4ca7cc8b2741e0430df93f96ef74d7484876078595f17e613339a51",
     "vicon.csv": "b06d4afaa20ea37891f2a8d4ae21e13d2ffc1ecd81dec6c82e05946bc78172f1",
-    "video.mp4": "b2b2056f7176f067e78a61de0c6a245803d70df93a789664428d401996afd328",
+    "video.mp4": "21ce212b8cbf22d0f56d7cc4107d257820ed4a587a6e65503373c3fee5b3eddb",
 }
 
 
