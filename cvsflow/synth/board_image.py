@@ -3,9 +3,9 @@
 The board is rendered in one resampling step per instant: for every pixel of the distorted
 image, its undistorted normalised ray (computed once per camera,
 :func:`cvsflow.synth.camera.undistortion_grid`) is mapped by the plane homography into the
-board texture, and each pixel's value is the exact mean of the texture over the pixel's footprint there
-(an axis-aligned box in texel space read from the finest level's summed-area table,
-:func:`render_board_region`), so far boards are free of aliasing and an edge's image does not
+board texture, and the pixel's value is the texture's exact mean over the pixel's footprint
+there (an axis-aligned box in texel space read from the finest level's summed-area table,
+:func:`render_board_region`). Far boards are so free of aliasing, and an edge's image does not
 depend on where it falls on the texel grid. Motion blur is the mean of several such renders
 over the exposure time.
 """
@@ -251,7 +251,8 @@ def render_board_region(T_C_B, texture: BoardTexture, xy_n, K, roi):
         Board in camera, metres.
     texture : BoardTexture
     xy_n : ndarray, shape (H, W, 2)
-        ``undistortion_grid`` of the camera.
+        ``undistortion_grid`` of the camera. Its rays and their pixel Jacobian are cached
+        per grid object (the last four): do not change a grid in place once rendered with.
     K : ndarray, shape (3, 3)
         Camera matrix, px (unused: the pixel footprint comes from ``xy_n``; kept so that
         every renderer call has the camera).
