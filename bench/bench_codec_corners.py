@@ -1,7 +1,7 @@
 """Corner noise against the renderer's truth: codec, render path and cornerSubPix window.
 
 Renders a short clip of a session of bench/uncertainty_sessions.yaml (or config/config.yaml)
-in memory and extracts its corners (``pose.detect_corners``, every frame on its own) from
+in memory and extracts its corners (``corners_detect.detect_corners``, every frame on its own) from
 
 - ``raw``: the rendered frames themselves (lossless, no encoder);
 - ``png``: the same frames through a PNG round trip (a lossless file path: must equal raw);
@@ -21,7 +21,7 @@ the absorbed part (PnP's 6-DOF column space, per DOF), the common shift (x, y), 
 rotation about the corners' centroid; the common shift's lag-1 autocorrelation over
 consecutive frames and its mean (a bias, px). ``--windows 2,3,4,5`` repeats the detection
 with those ``subpix_window_px`` values (the largest cornerSubPix half window) on the raw and
-mpeg4 frames and prints the half window actually used (``pose._subpix_window``).
+mpeg4 frames and prints the half window actually used (``corners_grid._subpix_window``).
 
 Usage::
 
@@ -44,7 +44,9 @@ import cv2
 import numpy as np
 import yaml
 
-from cvsflow import pose
+from cvsflow.board import SUBPIX_CRITERIA
+from cvsflow.corners_detect import detect_corners
+from cvsflow.corners_grid import _subpix_window
 from cvsflow.io.synth_out import PyAvVideoSink, VideoSink
 from cvsflow.synth.effects import PTS_RATE_HZ
 from cvsflow.synth.frames import FrameEffects
@@ -170,15 +172,15 @@ def analyse(detected, spec, truth, window_px, from_truth=False):
             if np.isfinite(true).all():
                 start = np.round(true).astype(np.float32).reshape(-1, 1, 2)
                 uv = cv2.cornerSubPix(gray, start, (window_px, window_px), (-1, -1),
-                                      pose.SUBPIX_CRITERIA).reshape(-1, 2).astype(float)
+                                      SUBPIX_CRITERIA).reshape(-1, 2).astype(float)
         else:
-            uv, _ = pose.detect_corners(gray, board, subpix_window_px=window_px)
+            uv, _ = detect_corners(gray, board, subpix_window_px=window_px)
         if uv is None or not np.isfinite(uv).all() or not np.isfinite(true).all():
             continue
         e = uv - true
         if np.abs(e).max() > 3.0:  # a flip or a wrong grid: not corner noise
             continue
-        used_w.append(window_px if from_truth else pose._subpix_window(uv, board, window_px))
+        used_w.append(window_px if from_truth else _subpix_window(uv, board, window_px))
         T = truth.T_C_B[k]
         rvec, _ = cv2.Rodrigues(T[:3, :3])
         _, jac = cv2.projectPoints(p_B, rvec, T[:3, 3], spec.K, spec.dist)

@@ -3,8 +3,10 @@
 The board is rendered in one resampling step per instant: for every pixel of the distorted
 image, its undistorted normalised ray (computed once per camera,
 :func:`cvsflow.synth.camera.undistortion_grid`) is mapped by the plane homography into the
-board texture, and ``cv2.remap`` samples the texture there. A pyramid of area-averaged
-textures keeps far boards free of aliasing. Motion blur is the mean of several such renders
+board texture, and the pixel's value is the texture's exact mean over the pixel's footprint
+there (an axis-aligned box in texel space read from the finest level's summed-area table,
+:func:`render_board_region`). Far boards are so free of aliasing, and an edge's image does not
+depend on where it falls on the texel grid. Motion blur is the mean of several such renders
 over the exposure time.
 """
 
@@ -37,6 +39,7 @@ class BoardTexture:
     ppm: tuple
     x0_m: float
     y0_m: float
+    sums: np.ndarray | None = None  # (rows + 1, cols + 1, 2) float64 summed-area table of levels[0]
 
 
 def make_board_texture(board: Board, ppm=1200.0, n_levels=5, markers_B=None) -> BoardTexture:
@@ -139,14 +142,16 @@ def texture_pyramid(level, ppm, n_levels, x0, y0) -> BoardTexture:
     Returns
     -------
     BoardTexture
-        Level l at ``ppm / 2**l`` texels per metre.
+        Level l at ``ppm / 2**l`` texels per metre, and ``sums``, the summed-area table of
+        ``level`` (``sums[j, i]`` = sum of texels [0, j) x [0, i)) that the renderer reads.
     """
     levels, ppms = [level], [ppm]
     for _ in range(n_levels - 1):
         level = cv2.resize(level, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
         levels.append(level)
         ppms.append(ppms[-1] / 2)
-    return BoardTexture(tuple(levels), tuple(ppms), float(x0), float(y0))
+    sums = cv2.integral(levels[0].astype(np.float64), sdepth=cv2.CV_64F)
+    return BoardTexture(tuple(levels), tuple(ppms), float(x0), float(y0), sums)
 
 
 def _draw_markers(reflectance, markers_B, x0, y0, ppm, sheet):
@@ -185,30 +190,6 @@ def _texel_from_ray(T_C_B, texture: BoardTexture, level: int):
     return A @ H_B
 
 
-def choose_level(T_C_B, K, texture: BoardTexture) -> int:
-    """Finest pyramid level with at most ~1.4 texels per pixel at the board centre.
-
-    Parameters
-    ----------
-    T_C_B : ndarray, shape (4, 4)
-        Board in camera, metres; its origin's depth (held at >= 1 mm) sets the scale.
-    K : ndarray, shape (3, 3)
-        Camera matrix, px (``fx`` is used).
-    texture : BoardTexture
-
-    Returns
-    -------
-    int
-        Level index, 0 (finest) to ``len(texture.levels) - 1``.
-    """
-    depth_m = max(float(T_C_B[2, 3]), 1e-3)
-    px_per_m = K[0, 0] / depth_m
-    level = 0
-    while level + 1 < len(texture.levels) and texture.ppm[level] > 1.4 * px_per_m:
-        level += 1
-    return level
-
-
 def render_board(T_C_B, texture: BoardTexture, xy_n, K, dist, roi=None):
     """Premultiplied board reflectance and sheet coverage at one instant.
 
@@ -240,8 +221,29 @@ def render_board(T_C_B, texture: BoardTexture, xy_n, K, dist, roi=None):
     return layer
 
 
+# Box corners are rounded to 1 / REMAP_STEPS texel before cv2.remap reads the summed-area
+# table: OpenCV's bilinear remap works on that grid (INTER_BITS = 5) whatever the map's
+# precision, so the box that is summed is exactly the one whose area divides the sum.
+REMAP_STEPS = 32
+# Box half-sizes are held in [1 / REMAP_STEPS, MAX_BOX_TEXELS] texels (a board seen nearly
+# edge-on has enormous footprints near its horizon: they are averaged over at most this).
+MAX_BOX_TEXELS = 256.0
+
+
 def render_board_region(T_C_B, texture: BoardTexture, xy_n, K, roi):
     """``render_board`` inside the pixel box ``roi`` = (x0, y0, x1, y1) only: shape (y1-y0, x1-x0, 2).
+
+    Each pixel is the mean of the texture's finest level over a box in texel space: centred
+    on the pixel centre's texel position, with the half-widths of the pixel footprint's
+    second moments (the footprint is the unit pixel square through the local Jacobian of the
+    pixel-to-texel map: the distortion's ray Jacobian from the grid, the plane homography's
+    exactly). The box's sum comes from the summed-area table (:attr:`BoardTexture.sums`),
+    which is bilinear inside each texel, so four bilinear lookups give it exactly at any
+    sub-texel position. For a footprint aligned with the board's axes the value is the exact
+    area coverage; a rotated footprint is replaced by a box of its second moments (a
+    symmetric change of the pixel's aperture, which moves no edge). A single point sample of
+    a mip level instead moved an edge by up to ~0.09 texel with its phase on that level's
+    grid, an error shared by every corner of a frame (docs/findings.md, 2026-12-02).
 
     Parameters
     ----------
@@ -249,46 +251,84 @@ def render_board_region(T_C_B, texture: BoardTexture, xy_n, K, roi):
         Board in camera, metres.
     texture : BoardTexture
     xy_n : ndarray, shape (H, W, 2)
-        ``undistortion_grid`` of the camera.
+        ``undistortion_grid`` of the camera. Its rays and their pixel Jacobian are cached
+        per grid object (the last four): do not change a grid in place once rendered with.
     K : ndarray, shape (3, 3)
-        Camera matrix, px (only used to choose the level).
+        Camera matrix, px (unused: the pixel footprint comes from ``xy_n``; kept so that
+        every renderer call has the camera).
     roi : (int, int, int, int)
         ``(x0, y0, x1, y1)``, pixels, end-exclusive, inside the image.
 
     Returns
     -------
     layer : ndarray, shape (y1 - y0, x1 - x0, 2), float32
-        Channel 0 reflectance times coverage, channel 1 coverage (0..1); 0 where the pixel's
-        ray misses the sheet or meets the board plane behind the camera.
+        Channel 0 reflectance times coverage, channel 1 coverage (0..1), pixel-area means;
+        0 where the pixel centre's ray misses the sheet or meets the board plane behind the
+        camera.
     """
     x0, y0, x1, y1 = roi
-    level = choose_level(T_C_B, K, texture)
-    G = _texel_from_ray(T_C_B, texture, level)
-    rays = xy_n[y0:y1, x0:x1]
-    den = G[2, 0] * rays[..., 0] + G[2, 1] * rays[..., 1] + G[2, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        map_c = (G[0, 0] * rays[..., 0] + G[0, 1] * rays[..., 1] + G[0, 2]) / den
-        map_r = (G[1, 0] * rays[..., 0] + G[1, 1] * rays[..., 1] + G[1, 2]) / den
-    # Rays that meet the board plane behind the camera must sample nothing.
-    hits = _rays_hit_front(T_C_B, rays) > 0
-    map_c = np.where(hits, map_c, -10.0).astype(np.float32)
-    map_r = np.where(hits, map_r, -10.0).astype(np.float32)
-    return cv2.remap(
-        texture.levels[level],
-        map_c,
-        map_r,
-        interpolation=cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_CONSTANT,
-        borderValue=0,
-    )
+    sums = texture.sums
+    if sums is None:
+        sums = cv2.integral(texture.levels[0].astype(np.float64), sdepth=cv2.CV_64F)
+    G = _texel_from_ray(T_C_B, texture, 0).astype(np.float32)
+    planes = _grid_planes(xy_n)  # rx, ry, d(rx, ry)/du, d(rx, ry)/dv: (6, H, W) float32
+    rx, ry, xu, yu, xv, yv = planes[:, y0:y1, x0:x1]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        inv = 1.0 / (G[2, 0] * rx + G[2, 1] * ry + G[2, 2])
+        map_c = (G[0, 0] * rx + G[0, 1] * ry + G[0, 2]) * inv
+        map_r = (G[1, 0] * rx + G[1, 1] * ry + G[1, 2]) * inv
+        # d(texel)/d(ray) of the homography, then through the ray's pixel Jacobian; the box
+        # half-widths are those of the unit pixel square footprint's second moments
+        half = []
+        for m, g0, g1 in ((map_c, G[0, 0], G[0, 1]), (map_r, G[1, 0], G[1, 1])):
+            a0, a1 = (g0 - m * G[2, 0]) * inv, (g1 - m * G[2, 1]) * inv
+            du, dv = a0 * xu + a1 * yu, a0 * xv + a1 * yv
+            half.append(0.5 * np.sqrt(du * du + dv * dv))  # not hypot: libm's may vary
+        half_c, half_r = half
+    # Rays that meet the board plane behind the camera (or nowhere) must sample nothing.
+    n_C = T_C_B[:3, 2].astype(np.float32)
+    front = (n_C[0] * rx + n_C[1] * ry + n_C[2]) * np.float32(n_C @ T_C_B[:3, 3].astype(np.float32)) > 0
+    ok = front & np.isfinite(map_c) & np.isfinite(map_r) & np.isfinite(half_c) & np.isfinite(half_r)
+    rows, cols = texture.levels[0].shape[:2]
+    far = -4.0 * MAX_BOX_TEXELS
+    lo, q = 1.0 / REMAP_STEPS, np.float32(REMAP_STEPS)
+    h, w = rx.shape
+    map_x = np.empty((4, h, w), np.float32)
+    map_y = np.empty((4, h, w), np.float32)
+    # texel-centre coordinate c is summed-area coordinate c + 0.5 (texel k spans [k, k + 1))
+    for centre, half, size, out, order in ((map_c, half_c, cols, map_x, (0, 1, 0, 1)),
+                                           (map_r, half_r, rows, map_y, (0, 0, 1, 1))):
+        centre = np.where(ok, np.clip(centre, far, size - far), far) + np.float32(0.5)
+        half = np.clip(np.where(ok, half, lo), lo, MAX_BOX_TEXELS)
+        ends = (np.rint((centre - half) * q) / q, np.rint((centre + half) * q) / q)
+        for k, e in enumerate(order):
+            out[k] = ends[e]
+    s = cv2.remap(sums, map_x.reshape(4 * h, w), map_y.reshape(4 * h, w),
+                  interpolation=cv2.INTER_LINEAR,
+                  borderMode=cv2.BORDER_REPLICATE).reshape(4, h, w, 2)
+    area = (map_x[1] - map_x[0]) * (map_y[2] - map_y[0])
+    scale = np.where(ok & (area > 0), 1.0 / np.maximum(area, lo * lo), 0.0)[..., None]
+    return ((s[3] - s[1] - s[2] + s[0]) * scale).astype(np.float32)
 
 
-def _rays_hit_front(T_C_B, rays):
-    """Positive where the ray (x, y, 1) meets the board plane in front of the camera."""
-    n_C = T_C_B[:3, 2]  # board z axis in C
-    d = float(n_C @ T_C_B[:3, 3])  # plane: n . p = d
-    dot = n_C[0] * rays[..., 0] + n_C[1] * rays[..., 1] + n_C[2]
-    return dot * d
+# Undistortion grids seen lately and their planes (_grid_planes), matched by identity: a
+# renderer passes the same grid for every frame.
+_GRID_PLANES: list = []
+
+
+def _grid_planes(xy_n):
+    """(6, H, W) float32: the grid's rays x, y and their derivatives along u then v (x_u, y_u,
+    x_v, y_v, per px; central differences, one-sided at the image border), cached per grid."""
+    for grid, planes in _GRID_PLANES:
+        if grid is xy_n:
+            return planes
+    du = np.gradient(xy_n, axis=1) if xy_n.shape[1] > 1 else np.zeros_like(xy_n)
+    dv = np.gradient(xy_n, axis=0) if xy_n.shape[0] > 1 else np.zeros_like(xy_n)
+    planes = np.stack([xy_n[..., 0], xy_n[..., 1], du[..., 0], du[..., 1], dv[..., 0],
+                       dv[..., 1]]).astype(np.float32)
+    _GRID_PLANES.insert(0, (xy_n, planes))
+    del _GRID_PLANES[4:]
+    return planes
 
 
 def board_roi(T_C_B, texture: BoardTexture, K, dist, size, pad_px=3):

@@ -37,17 +37,19 @@ REPO = Path(__file__).resolve().parents[2]
 
 # sha256 of every file of the demo session (config/config.yaml) rendered for 1 s with 3 stills
 # by the renderer before the realistic effects existed (commit 520ff45): the fast preset must
-# stay byte-identical. truth.yaml is compared by value (FAST_1S_TRUTH, written by that renderer):
+# stay byte-identical. The images (stills, video) are those of the pixel-area renderer (issue
+# 15: every pixel the texture's mean over its footprint, which changed every image on purpose);
+# the truth tables and the Vicon file are still 520ff45's. truth.yaml is compared by value (FAST_1S_TRUTH, written by that renderer):
 # its design rotations come from numpy's sin/cos, whose last bit differs between CPUs' SIMD paths.
 FAST_1S_TRUTH = Path(__file__).parent / "data" / "fast_1s_truth.yaml"
 FAST_1S_SHA256 = {
-    "calib/still_00.png": "c183cf1eafc5777196d977b1a7d6cc1034973c9d36c858c00f5e4bd8588bb1e2",
-    "calib/still_01.png": "107f89b4b420f2c5a5cd3a823af426b4b1dff1b851f0522bf302d2fdee8d0d4a",
-    "calib/still_02.png": "3f6c4687ac53b29396fd7c01cd6ccdc3039547e3eb20f7ef46defa580367fbeb",
+    "calib/still_00.png": "31781fa93879efb6dfd2ea0cf2bc9cce484fb2f730f2d434fe10b66ce9df2cef",
+    "calib/still_01.png": "bbeae694155e30acbbaad28a71f738b72c14337735ee0149624b6be125751d60",
+    "calib/still_02.png": "7f9c6b8ae93a6a584a898779494258e610319203a7a9bb274b13662ae6b072c2",
     "truth_corners.parquet": "5cbefef8226a28e8b58074b7a472080a06183a4607b03b33c00752d9a62056cd",
     "truth_frames.parquet": "ab6863f3f4ca7cc8b2741e0430df93f96ef74d7484876078595f17e613339a51",
     "vicon.csv": "b06d4afaa20ea37891f2a8d4ae21e13d2ffc1ecd81dec6c82e05946bc78172f1",
-    "video.mp4": "7bc00b8a9d402732109a6ecc7e3f38c98cc53f64fe40451c0f0e05fa7e4362a4",
+    "video.mp4": "21ce212b8cbf22d0f56d7cc4107d257820ed4a587a6e65503373c3fee5b3eddb",
 }
 
 
@@ -106,7 +108,8 @@ def realistic(tmp_path_factory):  # FIXME: 320x240 stills fail (board too large)
 
 
 def test_fast_preset_is_byte_identical_to_the_old_renderer(tmp_path):
-    """The fast preset (no effect key) writes the very files the renderer wrote before the effects."""
+    """The fast preset (no effect key) writes the very files the renderer wrote before the effects
+    (its images: those of the pixel-area renderer)."""
     out = tmp_path / "demo"
     render_session(demo_cfg(duration_s=1.0, n_stills=3), out)
     got = {
