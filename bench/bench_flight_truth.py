@@ -20,7 +20,8 @@ import time
 from cvsflow.errors import SyncError
 from cvsflow.flight.clock import estimate_clock
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
-from cvsflow.flight_synth import CALIB_STD_DEFAULT, render_flight
+from cvsflow.flight_reference_synth import CALIB_STD_DEFAULT
+from cvsflow.flight_synth import render_flight
 
 CAMERAS = {
     "demo": None,

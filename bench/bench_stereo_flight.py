@@ -3,7 +3,7 @@
 Renders the flight demo's trajectory (``flight_synth.render_flight``, 3-20 m from camera 0)
 and, for a single camera and for two-camera rigs with baselines of 0.3, 1 and 3 m (camera 1
 to the right of camera 0, turned in so the optical axes cross 10 m ahead), states each frame's
-reference covariance from the corners the cameras see (``stereo.fused_board_pose``, 0.3 px
+reference covariance from the corners the cameras see (``stereo_fusion.fused_board_pose``, 0.3 px
 iid corner noise, the board's 20 corners, corners within 2 px of the border dropped). The same
 flight is then drawn with that covariance and evaluated by ``flight.evaluate_flight`` (true
 clock, fitted SE(3) alignment), which gives the share of samples whose error the reference
@@ -31,10 +31,11 @@ import numpy as np
 
 from cvsflow import flight as F
 from cvsflow.board import board_object_points
-from cvsflow.flight_synth import BOARD_DEFAULT, CAMERA_DEMO, observe_rig, render_flight, stereo_rig
+from cvsflow.flight_reference_synth import BOARD_DEFAULT, CAMERA_DEMO, observe_rig, stereo_rig
+from cvsflow.flight_synth import render_flight
 from cvsflow.geometry.transforms import R_from_rvec, invert_T, pose_error_left
 from cvsflow.optimise.se3_model import K_from_intrinsics
-from cvsflow.stereo import board_pose_starts, fused_board_pose, fused_board_pose_best
+from cvsflow.stereo_fusion import board_pose_starts, fused_board_pose, fused_board_pose_best
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")
 #: --design: a 1080p camera and a board of twice the side (8 x 6 squares of 12.5 cm).

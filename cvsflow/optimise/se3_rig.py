@@ -31,7 +31,7 @@ the sensitivity (their ``std`` from each camera.yaml).
 Fused board pose (``se3_rig_poses``, :func:`~cvsflow.optimise.se3_rig_poses.fused_rig_poses`):
 frames of several cameras at the same Vicon instant (within ``match_tol_s``) form one rig
 frame, whose board pose in camera 0's frame is solved from all their corners at once
-(:func:`cvsflow.stereo.fused_board_pose`), with its covariance (the corner noise's and the
+(:func:`cvsflow.stereo_fusion.fused_board_pose`), with its covariance (the corner noise's and the
 calibration's); a rig frame seen by one camera is that camera's PnP, mapped to C0.
 Held-out scoring (:func:`cross_validate_se3_rig`) uses the time-block folds of
 :func:`cvsflow.evaluate.cross_validate_se3` on the common timeline and scores the fused poses

@@ -19,7 +19,7 @@ from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points
 from cvsflow.optimise.se3_apply import pose_columns, tracks_from_params
 from cvsflow.optimise.se3_model import K_from_intrinsics
 from cvsflow.optimise.se3_start import corner_arrays, solve_pnp_frames
-from cvsflow.stereo import fused_board_pose, fused_pose_jacobian
+from cvsflow.stereo_fusion import fused_board_pose, fused_pose_jacobian
 
 log = logging.getLogger(__name__)
 
@@ -166,7 +166,7 @@ def fused_rig_poses(
 
     Notes
     -----
-    The covariance is the corner noise's (:func:`cvsflow.stereo.fused_board_pose`) plus, by
+    The covariance is the corner noise's (:func:`cvsflow.stereo_fusion.fused_board_pose`) plus, by
     default, the calibration's: every camera's intrinsics and mounting T_Cm_Ci, with the
     fit's cross-covariances, carried through the fused solve to first order
     (:func:`fused_pose_calibration_covariance`). The cross-covariances matter: the common
@@ -374,7 +374,7 @@ def fused_pose_calibration_covariance(params, uv_px, seen, p_B, T_C0_B, sigma_px
 
     ``D Sigma_theta D^T`` per frame, Sigma_theta the joint covariance of every camera's
     intrinsics and mounting (:func:`calibration_covariance`), D = d T_C0_B / d theta by
-    :func:`cvsflow.stereo.fused_pose_jacobian` (central differences of three Gauss-Newton
+    :func:`cvsflow.stereo_fusion.fused_pose_jacobian` (central differences of three Gauss-Newton
     steps from the solution), steps of ``rel_step`` standard errors.
     tests/unit/test_se3_rig.py checks it against full re-solves at sampled calibrations.
     Cost: two three-step solves (eight residual and Jacobian evaluations of every frame)
@@ -388,7 +388,7 @@ def fused_pose_calibration_covariance(params, uv_px, seen, p_B, T_C0_B, sigma_px
     params : dict
         :func:`optimise_se3_rig`'s ``result``.
     uv_px, seen, p_B
-        As :func:`~cvsflow.stereo.fused_board_pose`.
+        As :func:`~cvsflow.stereo_fusion.fused_board_pose`.
     T_C0_B : ndarray, shape (F, 4, 4)
         The fused poses (the solution).
     sigma_px : float or ndarray of shape (F, C)

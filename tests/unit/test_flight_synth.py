@@ -11,13 +11,8 @@ import pytest
 
 from cvsflow import flight as F
 from cvsflow.errors import ConfigError, SyncError
-from cvsflow.flight_synth import (
-    CALIB_STD_DEFAULT,
-    T_Q_B_DEFAULT,
-    camera_pose,
-    corner_noise,
-    render_flight,
-)
+from cvsflow.flight_reference_synth import CALIB_STD_DEFAULT, corner_noise
+from cvsflow.flight_synth import T_Q_B_DEFAULT, camera_pose, render_flight
 from cvsflow.transforms import invert_T
 
 
@@ -161,7 +156,8 @@ def test_flip_term_holds_the_planar_ambiguity():
     from scipy.spatial.transform import Rotation
 
     from cvsflow.calibration import board_object_points
-    from cvsflow.flight_synth import BOARD_DEFAULT, CAMERA_DEMO, measure_reference, true_flight
+    from cvsflow.flight_reference_synth import BOARD_DEFAULT, CAMERA_DEMO, measure_reference
+    from cvsflow.flight_synth import true_flight
 
     t = np.arange(601) / 30.0
     T_C_B = invert_T(camera_pose()) @ true_flight(3, 20.0)(t) @ T_Q_B_DEFAULT
@@ -257,7 +253,7 @@ def test_stereo_reference_states_its_error():
     drawn lens) states a covariance its errors match: pooled over six calibration draws,
     the z RMS per axis of camera 0's board pose is near 1. Without the intrinsics' cross-
     covariance with the fitted rig the depth term would be several times too large."""
-    from cvsflow.flight_synth import measure_reference_rig, stereo_rig
+    from cvsflow.flight_reference_synth import measure_reference_rig, stereo_rig
     from cvsflow.transforms import pose_error_left
 
     base = render_flight(seed=1, duration_s=60.0)

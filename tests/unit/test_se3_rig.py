@@ -24,7 +24,7 @@ from cvsflow.optimise.se3_rig_poses import (
 )
 from cvsflow.optimise.se3_sim import simulate_rig_session
 from cvsflow.optimise.se3_start import corner_arrays
-from cvsflow.stereo import fused_board_pose
+from cvsflow.stereo_fusion import fused_board_pose
 
 #: Intrinsics fitted in these tests; the others are held at the truth with std 0, so that
 #: the standard errors are the data's alone and a z-score tests them.

@@ -13,7 +13,8 @@ from cvsflow.board import board_object_points
 from cvsflow.errors import CalibrationError, InputError
 from cvsflow.geometry.camera import project_points
 from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T, pose_error_left, rvec_from_R
-from cvsflow.stereo import calibrate_rig, fused_board_pose, rig_calibration_covariance, stereo_extrinsics
+from cvsflow.stereo import calibrate_rig, stereo_extrinsics
+from cvsflow.stereo_fusion import fused_board_pose, rig_calibration_covariance
 from cvsflow.synth.stereo import render_shared_stills
 
 REPO = Path(__file__).resolve().parents[2]
@@ -304,7 +305,7 @@ def test_intrinsics_sensitivity_matches_refits():
 def test_fused_board_pose_best_escapes_the_mirrored_start():
     """A small board 8-12 m from a 1 m rig: started from the mirrored IPPE pose, one solve stays there; from all
     candidates the fused pose is the true one, and the flip term is in its covariance."""
-    from cvsflow.stereo import board_pose_starts, fused_board_pose_best
+    from cvsflow.stereo_fusion import board_pose_starts, fused_board_pose_best
 
     rng = np.random.default_rng(3)
     board = {"squares_x": 6, "squares_y": 5, "square_m": 0.125}

@@ -487,14 +487,8 @@ def test_flight_reference_covariance_takes_the_shrinkage_option():
     residual is below the pool get a larger covariance and those above a smaller one."""
     from cvsflow import flight as F
     from cvsflow.calibration import board_object_points
-    from cvsflow.flight_synth import (
-        BOARD_DEFAULT,
-        CAMERA_DEMO,
-        T_Q_B_DEFAULT,
-        camera_pose,
-        measure_reference,
-        true_flight,
-    )
+    from cvsflow.flight_reference_synth import BOARD_DEFAULT, CAMERA_DEMO, measure_reference
+    from cvsflow.flight_synth import T_Q_B_DEFAULT, camera_pose, true_flight
 
     t = np.arange(60) / 30.0
     T_C_B = tf.invert_T(camera_pose()) @ true_flight(3, 20.0)(t) @ T_Q_B_DEFAULT
