@@ -196,3 +196,29 @@ def test_init_one_camera_in_subfolders_stays_a_plain_session(tmp_path):
     session, _ = build_session_config(rec)
     assert session["calib_dir"] == str(rec / "calib_a") and session["video"] == str(rec / "video" / "take.mp4")
     assert "cameras" not in session
+
+
+REAL = Path("/work/shared/data/real/opencv-chessboard")
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="OpenCV sample stills not on this machine")
+def test_init_rig_from_the_opencv_sample_stills(tmp_path):
+    """OpenCV's real stills (9x6 inner corners) split between two camera folders: the board is
+    found (10x7 squares) and the shared copies pair by name."""
+    import shutil
+
+    real = sorted(REAL.glob("left*.jpg"))
+    rec = tmp_path / "rec"
+    for c, cam in enumerate(("c0", "c1")):
+        (rec / cam / "calib").mkdir(parents=True)
+        (rec / cam / "shared").mkdir()
+        for p in real[5 * c:5 * c + 5]:
+            shutil.copy(p, rec / cam / "calib" / p.name)
+        for p in real[-3:]:
+            shutil.copy(p, rec / cam / "shared" / p.name)
+        _video(rec / cam / "video.mp4")
+    _mocap(rec / "take.csv")
+    session, notes = build_session_config(rec)
+    assert session["board"] == {"squares_x": 10, "squares_y": 7, "square_m": "TODO"}
+    assert [c["shared_dir"] for c in session["cameras"]] == [str(rec / k / "shared") for k in ("c0", "c1")]
+    assert_runnable_rig("real", session)
