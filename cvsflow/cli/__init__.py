@@ -121,7 +121,9 @@ def build_parser() -> argparse.ArgumentParser:
         "the subjects and marker names in the export; tries common inner-corner sizes on the "
         "first stills; leaves TODO where it cannot know (square_m always) and layout_m out "
         "(learned from the take). Never overwrites. The file merges with config/config.yaml "
-        "when given to --configfile.",
+        "when given to --configfile. Two or more camera folders (DIR/<camera>/ with its stills "
+        "and one video; shared views in DIR/<camera>/shared/ or DIR/shared/<camera>/, the same "
+        "file names in every camera) give a rig session (a cameras: list).",
     )
     i.add_argument("dir", help="recording folder")
     i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml)")

@@ -1,4 +1,9 @@
-"""``cvsflow init``: a session config written from a recording folder, for the user to check."""
+"""``cvsflow init``: a session config written from a recording folder, for the user to check.
+
+One camera (stills, a video, a motion-capture export anywhere in the folder) gives a plain
+session; two or more camera folders (each with its stills and its video) give a rig session
+(a ``cameras:`` list, :func:`cvsflow.sessions.expand_rig_sessions`).
+"""
 
 from __future__ import annotations
 
@@ -16,83 +21,80 @@ MOCAP_SUFFIXES = (".csv", ".c3d", ".tsv")
 #: Inner-corner sizes ``cvsflow init`` tries (OpenCV sample, common printed boards, the demo's).
 COMMON_INNER = ((9, 6), (8, 6), (7, 5), (7, 6), (10, 7), (6, 4), (5, 4), (11, 8), (8, 5))
 
+#: Name of a folder of shared views (stills every camera of a rig took at one instant), in a
+#: camera folder (``rec/<camera>/shared/``) or at the top (``rec/shared/<camera>/``).
+SHARED = "shared"
 
-def _find_stills(folder: Path):
+#: Fewest file names a camera's shared stills must have in common with camera 0's
+#: (``stereo_extrinsics``' default ``min_shared_views``).
+MIN_SHARED_VIEWS = 3
+
+
+def _n_images(d: Path) -> int:
     from cvsflow.io.media import IMAGE_SUFFIXES
 
+    return sum(1 for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def _find_stills(folder: Path, exclude=()):
     best = None
     for d in sorted([folder, *[p for p in folder.rglob("*") if p.is_dir()]]):
-        n = sum(1 for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+        if any(d == e or e in d.parents for e in exclude):
+            continue
+        n = _n_images(d)
         if n >= 3 and (best is None or n > best[1]):
             best = (d, n)
     return best
 
 
-def _try_inner_sizes(still: Path):
+def _try_inner_sizes(still: Path, first=()):
     import cv2
 
     from cvsflow.io.media import read_gray
 
     gray = read_gray(still)
     flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-    for nx, ny in COMMON_INNER:
+    # A size not on the still costs about 0.4 s (640x480): the sizes found already go first.
+    for nx, ny in [*first, *(s for s in COMMON_INNER if s not in first)]:
         found, _ = cv2.findChessboardCorners(gray, (nx, ny), flags=flags)
         if found:
             return nx, ny
     return None
 
 
-def build_session_config(folder) -> tuple[dict, list[str]]:
-    """Session config guessed from a recording folder, and notes for the user to check.
+def _inner_sizes_found(stills_dir: Path, first=None) -> tuple[list, int]:
+    """Inner-corner sizes found on the first stills of a folder, and how many were tried.
 
-    Parameters
-    ----------
-    folder : str or Path
-        The recording folder, searched recursively for a stills folder (3 or more images),
-        a video (``VIDEO_SUFFIXES``) and a motion-capture export (``MOCAP_SUFFIXES``).
-
-    Returns
-    -------
-    session : dict
-        ``calib_dir``, ``video``, ``vicon``, ``board``, ``markers`` (entries marked TODO where
-        nothing was found).
-    notes : list of str
-        What was found and what the user must check.
+    With ``first`` (a list, extended in place), the sizes found on earlier stills are tried
+    first on the next ones; without it every still tries `COMMON_INNER` in its order.
     """
+    from cvsflow.io.media import list_stills
+
+    # The first stills may not show the whole board: try a few before giving up.
+    tried = list_stills(stills_dir)[:5]
+    found = []
+    for still in tried:
+        size = _try_inner_sizes(still, () if first is None else tuple(first))
+        if size is not None:
+            found.append(size)
+            if first is not None and size not in first:
+                first.append(size)
+    return found, len(tried)
+
+
+def _videos(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES)
+
+
+def _add_mocap(session: dict, notes: list, candidates) -> tuple[list[str], list[str]]:
+    """Set ``vicon`` (and ``mocap.format``) from the first readable export; its marker and body names."""
     from cvsflow.io.markers import marker_names
     from cvsflow.io.mocap_formats import read_mocap
 
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise InputError(f"{folder}: recording folder not found")
-    notes = []
-    session: dict = {}
-    stills = _find_stills(folder)
-    inner = None
-    if stills is None:
-        session["calib_dir"] = "TODO"
-        notes.append("no folder with 3 or more stills found: set calib_dir")
-    else:
-        session["calib_dir"] = str(stills[0])
-        notes.append(f"stills: {stills[0]} ({stills[1]} images)")
-        from cvsflow.io.media import list_stills
-
-        # The first stills may not show the whole board: try a few before giving up.
-        tried = list_stills(stills[0])[:5]
-        found = [size for size in map(_try_inner_sizes, tried) if size is not None]
-        if found:
-            inner = max(set(found), key=found.count)
-            notes.append(f"board found on {found.count(inner)} of the first {len(tried)} stills")
-    videos = sorted(p for p in folder.rglob("*") if p.suffix.lower() in VIDEO_SUFFIXES)
-    session["video"] = str(videos[0]) if videos else "TODO"
-    notes.append(f"video: {videos[0]}" if videos else "no video found: set video")
-    if len(videos) > 1:
-        notes.append(f"{len(videos)} videos found; took the first, check")
-    mocap = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MOCAP_SUFFIXES)
     names: list[str] = []
     system_bodies: list[str] = []
     session["vicon"] = "TODO"
-    for p in mocap:
+    for p in candidates:
         try:
             export = read_mocap(p)
         except CvsflowError as exc:
@@ -108,6 +110,10 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
         break
     if session["vicon"] == "TODO":
         notes.append("no Nexus CSV, C3D, Motive CSV or QTM TSV export found: set vicon")
+    return names, system_bodies
+
+
+def _add_board(session: dict, notes: list, inner) -> None:
     if inner is None:
         session["board"] = {"squares_x": "TODO", "squares_y": "TODO", "square_m": "TODO"}
         notes.append(f"no chessboard of the sizes {COMMON_INNER} (inner corners) found: set board")
@@ -117,13 +123,17 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
             f"board: {inner[0]}x{inner[1]} inner corners found = {inner[0] + 1}x{inner[1] + 1} squares "
             "(cvsflow counts squares); measure square_m in metres"
         )
+
+
+def _add_markers(session: dict, notes: list, names, system_bodies, camera_keys=("cam",)) -> None:
+    """``markers`` (and ``mocap.bodies_from``) guessed from subject names containing ``camera_keys``."""
     subjects: dict[str, list[str]] = {}
     for n in names:
         subjects.setdefault(n.split(":")[0] if ":" in n else "(no subject)", []).append(n)
     if subjects:
         notes.append("subjects in the export: " + "; ".join(
             f"{k} ({len(v)} markers)" for k, v in subjects.items()))
-    cam = next((v for k, v in subjects.items() if "cam" in k.lower()), ["TODO"])
+    cam = next((v for key in camera_keys for k, v in subjects.items() if key in k.lower()), ["TODO"])
     brd = next((v for k, v in subjects.items() if "board" in k.lower() or "chess" in k.lower()),
                ["TODO"])
     for body, chosen in (("camera", cam), ("board", brd)):
@@ -142,13 +152,248 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
         def guess(keys):
             return next((b for b in system_bodies if any(k in b.lower() for k in keys)), "TODO")
 
-        session["markers"] = {"camera": {"system_body": guess(("cam",))},
+        # The camera's keys in order of preference (a rig's "rig" before a camera's "cam").
+        camera_body = next((b for k in camera_keys for b in system_bodies if k in b.lower()), "TODO")
+        session["markers"] = {"camera": {"system_body": camera_body},
                               "board": {"system_body": guess(("board", "chess"))}}
         notes[-1] = ("the export has no markers: mocap.bodies_from is system; check "
                      "markers.*.system_body against the bodies listed above")
     elif system_bodies:
         notes.append("the export also has the system's own bodies: set mocap.bodies_from: system "
                      "and markers.<body>.system_body to use them instead of fitting the markers")
+
+
+def camera_folders(folder) -> list[Path]:
+    """The camera folders of a rig recording, or [] for a one-camera recording.
+
+    A rig is two or more direct subfolders (other than a top-level ``shared``) that each hold a
+    stills folder (3 or more images, a ``shared`` folder not counted), at least one of which also
+    holds a video; a subfolder with a video or a ``shared`` folder is then a camera folder too.
+    One camera's stills in several subfolders with the video elsewhere
+    (``rec/calib_a``, ``rec/calib_b``, ``rec/take.mp4``) stays a one-camera recording, as before.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The recording folder.
+
+    Returns
+    -------
+    list of Path
+        The camera folders, sorted by name (camera 0 first), or [] when the folder is not a rig.
+    """
+    folder = Path(folder)
+    subs = sorted(p for p in folder.iterdir() if p.is_dir() and p.name.lower() != SHARED)
+    with_stills = [p for p in subs if _find_stills(p, exclude=_own_shared(p)) is not None]
+    if len(with_stills) >= 2 and any(_videos(p) for p in with_stills):
+        # A rig: a subfolder with a video or shared views but no stills of its own is a camera
+        # too (its calib_dir a TODO), not left out.
+        return [p for p in subs if p in with_stills or _videos(p) or _own_shared(p)]
+    return []
+
+
+def _own_shared(camera_dir: Path) -> list[Path]:
+    return [p for p in camera_dir.iterdir() if p.is_dir() and p.name.lower() == SHARED]
+
+
+def _shared_dirs(folder: Path, cams: list[Path], notes: list) -> dict:
+    """Camera folder name to its folder of shared views (``<camera>/shared`` or ``shared/<camera>``)."""
+    top = [p for p in folder.iterdir() if p.is_dir() and p.name.lower() == SHARED]
+    top_subs = {p.name: p for t in top for p in t.iterdir() if p.is_dir()}
+    found = {}
+    for c in cams:
+        own, other = _own_shared(c), top_subs.pop(c.name, None)
+        if own and other is not None:
+            raise InputError(f"{own[0]} and {other}: two folders of shared views for camera folder "
+                             f"{c}; keep one (rec/<camera>/{SHARED}/ or rec/{SHARED}/<camera>/)")
+        if own or other is not None:
+            found[c.name] = own[0] if own else other
+    for name, p in sorted(top_subs.items()):
+        notes.append(f"{p}: no camera folder named {name}; these shared views are not used")
+    return found
+
+
+def _check_shared(shared: dict, cams: list[Path], notes: list) -> dict:
+    """The shared dirs when every camera's stills pair by file name with camera 0's, else {}.
+
+    ``stereo_extrinsics`` pairs views by file name: a view only some cameras have is not used
+    (noted), and a camera with fewer than MIN_SHARED_VIEWS names in common with camera 0 would
+    stop rig_extrinsics, so then no camera gets a shared_dir (noted, naming the folders).
+    """
+    from cvsflow.io.media import list_stills
+
+    if not shared:
+        notes.append(f"no folders of shared views ({SHARED}/ in each camera folder or "
+                     f"{SHARED}/<camera>/ at the top): rig_extrinsics will not run; add shared_dir "
+                     "to every camera to run it")
+        return {}
+    missing = [c for c in cams if c.name not in shared]
+    if missing:
+        notes.append(f"{', '.join(str(c) for c in missing)}: no folder of shared views while "
+                     f"{', '.join(str(shared[k]) for k in sorted(shared))} has one; shared_dir left "
+                     "out of every camera (rig_extrinsics needs one per camera)")
+        return {}
+    names = {c.name: {p.name for p in list_stills(shared[c.name])} for c in cams}
+    ref = cams[0].name
+    ok = True
+    for c in cams[1:]:
+        common = names[c.name] & names[ref]
+        if names[c.name] != names[ref]:
+            unpaired = {k: sorted(names[k] - common) for k in (ref, c.name)}
+            notes.append(
+                f"{shared[c.name]} ({len(names[c.name])} stills) and {shared[ref]} "
+                f"({len(names[ref])}): {len(common)} file names in common; unpaired, not used: "
+                + "; ".join(f"{k} {', '.join(v[:5])}{' ...' if len(v) > 5 else ''}"
+                            for k, v in unpaired.items() if v))
+        if len(common) < MIN_SHARED_VIEWS:
+            ok = False
+            notes.append(
+                f"{shared[c.name]}: only {len(common)} shared stills with the same file name as in "
+                f"{shared[ref]} (rig_extrinsics needs {MIN_SHARED_VIEWS}; a view taken at one "
+                "instant must have the same file name in every camera's folder): shared_dir left "
+                "out of every camera; rename them and add it")
+    return shared if ok else {}
+
+
+def build_rig_config(folder, cams: list[Path]) -> tuple[dict, list[str]]:
+    """Rig session config guessed from a recording folder with camera folders, and notes.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The recording folder.
+    cams : list of Path
+        Its camera folders (:func:`camera_folders`), camera 0 (the rig's reference, C0) first.
+
+    Returns
+    -------
+    session : dict
+        ``cameras`` (per camera ``name``, ``calib_dir``, ``video`` and, when every camera has
+        shared views that pair by file name, ``shared_dir``), ``vicon``, ``board``, ``markers``
+        (TODO where nothing or more than one candidate was found).
+    notes : list of str
+        What was found and what the user must check; a problem names its folder.
+
+    Raises
+    ------
+    InputError
+        Two camera folders whose names give the same camera name, or a camera with shared
+        views both in its folder and in the top-level ``shared`` folder.
+    """
+    folder = Path(folder)
+    notes = [f"rig: {len(cams)} camera folders ({', '.join(c.name for c in cams)}); camera 0 "
+             f"(the reference, C0) is {cams[0].name}, the first by name: reorder cameras to change it"]
+    names = [re.sub(r"[^A-Za-z0-9_-]", "_", c.name) for c in cams]
+    if len(set(names)) != len(names):
+        raise InputError(f"{folder}: camera folders {[c.name for c in cams]} give camera names "
+                         f"{names}, not distinct: rename the folders")
+    shared = _check_shared(_shared_dirs(folder, cams, notes), cams, notes)
+    cameras, found, seen_sizes = [], [], []
+    for c, name in zip(cams, names, strict=True):
+        cam = {"name": name}
+        if name != c.name:
+            notes.append(f"{c}: camera name {name} (letters, digits, _ and - only)")
+        stills = _find_stills(c, exclude=_own_shared(c))
+        if stills is None:
+            cam["calib_dir"] = "TODO"
+            notes.append(f"{c}: no folder with 3 or more stills in this camera folder ({SHARED}/ not "
+                         f"counted): set cameras[{name}].calib_dir")
+        else:
+            cam["calib_dir"] = str(stills[0])
+            sizes, tried = _inner_sizes_found(stills[0], first=seen_sizes)
+            found += sizes
+            notes.append(f"{name}: stills {stills[0]} ({stills[1]} images), board found on "
+                         f"{len(sizes)} of the first {tried}")
+        others = [d for d in sorted(c.rglob("*")) if d.is_dir() and stills and d != stills[0]
+                  and not any(s == d or s in d.parents for s in _own_shared(c)) and _n_images(d) >= 3]
+        if others:
+            notes.append(f"{c}: also stills in {', '.join(str(d) for d in others)}; took "
+                         f"{stills[0]} (the most images), check calib_dir")
+        videos = _videos(c)
+        if len(videos) == 1:
+            cam["video"] = str(videos[0])
+            notes.append(f"{name}: video {videos[0]}")
+        elif not videos:
+            cam["video"] = "TODO"
+            notes.append(f"{c}: no video in this camera folder: set cameras[{name}].video")
+        else:
+            cam["video"] = "TODO"
+            notes.append(f"{c}: {len(videos)} videos in this camera folder "
+                         f"({', '.join(p.name for p in videos)}): set cameras[{name}].video to "
+                         "this camera's take")
+        if c.name in shared:
+            cam["shared_dir"] = str(shared[c.name])
+        cameras.append(cam)
+    if shared:
+        notes.append("shared views: " + ", ".join(f"{k} {v}" for k, v in shared.items()))
+    inside = set(cams)
+    stray = [v for v in _videos(folder) if not inside & set(v.parents)]
+    if stray:
+        notes.append(f"videos outside the camera folders, not used: {', '.join(map(str, stray))}")
+    session: dict = {"cameras": cameras}
+    # The rig's one export is at the top; one inside a camera folder is only a fall-back.
+    mocap = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MOCAP_SUFFIXES)
+    mocap = [p for p in mocap if not inside & set(p.parents)] + [p for p in mocap if inside & set(p.parents)]
+    marker_list, system_bodies = _add_mocap(session, notes, mocap)
+    inner = max(set(found), key=found.count) if found else None
+    if len(set(found)) > 1:
+        notes.append(f"the cameras' stills show different boards {sorted(set(found))} (inner "
+                     f"corners): took {inner}, the most common; a rig watches one board, check")
+    _add_board(session, notes, inner)
+    # The rig body is the bar the cameras sit on: named like a rig, bar or camera.
+    _add_markers(session, notes, marker_list, system_bodies, camera_keys=("rig", "bar", "cam"))
+    notes.append("markers.camera is the rig body: the markers on what every camera is fixed to")
+    return session, notes
+
+
+def build_session_config(folder) -> tuple[dict, list[str]]:
+    """Session config guessed from a recording folder, and notes for the user to check.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The recording folder, searched recursively for a stills folder (3 or more images),
+        a video (``VIDEO_SUFFIXES``) and a motion-capture export (``MOCAP_SUFFIXES``). When it
+        holds two or more camera folders (:func:`camera_folders`), a rig session is built
+        instead (:func:`build_rig_config`).
+
+    Returns
+    -------
+    session : dict
+        ``calib_dir``, ``video``, ``vicon``, ``board``, ``markers`` (entries marked TODO where
+        nothing was found); for a rig ``cameras`` instead of ``calib_dir`` and ``video``.
+    notes : list of str
+        What was found and what the user must check.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder}: recording folder not found")
+    cams = camera_folders(folder)
+    if cams:
+        return build_rig_config(folder, cams)
+    notes = []
+    session: dict = {}
+    stills = _find_stills(folder)
+    inner = None
+    if stills is None:
+        session["calib_dir"] = "TODO"
+        notes.append("no folder with 3 or more stills found: set calib_dir")
+    else:
+        session["calib_dir"] = str(stills[0])
+        notes.append(f"stills: {stills[0]} ({stills[1]} images)")
+        found, tried = _inner_sizes_found(stills[0])
+        if found:
+            inner = max(set(found), key=found.count)
+            notes.append(f"board found on {found.count(inner)} of the first {tried} stills")
+    videos = _videos(folder)
+    session["video"] = str(videos[0]) if videos else "TODO"
+    notes.append(f"video: {videos[0]}" if videos else "no video found: set video")
+    if len(videos) > 1:
+        notes.append(f"{len(videos)} videos found; took the first, check")
+    mocap = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MOCAP_SUFFIXES)
+    names, system_bodies = _add_mocap(session, notes, mocap)
+    _add_board(session, notes, inner)
+    _add_markers(session, notes, names, system_bodies)
     return session, notes
 
 
@@ -163,7 +408,8 @@ def cmd_init(args) -> int:
     args : argparse.Namespace
         ``dir`` (recording folder), ``out`` (file to write, default
         ``DIR/cvsflow_session.yaml``), ``name`` (session name, default the folder's name;
-        characters other than letters, digits, _ and - become _).
+        characters other than letters, digits, _ and - become _). A folder of two or more
+        camera folders gives a rig session (:func:`build_rig_config`).
 
     Returns
     -------
@@ -188,8 +434,10 @@ def cmd_init(args) -> int:
     name = re.sub(r"[^A-Za-z0-9_-]", "_", args.name or folder.resolve().name)
     text = "# Session config written by `cvsflow init`: check every line, fill every TODO.\n"
     text += "# Use: cvsflow run --configfile " + str(out) + "\n"
+    # A rig's own result is its joint fit; its cameras run as sessions <name>-<camera>.
+    target = f"results/{name}/rig/heldout.yaml" if "cameras" in session else f"results/{name}/comparison.yaml"
     text += ("# It MERGES with config/config.yaml: the demo session and flight run too unless you\n"
-             "# name your targets (results/" + name + "/comparison.yaml); see the README.\n")
+             "# name your targets (" + target + "); see the README.\n")
     text += "".join(f"# {n}\n" for n in notes)
     text += yaml.safe_dump({"sessions": {name: session}}, sort_keys=False, default_flow_style=None)
     with atomic_output(out) as tmp:
