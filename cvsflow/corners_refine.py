@@ -306,46 +306,71 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid, border_ok=False, reference=No
     ``reference``: (N,) bool, the rows whose levels set the board's contrast (default: every
     row with a finite corner)."""
     h, w = gray.shape
-    grid_pts, pts = _saddle_points(grid.tobytes(), grid.shape)
-    n_off = pts.shape[0] // grid_pts.shape[0]
-    ref = cv2.perspectiveTransform(grid_pts, H_img_grid)
-    q = cv2.perspectiveTransform(pts, H_img_grid)
-    q = q.reshape(-1, n_off, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
+    points, n = _saddle_points(grid.tobytes(), grid.shape)
+    n_off = len(points) // n - 1
+    # The grid points and the samples around them in one call (each point on its own).
+    t = cv2.perspectiveTransform(points, H_img_grid).reshape(-1, 2)
+    q = t[n:].reshape(n, n_off, 2) - t[:n].reshape(n, 1, 2) + np.asarray(corners_px)[:, None, :]
     finite = np.isfinite(q)
-    n = len(q)
     ok = np.logical_and.reduce(finite.reshape(n, -1), axis=1)
     # (Rows with a non-finite sample fail whatever their levels.)
     qi = np.rint(np.where(finite, q, 0.0)).astype(int)
-    in_image = np.logical_and.reduce(((qi >= 0) & (qi < (w, h))).reshape(n, -1), axis=1)
+    # 0 <= qi < (w, h) as one comparison: a negative int64 is above any size as uint64.
+    in_image = np.logical_and.reduce((qi.view(np.uint64) < _as_uint64(w, h)).reshape(n, -1),
+                                     axis=1)
     ok &= in_image
     np.minimum(np.maximum(qi, 0, out=qi), (w - 1, h - 1), out=qi)  # np.clip per column
-    level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, M)
-    half = n_off // 2  # the (1, 1) and (-1, -1) diagonal first, then the other
-    black_first = ((grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0)
-    dark = np.where(black_first[:, None], level[:, :half], level[:, half:])
-    light = np.where(black_first[:, None], level[:, half:], level[:, :half])
+    if gray.flags.c_contiguous:  # one flat gather where the rows are contiguous
+        flat = qi[..., 1] * w
+        flat += qi[..., 0]
+        level = gray.reshape(-1)[flat].astype(np.float64)  # (N, M)
+    else:
+        level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)
+    half = n_off // 2  # each row's dark samples first (``_saddle_points``), then its light
+    dark, light = level[:, :half], level[:, half:]
     corners_finite = np.isfinite(np.asarray(corners_px))
     known = ok & corners_finite[:, 0] & corners_finite[:, 1]
     if reference is not None:
         known &= np.asarray(reference, bool)
-    contrast = _median(light[known]) - _median(dark[known]) if known.any() else 0.0
+    contrast = 0.0
+    if known.any():
+        # The medians of the known rows' light and dark samples (``_median``'s), from one sort.
+        seen = level[known]
+        both = np.sort(seen.reshape(len(seen), 2, half).transpose(1, 0, 2).reshape(2, -1),
+                       axis=1)
+        m = both.shape[1]
+        mid = 0.5 * (both[:, (m - 1) // 2] + both[:, m // 2])
+        contrast = float(mid[1]) - float(mid[0])  # light minus dark
     need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
     saddle = ok & (np.minimum.reduce(light, axis=1) - np.maximum.reduce(dark, axis=1) >= need)
     return saddle | ~in_image if border_ok else saddle
 
 
 @functools.lru_cache(maxsize=16)
-def _saddle_points(grid_bytes: bytes, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """``_saddle_ok``'s grid points, (N, 1, 2), and its sample points around each, (N * M, 1,
-    2): dark-or-light pairs along the diagonals, the (1, 1) and (-1, -1) ones first."""
+def _as_uint64(w: int, h: int) -> np.ndarray:
+    """(w, h) as uint64, for ``_saddle_ok``'s bounds check."""
+    out = np.array([w, h], np.uint64)
+    out.flags.writeable = False  # cached: shared by every call
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _saddle_points(grid_bytes: bytes, shape: tuple) -> tuple[np.ndarray, int]:
+    """``_saddle_ok``'s points, (N + N * M, 1, 2) float64: the N grid points, then the M
+    samples around each along the diagonals, its dark ones first (the (1, 1) and (-1, -1)
+    diagonal where square (x+1, y+1) is black, i.e. x + y even, else the other), then its
+    light ones; and N."""
     grid = np.frombuffer(grid_bytes, dtype=np.float32).reshape(shape)
     off = np.array([[r * a, r * b] for a, b in ((1, 1), (-1, -1), (1, -1), (-1, 1))
                     for r in SADDLE_RADII])  # dark-or-light pairs: first 2 radii x 2 = 4
-    pts = grid[:, None, :] + off[None]  # (N, M, 2)
-    out = (grid.reshape(-1, 1, 2).astype(np.float64), pts.reshape(-1, 1, 2).astype(np.float64))
-    for arr in out:
-        arr.flags.writeable = False  # cached: shared by every call
-    return out
+    half = len(off) // 2
+    swapped = np.concatenate([off[half:], off[:half]])
+    black_first = (grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0
+    pts = grid[:, None, :] + np.where(black_first[:, None, None], off[None], swapped[None])
+    out = np.concatenate([grid.reshape(-1, 1, 2).astype(np.float64),
+                          pts.reshape(-1, 1, 2).astype(np.float64)])
+    out.flags.writeable = False  # cached: shared by every call
+    return out, len(grid)
 
 
 def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
