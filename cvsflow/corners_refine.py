@@ -21,6 +21,7 @@ from cvsflow.corners_grid import (
     MIN_TRACKED_CORNERS,
     _keep_consistent,
     _median,
+    _neighbour_pairs,
     _pair_distances,
     _spacing_from_pairs,
     _subpix_window,
@@ -142,22 +143,30 @@ def edge_blur_px(gray: np.ndarray, corners_px: np.ndarray, board: dict) -> float
     sigma_px : float
         Median over the edges with at least ``BLUR_MIN_EDGE_CONTRAST`` grey levels of step.
     """
-    nx, ny = board_pattern(board)
-    g = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
-    p0 = np.concatenate([g[:, :-1].reshape(-1, 2), g[:-1].reshape(-1, 2)])
-    p1 = np.concatenate([g[:, 1:].reshape(-1, 2), g[1:].reshape(-1, 2)])
+    return _edge_blur(gray, corners_px, board)
+
+
+def _edge_blur(gray, corners_px, board, length=None):
+    """``edge_blur_px``; ``length``: the corners' ``_pair_distances`` where the caller has
+    them (the same edges, in the same order)."""
+    a, b = _neighbour_pairs(*board_pattern(board))[:2]
+    uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+    p0, p1 = uv[a], uv[b]  # each edge's ends: along the rows, then the columns
     d = p1 - p0
-    dx, dy = d[:, 0], d[:, 1]
-    length = np.sqrt(dx * dx + dy * dy)
+    if length is None:
+        dx, dy = d[:, 0], d[:, 1]
+        length = np.sqrt(dx * dx + dy * dy)
     ok = np.isfinite(length) & (length > 4.0)
     if not ok.any():
         return 0.0
     mid, d, length = 0.5 * (p0[ok] + p1[ok]), d[ok], length[ok]
-    normal = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
     half = 0.3 * _median(length)
     s = np.arange(-half, half + 1e-9, 0.5)
-    pts = (mid[:, None, :] + s[None, :, None] * normal[:, None, :]).astype(np.float32)
-    prof = cv2.remap(gray, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+    # The samples' x and y maps, each contiguous for remap: mid + s * normal, the normal
+    # (-dy, dx) / length.
+    map_x = (mid[:, 0, None] + s * (-d[:, 1] / length)[:, None]).astype(np.float32)
+    map_y = (mid[:, 1, None] + s * (d[:, 0] / length)[:, None]).astype(np.float32)
+    prof = cv2.remap(gray, map_x, map_y, cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
     # (np.mean and ndarray.max as their reductions, without the wrappers: the same values.)
     step = np.abs(np.add.reduce(prof[:, -3:], axis=1) / 3 - np.add.reduce(prof[:, :3], axis=1) / 3)
@@ -172,14 +181,15 @@ def _refine_for_blur(gray, corners, board, w, limit, pairs=None):
     """Corners refined again with a window that covers the blur (``BLUR_WINDOW_SIGMAS``), when
     the first window was smaller and the result still agrees with its neighbours; else as given.
     ``pairs``: the corners' ``_pair_distances`` where the caller has them."""
-    d = _pair_distances(corners, board) if pairs is None else pairs
-    d = d[np.isfinite(d)]
+    if pairs is None:
+        pairs = _pair_distances(corners, board)
+    d = pairs[np.isfinite(pairs)]
     if not len(d):
         return corners.astype(np.float64)
     cap = int(min(BLUR_WINDOW_MAX_FRAC * _median(d), np.floor((d.min() - 1.0) / 2.0)))
     if cap <= w:
         return corners.astype(np.float64)
-    w_blur = min(cap, int(np.ceil(BLUR_WINDOW_SIGMAS * edge_blur_px(gray, corners, board))))
+    w_blur = min(cap, int(np.ceil(BLUR_WINDOW_SIGMAS * _edge_blur(gray, corners, board, pairs))))
     if w_blur <= w:
         return corners.astype(np.float64)
     again = _subpix(gray, corners, w_blur)
