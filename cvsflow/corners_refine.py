@@ -260,7 +260,7 @@ def board_squares_pattern_ok(
     if corner_known is not None:
         # Square (i, j) has corners (i-1..i, j-1..j) where they exist (the index nx * ny,
         # always known, stands for those that do not).
-        known = np.append(np.asarray(corner_known, bool), True)
+        known = np.concatenate([np.asarray(corner_known, bool), _TRUE])
         inside &= known[_square_corners(sx, sy)].all(axis=1)
     if not inside.any():
         return False
@@ -277,6 +277,10 @@ def board_squares_pattern_ok(
         return False
     mid = 0.5 * (hi_mean + lo_mean)
     return bool(lo.max() < mid < hi.min())
+
+
+_TRUE = np.ones(1, bool)
+_TRUE.flags.writeable = False
 
 
 @functools.lru_cache(maxsize=16)
@@ -462,8 +466,9 @@ def _saddles_beyond(gray, H, out, known, grid, board) -> int:
     ring = _ring_grid(*board_pattern(board))
     ring_px = cv2.perspectiveTransform(ring.reshape(-1, 1, 2), H).reshape(-1, 2)
     pts = np.concatenate([np.asarray(out, np.float64)[known], ring_px])
-    grid_all = np.concatenate([grid[known], ring]).astype(np.float32)
-    reference = np.r_[np.ones(int(known.sum()), bool), np.zeros(len(ring), bool)]
+    grid_all = np.concatenate([grid[known], ring]).astype(np.float32, copy=False)
+    reference = np.zeros(len(grid_all), bool)
+    reference[:len(grid_all) - len(ring)] = True
     saddle = _saddle_ok(gray, H, pts, grid_all, reference=reference)
     return int(saddle[~reference].sum())
 
@@ -473,7 +478,10 @@ def _partial_checked(gray, out, known, H, grid, board, sc, method):
     to them) within the tracker's RMS, bound squares of the right colours and show no board
     beyond them (``_saddles_beyond``: labels a square off), else lost."""
     fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
-    rms = np.sqrt(np.mean(np.sum((fit[known] - out[known]) ** 2, axis=1)))
+    e = fit[known] - out[known]
+    ex, ey = e[:, 0], e[:, 1]
+    # (np.mean of the rows' np.sum: the same two-term sums and pairwise total.)
+    rms = np.sqrt(np.add.reduce(ex * ex + ey * ey) / len(e))
     if rms > sc["homography_rms"] or not board_squares_pattern_ok(
         gray, H, board, MIN_PATTERN_CONTRAST, corner_known=known
     ):
