@@ -261,11 +261,17 @@ def board_squares_pattern_ok(
         # Square (i, j) has corners (i-1..i, j-1..j) where they exist (the index nx * ny,
         # always known, stands for those that do not).
         known = np.concatenate([np.asarray(corner_known, bool), _TRUE])
-        inside &= known[_square_corners(sx, sy)].all(axis=1)
+        inside &= np.logical_and.reduce(known[_square_corners(sx, sy)], axis=1)
     if not inside.any():
         return False
     # (The means are np.mean's: float64 sums divided by the count, without its wrapper.)
-    samples_in = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)]
+    if gray.flags.c_contiguous:  # one flat gather (the rounded pixels are exact in float64)
+        flat = np.rint(v[inside])
+        flat *= w
+        flat += np.rint(u[inside])
+        samples_in = gray.reshape(-1)[flat.astype(int)]
+    else:
+        samples_in = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)]
     level = np.add.reduce(samples_in, axis=1, dtype=np.float64) / samples_in.shape[1]
     black = black_all[inside]
     n_black = int(np.count_nonzero(black))
@@ -276,7 +282,7 @@ def board_squares_pattern_ok(
     if hi_mean - lo_mean < min_contrast:
         return False
     mid = 0.5 * (hi_mean + lo_mean)
-    return bool(lo.max() < mid < hi.min())
+    return bool(np.maximum.reduce(lo) < mid < np.minimum.reduce(hi))
 
 
 _TRUE = np.ones(1, bool)
