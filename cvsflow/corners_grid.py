@@ -199,7 +199,13 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
         scale = _SQRT2 / max(np.add.reduce(np.sqrt(dx * dx + dy * dy)) / n_known, 1e-9)
     else:
         centre, scale = np.zeros(2), 1.0
-    u, v = ((uv - centre) * scale).T
+    # (u, v, u^2 + v^2) per corner, each times its X X': the normal equations' 27 columns
+    # (the products of np.concatenate of the three (N, 9) blocks, in one broadcast).
+    n = len(uv)
+    coef = np.empty((n, 3))
+    np.multiply(uv - centre, scale, out=coef[:, :2])
+    u, v = coef[:, 0], coef[:, 1]
+    np.add(u * u, v * v, out=coef[:, 2])
     # Corner k's DLT system keeps only its neighbours' rows: the sum of their outer products
     # (normal equations). With X = (x, y, 1) a neighbour's two rows are (X, 0, -u X) and
     # (0, X, -v X), so the sum has the blocks [[A, 0, -U], [0, A, -V], [-U, -V, S]] of
@@ -211,15 +217,16 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
     # (h31, h32): the same solution as the 8x8 solve, at a fraction of its cost. A holds
     # grid coordinates only (the same for every frame with the same corners known), and is
     # singular exactly (integer entries) when the neighbours lie on a line: no prediction.
-    n = len(u)
-    sums = weights @ np.concatenate(
-        [u[:, None] * mono, v[:, None] * mono, (u * u + v * v)[:, None] * mono], axis=1
-    )
+    sums = weights @ (coef[:, :, None] * mono[:, None, :]).reshape(n, 27)
     blocks = sums.reshape(n, 3, 3, 3)
-    UV, S = blocks[:, :2], blocks[:, 2]  # (n, 2, 3, 3): U and V; (n, 3, 3)
+    # U over V, (n, 6, 3) (a view): one 6x3 product per corner where two 3x3 ones gave the
+    # same values (the same dot products).
+    UV6, S = blocks[:, :2].reshape(n, 6, 3), blocks[:, 2]
+    UV = UV6.reshape(n, 2, 3, 3)
     # A^-1 (and A^-1 X_k) from the grid moments' adjugate, a_inv_x = (A^-1, A^-1 X_k).
-    UVA = UV @ a_inv_x[:, None, :, :3]
-    M = S - (UVA @ UV).sum(axis=1)
+    UVA = (UV6 @ a_inv_x[:, :, :3]).reshape(n, 2, 3, 3)
+    UVAUV = UVA @ UV
+    M = S - (UVAUV[:, 0] + UVAUV[:, 1])  # .sum(axis=1) of two terms
     m = M[:, :2].reshape(n, 6)
     m00, m01, m02, m10, m11, m12 = m.T
     m00m11, m01m10 = m00 * m11, m01 * m10
@@ -234,7 +241,7 @@ def grid_deviation(corners_px: np.ndarray, board: dict) -> tuple[np.ndarray, np.
         h3[:, 2] = det_m
         # The prediction at X_k: (X_k' A^-1 U h3, X_k' A^-1 V h3) / (X_k' h3), h3 scaled by
         # det M (it cancels).
-        puv = ((UV @ h3[:, None, :, None])[..., 0] * a_inv_x[:, None, :, 3]).sum(axis=2)
+        puv = ((UV6 @ h3[:, :, None]).reshape(n, 2, 3) * a_inv_x[:, None, :, 3]).sum(axis=2)
         predicted = puv / (xy1 * h3).sum(axis=1)[:, None] / scale + centre
     d = predicted - uv
     dx, dy = d[:, 0], d[:, 1]

@@ -21,6 +21,7 @@ from cvsflow.corners_grid import (
     MIN_TRACKED_CORNERS,
     _keep_consistent,
     _median,
+    _neighbour_pairs,
     _pair_distances,
     _spacing_from_pairs,
     _subpix_window,
@@ -142,22 +143,30 @@ def edge_blur_px(gray: np.ndarray, corners_px: np.ndarray, board: dict) -> float
     sigma_px : float
         Median over the edges with at least ``BLUR_MIN_EDGE_CONTRAST`` grey levels of step.
     """
-    nx, ny = board_pattern(board)
-    g = np.asarray(corners_px, dtype=np.float64).reshape(ny, nx, 2)
-    p0 = np.concatenate([g[:, :-1].reshape(-1, 2), g[:-1].reshape(-1, 2)])
-    p1 = np.concatenate([g[:, 1:].reshape(-1, 2), g[1:].reshape(-1, 2)])
+    return _edge_blur(gray, corners_px, board)
+
+
+def _edge_blur(gray, corners_px, board, length=None):
+    """``edge_blur_px``; ``length``: the corners' ``_pair_distances`` where the caller has
+    them (the same edges, in the same order)."""
+    a, b = _neighbour_pairs(*board_pattern(board))[:2]
+    uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
+    p0, p1 = uv[a], uv[b]  # each edge's ends: along the rows, then the columns
     d = p1 - p0
-    dx, dy = d[:, 0], d[:, 1]
-    length = np.sqrt(dx * dx + dy * dy)
+    if length is None:
+        dx, dy = d[:, 0], d[:, 1]
+        length = np.sqrt(dx * dx + dy * dy)
     ok = np.isfinite(length) & (length > 4.0)
     if not ok.any():
         return 0.0
     mid, d, length = 0.5 * (p0[ok] + p1[ok]), d[ok], length[ok]
-    normal = np.column_stack([-d[:, 1], d[:, 0]]) / length[:, None]
     half = 0.3 * _median(length)
     s = np.arange(-half, half + 1e-9, 0.5)
-    pts = (mid[:, None, :] + s[None, :, None] * normal[:, None, :]).astype(np.float32)
-    prof = cv2.remap(gray, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+    # The samples' x and y maps, each contiguous for remap: mid + s * normal, the normal
+    # (-dy, dx) / length.
+    map_x = (mid[:, 0, None] + s * (-d[:, 1] / length)[:, None]).astype(np.float32)
+    map_y = (mid[:, 1, None] + s * (d[:, 0] / length)[:, None]).astype(np.float32)
+    prof = cv2.remap(gray, map_x, map_y, cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_REPLICATE).astype(np.float64)
     # (np.mean and ndarray.max as their reductions, without the wrappers: the same values.)
     step = np.abs(np.add.reduce(prof[:, -3:], axis=1) / 3 - np.add.reduce(prof[:, :3], axis=1) / 3)
@@ -172,14 +181,15 @@ def _refine_for_blur(gray, corners, board, w, limit, pairs=None):
     """Corners refined again with a window that covers the blur (``BLUR_WINDOW_SIGMAS``), when
     the first window was smaller and the result still agrees with its neighbours; else as given.
     ``pairs``: the corners' ``_pair_distances`` where the caller has them."""
-    d = _pair_distances(corners, board) if pairs is None else pairs
-    d = d[np.isfinite(d)]
+    if pairs is None:
+        pairs = _pair_distances(corners, board)
+    d = pairs[np.isfinite(pairs)]
     if not len(d):
         return corners.astype(np.float64)
     cap = int(min(BLUR_WINDOW_MAX_FRAC * _median(d), np.floor((d.min() - 1.0) / 2.0)))
     if cap <= w:
         return corners.astype(np.float64)
-    w_blur = min(cap, int(np.ceil(BLUR_WINDOW_SIGMAS * edge_blur_px(gray, corners, board))))
+    w_blur = min(cap, int(np.ceil(BLUR_WINDOW_SIGMAS * _edge_blur(gray, corners, board, pairs))))
     if w_blur <= w:
         return corners.astype(np.float64)
     again = _subpix(gray, corners, w_blur)
@@ -250,12 +260,18 @@ def board_squares_pattern_ok(
     if corner_known is not None:
         # Square (i, j) has corners (i-1..i, j-1..j) where they exist (the index nx * ny,
         # always known, stands for those that do not).
-        known = np.append(np.asarray(corner_known, bool), True)
-        inside &= known[_square_corners(sx, sy)].all(axis=1)
+        known = np.concatenate([np.asarray(corner_known, bool), _TRUE])
+        inside &= np.logical_and.reduce(known[_square_corners(sx, sy)], axis=1)
     if not inside.any():
         return False
     # (The means are np.mean's: float64 sums divided by the count, without its wrapper.)
-    samples_in = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)]
+    if gray.flags.c_contiguous:  # one flat gather (the rounded pixels are exact in float64)
+        flat = np.rint(v[inside])
+        flat *= w
+        flat += np.rint(u[inside])
+        samples_in = gray.reshape(-1)[flat.astype(int)]
+    else:
+        samples_in = gray[np.rint(v[inside]).astype(int), np.rint(u[inside]).astype(int)]
     level = np.add.reduce(samples_in, axis=1, dtype=np.float64) / samples_in.shape[1]
     black = black_all[inside]
     n_black = int(np.count_nonzero(black))
@@ -266,7 +282,11 @@ def board_squares_pattern_ok(
     if hi_mean - lo_mean < min_contrast:
         return False
     mid = 0.5 * (hi_mean + lo_mean)
-    return bool(lo.max() < mid < hi.min())
+    return bool(np.maximum.reduce(lo) < mid < np.minimum.reduce(hi))
+
+
+_TRUE = np.ones(1, bool)
+_TRUE.flags.writeable = False
 
 
 @functools.lru_cache(maxsize=16)
@@ -306,46 +326,71 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid, border_ok=False, reference=No
     ``reference``: (N,) bool, the rows whose levels set the board's contrast (default: every
     row with a finite corner)."""
     h, w = gray.shape
-    grid_pts, pts = _saddle_points(grid.tobytes(), grid.shape)
-    n_off = pts.shape[0] // grid_pts.shape[0]
-    ref = cv2.perspectiveTransform(grid_pts, H_img_grid)
-    q = cv2.perspectiveTransform(pts, H_img_grid)
-    q = q.reshape(-1, n_off, 2) - ref.reshape(-1, 1, 2) + np.asarray(corners_px)[:, None, :]
+    points, n = _saddle_points(grid.tobytes(), grid.shape)
+    n_off = len(points) // n - 1
+    # The grid points and the samples around them in one call (each point on its own).
+    t = cv2.perspectiveTransform(points, H_img_grid).reshape(-1, 2)
+    q = t[n:].reshape(n, n_off, 2) - t[:n].reshape(n, 1, 2) + np.asarray(corners_px)[:, None, :]
     finite = np.isfinite(q)
-    n = len(q)
     ok = np.logical_and.reduce(finite.reshape(n, -1), axis=1)
     # (Rows with a non-finite sample fail whatever their levels.)
     qi = np.rint(np.where(finite, q, 0.0)).astype(int)
-    in_image = np.logical_and.reduce(((qi >= 0) & (qi < (w, h))).reshape(n, -1), axis=1)
+    # 0 <= qi < (w, h) as one comparison: a negative int64 is above any size as uint64.
+    in_image = np.logical_and.reduce((qi.view(np.uint64) < _as_uint64(w, h)).reshape(n, -1),
+                                     axis=1)
     ok &= in_image
     np.minimum(np.maximum(qi, 0, out=qi), (w - 1, h - 1), out=qi)  # np.clip per column
-    level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)  # (N, M)
-    half = n_off // 2  # the (1, 1) and (-1, -1) diagonal first, then the other
-    black_first = ((grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0)
-    dark = np.where(black_first[:, None], level[:, :half], level[:, half:])
-    light = np.where(black_first[:, None], level[:, half:], level[:, :half])
+    if gray.flags.c_contiguous:  # one flat gather where the rows are contiguous
+        flat = qi[..., 1] * w
+        flat += qi[..., 0]
+        level = gray.reshape(-1)[flat].astype(np.float64)  # (N, M)
+    else:
+        level = gray[qi[..., 1], qi[..., 0]].astype(np.float64)
+    half = n_off // 2  # each row's dark samples first (``_saddle_points``), then its light
+    dark, light = level[:, :half], level[:, half:]
     corners_finite = np.isfinite(np.asarray(corners_px))
     known = ok & corners_finite[:, 0] & corners_finite[:, 1]
     if reference is not None:
         known &= np.asarray(reference, bool)
-    contrast = _median(light[known]) - _median(dark[known]) if known.any() else 0.0
+    contrast = 0.0
+    if known.any():
+        # The medians of the known rows' light and dark samples (``_median``'s), from one sort.
+        seen = level[known]
+        both = np.sort(seen.reshape(len(seen), 2, half).transpose(1, 0, 2).reshape(2, -1),
+                       axis=1)
+        m = both.shape[1]
+        mid = 0.5 * (both[:, (m - 1) // 2] + both[:, m // 2])
+        contrast = float(mid[1]) - float(mid[0])  # light minus dark
     need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
     saddle = ok & (np.minimum.reduce(light, axis=1) - np.maximum.reduce(dark, axis=1) >= need)
     return saddle | ~in_image if border_ok else saddle
 
 
 @functools.lru_cache(maxsize=16)
-def _saddle_points(grid_bytes: bytes, shape: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """``_saddle_ok``'s grid points, (N, 1, 2), and its sample points around each, (N * M, 1,
-    2): dark-or-light pairs along the diagonals, the (1, 1) and (-1, -1) ones first."""
+def _as_uint64(w: int, h: int) -> np.ndarray:
+    """(w, h) as uint64, for ``_saddle_ok``'s bounds check."""
+    out = np.array([w, h], np.uint64)
+    out.flags.writeable = False  # cached: shared by every call
+    return out
+
+
+@functools.lru_cache(maxsize=16)
+def _saddle_points(grid_bytes: bytes, shape: tuple) -> tuple[np.ndarray, int]:
+    """``_saddle_ok``'s points, (N + N * M, 1, 2) float64: the N grid points, then the M
+    samples around each along the diagonals, its dark ones first (the (1, 1) and (-1, -1)
+    diagonal where square (x+1, y+1) is black, i.e. x + y even, else the other), then its
+    light ones; and N."""
     grid = np.frombuffer(grid_bytes, dtype=np.float32).reshape(shape)
     off = np.array([[r * a, r * b] for a, b in ((1, 1), (-1, -1), (1, -1), (-1, 1))
                     for r in SADDLE_RADII])  # dark-or-light pairs: first 2 radii x 2 = 4
-    pts = grid[:, None, :] + off[None]  # (N, M, 2)
-    out = (grid.reshape(-1, 1, 2).astype(np.float64), pts.reshape(-1, 1, 2).astype(np.float64))
-    for arr in out:
-        arr.flags.writeable = False  # cached: shared by every call
-    return out
+    half = len(off) // 2
+    swapped = np.concatenate([off[half:], off[:half]])
+    black_first = (grid[:, 0] + grid[:, 1]).astype(int) % 2 == 0
+    pts = grid[:, None, :] + np.where(black_first[:, None, None], off[None], swapped[None])
+    out = np.concatenate([grid.reshape(-1, 1, 2).astype(np.float64),
+                          pts.reshape(-1, 1, 2).astype(np.float64)])
+    out.flags.writeable = False  # cached: shared by every call
+    return out, len(grid)
 
 
 def _follow_partial(gray, p, inner, grid, board, subpix_window_px, sc, max_grid_deviation,
@@ -427,8 +472,9 @@ def _saddles_beyond(gray, H, out, known, grid, board) -> int:
     ring = _ring_grid(*board_pattern(board))
     ring_px = cv2.perspectiveTransform(ring.reshape(-1, 1, 2), H).reshape(-1, 2)
     pts = np.concatenate([np.asarray(out, np.float64)[known], ring_px])
-    grid_all = np.concatenate([grid[known], ring]).astype(np.float32)
-    reference = np.r_[np.ones(int(known.sum()), bool), np.zeros(len(ring), bool)]
+    grid_all = np.concatenate([grid[known], ring]).astype(np.float32, copy=False)
+    reference = np.zeros(len(grid_all), bool)
+    reference[:len(grid_all) - len(ring)] = True
     saddle = _saddle_ok(gray, H, pts, grid_all, reference=reference)
     return int(saddle[~reference].sum())
 
@@ -438,7 +484,10 @@ def _partial_checked(gray, out, known, H, grid, board, sc, method):
     to them) within the tracker's RMS, bound squares of the right colours and show no board
     beyond them (``_saddles_beyond``: labels a square off), else lost."""
     fit = cv2.perspectiveTransform(grid.reshape(-1, 1, 2), H).reshape(-1, 2)
-    rms = np.sqrt(np.mean(np.sum((fit[known] - out[known]) ** 2, axis=1)))
+    e = fit[known] - out[known]
+    ex, ey = e[:, 0], e[:, 1]
+    # (np.mean of the rows' np.sum: the same two-term sums and pairwise total.)
+    rms = np.sqrt(np.add.reduce(ex * ex + ey * ey) / len(e))
     if rms > sc["homography_rms"] or not board_squares_pattern_ok(
         gray, H, board, MIN_PATTERN_CONTRAST, corner_known=known
     ):
