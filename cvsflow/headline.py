@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from cvsflow.transforms import pose6_from_T
+from cvsflow.geometry import euler_jacobian, pose6_from_T
 
 #: Columns of headline.csv.
 COLUMNS = ["session", "group", "quantity", "value", "std", "truth", "unit", "text", "source"]
@@ -71,6 +71,27 @@ class _Rows:
 
 def _pose6(T):
     return pose6_from_T(np.asarray(T, dtype=float))
+
+
+def _euler_std(T, result, name):
+    """Standard deviations (rad) of a fitted mounting's roll, pitch, yaw.
+
+    The fit's rotation standard errors are of a small rotation about the mounting's own axes
+    (``std_errors.<name>_r{x,y,z}_rad``), not of the Euler angles: with roll near -90 deg the
+    two sets of axes differ, and quoting one for the other misstates an angle's uncertainty
+    several times over. Their covariance (with ``correlation_total`` where it has them) goes
+    through :func:`cvsflow.geometry.euler_jacobian`; NaN where a standard error is missing.
+    """
+    keys = [f"{name}_r{a}_rad" for a in "xyz"]
+    sd = np.array([_num((result.get("std_errors") or {}).get(k)) for k in keys])
+    corr = np.eye(3)
+    table = result.get("correlation_total") or {}
+    names = list(table.get("names") or [])
+    if all(k in names for k in keys):
+        idx = [names.index(k) for k in keys]
+        corr = np.asarray(table["matrix"], float)[np.ix_(idx, idx)]
+    J = euler_jacobian(np.asarray(T, float)[:3, :3], side="right")
+    return np.sqrt(np.diag(J @ (np.outer(sd, sd) * corr) @ J.T))
 
 
 def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=None, seed=None,
@@ -156,10 +177,11 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
             for k, a in enumerate("xyz"):
                 r.add("se3", f"{T} {a}", 1e3 * p[k], "mm", f"{src}: {T}, std_errors.{T}_{a}_m",
                       std=1e3 * _num(std.get(f"{T}_{a}_m")), truth=1e3 * pt[k])
-            for k, (a, name) in enumerate(zip("xyz", ("roll", "pitch", "yaw"), strict=True)):
+            sd_euler = _euler_std(se3[T], se3, T)
+            for k, name in enumerate(("roll", "pitch", "yaw")):
                 r.add("se3", f"{T} {name}", np.degrees(p[3 + k]), "deg",
-                      f"{src}: {T}, std_errors.{T}_r{a}_rad",
-                      std=np.degrees(_num(std.get(f"{T}_r{a}_rad"))), truth=np.degrees(pt[3 + k]))
+                      f"{src}: {T}, std_errors.{T}_r*_rad, correlation_total",
+                      std=np.degrees(sd_euler[k]), truth=np.degrees(pt[3 + k]))
         r.add("se3", "corner reprojection RMS", se3.get("rms_px"), "px", f"{src}: rms_px")
         warnings += [("se3", w, f"{src}: warnings") for w in se3.get("warnings") or []]
 

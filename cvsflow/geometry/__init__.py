@@ -23,6 +23,7 @@ from cvsflow.geometry.transforms import (
     T_from_rvec_tvec,
     block_mean_quats,
     euler_from_R,
+    euler_jacobian,
     invert_T,
     make_T,
     mean_rotation,
@@ -41,7 +42,7 @@ from cvsflow.geometry.transforms import (
 
 __all__ = [
     "EULER_SEQ", "INTRINSIC_NAMES", "R_from_euler", "R_from_quat", "R_from_rvec", "T_from_pose6",
-    "T_from_rvec_tvec", "block_mean_quats", "bracket", "euler_from_R", "fit_rigid",
+    "T_from_rvec_tvec", "block_mean_quats", "bracket", "euler_from_R", "euler_jacobian", "fit_rigid",
     "fit_rigid_pair", "interpolate_T", "interpolate_quats", "invert_T", "make_T",
     "mean_rotation", "pose6_from_T", "pose_difference", "project_SO3", "project_points",
     "project_points_jac", "quat_from_R", "right_jacobian_SO3", "rotation_angle", "rvec_from_R",

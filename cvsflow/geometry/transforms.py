@@ -260,6 +260,42 @@ def euler_from_R(R):
         return Rotation.from_matrix(_writable(R)).as_euler(EULER_SEQ)
 
 
+def euler_jacobian(R, side="right"):
+    """How roll, pitch, yaw (:func:`euler_from_R`) move with a small rotation of R.
+
+    Parameters
+    ----------
+    R : array_like, shape (3, 3) or (N, 3, 3)
+        Rotation matrices.
+    side : {"right", "left"}
+        ``"right"``: the rotation is R Exp(delta), delta about R's own (body) axes, as the
+        se3 fit perturbs its mountings; ``"left"``: Exp(delta) R, delta about the outer
+        frame's axes.
+
+    Returns
+    -------
+    J : ndarray, shape (3, 3) or (N, 3, 3)
+        d(roll, pitch, yaw) / d(delta), rad per rad; a covariance C of delta gives the
+        Euler angles' J C J^T. Singular at gimbal lock (|pitch| = pi/2).
+    """
+    rpy = euler_from_R(R)
+    r, p, y = rpy[..., 0], rpy[..., 1], rpy[..., 2]
+    zero, one = np.zeros_like(r), np.ones_like(r)
+    if side == "right":
+        # body rate = E d(rpy) for R = Rz(yaw) Ry(pitch) Rx(roll)
+        E = [[one, zero, -np.sin(p)],
+             [zero, np.cos(r), np.sin(r) * np.cos(p)],
+             [zero, -np.sin(r), np.cos(r) * np.cos(p)]]  # fmt: skip
+    elif side == "left":
+        E = [[np.cos(y) * np.cos(p), -np.sin(y), zero],
+             [np.sin(y) * np.cos(p), np.cos(y), zero],
+             [-np.sin(p), zero, one]]  # fmt: skip
+    else:
+        raise ValueError(f"side must be 'right' or 'left', not {side!r}")
+    E = np.moveaxis(np.array(E, dtype=float), (0, 1), (-2, -1))
+    return np.linalg.inv(E)
+
+
 def R_from_euler(rpy):
     """Rotation matrices from roll, pitch, yaw, R = Rz(yaw) Ry(pitch) Rx(roll).
 

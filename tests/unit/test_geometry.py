@@ -160,3 +160,25 @@ def test_projection_jacobian_matches_opencv_and_finite_differences():
         d[k] = h
         fd = (geo.project_points(p_C + d, K, DIST) - geo.project_points(p_C - d, K, DIST)) / (2 * h)
         np.testing.assert_allclose(J_p[:, :, k], fd, rtol=1e-6, atol=1e-4)
+
+
+@pytest.mark.parametrize("side", ["right", "left"])
+def test_euler_jacobian_against_finite_differences(side):
+    rng = np.random.default_rng(11)
+    R = Rotation.random(6, random_state=rng).as_matrix()
+    R[0] = geo.R_from_euler(np.array([-1.5708, 0.1, -1.5708]))  # the demo's mounting, roll -90
+    J = geo.euler_jacobian(R, side=side)
+    h = 1e-6
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = h
+        Rp, Rm = Rotation.from_rotvec(d).as_matrix(), Rotation.from_rotvec(-d).as_matrix()
+        if side == "right":
+            plus, minus = R @ Rp, R @ Rm
+        else:
+            plus, minus = Rp @ R, Rm @ R
+        fd = geo.wrap_angle(geo.euler_from_R(plus) - geo.euler_from_R(minus)) / (2 * h)
+        np.testing.assert_allclose(J[:, :, k], fd, atol=1e-6)
+    np.testing.assert_allclose(geo.euler_jacobian(R[0], side=side), J[0])
+    with pytest.raises(ValueError, match="side"):
+        geo.euler_jacobian(R, side="middle")

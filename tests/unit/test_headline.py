@@ -18,7 +18,10 @@ SYNC = {"dt_offset_s": 2.372, "method": "angular_speed", "quality": 0.8,
 SE3 = {"fx_px": 701.5, "fy_px": 697.3, "dt_offset_s": 2.3717, "rms_px": 0.3,
        "T_Cm_C": T_from_pose6(np.array(POSE_CM_C)).tolist(),
        "std_errors": {"fx": 0.68, "fy": 0.78, "dt_offset_s": 1.4e-4, "T_Cm_C_x_m": 8e-4,
-                      "T_Cm_C_rx_rad": 7e-4},
+                      "T_Cm_C_rx_rad": 7e-4, "T_Cm_C_ry_rad": 3e-4, "T_Cm_C_rz_rad": 1.1e-3},
+       "correlation_total": {"names": ["fx", "T_Cm_C_rx_rad", "T_Cm_C_ry_rad", "T_Cm_C_rz_rad"],
+                             "matrix": [[1.0, 0.2, 0.0, 0.1], [0.2, 1.0, 0.3, -0.6],
+                                        [0.0, 0.3, 1.0, 0.1], [0.1, -0.6, 0.1, 1.0]]},
        "warnings": ["se3: k1 and k2 correlate at -0.964"]}
 PER_DIM = {d: {"rms": v} for d, v in zip(
     ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"],
@@ -69,8 +72,36 @@ def test_mountings_from_the_matrix_with_rotation_std_in_degrees():
     assert x["value"] == pytest.approx(30.0) and x["std"] == pytest.approx(0.8) and x["unit"] == "mm"
     pitch = rows[("se3", "T_Cm_C pitch")]
     assert pitch["value"] == pytest.approx(np.degrees(0.1)) and pitch["truth"] == pytest.approx(np.degrees(0.1))
-    assert rows[("se3", "T_Cm_C roll")]["std"] == pytest.approx(np.degrees(7e-4))
     assert math.isnan(rows[("se3", "T_Cm_C y")]["std"])  # not in std_errors: not invented
+
+
+def test_mounting_angle_std_is_that_of_the_euler_angles_not_of_the_perturbation():
+    """The fit's rotation std is about the mounting's own axes (R0 Exp(w)); with roll near -90
+    deg an Euler angle mixes them. The headline's std per angle matches a Monte Carlo of the
+    Euler angles of R Exp(w), w drawn with the stated std and correlation; quoting the
+    perturbation's std for the angle (as before) misses it."""
+    from scipy.spatial.transform import Rotation
+
+    from cvsflow.geometry import euler_from_R
+
+    rows = by_key(full_rows())
+    sd = np.array([7e-4, 3e-4, 1.1e-3])
+    corr = np.array(SE3["correlation_total"]["matrix"])[1:, 1:]
+    rng = np.random.default_rng(4)
+    w = rng.multivariate_normal(np.zeros(3), np.outer(sd, sd) * corr, 20000)
+    R = np.asarray(SE3["T_Cm_C"])[:3, :3]
+    rpy = euler_from_R(R @ Rotation.from_rotvec(w).as_matrix())
+    mc_deg = np.degrees(np.std(rpy - euler_from_R(R), axis=0))
+    got = np.array([rows[("se3", f"T_Cm_C {a}")]["std"] for a in ("roll", "pitch", "yaw")])
+    np.testing.assert_allclose(got, mc_deg, rtol=0.03)
+    # the perturbation's own std differs from the angles' by far more than that here
+    assert np.max(np.abs(np.degrees(sd) / mc_deg - 1.0)) > 0.2
+    # without a correlation table the three standard errors are taken as independent
+    se3 = {**SE3}
+    se3.pop("correlation_total")
+    rows_ind = by_key(full_rows(se3=se3))
+    got_ind = np.array([rows_ind[("se3", f"T_Cm_C {a}")]["std"] for a in ("roll", "pitch", "yaw")])
+    assert np.all(np.isfinite(got_ind)) and not np.allclose(got_ind, got, rtol=0.01)
 
 
 def test_diverged_seed_shows_reason_and_no_numbers():
