@@ -256,7 +256,8 @@ def test_corners_at_instants_interpolates_and_extrapolates():
     v = np.array([[30.0, -12.0], [5.0, 40.0]])  # px/s of two corners
     uv = 100.0 + t[:, None, None] * v[None]
     target = t + np.array([0.01, -0.03, 0.015, 0.02, 0.005])
-    uv_at, noise, moved, usable = _corners_at_instants(uv, t, target, max_gap_s=0.06)
+    uv_at, noise, moved, usable = _corners_at_instants(uv, t, target, max_gap_s=0.06,
+                                                       quadratic=False)
     assert moved.all()
     # frame 2's next frame is 0.12 s away: extrapolated from frame 1 (w = -0.375);
     # frame 4 has no next frame: extrapolated from frame 3 (w = -0.125)
@@ -266,7 +267,8 @@ def test_corners_at_instants_interpolates_and_extrapolates():
     np.testing.assert_allclose(noise, np.sqrt((1 - w) ** 2 + w**2))
     # more than half an interval past the last frame of a run: nothing to move it with
     target2 = t + np.array([0.0, 0.0, 0.03, 0.0, 0.0])
-    uv_at2, noise2, moved2, usable2 = _corners_at_instants(uv, t, target2, max_gap_s=0.06)
+    uv_at2, noise2, moved2, usable2 = _corners_at_instants(uv, t, target2, max_gap_s=0.06,
+                                                           quadratic=False)
     np.testing.assert_array_equal(moved2, [False, False, True, False, False])
     assert not usable2[2] and np.isnan(uv_at2[2]).all()
     np.testing.assert_array_equal(uv_at2[[0, 1, 3, 4]], uv[[0, 1, 3, 4]])
@@ -274,8 +276,45 @@ def test_corners_at_instants_interpolates_and_extrapolates():
     # a corner missing from the neighbour is missing from the moved frame, the other kept
     uv3 = uv.copy()
     uv3[1, 0] = np.nan
-    uv_at3 = _corners_at_instants(uv3, t, target, max_gap_s=0.06)[0]
+    uv_at3 = _corners_at_instants(uv3, t, target, max_gap_s=0.06, quadratic=False)[0]
     assert np.isnan(uv_at3[0, 0]).all() and np.isfinite(uv_at3[0, 1]).all()
+
+
+def test_corners_at_instants_quadratic_follows_an_accelerating_corner():
+    """A corner on a parabola in time is moved to the instant exactly through three frames;
+    linear interpolation misses it by a tau (1 - tau) dt^2 / 2. Where the third frame is
+    farther than max_gap_s, or lacks the corner, the linear value is kept."""
+    t = np.arange(6) * 0.04
+    a = np.array([[900.0, -400.0], [250.0, 600.0]])  # px/s^2 of two corners
+    def at(tt):
+        return 100.0 + 20.0 * tt[..., None, None] + 0.5 * tt[..., None, None] ** 2 * a
+    uv = at(t)
+    tau = np.array([0.0, 0.25, 0.5, 0.0, 0.75, 0.0])
+    target = t + tau * 0.04
+    lin, noise_lin, _, _ = _corners_at_instants(uv, t, target, 0.06, quadratic=False)
+    quad, noise_q, moved, usable = _corners_at_instants(uv, t, target, 0.06)
+    np.testing.assert_array_equal(moved, tau > 0)
+    np.testing.assert_allclose(quad[moved], at(target)[moved], atol=1e-9)
+    miss = (at(target) - lin)[moved]
+    expect = -(0.5 * tau * (1 - tau) * 0.04**2)[moved][:, None, None] * a
+    np.testing.assert_allclose(miss, expect, atol=1e-9)
+    # the weights' root sum of squares: e.g. tau = 0.5 with nodes at 0, 1, -1 intervals
+    np.testing.assert_allclose(noise_q[2], np.sqrt(0.75**2 + 0.375**2 + 0.125**2))
+    assert np.all(noise_q[moved] > noise_lin[moved])
+    # a third frame missing one corner: that corner linear, the other quadratic
+    uv2 = uv.copy()
+    uv2[0, 0] = np.nan  # frame 1's third node is frame 0
+    q2 = _corners_at_instants(uv2, t, target, 0.06)[0]
+    np.testing.assert_allclose(q2[1, 0], lin[1, 0], atol=1e-9)
+    np.testing.assert_allclose(q2[1, 1], at(target)[1, 1], atol=1e-9)
+    # a third frame beyond max_gap_s: linear
+    t_gap = t.copy()
+    t_gap[0] = -0.1  # 0.14 s before frame 1
+    target_gap = t_gap + tau * 0.04
+    q3 = _corners_at_instants(at(t_gap), t_gap, target_gap, 0.06)[0]
+    l3 = _corners_at_instants(at(t_gap), t_gap, target_gap, 0.06, quadratic=False)[0]
+    np.testing.assert_array_equal(q3[1], l3[1])
+    assert np.abs(q3[1] - at(target_gap)[1]).max() > 1e-4
 
 
 def test_fused_board_pose_per_camera_noise(rig):
