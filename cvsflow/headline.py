@@ -73,23 +73,24 @@ def _pose6(T):
     return pose6_from_T(np.asarray(T, dtype=float))
 
 
-def _euler_std(T, result, name):
+def _euler_std(T, std, correlation, name, corr_prefix=""):
     """Standard deviations (rad) of a fitted mounting's roll, pitch, yaw.
 
     The fit's rotation standard errors are of a small rotation about the mounting's own axes
-    (``std_errors.<name>_r{x,y,z}_rad``), not of the Euler angles: with roll near -90 deg the
-    two sets of axes differ, and quoting one for the other misstates an angle's uncertainty
-    several times over. Their covariance (with ``correlation_total`` where it has them) goes
-    through :func:`cvsflow.geometry.euler_jacobian`; NaN where a standard error is missing.
+    (``std[<name>_r{x,y,z}_rad]``), not of the Euler angles: with roll near -90 deg the two
+    sets of axes differ, and quoting one for the other misstates an angle's uncertainty
+    several times over. Their covariance (with ``correlation``, a result's
+    ``correlation_total``, where it has ``<corr_prefix><name>_r*_rad``) goes through
+    :func:`cvsflow.geometry.euler_jacobian`; NaN where a standard error is missing.
     """
     keys = [f"{name}_r{a}_rad" for a in "xyz"]
-    sd = np.array([_num((result.get("std_errors") or {}).get(k)) for k in keys])
+    sd = np.array([_num((std or {}).get(k)) for k in keys])
     corr = np.eye(3)
-    table = result.get("correlation_total") or {}
-    names = list(table.get("names") or [])
-    if all(k in names for k in keys):
-        idx = [names.index(k) for k in keys]
-        corr = np.asarray(table["matrix"], float)[np.ix_(idx, idx)]
+    names = list((correlation or {}).get("names") or [])
+    wanted = [corr_prefix + k for k in keys]
+    if all(k in names for k in wanted):
+        idx = [names.index(k) for k in wanted]
+        corr = np.asarray(correlation["matrix"], float)[np.ix_(idx, idx)]
     J = euler_jacobian(np.asarray(T, float)[:3, :3], side="right")
     return np.sqrt(np.diag(J @ (np.outer(sd, sd) * corr) @ J.T))
 
@@ -177,7 +178,7 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
             for k, a in enumerate("xyz"):
                 r.add("se3", f"{T} {a}", 1e3 * p[k], "mm", f"{src}: {T}, std_errors.{T}_{a}_m",
                       std=1e3 * _num(std.get(f"{T}_{a}_m")), truth=1e3 * pt[k])
-            sd_euler = _euler_std(se3[T], se3, T)
+            sd_euler = _euler_std(se3[T], std, se3.get("correlation_total"), T)
             for k, name in enumerate(("roll", "pitch", "yaw")):
                 r.add("se3", f"{T} {name}", np.degrees(p[3 + k]), "deg",
                       f"{src}: {T}, std_errors.{T}_r*_rad, correlation_total",
@@ -231,17 +232,19 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
     return r.rows
 
 
-def _pose_rows(r, group, name, T, T_true, std, std_prefix, src):
-    """Rows of a mounting: x, y, z (mm) with standard errors, roll, pitch, yaw (deg)."""
+def _pose_rows(r, group, name, T, T_true, std, std_prefix, src, correlation=None, corr_prefix=""):
+    """Rows of a mounting: x, y, z (mm) and roll, pitch, yaw (deg), with standard errors (the
+    angles' through :func:`_euler_std`, with ``correlation`` names ``<corr_prefix><name>_*``)."""
     p = _pose6(T)
     pt = _pose6(T_true) if T_true is not None else np.full(6, NAN)
     for k, a in enumerate("xyz"):
         r.add(group, f"{name} {a}", 1e3 * p[k], "mm", f"{src}, std_errors.{std_prefix}{a}_m",
               std=1e3 * _num(std.get(f"{std_prefix}{a}_m")), truth=1e3 * pt[k])
-    # The fit's rotation standard errors are of a small rotation about the start's axes, not
-    # of Euler angles (the axes differ: roll -90 deg mixes them), so the angles go without one.
+    sd_euler = _euler_std(T, std, correlation, name, corr_prefix)
     for k, label in enumerate(("roll", "pitch", "yaw")):
-        r.add(group, f"{name} {label}", np.degrees(p[3 + k]), "deg", src, truth=np.degrees(pt[3 + k]))
+        r.add(group, f"{name} {label}", np.degrees(p[3 + k]), "deg",
+              f"{src}, std_errors.{std_prefix}r*_rad, correlation_total", std=np.degrees(sd_euler[k]),
+              truth=np.degrees(pt[3 + k]))
 
 
 def rig_headline(rig, result, heldout=None, truth=None):
@@ -281,11 +284,12 @@ def rig_headline(rig, result, heldout=None, truth=None):
               f"{src}: cameras[{i}].dt_offset_s, std_errors.dt_offset_s", std=std.get("dt_offset_s", NAN),
               truth=t["dt_offset_s"] if t else NAN, digits=6)
         _pose_rows(r, group, "T_Cm_C", c["T_Cm_C"], t["T_Cm_C"] if t else None, std, "T_Cm_C_",
-                   f"{src}: cameras[{i}].T_Cm_C")
+                   f"{src}: cameras[{i}].T_Cm_C", result.get("correlation_total"), f"cam{i}_")
         r.add(group, "corner reprojection RMS", c.get("rms_px"), "px", f"{src}: cameras[{i}].rms_px")
     if "T_Bm_B" in result:
         _pose_rows(r, "se3 rig: board", "T_Bm_B", result["T_Bm_B"], (truth or {}).get("T_Bm_B"),
-                   result.get("T_Bm_B_std_errors") or {}, "T_Bm_B_", f"{src}: T_Bm_B")
+                   result.get("T_Bm_B_std_errors") or {}, "T_Bm_B_", f"{src}: T_Bm_B",
+                   result.get("correlation_total"))
     by = result.get("n_rig_frames_by_cameras") or {}
     r.note("se3 rig: board", "rig frames by number of cameras",
            ", ".join(f"{k}: {v}" for k, v in sorted(by.items(), key=lambda kv: int(kv[0]))) or "none",

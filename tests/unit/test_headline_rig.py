@@ -37,8 +37,24 @@ def test_rig_rows_name_each_camera_with_its_truth_and_source():
     assert np.isnan(table.loc[("se3 rig: left", "fx")]["truth"])  # no truth for the left camera
     x = table.loc[("se3 rig: left", "T_Cm_C x")]
     assert x["value"] == 30.0 and x["std"] == 0.2 and x["unit"] == "mm"
-    assert np.isnan(table.loc[("se3 rig: left", "T_Cm_C yaw")]["std"])
+    assert np.isnan(table.loc[("se3 rig: left", "T_Cm_C yaw")]["std"])  # no rotation std given
     assert table.loc[("se3 rig: board", "rig frames by number of cameras")]["text"] == "1: 880, 2: 86"
     d2 = table.loc[("held-out RMS (se3 rig, fused poses seen by 2)", "distance")]
     assert d2["value"] == 0.4 and d2["unit"] == "mm"
     assert table.loc[("warnings", "se3 rig")]["text"] == "a warning"
+
+
+def test_rig_mounting_angles_take_their_camera_s_rotation_covariance():
+    """Each camera's roll/pitch/yaw std comes from its own rotation std and its block of the
+    rig's correlation_total (names cam<i>_...): the right camera's here, with roll -90 deg,
+    swaps the perturbation's y and z std onto yaw and pitch."""
+    result = _result()
+    result["cameras"][1]["std_errors"].update(T_Cm_C_rx_rad=1e-3, T_Cm_C_ry_rad=2e-3,
+                                              T_Cm_C_rz_rad=5e-5)
+    result["correlation_total"] = {
+        "names": ["cam1_T_Cm_C_rx_rad", "cam1_T_Cm_C_ry_rad", "cam1_T_Cm_C_rz_rad"],
+        "matrix": np.eye(3).tolist()}
+    table = headline_table(rig_headline("stereo", result)).set_index(["group", "quantity"])
+    std = [table.loc[("se3 rig: right", f"T_Cm_C {a}")]["std"] for a in ("roll", "pitch", "yaw")]
+    np.testing.assert_allclose(std, np.degrees([1e-3, 5e-5, 2e-3]), rtol=0.05)
+    assert np.isnan(table.loc[("se3 rig: left", "T_Cm_C roll")]["std"])
