@@ -7,16 +7,21 @@ prints the truth check's z RMS per axis (x y z roll pitch yaw) with the evaluati
 truth-fitted alignment, per camera and seed, with the calibration's principal point drawn or
 exact; then estimates the clock and prints its offset error against the injected clock in
 units of its stated standard deviation (at the reference's centre, and of ``dt_offset_s``) and
-the skew's. ~13 s CPU per flight. Usage:
+the skew's. ~13 s CPU per flight. ``--s-reproj X`` states the reference's covariance with
+model (T)'s s_reproj set to X (1 is right for these flights' iid corners; the fitted 1.127
+comes from rendered images), ``--no-flips`` without the PnP ambiguity term. Usage:
 
-    PYTHONPATH=. .venv/bin/python bench/bench_flight_truth.py [seed ...]
+    PYTHONPATH=. .venv/bin/python bench/bench_flight_truth.py [--s-reproj X] [--no-flips] [seed ...]
 """
 
 from __future__ import annotations
 
-import sys
+import argparse
+import functools
 import time
 
+import cvsflow.flight_reference_synth as reference_synth
+from cvsflow import uncertainty as un
 from cvsflow.errors import SyncError
 from cvsflow.flight.clock import estimate_clock
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
@@ -71,4 +76,14 @@ def main(seeds):
 
 
 if __name__ == "__main__":
-    main([int(s) for s in sys.argv[1:]] or [1, 2, 3])
+    parser = argparse.ArgumentParser()
+    parser.add_argument("seeds", nargs="*", type=int, default=[1, 2, 3])
+    parser.add_argument("--s-reproj", type=float, default=None)
+    parser.add_argument("--no-flips", action="store_true")
+    args = parser.parse_args()
+    if args.s_reproj is not None:
+        un.RENDERED_TRANSFER_MODEL["s_reproj"] = args.s_reproj  # read at each flight's call
+    if args.no_flips:
+        reference_synth.reference_covariance_transfer = functools.partial(
+            reference_synth.reference_covariance_transfer, flips=False)
+    main(args.seeds)
