@@ -50,7 +50,6 @@ def main():
             out.mkdir(parents=True, exist_ok=True)
             render_session(cfg, out)
         board = cfg["board"]
-        nx, ny = board["squares_x"] - 1, board["squares_y"] - 1
         truth = pd.read_parquet(out / "truth_corners.parquet")
         truth_uv = {f: g.sort_values("corner") for f, g in truth.groupby("frame")}
         grays = {f: g for f, _, g in iter_video_gray(out / "video.mp4")}
@@ -61,16 +60,9 @@ def main():
             c = extract_corners(((f, 0.0, g) for f, g in grays.items()), board)
             cpu = time.process_time() - t0
             kept = c[c["found"]]
-            m = kept.merge(truth, on=["frame", "corner"], suffixes=("", "_true"))
-            err = np.hypot(m["u_px"] - m["u_px_true"], m["v_px"] - m["v_px_true"])
-            ref = []
-            for f, g in m.groupby("frame"):
-                t_all = truth_uv[f][["u_px", "v_px"]].to_numpy().reshape(ny, nx, 2)
-                square_px = np.median(np.linalg.norm(np.diff(t_all, axis=1), axis=2))
-                t_uv = g[["u_px_true", "v_px_true"]].to_numpy()
-                ref.append(np.linalg.norm(cases.scaled_subpix(grays[f], t_uv, square_px) - t_uv, axis=1))
+            _, err, ref = cases.scored_corners(kept, truth, truth_uv, grays, board)
             med = float(np.median(err))
-            ratio = med / float(np.median(np.concatenate(ref)))
+            ratio = med / float(np.median(ref))
             row.append(f"{frac:g}: {kept['frame'].nunique()} fr, {len(kept)} c, {med:.3f} ({ratio:.2f}), "
                        f"max {err.max():.2f}, {cpu:.1f} s")
         corners_grid.SUBPIX_WINDOW_FRAC, corners_grid.TRACK_BORDER_FRAC = default

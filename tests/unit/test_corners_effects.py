@@ -72,6 +72,24 @@ def scaled_subpix(gray, uv_px, square_px):
     return cv2.cornerSubPix(gray, pts, (half, half), (-1, -1), crit).reshape(-1, 2)
 
 
+def scored_corners(kept, truth, truth_uv, grays, board):
+    """Kept corners against the truth: (merged rows, their error px, the reference's error px).
+
+    The reference is cornerSubPix with a window scaled to the squares (``scaled_subpix``),
+    started at the true corners of the same rows (bench/bench_corner_window.py uses it too).
+    """
+    nx, ny = board["squares_x"] - 1, board["squares_y"] - 1
+    merged = kept.merge(truth, on=["frame", "corner"], suffixes=("", "_true"))
+    err_px = np.hypot(merged["u_px"] - merged["u_px_true"], merged["v_px"] - merged["v_px_true"])
+    ref_err = []
+    for f, g in merged.groupby("frame"):
+        t_all = truth_uv[f][["u_px", "v_px"]].to_numpy().reshape(ny, nx, 2)
+        square_px = np.median(np.linalg.norm(np.diff(t_all, axis=1), axis=2))
+        t_uv = g[["u_px_true", "v_px_true"]].to_numpy()
+        ref_err.append(np.linalg.norm(scaled_subpix(grays[f], t_uv, square_px) - t_uv, axis=1))
+    return merged, err_px, np.concatenate(ref_err) if ref_err else np.zeros(0)
+
+
 @pytest.fixture(scope="module", params=sorted(EFFECTS))
 def scored(request, tmp_path_factory):
     """Render one case, run the stage and plain OpenCV; the per-frame and per-corner scores."""
@@ -88,15 +106,7 @@ def scored(request, tmp_path_factory):
 
     plain_found = {f for f, g in grays.items() if plain_opencv(g, (nx, ny))}
     kept = corners[corners["found"]]
-    merged = kept.merge(truth, on=["frame", "corner"], suffixes=("", "_true"))
-    err_px = np.hypot(merged["u_px"] - merged["u_px_true"], merged["v_px"] - merged["v_px_true"])
-    # the reference: cornerSubPix with a window scaled to the squares, on the same corners
-    ref_err = []
-    for f, g in merged.groupby("frame"):
-        t_all = truth_uv[f][["u_px", "v_px"]].to_numpy().reshape(ny, nx, 2)
-        square_px = np.median(np.linalg.norm(np.diff(t_all, axis=1), axis=2))
-        t_uv = g[["u_px_true", "v_px_true"]].to_numpy()
-        ref_err.append(np.linalg.norm(scaled_subpix(grays[f], t_uv, square_px) - t_uv, axis=1))
+    merged, err_px, ref_err = scored_corners(kept, truth, truth_uv, grays, board)
     whole = {f for f, g in truth_uv.items() if g["in_image"].all() and not g["occluded"].any()}
     return {
         "name": request.param,
@@ -105,7 +115,7 @@ def scored(request, tmp_path_factory):
         "whole": whole,
         "plain": plain_found,
         "err_px": err_px.to_numpy(),
-        "ref_err_px": np.concatenate(ref_err) if ref_err else np.zeros(0),
+        "ref_err_px": ref_err,
         "n_kept_rows": len(kept),
         "n_merged": len(merged),
     }
