@@ -22,7 +22,7 @@ Exits 1 if any table differs. Rendering is done first and is not in the timings.
 
     .venv/bin/python bench/bench_many_sessions.py                                  # 20 x 90 s
     .venv/bin/python bench/bench_many_sessions.py --n-sessions 20 --duration-s 20 --modes local,slurm
-    .venv/bin/python bench/bench_many_sessions.py --n-sessions 2 --duration-s 5    # smoke run
+    .venv/bin/python bench/bench_many_sessions.py --n-sessions 2 --duration-s 20   # smoke run
 
 A session must hold the held-out scoring's folds (evaluate.n_folds blocks of evaluate.block_s,
 5 x 2 s in the demo config) and enough pairs per fold: 5 s is too short, 20 s (the demo's) works.
