@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from cvsflow import uncertainty as un
 from cvsflow.errors import InputError
-from cvsflow.geometry import euler_from_R, invert_T
+from cvsflow.geometry import euler_jacobian, invert_T
 from cvsflow.geometry import skew as skew_matrix
 from cvsflow.geometry.camera import INTRINSIC_NAMES
 from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD
@@ -62,17 +62,6 @@ def reference_covariance_model(
     return Sigma
 
 
-def _euler_rate_inverse(rpy):
-    """E^-1 with E mapping roll/pitch/yaw increments to a world-frame rotation vector."""
-    p, y = rpy[:, 1], rpy[:, 2]  # E does not depend on roll
-    cy, sy, cp, sp = np.cos(y), np.sin(y), np.cos(p), np.sin(p)
-    E = np.zeros((len(rpy), 3, 3))
-    E[:, :, 0] = np.column_stack([cy * cp, sy * cp, -sp])  # Rz Ry e_x
-    E[:, :, 1] = np.column_stack([-sy, cy, np.zeros_like(y)])  # Rz e_y
-    E[:, 2, 2] = 1.0  # e_z
-    return np.linalg.inv(E)
-
-
 def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L) -> np.ndarray:
     """Per-axis standard deviations of the reference body pose in the error axes of L.
 
@@ -99,8 +88,8 @@ def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L) -> np.ndarray:
     R_L_C = R_C_L.T
     J[:, :3, :3] = R_L_C
     J[:, :3, 3:] = -R_L_C @ skew_matrix(lever)  # dp = dt - [lever]x dtheta
-    rpy = euler_from_R(R_L_C @ T_C_Q[:, :3, :3])
-    J[:, 3:, 3:] = _euler_rate_inverse(rpy) @ R_L_C
+    # a left perturbation in C is one in L by R_L_C; the Euler angles are of R_L_Q
+    J[:, 3:, 3:] = euler_jacobian(R_L_C @ T_C_Q[:, :3, :3], side="left") @ R_L_C
     S = J @ np.asarray(Sigma_C_B, float) @ np.swapaxes(J, -1, -2)
     return np.sqrt(np.clip(np.diagonal(S, axis1=1, axis2=2), 0, None))
 
