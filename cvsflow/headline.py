@@ -171,18 +171,9 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
               f"{src}: dt_offset_s, std_errors.dt_offset_s", std=std.get("dt_offset_s", NAN),
               truth=truth.get("dt_offset_s", NAN) if truth else NAN, digits=6)
         for T in ("T_Cm_C", "T_Bm_B"):
-            if T not in se3:
-                continue
-            p = _pose6(se3[T])
-            pt = _pose6(truth[T]) if truth and T in truth else np.full(6, NAN)
-            for k, a in enumerate("xyz"):
-                r.add("se3", f"{T} {a}", 1e3 * p[k], "mm", f"{src}: {T}, std_errors.{T}_{a}_m",
-                      std=1e3 * _num(std.get(f"{T}_{a}_m")), truth=1e3 * pt[k])
-            sd_euler = _euler_std(se3[T], std, se3.get("correlation_total"), T)
-            for k, name in enumerate(("roll", "pitch", "yaw")):
-                r.add("se3", f"{T} {name}", np.degrees(p[3 + k]), "deg",
-                      f"{src}: {T}, std_errors.{T}_r*_rad, correlation_total",
-                      std=np.degrees(sd_euler[k]), truth=np.degrees(pt[3 + k]))
+            if T in se3:
+                _pose_rows(r, "se3", T, se3[T], (truth or {}).get(T), std, f"{T}_", f"{src}: {T}",
+                           se3.get("correlation_total"))
         r.add("se3", "corner reprojection RMS", se3.get("rms_px"), "px", f"{src}: rms_px")
         warnings += [("se3", w, f"{src}: warnings") for w in se3.get("warnings") or []]
 
