@@ -506,6 +506,11 @@ def extract_charuco_corners(
     n_done = n_found = n_cv_errors = 0
     t_start = time.perf_counter()
     for frame, t_s, gray in frames:
+        if gray is None:  # the decoder refused it (iter_video_gray's ``undecodable``)
+            methods["undecodable"] = methods.get("undecodable", 0) + 1
+            rows.add(frame, t_s, None)
+            n_done += 1
+            continue
         gray = np.asarray(gray)
         if gray.ndim != 2 or gray.dtype != np.uint8:
             raise InputError(

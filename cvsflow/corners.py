@@ -114,7 +114,8 @@ def extract_corners(
         ``quick`` (the quick search), ``*_back`` (tracked backwards from a later frame),
         ``detect_corners``' methods for frames where the full detector ran; without a board:
         ``not_found`` (a detector looked), ``not_searched`` (the search's back-off skipped
-        the frame and no board could be tracked into it), ``inconsistent``, ``cv_error``).
+        the frame and no board could be tracked into it), ``inconsistent``, ``cv_error``,
+        ``undecodable`` (a frame given as None: the decoder refused it)).
 
     Raises
     ------
@@ -139,6 +140,10 @@ def extract_corners(
             rows.add(frame, t_s, corners_px)
 
     for frame, t_s, gray in frames:
+        if gray is None:  # the decoder refused it (iter_video_gray's ``undecodable``)
+            record(follower.push_undecodable(int(frame), float(t_s)))
+            n_done += 1
+            continue
         gray = np.asarray(gray)
         if gray.ndim != 2 or gray.dtype != np.uint8:
             raise InputError(
@@ -177,6 +182,10 @@ def extract_corners(
     )
     if n_done - n_found:
         log.warning("corners: %d frames without a board kept as found=False", n_done - n_found)
+    if methods.get("undecodable"):
+        log.warning("corners: %d frames could not be decoded (a damaged recording); kept as "
+                    "found=False, and the board is searched for afresh after each",
+                    methods["undecodable"])
     if methods.get("inconsistent"):
         log.warning(
             "corners: %d frames had a corner off its grid neighbours by more than %.2f of "
@@ -206,9 +215,11 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
     Returns
     -------
     summary : dict
-        ``n_frames_decoded``, ``n_found``, ``found_share``, ``frames_by_method`` (method ->
-        frames: how each frame was decided; ``not_found``, ``not_searched``,
-        ``inconsistent``, ``cv_error`` are the reasons a frame has no board),
+        ``n_frames_decoded``, ``n_undecodable`` (frames whose packets the decoder refused:
+        rows with found=False), ``n_found``, ``found_share`` (over all frames),
+        ``frames_by_method`` (method -> frames: how each frame was decided; ``not_found``,
+        ``not_searched``, ``inconsistent``, ``cv_error``, ``undecodable`` are the reasons a
+        frame has no board),
         ``n_cv_errors``, ``corners_per_found_frame``
         (min, median, max); with ``timing``: ``n_frames_header``, ``n_frames_demuxed``,
         ``n_dropped``, ``dropped_gaps`` (``[after_frame, missing]``), ``period_s`` (median),
@@ -217,8 +228,10 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
     per_frame = corners.groupby("frame")["found"].first()
     n_per = corners[corners["found"]].groupby("frame").size()
     attrs = corners.attrs
+    n_undecodable = int(attrs.get("order_methods", {}).get("undecodable", 0))
     out = {
-        "n_frames_decoded": int(len(per_frame)),
+        "n_frames_decoded": int(len(per_frame)) - n_undecodable,
+        "n_undecodable": n_undecodable,
         "n_found": int(per_frame.sum()),
         "found_share": float(per_frame.mean()) if len(per_frame) else 0.0,
         "frames_by_method": {str(k): int(v) for k, v in

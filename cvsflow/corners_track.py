@@ -306,6 +306,14 @@ class _CornerFollower:
         out.append((frame, t_s, corners_px, method))
         return out
 
+    def push_undecodable(self, frame, t_s):
+        """A frame the decoder refused: the board is not followed across it (the waiting
+        frames are decided as at the end of a take, and the search starts afresh)."""
+        out = self.finish()
+        self._reset()
+        out.append((frame, t_s, None, "undecodable"))
+        return out
+
     def _wait(self, frame, t_s, gray, searched, out):
         """Keep a frame for tracking backwards; decide the oldest beyond the memory bound."""
         self.pending.append((frame, t_s, gray, searched))

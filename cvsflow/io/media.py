@@ -82,7 +82,13 @@ def _open_av(path):
     try:
         container = av.open(str(path))
     except (av.error.FFmpegError, OSError, ValueError) as exc:
-        raise InputError(f"{path}: cannot be opened as a video ({exc})") from exc
+        hint = ""
+        if path.suffix.lower() in (".mp4", ".mov", ".m4v") and path.stat().st_size > 0:
+            # a recording cut off (battery, crash) before the camera wrote the index at its end
+            hint = ("; an MP4/MOV whose recording was cut off has no index (moov) and cannot be "
+                    "read as it is: re-export it, or rebuild the index from a good recording "
+                    "of the same camera")
+        raise InputError(f"{path}: cannot be opened as a video ({exc}){hint}") from exc
     if not container.streams.video:
         container.close()
         raise InputError(f"{path}: no video stream (expected a video file)")
@@ -241,15 +247,21 @@ def video_info(path) -> dict:
     }
 
 
-def iter_video_gray(path, start=0, stop=None) -> Iterator[tuple[int, float, np.ndarray]]:
+def iter_video_gray(path, start=0, stop=None, undecodable=False
+                    ) -> Iterator[tuple[int, float, np.ndarray | None]]:
     """Yield (frame index, time in s from the container, grayscale image) for frames [start, stop).
 
-    Decoded with PyAV. Frame k is the k-th frame in presentation order; its time is its
-    presentation timestamp (pts * time_base) from the stream's start, so variable frame rate
-    and dropped frames show in the times, not in the indices. ``start`` > 0 seeks to the key
-    frame before it and decodes up to it: exact, whatever the codec. A frame with a display
-    rotation (a phone held upright stores its frames on their side) is turned upright, as
-    players show it and as ``cv2.imread`` turns a still by its EXIF orientation.
+    Decoded with PyAV, packet by packet. Frame k is the k-th frame in presentation order; its
+    time is its presentation timestamp (pts * time_base) from the stream's start, so variable
+    frame rate and dropped frames show in the times, not in the indices. ``start`` > 0 seeks
+    to the key frame before it and decodes up to it: exact, whatever the codec. A frame with a
+    display rotation (a phone held upright stores its frames on their side) is turned upright,
+    as players show it and as ``cv2.imread`` turns a still by its EXIF orientation.
+
+    A packet the decoder refuses (a damaged recording: a bad card sector, a cut-off upload)
+    costs its frame, not the rest of the video: decoding goes on with the next packet, as the
+    ``ffmpeg`` tool does, and the frame keeps its index (from the packets' timestamps), so a
+    chunk read from ``start`` > 0 numbers frames as a whole pass does.
 
     Parameters
     ----------
@@ -259,60 +271,91 @@ def iter_video_gray(path, start=0, stop=None) -> Iterator[tuple[int, float, np.n
         First frame index (presentation order) to yield.
     stop : int, optional
         Frame index to stop before; default the end of the stream.
+    undecodable : bool, default False
+        Also yield the frames that could not be decoded, as ``(frame, t_s, None)``; False
+        leaves them out (their indices are then missing). Either way they are counted in one
+        WARNING naming the file.
 
     Returns
     -------
-    iterator of (int, float, ndarray)
+    iterator of (int, float, ndarray or None)
         ``(frame, t_s, gray)``: frame index, PTS time in s from the stream start, and the
-        8-bit grey image of shape (H, W). Nothing when ``start`` is past the last frame; a
-        decoding error ends the iteration early with a WARNING.
+        8-bit grey image of shape (H, W) (None for an undecodable frame, with
+        ``undecodable``). Nothing when ``start`` is past the last frame.
 
     Raises
     ------
     InputError
-        Not a file or not a video.
+        Not a file or not a video, or a video of which not one frame decodes.
     """
     import av
 
     start = int(start)
-    target = None
-    if start > 0:
-        timing_pts = _packet_pts(path)
-        if start >= len(timing_pts):
-            return
-        target = int(timing_pts[start])
+    all_pts = _packet_pts(path) if start > 0 else None
+    if all_pts is not None and start >= len(all_pts):
+        return
     container = _open_av(path)
+    state = {"next": start, "failed": 0, "decoded": 0, "missing": 0, "first_error": None}
     try:
         stream = container.streams.video[0]
         tb = float(stream.time_base)
         t0 = stream.start_time
-        index = None
-        if target is not None:
-            container.seek(target, stream=stream, backward=True, any_frame=False)
-            all_pts = timing_pts
-        for frame in container.decode(stream):
+        if all_pts is not None:
+            container.seek(int(all_pts[start]), stream=stream, backward=True, any_frame=False)
+
+        def frames():
+            for packet in container.demux(stream):
+                try:
+                    yield from packet.decode()
+                except av.error.FFmpegError as exc:
+                    state["failed"] += 1
+                    state["first_error"] = state["first_error"] or (state["next"], str(exc))
+
+        origin = None
+        for frame in frames():
             if frame.pts is None:
                 continue
-            if index is None:
-                if target is not None:
-                    if frame.pts < target:
-                        continue
-                    index = int(np.searchsorted(all_pts, frame.pts))
-                else:
-                    index = 0
-                    origin = frame.pts if t0 is None else t0
+            if origin is None:
+                origin = t0 if t0 is not None else (all_pts[0] if all_pts is not None else frame.pts)
+            if state["failed"] and all_pts is None:
+                # from the first refused packet on, frames are numbered by their timestamps
+                all_pts = _packet_pts(path)
+            if all_pts is not None:
+                index = int(np.searchsorted(all_pts, frame.pts))
+                if index < start:
+                    continue
+            else:
+                index = state["next"]
             if stop is not None and index >= stop:
                 break
-            if target is not None and t0 is None:
-                origin = all_pts[0]
-            elif t0 is not None:
-                origin = t0
+            for missing in range(state["next"], index):
+                state["missing"] += 1
+                if undecodable:
+                    yield missing, float((all_pts[missing] - origin) * tb), None
+            state["next"] = index + 1
+            state["decoded"] += 1
             yield index, float((frame.pts - origin) * tb), _gray(frame, display_turns(frame.rotation, path))
-            index += 1
-    except av.error.FFmpegError as exc:
-        log.warning("%s: decoding stopped at frame %s (%s)", path, index, exc)
+        if state["failed"] and state["decoded"] == 0 and start == 0:
+            raise InputError(f"{path}: not one frame decodes ({state['failed']} packets refused, "
+                             f"the first: {state['first_error'][1]})")
+        if state["failed"]:
+            if all_pts is None:
+                all_pts = _packet_pts(path)
+            end = len(all_pts) if stop is None else min(stop, len(all_pts))
+            if origin is None:
+                origin = t0 if t0 is not None else all_pts[0]
+            for missing in range(state["next"], end):
+                state["missing"] += 1
+                if undecodable:
+                    yield missing, float((all_pts[missing] - origin) * tb), None
+            state["next"] = max(state["next"], end)
     finally:
         container.close()
+        if state["failed"]:
+            log.warning("%s: %d packets could not be decoded (the first before frame %s: %s); "
+                        "%d frames of [%d, %s) are undecodable", path, state["failed"],
+                        state["first_error"][0], state["first_error"][1], state["missing"],
+                        start, "end" if stop is None else stop)  # fmt: skip
 
 
 # Planar YUV formats whose first plane is the luma: read directly (2.6x faster at 720p than

@@ -202,3 +202,84 @@ def test_image_size_check_names_a_quarter_turn_and_a_resolution_change():
         check_image_size(camera, 1280, 720, "cam.yaml", "webcam.mp4")
     with pytest.raises(ImageSizeError, match="display rotation 90 deg"):
         check_image_size(camera, 1920, 1080, rotation_deg=90.0)
+
+
+def _damaged_mp4(path, n_frames=120, gop=20):
+    """H.264 mp4 of a drifting board (key frame every ``gop``) with bytes overwritten in the
+    middle of its media data (a bad card sector): some packets no longer decode."""
+    container = av.open(str(path), "w")
+    stream = container.add_stream("libx264", rate=30)
+    stream.width, stream.height, stream.pix_fmt = 640, 480, "yuv420p"
+    stream.codec_context.gop_size = gop
+    for k in range(n_frames):
+        frame = av.VideoFrame.from_ndarray(cv2.cvtColor(_board_frame(k), cv2.COLOR_GRAY2BGR),
+                                           format="bgr24").reformat(format="yuv420p")
+        for packet in stream.encode(frame):
+            container.mux(packet)
+    for packet in stream.encode():
+        container.mux(packet)
+    container.close()
+    data = bytearray(path.read_bytes())
+    rng = np.random.default_rng(3)
+    for k in range(24):  # the moov index is at the end: these land in mdat
+        at = int(0.4 * len(data)) + 211 * k
+        data[at:at + 24] = rng.integers(0, 256, 24, dtype=np.uint8).tobytes()
+    path.write_bytes(bytes(data))
+
+
+def test_a_damaged_recording_loses_its_bad_frames_only_and_chunks_equal_one_pass(tmp_path):
+    """Packets the decoder refuses cost their frames, not the rest of the video (the whole
+    pass used to stop at the first): every frame index comes out, the refused ones as None
+    rows with found=False counted as ``undecodable``, the board is found again after them,
+    and the two-process table equals the single pass."""
+    path = tmp_path / "damaged.mp4"
+    _damaged_mp4(path)
+    timing = video_timing(path)
+    frames = list(iter_video_gray(path, undecodable=True))
+    assert [f for f, _, _ in frames] == list(range(timing["n_frames"]))
+    np.testing.assert_allclose([t for _, t, _ in frames], timing["t_s"])
+    bad = [f for f, _, g in frames if g is None]
+    assert 0 < len(bad) < 40
+    assert sum(g is not None for f, _, g in frames if f > max(bad)) > 10  # decoding went on
+    kept = list(iter_video_gray(path))
+    assert [f for f, _, _ in kept] == [f for f, _, g in frames if g is not None]
+    chunked = [f for a, b in [(0, 50), (50, 90), (90, None)]
+               for f, _, _ in iter_video_gray(path, a, b, undecodable=True)]
+    assert chunked == list(range(timing["n_frames"]))
+    source = functools.partial(iter_video_gray, path, undecodable=True)
+    single = extract_corners(source(0, None), BOARD, restart_every=40, log_every=0)
+    parallel = extract_corners_parallel(source, timing["n_frames"], BOARD, n_workers=2,
+                                        restart_every=40, log_every=0)
+    pd.testing.assert_frame_equal(single, parallel)
+    found = parallel.groupby("frame")["found"].first()
+    assert not found[bad].any()
+    assert found[found.index > max(bad)].sum() > 10
+    summary = summarise_corners(parallel, timing)
+    assert summary["n_undecodable"] == summary["frames_by_method"]["undecodable"] == len(bad)
+    assert summary["n_frames_decoded"] == timing["n_frames"] - len(bad)
+
+
+def test_a_video_of_which_nothing_decodes_is_an_input_error(tmp_path):
+    """Every packet refused: an InputError naming the file, not an empty corners table."""
+    path = tmp_path / "noise.mp4"
+    _damaged_mp4(path, n_frames=30, gop=30)
+    data = bytearray(path.read_bytes())
+    moov = data.rfind(b"moov")
+    rng = np.random.default_rng(4)
+    start = data.find(b"mdat") + 8
+    data[start:moov - 8] = rng.integers(0, 256, moov - 8 - start, dtype=np.uint8).tobytes()
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match="noise.mp4.*not one frame decodes"):
+        list(iter_video_gray(path))
+
+
+def test_an_mp4_cut_off_before_its_index_says_so(tmp_path):
+    """A phone recording that stopped before the index was written (moov at the end): the
+    error names the file and the likely cause."""
+    path = tmp_path / "cut.mp4"
+    _write_vfr_mp4(path, np.arange(20) / 30.0)
+    data = path.read_bytes()
+    path.write_bytes(data[: data.rfind(b"moov") - 8])
+    for call in (video_info, video_timing, lambda p: list(iter_video_gray(p))):
+        with pytest.raises(InputError, match="cut.mp4.*cut off has no index"):
+            call(path)

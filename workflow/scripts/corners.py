@@ -17,7 +17,7 @@ with stage_logging(snakemake.log[0], "corners") as log:
     info, timing = video_info(video), video_timing(video)
     log.info("video %s: %s; %d processes", video, info, snakemake.threads)
     corners = extract_corners_parallel(
-        partial(iter_video_gray, video),
+        partial(iter_video_gray, video, undecodable=True),
         info["n_frames"],
         snakemake.params.board,
         n_workers=snakemake.threads,
