@@ -1,7 +1,8 @@
 """The ``cvsflow`` command: calibrate stills, export results, run the workflow, start a session.
 
 One module per subcommand group (``calibrate``, ``rig`` (calibrate-rig), ``export``, ``run``,
-``init``, ``handeye``); this one builds the parser and dispatches (``main``, the ``cvsflow`` entry point).
+``init``, ``remux``, ``handeye``); this one builds the parser and dispatches (``main``, the
+``cvsflow`` entry point).
 
 Exit codes: 0 success; 1 a cvsflow error (one line on stderr naming the file); 2 a usage error
 (argparse); any other code from ``cvsflow run`` is snakemake's own.
@@ -18,6 +19,7 @@ from cvsflow.cli.calibrate import cmd_calibrate
 from cvsflow.cli.export import cmd_export_camera, cmd_export_trajectory
 from cvsflow.cli.handeye import _add_handeye_parser
 from cvsflow.cli.init import cmd_init
+from cvsflow.cli.remux import cmd_remux
 from cvsflow.cli.rig import cmd_calibrate_rig
 from cvsflow.cli.run import cmd_run
 from cvsflow.errors import CvsflowError
@@ -30,7 +32,7 @@ def build_parser() -> argparse.ArgumentParser:
     -------
     argparse.ArgumentParser
         Subcommands ``calibrate``, ``calibrate-rig``, ``export camera``, ``export trajectory``, ``run``,
-        ``init``, ``handeye``; each sets ``func`` to its ``cmd_*`` handler (None for ``run``,
+        ``init``, ``remux``, ``handeye``; each sets ``func`` to its ``cmd_*`` handler (None for ``run``,
         which :func:`main` handles).
     """
     p = argparse.ArgumentParser(
@@ -129,6 +131,21 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml)")
     i.add_argument("--name", help="session name (default: the folder's name)")
     i.set_defaults(func=cmd_init)
+
+    m = sub.add_parser(
+        "remux",
+        help="give a raw H.264/HEVC stream (Raspberry Pi cameras) its frame times in an MP4",
+        description="A raw stream's frames carry no timestamps, which the pipeline needs. Copies "
+        "its packets (no re-encoding) into a new MP4 with the camera's timestamps (--timestamps: "
+        "a timecode format v2 file, as `libcamera-vid --save-pts` / `rpicam-vid --save-pts` "
+        "write) or, failing those, a nominal frame rate (--fps). Never overwrites.",
+    )
+    m.add_argument("src", help="the raw stream (.h264, .hevc, ...)")
+    m.add_argument("--out", required=True, help="MP4 to write (a new file)")
+    times = m.add_mutually_exclusive_group(required=True)
+    times.add_argument("--timestamps", help="timecode format v2 file, one time in ms per frame")
+    times.add_argument("--fps", type=float, help="nominal frame rate, frames/s")
+    m.set_defaults(func=cmd_remux)
     _add_handeye_parser(sub)
     return p
 

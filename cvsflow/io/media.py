@@ -126,15 +126,19 @@ def video_timing(path) -> dict:
         tb = float(stream.time_base)
         t0 = stream.start_time
         pts = []
+        n_untimed = 0
         try:
             for packet in container.demux(stream):
                 if packet.size and packet.pts is not None:
                     pts.append(packet.pts)
+                n_untimed += bool(packet.size) and packet.pts is None
         except av.error.FFmpegError as exc:  # a truncated file: keep what demuxed
             log.warning("%s: demuxing stopped after %d packets (%s)", path, len(pts), exc)
     finally:
         container.close()
     if not pts:
+        if n_untimed:
+            raise _untimed_error(path, n_untimed)
         raise InputError(f"{path}: video has no frames (header states {n_header})")
     pts = np.sort(np.asarray(pts, dtype=np.int64))
     origin = pts[0] if t0 is None else t0
@@ -160,6 +164,15 @@ def video_timing(path) -> dict:
         "n_dropped": int(sum(g[1] for g in gaps)),
         "gaps": gaps,
     }
+
+
+def _untimed_error(path, n_packets) -> InputError:
+    """The error for a video whose frames carry no timestamps (a raw H.264 / HEVC stream)."""
+    return InputError(
+        f"{path}: its {n_packets} frames carry no timestamps (a raw H.264/HEVC stream, as "
+        "Raspberry Pi cameras record): give them times in an MP4 with `cvsflow remux "
+        f"{Path(path).name} --timestamps <the camera's --save-pts file> --out video.mp4`, or "
+        "`--fps <the camera's frame rate>`, and use that video")
 
 
 def video_size(path) -> dict:
@@ -312,8 +325,10 @@ def iter_video_gray(path, start=0, stop=None, undecodable=False
                     state["first_error"] = state["first_error"] or (state["next"], str(exc))
 
         origin = None
+        n_untimed = 0
         for frame in frames():
             if frame.pts is None:
+                n_untimed += 1
                 continue
             if origin is None:
                 origin = t0 if t0 is not None else (all_pts[0] if all_pts is not None else frame.pts)
@@ -335,6 +350,8 @@ def iter_video_gray(path, start=0, stop=None, undecodable=False
             state["next"] = index + 1
             state["decoded"] += 1
             yield index, float((frame.pts - origin) * tb), _gray(frame, display_turns(frame.rotation, path))
+        if n_untimed and state["decoded"] == 0:
+            raise _untimed_error(path, n_untimed)
         if state["failed"] and state["decoded"] == 0 and start == 0:
             raise InputError(f"{path}: not one frame decodes ({state['failed']} packets refused, "
                              f"the first: {state['first_error'][1]})")
