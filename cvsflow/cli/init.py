@@ -13,6 +13,8 @@ from pathlib import Path
 from cvsflow.errors import CvsflowError, InputError
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v")
+# bare H.264 / HEVC streams (Raspberry Pi cameras): no frame times until remuxed
+RAW_STREAM_SUFFIXES = (".h264", ".264", ".h265", ".265", ".hevc")
 
 
 MOCAP_SUFFIXES = (".csv", ".c3d", ".tsv")
@@ -388,6 +390,11 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
     videos = _videos(folder)
     session["video"] = str(videos[0]) if videos else "TODO"
     notes.append(f"video: {videos[0]}" if videos else "no video found: set video")
+    raw = sorted(p for p in folder.rglob("*") if p.suffix.lower() in RAW_STREAM_SUFFIXES)
+    if raw and not videos:
+        notes.append(f"{raw[0]}: a raw stream without frame times: `cvsflow remux {raw[0]} "
+                     "--timestamps <its --save-pts file> --out video.mp4` (or --fps), then set "
+                     "video to that MP4")
     if len(videos) > 1:
         notes.append(f"{len(videos)} videos found; took the first, check")
     mocap = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MOCAP_SUFFIXES)

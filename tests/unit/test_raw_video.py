@@ -135,3 +135,12 @@ def test_bad_timestamps_files_name_the_line(tmp_path, text, match):
     path.write_text(text)
     with pytest.raises(InputError, match=match):
         read_timecodes_v2(path)
+
+
+def test_init_names_remux_for_a_folder_with_only_a_raw_stream(tmp_path):
+    from cvsflow.cli.init import build_session_config
+
+    (tmp_path / "cam.h264").write_bytes(b"\x00\x00\x00\x01")
+    session, notes = build_session_config(tmp_path)
+    assert session["video"] == "TODO"
+    assert any("cam.h264: a raw stream without frame times: `cvsflow remux" in n for n in notes)
