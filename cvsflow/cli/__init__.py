@@ -130,7 +130,12 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("dir", help="recording folder")
     i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml)")
     i.add_argument("--name", help="session name (default: the folder's name)")
-    i.set_defaults(func=cmd_init)
+    lay = i.add_mutually_exclusive_group()
+    lay.add_argument("--rig", dest="layout", action="store_const", const="rig",
+                     help="a rig session, or an error saying what the camera folders lack")
+    lay.add_argument("--mono", dest="layout", action="store_const", const="mono",
+                     help="one camera, even if the subfolders look like a rig")
+    i.set_defaults(func=cmd_init, layout="auto")
 
     m = sub.add_parser(
         "remux",

@@ -348,7 +348,7 @@ def build_rig_config(folder, cams: list[Path]) -> tuple[dict, list[str]]:
     return session, notes
 
 
-def build_session_config(folder) -> tuple[dict, list[str]]:
+def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
     """Session config guessed from a recording folder, and notes for the user to check.
 
     Parameters
@@ -358,6 +358,10 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
         a video (``VIDEO_SUFFIXES``) and a motion-capture export (``MOCAP_SUFFIXES``). When it
         holds two or more camera folders (:func:`camera_folders`), a rig session is built
         instead (:func:`build_rig_config`).
+    layout : {"auto", "rig", "mono"}
+        ``"auto"``: a rig when :func:`camera_folders` finds one; ``"rig"``: a rig or an error
+        saying what a rig folder needs; ``"mono"``: one camera whatever the subfolders hold
+        (the first stills folder and video found).
 
     Returns
     -------
@@ -370,9 +374,16 @@ def build_session_config(folder) -> tuple[dict, list[str]]:
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError(f"{folder}: recording folder not found")
-    cams = camera_folders(folder)
+    if layout not in ("auto", "rig", "mono"):
+        raise InputError(f"init: layout must be auto, rig or mono, not {layout!r}")
+    cams = camera_folders(folder) if layout != "mono" else []
     if cams:
         return build_rig_config(folder, cams)
+    if layout == "rig":
+        raise InputError(
+            f"{folder}: not a rig recording: expected two or more camera folders "
+            f"({folder}/<camera>/), each with a folder of 3 or more stills and one with a video; "
+            "shared views in <camera>/shared/ or shared/<camera>/")
     notes = []
     session: dict = {}
     stills = _find_stills(folder)
@@ -415,8 +426,9 @@ def cmd_init(args) -> int:
     args : argparse.Namespace
         ``dir`` (recording folder), ``out`` (file to write, default
         ``DIR/cvsflow_session.yaml``), ``name`` (session name, default the folder's name;
-        characters other than letters, digits, _ and - become _). A folder of two or more
-        camera folders gives a rig session (:func:`build_rig_config`).
+        characters other than letters, digits, _ and - become _), ``layout`` (auto, rig or
+        mono: :func:`build_session_config`). A folder of two or more camera folders gives a
+        rig session (:func:`build_rig_config`) unless ``layout`` is mono.
 
     Returns
     -------
@@ -436,7 +448,7 @@ def cmd_init(args) -> int:
     out = Path(args.out) if args.out else folder / "cvsflow_session.yaml"
     if out.exists():
         raise InputError(f"{out}: exists; cvsflow init never overwrites a file (give --out)")
-    session, notes = build_session_config(folder)
+    session, notes = build_session_config(folder, getattr(args, "layout", "auto"))
     # A session name is a wildcard value: letters, digits, _ and - only (workflow/rules/common.smk).
     name = re.sub(r"[^A-Za-z0-9_-]", "_", args.name or folder.resolve().name)
     text = "# Session config written by `cvsflow init`: check every line, fill every TODO.\n"

@@ -222,3 +222,22 @@ def test_init_rig_from_the_opencv_sample_stills(tmp_path):
     assert session["board"] == {"squares_x": 10, "squares_y": 7, "square_m": "TODO"}
     assert [c["shared_dir"] for c in session["cameras"]] == [str(rec / k / "shared") for k in ("c0", "c1")]
     assert_runnable_rig("real", session)
+
+
+def test_init_mono_and_rig_flags_override_the_guess(tmp_path):
+    """--mono on a rig folder gives one camera's session; --rig on a one-camera folder is an
+    error saying what a rig folder needs, and writes nothing."""
+    rec = make_rig(tmp_path / "rec")
+    out = tmp_path / "mono.yaml"
+    assert cli.main(["init", str(rec), "--out", str(out), "--mono"]) == 0
+    cfg = next(iter(yaml.safe_load(out.read_text())["sessions"].values()))
+    assert "cameras" not in cfg
+    assert cfg["calib_dir"].startswith(str(rec / "cam_left"))
+    assert cfg["video"] == str(rec / "cam_left" / "video.mp4")
+    one = tmp_path / "one"
+    _stills(one / "calib", ["a.png", "b.png", "c.png"])
+    with pytest.raises(InputError, match="not a rig recording: expected two or more camera folders"):
+        build_session_config(one, "rig")
+    out2 = tmp_path / "rig.yaml"
+    assert cli.main(["init", str(one), "--out", str(out2), "--rig"]) == 1
+    assert not out2.exists()
