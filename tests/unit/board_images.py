@@ -91,3 +91,34 @@ def render_board_distorted(T_C_B, K, dist, size, board=BOARD, pps=32, blur_sigma
     uv, _ = cv2.projectPoints(p_B, tf.rvec_from_R(T_C_B[:3, :3]), T_C_B[:3, 3], K,
                               np.asarray(dist, float))
     return gray, uv.reshape(-1, 2)
+
+
+K_DRIFT = np.array([[700.0, 0.0, 319.5], [0.0, 700.0, 239.5], [0.0, 0.0, 1.0]])
+
+
+def drifting_board_frame(i: int) -> np.ndarray:
+    """Frame i of a board drifting right (grey, 640x480)."""
+    T = board_centre_pose([0.1, 0.05, 0.0], [-0.2 + 0.004 * i, 0.0, 1.3])
+    return render_board(T, K_DRIFT, seed=i)[0]
+
+
+def write_h264(path, n_frames, fmt=None, gop=None, b_frames=True):
+    """H.264 of ``drifting_board_frame`` 0..n-1 at 30 fps (``fmt="h264"``: a bare Annex B
+    stream, as a Raspberry Pi camera writes; ``b_frames=False`` as its encoder does)."""
+    import av
+
+    container = av.open(str(path), "w", format=fmt)
+    stream = container.add_stream("libx264", rate=30)
+    stream.width, stream.height, stream.pix_fmt = W, H, "yuv420p"
+    if gop is not None:
+        stream.codec_context.gop_size = gop
+    if not b_frames:
+        stream.codec_context.max_b_frames = 0
+    for i in range(n_frames):
+        frame = av.VideoFrame.from_ndarray(cv2.cvtColor(drifting_board_frame(i), cv2.COLOR_GRAY2BGR),
+                                           format="bgr24").reformat(format="yuv420p")
+        for packet in stream.encode(frame):
+            container.mux(packet)
+    for packet in stream.encode():
+        container.mux(packet)
+    container.close()

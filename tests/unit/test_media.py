@@ -10,19 +10,21 @@ import cv2
 import numpy as np
 import pandas as pd
 import pytest
-from board_images import BOARD, board_centre_pose, render_board
+from board_images import (
+    BOARD,
+    K_DRIFT,
+    board_centre_pose,
+    drifting_board_frame,
+    render_board,
+    write_h264,
+)
 
 from cvsflow.corners import extract_corners, extract_corners_parallel, summarise_corners
 from cvsflow.errors import InputError
 from cvsflow.io.media import iter_video_gray, video_info, video_timing
 
-K = np.array([[700.0, 0.0, 319.5], [0.0, 700.0, 239.5], [0.0, 0.0, 1.0]])
-
-
-def _board_frame(i: int) -> np.ndarray:
-    """Frame i of a board drifting right (grey, 640x480)."""
-    T = board_centre_pose([0.1, 0.05, 0.0], [-0.2 + 0.004 * i, 0.0, 1.3])
-    return render_board(T, K, seed=i)[0]
+K = K_DRIFT
+_board_frame = drifting_board_frame
 
 
 def _write_vfr_mp4(path, pts_s, time_base=Fraction(1, 90000)):
@@ -207,18 +209,7 @@ def test_image_size_check_names_a_quarter_turn_and_a_resolution_change():
 def _damaged_mp4(path, n_frames=120, gop=20):
     """H.264 mp4 of a drifting board (key frame every ``gop``) with bytes overwritten in the
     middle of its media data (a bad card sector): some packets no longer decode."""
-    container = av.open(str(path), "w")
-    stream = container.add_stream("libx264", rate=30)
-    stream.width, stream.height, stream.pix_fmt = 640, 480, "yuv420p"
-    stream.codec_context.gop_size = gop
-    for k in range(n_frames):
-        frame = av.VideoFrame.from_ndarray(cv2.cvtColor(_board_frame(k), cv2.COLOR_GRAY2BGR),
-                                           format="bgr24").reformat(format="yuv420p")
-        for packet in stream.encode(frame):
-            container.mux(packet)
-    for packet in stream.encode():
-        container.mux(packet)
-    container.close()
+    write_h264(path, n_frames, gop=gop)
     data = bytearray(path.read_bytes())
     rng = np.random.default_rng(3)
     for k in range(24):  # the moov index is at the end: these land in mdat

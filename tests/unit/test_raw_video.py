@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import av
-import cv2
 import numpy as np
 import pytest
-from board_images import BOARD, board_centre_pose, render_board
+from board_images import BOARD, write_h264
 
 from cvsflow.cli import main
 from cvsflow.corners import extract_corners
@@ -14,30 +13,10 @@ from cvsflow.errors import InputError
 from cvsflow.io.media import iter_video_gray, video_timing
 from cvsflow.io.raw_video import read_timecodes_v2, remux_with_times
 
-K = np.array([[700.0, 0.0, 319.5], [0.0, 700.0, 239.5], [0.0, 0.0, 1.0]])
-
-
-def _frame(i: int) -> np.ndarray:
-    T = board_centre_pose([0.1, 0.05, 0.0], [-0.2 + 0.004 * i, 0.0, 1.3])
-    return render_board(T, K, seed=i)[0]
-
 
 def _raw_h264(path, n=40, b_frames=False):
     """A bare Annex B H.264 stream, as a Raspberry Pi camera writes (no B-frames by default)."""
-    container = av.open(str(path), "w", format="h264")
-    stream = container.add_stream("libx264", rate=30)
-    stream.width, stream.height, stream.pix_fmt = 640, 480, "yuv420p"
-    stream.codec_context.gop_size = 15
-    if not b_frames:
-        stream.codec_context.max_b_frames = 0
-    for i in range(n):
-        frame = av.VideoFrame.from_ndarray(cv2.cvtColor(_frame(i), cv2.COLOR_GRAY2BGR),
-                                           format="bgr24").reformat(format="yuv420p")
-        for packet in stream.encode(frame):
-            container.mux(packet)
-    for packet in stream.encode():
-        container.mux(packet)
-    container.close()
+    write_h264(path, n, fmt="h264", gop=15, b_frames=b_frames)
 
 
 def _luma(path):
