@@ -14,7 +14,7 @@ import argparse
 import logging
 import sys
 
-from cvsflow.cli.args import EPILOG, _parse_inner
+from cvsflow.cli.args import EPILOG, _parse_inner, _parse_squares
 from cvsflow.cli.calibrate import cmd_calibrate
 from cvsflow.cli.export import cmd_export_camera, cmd_export_trajectory
 from cvsflow.cli.handeye import _add_handeye_parser
@@ -46,15 +46,20 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser(
         "calibrate",
-        help="calibrate a camera from a folder of chessboard stills",
+        help="calibrate a camera from a folder of chessboard or ChArUco stills",
         description="Calibrate from stills alone (the workflow's calibrate stage); writes "
         "camera.yaml, calib_corners.parquet and the OpenCV, Kalibr and ROS files into OUT.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     c.add_argument("dir", help="folder of stills (png, jpg, ...)")
-    c.add_argument("--inner", type=_parse_inner, required=True, help="inner corners NXxNY, e.g. 9x6")
+    kind = c.add_mutually_exclusive_group(required=True)
+    kind.add_argument("--inner", type=_parse_inner, help="chessboard inner corners NXxNY, e.g. 9x6")
+    kind.add_argument("--charuco", type=_parse_squares, metavar="SXxSY",
+                      help="a ChArUco board of SXxSY squares (needs --marker-m and --dictionary)")
     c.add_argument("--square-m", type=float, required=True, help="square side, metres")
+    c.add_argument("--marker-m", type=float, help="ChArUco marker side, metres")
+    c.add_argument("--dictionary", help="ChArUco ArUco dictionary, e.g. DICT_5X5_100")
     c.add_argument("--out", required=True, help="output folder")
     c.add_argument("--subpix-window-px", type=int, default=11, help="cornerSubPix half window (px)")
     c.add_argument("--min-images", type=int, default=5, help="fewest stills with a board")

@@ -21,6 +21,16 @@ exit codes: 0 ok, 1 cvsflow error (one line naming the file), 2 usage error;
 """
 
 
+def _parse_squares(text: str) -> tuple[int, int]:
+    try:
+        sx, sy = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"--charuco {text!r}: expected SXxSY squares, e.g. 7x5") from exc
+    if sx < 3 or sy < 3:
+        raise argparse.ArgumentTypeError(f"--charuco {text!r}: expected at least 3x3 squares")
+    return sx, sy
+
+
 def _parse_inner(text: str) -> tuple[int, int]:
     try:
         nx, ny = (int(v) for v in text.lower().split("x"))

@@ -9,6 +9,25 @@ import numpy as np
 from cvsflow.errors import InputError
 
 
+def _board_from_args(args) -> dict:
+    """The board config of ``--inner`` (a chessboard) or ``--charuco`` (with its marker)."""
+    if getattr(args, "charuco", None) is None:
+        nx, ny = args.inner
+        return {"squares_x": nx + 1, "squares_y": ny + 1, "square_m": float(args.square_m)}
+    missing = [f"--{k.replace('_', '-')}" for k in ("marker_m", "dictionary")
+               if getattr(args, k, None) is None]
+    if missing:
+        raise InputError(f"--charuco {args.charuco[0]}x{args.charuco[1]}: also give "
+                         f"{' and '.join(missing)} (e.g. --marker-m 0.06 --dictionary DICT_5X5_100)")
+    from cvsflow.charuco import charuco_board
+
+    board = {"type": "charuco", "squares_x": args.charuco[0], "squares_y": args.charuco[1],
+             "square_m": float(args.square_m), "marker_m": float(args.marker_m),
+             "dictionary": str(args.dictionary)}
+    charuco_board(board)  # checks the marker size and the dictionary (ConfigError)
+    return board
+
+
 def cmd_calibrate(args) -> int:
     """``cvsflow calibrate``: calibrate a camera from a folder of chessboard stills.
 
@@ -18,8 +37,9 @@ def cmd_calibrate(args) -> int:
     Parameters
     ----------
     args : argparse.Namespace
-        ``dir`` (stills folder), ``inner`` ((nx, ny) inner corners), ``square_m`` (square
-        side, m), ``out`` (output folder), ``subpix_window_px``, ``min_images``.
+        ``dir`` (stills folder), ``inner`` ((nx, ny) inner corners of a chessboard) or
+        ``charuco`` ((sx, sy) squares, with ``marker_m`` (m) and ``dictionary``), ``square_m``
+        (square side, m), ``out`` (output folder), ``subpix_window_px``, ``min_images``.
 
     Returns
     -------
@@ -29,7 +49,9 @@ def cmd_calibrate(args) -> int:
     Raises
     ------
     InputError
-        No images in ``dir`` (or an unreadable one).
+        No images in ``dir`` (or an unreadable one), or ``--charuco`` without its marker.
+    ConfigError
+        A ChArUco marker not smaller than its square, or an unknown dictionary.
     CalibrationError
         Too few stills with a board, or the calibration failed.
     """
@@ -40,8 +62,7 @@ def cmd_calibrate(args) -> int:
     from cvsflow.io.camera_formats import write_all_formats
     from cvsflow.io.media import list_stills, read_gray
 
-    nx, ny = args.inner
-    board = {"squares_x": nx + 1, "squares_y": ny + 1, "square_m": float(args.square_m)}
+    board = _board_from_args(args)
     cv2.setNumThreads(1)
     paths = list_stills(args.dir)
     if not paths:

@@ -115,7 +115,10 @@ def _add_mocap(session: dict, notes: list, candidates) -> tuple[list[str], list[
     return names, system_bodies
 
 
-def _add_board(session: dict, notes: list, inner) -> None:
+def _add_board(session: dict, notes: list, inner, stills_dir=None) -> None:
+    # findChessboardCorners also finds a ChArUco board's grid; its markers say which it is
+    if stills_dir is not None and _add_charuco(session, notes, stills_dir, inner):
+        return
     if inner is None:
         session["board"] = {"squares_x": "TODO", "squares_y": "TODO", "square_m": "TODO"}
         notes.append(f"no chessboard of the sizes {COMMON_INNER} (inner corners) found: set board")
@@ -125,6 +128,36 @@ def _add_board(session: dict, notes: list, inner) -> None:
             f"board: {inner[0]}x{inner[1]} inner corners found = {inner[0] + 1}x{inner[1] + 1} squares "
             "(cvsflow counts squares); measure square_m in metres"
         )
+
+
+def _add_charuco(session: dict, notes: list, stills_dir, inner=None) -> bool:
+    """A ``type: charuco`` board from what the first stills show (False: no ChArUco markers,
+    or a row length other than the chessboard ``inner`` found)."""
+    from cvsflow.charuco_guess import guess_charuco_board
+    from cvsflow.io.media import list_stills, read_gray
+
+    guess = guess_charuco_board(read_gray(p) for p in list_stills(stills_dir)[:5])
+    if guess is None or (inner is not None and guess["squares_x"] not in (None, inner[0] + 1)):
+        return False
+    sx, sy = guess["squares_x"], guess["squares_y_min"]
+    session["board"] = {"type": "charuco", "squares_x": sx or "TODO", "squares_y": "TODO",
+                        "square_m": "TODO", "marker_m": "TODO", "dictionary": guess["dictionary"]}
+    notes.append(f"board: ChArUco markers of {guess['dictionary']} (or a larger dictionary of its "
+                 f"family), ids up to {guess['max_id']} seen")
+    if sx is None:
+        notes.append("the markers fit no ChArUco layout of 3 to 24 squares a row (OpenCV >= 4.6 "
+                     "pattern, square (0, 0) black): set squares_x and squares_y")
+        return True
+    if guess["max_id"] + 1 == (sx * sy) // 2:
+        session["board"]["squares_y"] = sy
+        notes.append(f"board: {sx}x{sy} squares (the highest marker id seen, {guess['max_id']}, "
+                     f"is the last of a {sx}x{sy} board; check); measure square_m in metres")
+    else:
+        notes.append(f"board: {sx} squares a row, at least {sy} rows (from the highest marker id "
+                     "seen): set squares_y")
+    notes.append(f"marker_m is about {guess['marker_share']:.2f} x square_m (from the stills): "
+                 "measure it")
+    return True
 
 
 def _add_markers(session: dict, notes: list, names, system_bodies, camera_keys=("cam",)) -> None:
@@ -341,7 +374,8 @@ def build_rig_config(folder, cams: list[Path]) -> tuple[dict, list[str]]:
     if len(set(found)) > 1:
         notes.append(f"the cameras' stills show different boards {sorted(set(found))} (inner "
                      f"corners): took {inner}, the most common; a rig watches one board, check")
-    _add_board(session, notes, inner)
+    first_stills = next((Path(c["calib_dir"]) for c in cameras if c.get("calib_dir") != "TODO"), None)
+    _add_board(session, notes, inner, first_stills)
     # The rig body is the bar the cameras sit on: named like a rig, bar or camera.
     _add_markers(session, notes, marker_list, system_bodies, camera_keys=("rig", "bar", "cam"))
     notes.append("markers.camera is the rig body: the markers on what every camera is fixed to")
@@ -410,7 +444,7 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
         notes.append(f"{len(videos)} videos found; took the first, check")
     mocap = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MOCAP_SUFFIXES)
     names, system_bodies = _add_mocap(session, notes, mocap)
-    _add_board(session, notes, inner)
+    _add_board(session, notes, inner, None if stills is None else stills[0])
     _add_markers(session, notes, names, system_bodies)
     return session, notes
 

@@ -353,3 +353,59 @@ def test_a_finger_over_a_corner_whose_markers_show_is_dropped_or_right(renderer)
                 loose, _ = ch.detect_charuco_corners(gray, BOARD, max_asymmetry=np.inf)
                 n_off_unchecked += np.linalg.norm(loose[k] - truth[k]) > 0.5
     assert n_dropped >= 20 and n_off_unchecked >= 20, (n_dropped, n_off_unchecked)
+
+
+def _charuco_stills(folder, board, n=5):
+    cfg = charuco_cfg(n_stills=n)
+    cfg["board"] = dict(board)
+    folder.mkdir(parents=True)
+    for name, img, _ in render_stills(cfg):
+        cv2.imwrite(str(folder / name), img)
+
+
+@pytest.mark.parametrize("board", [
+    BOARD,
+    {"type": "charuco", "squares_x": 7, "squares_y": 5, "square_m": 0.08, "marker_m": 0.06,
+     "dictionary": "DICT_4X4_50"},
+])
+def test_init_reads_the_charuco_board_off_the_stills(tmp_path, board):
+    """`cvsflow init` on ChArUco stills: the dictionary's family, the row length and the rows
+    (every marker seen), the marker's share of a square within 0.05; square_m stays TODO."""
+    from cvsflow.charuco_guess import guess_charuco_board
+    from cvsflow.cli.init import build_session_config
+
+    _charuco_stills(tmp_path / "calib", board)
+    session, notes = build_session_config(tmp_path)
+    b = session["board"]
+    assert b["type"] == "charuco" and b["square_m"] == "TODO" and b["marker_m"] == "TODO"
+    assert (b["squares_x"], b["squares_y"]) == (board["squares_x"], board["squares_y"])
+    assert b["dictionary"].rsplit("_", 1)[0] == board["dictionary"].rsplit("_", 1)[0]
+    guess = guess_charuco_board(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+                                for p in sorted((tmp_path / "calib").iterdir()))
+    assert abs(guess["marker_share"] - board["marker_m"] / board["square_m"]) < 0.05
+    assert guess["fit_share"] < 0.05
+    assert any("marker_m is about" in n for n in notes)
+
+
+def test_charuco_guess_is_none_for_a_chessboard_and_calibrate_cli_takes_charuco(tmp_path, capsys):
+    """Plain chessboard stills carry no markers (None); `cvsflow calibrate --charuco` calibrates
+    from ChArUco stills and names a missing --marker-m."""
+    from cvsflow.charuco_guess import guess_charuco_board
+    from cvsflow.cli import main
+
+    cfg = charuco_cfg(n_stills=3)
+    cfg["board"] = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
+    assert guess_charuco_board(img for _, img, _ in render_stills(cfg)) is None
+    _charuco_stills(tmp_path / "calib", BOARD, n=8)
+    out = tmp_path / "out"
+    assert main(["calibrate", str(tmp_path / "calib"), "--charuco", "6x5", "--square-m", "0.09",
+                 "--marker-m", "0.0675", "--dictionary", "DICT_5X5_100", "--out", str(out)]) == 0
+    camera = yaml.safe_load((out / "camera.yaml").read_text())
+    assert camera["board"]["type"] == "charuco" and camera["n_used"] == 8
+    fx_true = float(parse_session_config(charuco_cfg()).K[0, 0])
+    assert abs(camera["K"][0][0] - fx_true) < 4 * camera["std"]["fx"]
+    capsys.readouterr()
+    assert main(["calibrate", str(tmp_path / "calib"), "--charuco", "6x5", "--square-m", "0.09",
+                 "--out", str(tmp_path / "o2")]) == 1
+    assert "also give --marker-m and --dictionary" in capsys.readouterr().err
+    assert not (tmp_path / "o2").exists()
