@@ -135,7 +135,7 @@ def _corners_at_instants(uv, t_s, t_target_s, max_gap_s, quadratic=True):
     return uv_at, factor, moved, usable
 
 
-def _interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px):
+def _interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px, half_window=3):
     """Mean square interpolation error of each frame's corners moved through three frames.
 
     The three-frame (quadratic) interpolant at the instant misses a corner by the next term of
@@ -144,10 +144,15 @@ def _interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px):
     beyond j) times the nodes' polynomial at the instant. Its mean square over the frame's
     corners and both axes, less what corner noise of ``sigma_px`` per axis puts into the
     difference (``sigma_px^2 omega^2 sum w^2``, w the four divided-difference weights), is the
-    interpolation's variance per corner and axis. Hand tremor at 5-11 Hz is near the Nyquist
-    frequency of a 25-30 fps camera, where the third difference, a low-frequency
-    approximation, falls short of the interpolation's error (by 1.2-1.7 in amplitude at
-    2.0-2.5 rad per frame): the estimate is a lower bound there.
+    interpolation's variance per corner and axis at low frequencies. Hand tremor at 5-11 Hz
+    is near the Nyquist frequency of a 25-30 fps camera, where the third difference falls
+    short of the interpolation's error (by 1.2-1.7 in amplitude at 2.0-2.5 rad per frame):
+    the variance is scaled by ``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1), the ratio of the
+    three-frame interpolation's error to the third difference's estimate of it for a sinusoid
+    of w rad per frame at tau frames from frame i, w the track's dominant frequency over
+    ``half_window`` frames either side from the power of its unit-step fourth and third
+    differences (``4 sin^2(w / 2)`` their ratio, each less its noise share, 70 and 20
+    ``sigma_px^2``).
 
     Parameters
     ----------
@@ -155,6 +160,8 @@ def _interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px):
         As :func:`_corners_at_instants`.
     sigma_px : float
         Corner noise per axis, px.
+    half_window : int
+        Frames either side over which the track's dominant frequency is estimated.
 
     Returns
     -------
@@ -177,15 +184,48 @@ def _interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px):
     ok &= np.abs(ts[3] - ts[2]) <= max_gap_s
     with np.errstate(divide="ignore", invalid="ignore"):
         w = [1.0 / np.prod([ts[a] - ts[b] for b in range(4) if b != a], axis=0) for a in range(4)]
-        omega = (t_target_s - ts[0]) * (t_target_s - ts[1]) * (t_target_s - ts[2])
-        e = sum(w[a][:, None, None] * uv[nodes[a]] for a in range(4)) * omega[:, None, None]
-        gain2 = omega**2 * sum(x**2 for x in w)
+        poly = (t_target_s - ts[0]) * (t_target_s - ts[1]) * (t_target_s - ts[2])
+        e = sum(w[a][:, None, None] * uv[nodes[a]] for a in range(4)) * poly[:, None, None]
+        gain2 = poly**2 * sum(x**2 for x in w)
     has = np.isfinite(e).all(axis=-1)
     ok &= has.any(axis=1) & np.isfinite(gain2)
     ms = (np.where(has[..., None], e, 0.0) ** 2).sum(axis=(1, 2)) / np.maximum(2 * has.sum(axis=1), 1)
     out[ok] = np.maximum(ms[ok] - float(sigma_px) ** 2 * gain2[ok], 0.0)
+    if n >= 5:
+        tau = np.abs(dt) / np.where(j != i, np.abs(t_s[j] - t_s), np.inf)
+        out *= _nyquist_factor(uv, tau, float(sigma_px), half_window)
     return out
 
+
+def _mean_square_at(d, n, start, half_window):
+    """Mean square of difference rows ``d`` (row r centred at frame r + start) over the frames
+    within ``half_window`` of each of ``n`` frames (NaN rows and corners skipped)."""
+    sq = np.full(n, np.nan)
+    with np.errstate(invalid="ignore"):
+        sq[start : start + len(d)] = np.nanmean(d**2, axis=(1, 2)) if d.size else np.nan
+    ok = np.isfinite(sq)
+    box = np.ones(2 * half_window + 1)
+    return np.convolve(np.where(ok, sq, 0.0), box, "same") / np.maximum(np.convolve(ok, box, "same"), 1)
+
+
+def _nyquist_factor(uv, tau, sigma_px, half_window):
+    """``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1) per frame: :func:`_interpolation_error_ms`."""
+    n = len(uv)
+    with np.errstate(invalid="ignore"):
+        d3 = uv[3:] - 3 * uv[2:-1] + 3 * uv[1:-2] - uv[:-3]
+        d4 = uv[4:] - 4 * uv[3:-1] + 6 * uv[2:-2] - 4 * uv[1:-3] + uv[:-4]
+        p3 = _mean_square_at(d3, n, 1, half_window) - 20.0 * sigma_px**2
+        p4 = _mean_square_at(d4, n, 2, half_window) - 70.0 * sigma_px**2
+        w = 2.0 * np.arcsin(np.sqrt(np.clip(p4 / p3, 0.0, 4.0)) / 2.0)
+    w = np.where((p3 > 0) & np.isfinite(w), w, 0.0)
+    tau = np.where(np.isfinite(tau), tau, 0.0)
+    # nodes at -1, 0, 1 frames (k, i, j), the instant at tau; the estimate's fourth node at 2
+    E = (tau * (tau - 1) / 2 * np.exp(-1j * w) + (1 - tau**2) + tau * (tau + 1) / 2 * np.exp(1j * w)
+         - np.exp(1j * w * tau))  # fmt: skip
+    D = (np.exp(2j * w) - 3 * np.exp(1j * w) + 3 - np.exp(-1j * w)) / 6 * (tau + 1) * tau * (tau - 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.abs(E) ** 2 / np.abs(D) ** 2
+    return np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
 
 def fused_rig_poses(
     params, corners, bodies, board, frames=None, match_tol_s=None, sigma_px=None, calibration_cov=True,
@@ -270,25 +310,31 @@ def fused_rig_poses(
     interpolation misses a corner by up to an eighth of its image acceleration times the
     frame interval squared, comparable to the corner noise for a hand-held board: on the 10 s
     render of config/stereo.yaml (seed 19) with the default tolerance, two-camera NEES 10.9
-    in sample and 13.1 held out linearly, 7.4 and 9.4 through three frames. What remains
-    was measured against the renderer's true corners there: the three-frame interpolation
-    misses the moved corners by 0.042 px RMS per axis (corner noise 0.053 px), 0.040 px of it
-    common to the view's corners (hand tremor at 5-11 Hz, near the 25 fps camera's Nyquist
-    frequency); the time offsets' error moves them by 0.003 px; the renderer has no rolling
-    shutter. With the interpolation error taken out (an oracle) the two-camera NEES is 5.7
-    in sample and 7.9 held out, and with the true calibration and no calibration term it is
-    6.3 at a 2 ms tolerance against 21.5 at the default. ``interpolation_cov`` adds the
-    error to each moved view's corner variance (:func:`_interpolation_error_ms`, from the
-    track's third difference, as an error shared by the view's corners): two-camera NEES
-    5.1 in sample and 6.7 held out (3 folds) on that render, 5.9 and 5.5 on seed 7 (7.6 and
-    6.7 without the term), one-camera frames and a 2 ms tolerance unchanged (seed 19: 5.9
-    and 7.9, 36 frames), the poses' errors unchanged (0.92 mm RMS on two-camera frames).
-    Held out below the oracle's 7.9: n s^2 per corner weighs a shared error as the view's
-    image translation does, which overstates it in the view's other directions; the 2 ms
-    tolerance's held-out 7.9 (36 frames, no interpolation) is the calibration term's.
-    With the true calibration the third difference still falls short of the tremor's
-    interpolation error (NEES 8.1 against 21.5 without the term). In bench/bench_se3_rig.py
-    (seed 3, 6 s, smooth motion) the term changes the NEES by less than 0.03.
+    in sample and 13.1 held out linearly, 7.4 and 9.4 through three frames
+    (bench/bench_rig_instants.py). What remains was measured there against the renderer's
+    true corners: the three-frame interpolation misses the moved corners by 0.042 px RMS
+    per axis (corner noise 0.054 px), 0.040 px of it common to the view's corners (hand
+    tremor at 5-11 Hz, near the 25 fps camera's Nyquist frequency); the time offsets' error
+    moves them by 0.003 px; the renderer has no rolling shutter. With the true calibration
+    and no calibration term the two-camera NEES is 6.3 at a 2 ms tolerance and 21.5 at the
+    default. ``interpolation_cov`` adds the error to each moved view's corner variance
+    (:func:`_interpolation_error_ms`: the track's third difference scaled for its dominant
+    frequency, taken as an error shared by the view's corners): 6.6 in sample and 7.2 held
+    out with the true calibration, and with the fit's (and its calibration term) 4.7 and 6.2
+    (3 folds) on that render, 5.5 and 5.2 on seed 7 (7.4 and 9.4, 7.6 and 6.7 without the
+    term); one-camera frames, the 2 ms tolerance (5.9 and 7.9 over 36 frames; seed 7 5.5
+    and 4.5) and the poses' errors (0.92 mm RMS on two-camera frames) unchanged. An error
+    the view's n corners share, of variance s^2, is weighed as n independent errors of
+    variance n s^2: right in the direction of the view's image translation, more than right
+    in the others; propagating only a shared shift (the pose's response to the view's cx,
+    cy) covered less of it (with the true calibration and the true interpolation variance
+    7.2 and 7.6 that way, 5.5 and 6.0 this way). On the 20 s render the two-camera NEES is
+    3.9 in sample and 4.3 held out over 257 frames (6.5 and 6.8 without the term; 4.5 and
+    4.8 over 86 at 2 ms; one-camera frames 3.8). Not covered: a view extrapolated (no
+    neighbour across the instant, as at the held-out folds' block edges) or interpolated
+    linearly has no term (seed 7: 7 of 120 held-out frames, one of them at NEES 264). In
+    bench/bench_se3_rig.py (seed 3, 6 s, smooth motion) the term changes the NEES by 0.04
+    at most.
     """
     if instant not in ("interpolate", "nearest"):
         raise OptimiseError(f"se3 rig: instant must be 'interpolate' or 'nearest', not {instant!r}")
@@ -335,9 +381,9 @@ def fused_rig_poses(
                          int(np.sum(moved & ~usable)), int(np.sum(moved)))  # fmt: skip
             uv_g[g, i], noise_g[g, i] = uv_at, noise
             if interpolation_cov:
-                # the error is common to the view's corners (a shift of the whole view: 95 %
-                # of it on the stereo render); on the pose, n corners sharing one error of
-                # variance s^2 weigh as n independent ones of variance n s^2 each
+                # the error is common to the view's corners (a shift of the whole view: 0.040
+                # of 0.042 px RMS on the stereo render); on the pose, n corners sharing one
+                # error of variance s^2 weigh as n independent ones of variance n s^2 each
                 n_seen = np.isfinite(uv_at).all(axis=-1).sum(axis=1)
                 ms = _interpolation_error_ms(uv, t_vicon[i], t_instant[g], max_gap_s, sigma)
                 interp_g[g, i] = n_seen * ms
