@@ -330,11 +330,12 @@ def fused_rig_poses(
     cy) covered less of it (with the true calibration and the true interpolation variance
     7.2 and 7.6 that way, 5.5 and 6.0 this way). On the 20 s render the two-camera NEES is
     3.9 in sample and 4.3 held out over 257 frames (6.5 and 6.8 without the term; 4.5 and
-    4.8 over 86 at 2 ms; one-camera frames 3.8). Not covered: a view extrapolated (no
-    neighbour across the instant, as at the held-out folds' block edges) or interpolated
-    linearly has no term (seed 7: 7 of 120 held-out frames, one of them at NEES 264). In
-    bench/bench_se3_rig.py (seed 3, 6 s, smooth motion) the term changes the NEES by 0.04
-    at most.
+    4.8 over 86 at 2 ms; one-camera frames 3.8, the calibration term being generous there:
+    with the true calibration 6.1 and 6.7, 15.1 and 15.2 without the term). Not covered: a
+    view extrapolated (no neighbour across the instant, as at the held-out folds' block
+    edges) or interpolated linearly has no term (seed 7: 7 of 120 held-out frames, one of
+    them at NEES 264). In bench/bench_se3_rig.py (seed 3, 6 s, smooth motion) the term
+    changes the NEES by 0.04 at most.
     """
     if instant not in ("interpolate", "nearest"):
         raise OptimiseError(f"se3 rig: instant must be 'interpolate' or 'nearest', not {instant!r}")
