@@ -135,9 +135,101 @@ def _corners_at_instants(uv, t_s, t_target_s, max_gap_s, quadratic=True):
     return uv_at, factor, moved, usable
 
 
+def _interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px, half_window=3):
+    """Mean square interpolation error of each frame's corners moved through three frames.
+
+    The three-frame (quadratic) interpolant at the instant misses a corner by the next term of
+    its Newton series, ``f[t_k, t_i, t_j, t_q] (t - t_k)(t - t_i)(t - t_j)``: the third divided
+    difference of the track (nodes k, i, j of :func:`_corners_at_instants` and the frame q
+    beyond j) times the nodes' polynomial at the instant. Its mean square over the frame's
+    corners and both axes, less what corner noise of ``sigma_px`` per axis puts into the
+    difference (``sigma_px^2 omega^2 sum w^2``, w the four divided-difference weights), is the
+    interpolation's variance per corner and axis at low frequencies. Hand tremor at 5-11 Hz
+    is near the Nyquist frequency of a 25-30 fps camera, where the third difference falls
+    short of the interpolation's error (by 1.2-1.7 in amplitude at 2.0-2.5 rad per frame):
+    the variance is scaled by ``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1), the ratio of the
+    three-frame interpolation's error to the third difference's estimate of it for a sinusoid
+    of w rad per frame at tau frames from frame i, w the track's dominant frequency over
+    ``half_window`` frames either side from the power of its unit-step fourth and third
+    differences (``4 sin^2(w / 2)`` their ratio, each less its noise share, 70 and 20
+    ``sigma_px^2``).
+
+    Parameters
+    ----------
+    uv, t_s, t_target_s, max_gap_s
+        As :func:`_corners_at_instants`.
+    sigma_px : float
+        Corner noise per axis, px.
+    half_window : int
+        Frames either side over which the track's dominant frequency is estimated.
+
+    Returns
+    -------
+    ms_px2 : ndarray, shape (F,)
+        Per frame the estimated interpolation variance per corner and axis, px^2; 0 where
+        the frame was not moved or the four frames are not there within ``max_gap_s``.
+    """
+    n = len(t_s)
+    out = np.zeros(n)
+    if n < 4:
+        return out
+    i = np.arange(n)
+    dt = t_target_s - t_s
+    side = np.sign(np.where(np.abs(dt) > 1e-6, dt, 0.0)).astype(int)
+    j, k, q = (np.clip(i + m * side, 0, n - 1) for m in (1, -1, 2))
+    nodes = (k, i, j, q)
+    ts = [t_s[a] for a in nodes]
+    ok = (side != 0) & (k != i) & (q != j) & (j != i)
+    ok &= (np.abs(ts[1] - ts[0]) <= max_gap_s) & (np.abs(ts[2] - ts[1]) <= max_gap_s)
+    ok &= np.abs(ts[3] - ts[2]) <= max_gap_s
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = [1.0 / np.prod([ts[a] - ts[b] for b in range(4) if b != a], axis=0) for a in range(4)]
+        poly = (t_target_s - ts[0]) * (t_target_s - ts[1]) * (t_target_s - ts[2])
+        e = sum(w[a][:, None, None] * uv[nodes[a]] for a in range(4)) * poly[:, None, None]
+        gain2 = poly**2 * sum(x**2 for x in w)
+    has = np.isfinite(e).all(axis=-1)
+    ok &= has.any(axis=1) & np.isfinite(gain2)
+    ms = (np.where(has[..., None], e, 0.0) ** 2).sum(axis=(1, 2)) / np.maximum(2 * has.sum(axis=1), 1)
+    out[ok] = np.maximum(ms[ok] - float(sigma_px) ** 2 * gain2[ok], 0.0)
+    if n >= 5:
+        tau = np.abs(dt) / np.where(j != i, np.abs(t_s[j] - t_s), np.inf)
+        out *= _nyquist_factor(uv, tau, float(sigma_px), half_window)
+    return out
+
+
+def _mean_square_at(d, n, start, half_window):
+    """Mean square of difference rows ``d`` (row r centred at frame r + start) over the frames
+    within ``half_window`` of each of ``n`` frames (NaN rows and corners skipped)."""
+    sq = np.full(n, np.nan)
+    with np.errstate(invalid="ignore"):
+        sq[start : start + len(d)] = np.nanmean(d**2, axis=(1, 2)) if d.size else np.nan
+    ok = np.isfinite(sq)
+    box = np.ones(2 * half_window + 1)
+    return np.convolve(np.where(ok, sq, 0.0), box, "same") / np.maximum(np.convolve(ok, box, "same"), 1)
+
+
+def _nyquist_factor(uv, tau, sigma_px, half_window):
+    """``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1) per frame: :func:`_interpolation_error_ms`."""
+    n = len(uv)
+    with np.errstate(invalid="ignore"):
+        d3 = uv[3:] - 3 * uv[2:-1] + 3 * uv[1:-2] - uv[:-3]
+        d4 = uv[4:] - 4 * uv[3:-1] + 6 * uv[2:-2] - 4 * uv[1:-3] + uv[:-4]
+        p3 = _mean_square_at(d3, n, 1, half_window) - 20.0 * sigma_px**2
+        p4 = _mean_square_at(d4, n, 2, half_window) - 70.0 * sigma_px**2
+        w = 2.0 * np.arcsin(np.sqrt(np.clip(p4 / p3, 0.0, 4.0)) / 2.0)
+    w = np.where((p3 > 0) & np.isfinite(w), w, 0.0)
+    tau = np.where(np.isfinite(tau), tau, 0.0)
+    # nodes at -1, 0, 1 frames (k, i, j), the instant at tau; the estimate's fourth node at 2
+    E = (tau * (tau - 1) / 2 * np.exp(-1j * w) + (1 - tau**2) + tau * (tau + 1) / 2 * np.exp(1j * w)
+         - np.exp(1j * w * tau))  # fmt: skip
+    D = (np.exp(2j * w) - 3 * np.exp(1j * w) + 3 - np.exp(-1j * w)) / 6 * (tau + 1) * tau * (tau - 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.abs(E) ** 2 / np.abs(D) ** 2
+    return np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
+
 def fused_rig_poses(
     params, corners, bodies, board, frames=None, match_tol_s=None, sigma_px=None, calibration_cov=True,
-    instant="interpolate", max_residual_px=None,
+    instant="interpolate", max_residual_px=None, interpolation_cov=True,
 ):
     """Per rig frame: the board pose fused from every camera that saw it, and the reference.
 
@@ -176,6 +268,10 @@ def fused_rig_poses(
         Leave a camera's view of a rig frame out of the fusion when a corner of it lies
         farther than this from that camera's own PnP pose of the frame (px): a corner the
         tracker put on the wrong crossing. None (default): every view is used.
+    interpolation_cov : bool
+        With ``instant="interpolate"``: add each moved view's interpolation error to its
+        corner noise (:func:`_interpolation_error_ms`, the track's third difference), as an
+        error common to the view's corners; False: the corner noise's propagation only.
 
     Returns
     -------
@@ -213,9 +309,33 @@ def fused_rig_poses(
     interpolating linearly), and the tests' seeds 0-3 give 5.8-7.6 against 21-60. Linear
     interpolation misses a corner by up to an eighth of its image acceleration times the
     frame interval squared, comparable to the corner noise for a hand-held board: on the 10 s
-    render of config/stereo.yaml with the default tolerance, two-camera NEES 10.9 in sample
-    and 13.1 held out linearly, 7.4 and 9.4 through three frames. The remaining
-    interpolation error is not in the covariance.
+    render of config/stereo.yaml (seed 19) with the default tolerance, two-camera NEES 10.9
+    in sample and 13.1 held out linearly, 7.4 and 9.4 through three frames
+    (bench/bench_rig_instants.py). What remains was measured there against the renderer's
+    true corners: the three-frame interpolation misses the moved corners by 0.042 px RMS
+    per axis (corner noise 0.054 px), 0.040 px of it common to the view's corners (hand
+    tremor at 5-11 Hz, near the 25 fps camera's Nyquist frequency); the time offsets' error
+    moves them by 0.003 px; the renderer has no rolling shutter. With the true calibration
+    and no calibration term the two-camera NEES is 6.3 at a 2 ms tolerance and 21.5 at the
+    default. ``interpolation_cov`` adds the error to each moved view's corner variance
+    (:func:`_interpolation_error_ms`: the track's third difference scaled for its dominant
+    frequency, taken as an error shared by the view's corners): 6.6 in sample and 7.2 held
+    out with the true calibration, and with the fit's (and its calibration term) 4.7 and 6.2
+    (3 folds) on that render, 5.5 and 5.2 on seed 7 (7.4 and 9.4, 7.6 and 6.7 without the
+    term); one-camera frames, the 2 ms tolerance (5.9 and 7.9 over 36 frames; seed 7 5.5
+    and 4.5) and the poses' errors (0.92 mm RMS on two-camera frames) unchanged. An error
+    the view's n corners share, of variance s^2, is weighed as n independent errors of
+    variance n s^2: right in the direction of the view's image translation, more than right
+    in the others; propagating only a shared shift (the pose's response to the view's cx,
+    cy) covered less of it (with the true calibration and the true interpolation variance
+    7.2 and 7.6 that way, 5.5 and 6.0 this way). On the 20 s render the two-camera NEES is
+    3.9 in sample and 4.3 held out over 257 frames (6.5 and 6.8 without the term; 4.5 and
+    4.8 over 86 at 2 ms; one-camera frames 3.8, the calibration term being generous there:
+    with the true calibration 6.1 and 6.7, 15.1 and 15.2 without the term). Not covered: a
+    view extrapolated (no neighbour across the instant, as at the held-out folds' block
+    edges) or interpolated linearly has no term (seed 7: 7 of 120 held-out frames, one of
+    them at NEES 264). In bench/bench_se3_rig.py (seed 3, 6 s, smooth motion) the term
+    changes the NEES by 0.04 at most.
     """
     if instant not in ("interpolate", "nearest"):
         raise OptimiseError(f"se3 rig: instant must be 'interpolate' or 'nearest', not {instant!r}")
@@ -246,6 +366,8 @@ def fused_rig_poses(
     uv_g = np.full((n_groups, n_cam, len(p_B), 2), np.nan)
     frame_g = -np.ones((n_groups, n_cam), int)
     noise_g = np.ones((n_groups, n_cam))
+    interp_g = np.zeros((n_groups, n_cam))  # interpolation variance per corner, px^2
+    sigma = float(params["sigma_px"]) if sigma_px is None else float(sigma_px)
     t_sum, t_n = np.zeros(n_groups), np.zeros(n_groups)
     start = np.full((n_groups, 4, 4), np.nan)
     T_Ci_C0 = [tf.invert_T(T) @ T_Cm_C[0] for T in T_Cm_C]
@@ -259,6 +381,13 @@ def fused_rig_poses(
                          "neighbour to interpolate from; left out of those rig frames", i,
                          int(np.sum(moved & ~usable)), int(np.sum(moved)))  # fmt: skip
             uv_g[g, i], noise_g[g, i] = uv_at, noise
+            if interpolation_cov:
+                # the error is common to the view's corners (a shift of the whole view: 0.040
+                # of 0.042 px RMS on the stereo render); on the pose, n corners sharing one
+                # error of variance s^2 weigh as n independent ones of variance n s^2 each
+                n_seen = np.isfinite(uv_at).all(axis=-1).sum(axis=1)
+                ms = _interpolation_error_ms(uv, t_vicon[i], t_instant[g], max_gap_s, sigma)
+                interp_g[g, i] = n_seen * ms
         else:
             uv_g[g, i] = uv
         frame_g[g, i] = fr
@@ -282,9 +411,8 @@ def fused_rig_poses(
     cam, brd = tracks_from_params(params, bodies)
     has &= cam.ok(t_g) & brd.ok(t_g)
     uv_g, seen, start, frame_g, t_g = uv_g[has], seen[has], start[has], frame_g[has], t_g[has]
-    sigma = float(params["sigma_px"]) if sigma_px is None else float(sigma_px)
     if t_instant is not None:
-        sigma = sigma * noise_g[has]
+        sigma = np.sqrt((sigma * noise_g[has]) ** 2 + interp_g[has])
     T_fused, Sigma, n_seen = fused_board_pose(uv_g, seen, p_B, list(zip(K, dist, strict=True)), T_Ci_C0,
                                               start, sigma_px=sigma)  # fmt: skip
     if calibration_cov:
