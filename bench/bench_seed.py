@@ -4,7 +4,7 @@ the outputs are byte-identical.
 Usage::
 
     .venv/bin/python bench/bench_seed.py                                   # synthetic session
-    .venv/bin/python bench/bench_seed.py --results results/demo            # a pipeline session
+    .venv/bin/python bench/bench_seed.py --results results/demo --cv       # a pipeline session
     .venv/bin/python bench/bench_seed.py --results results/demo --impl after --cv
 
 ``--results DIR`` takes ``pairs.parquet``, ``corners.parquet`` and ``camera.yaml`` from a
@@ -17,25 +17,31 @@ fy 700, cx 320, cy 240), OpenCV distortion and 0.2 px noise; P* is the true pose
 constant offset, so the right answer is f = (700, 700) px and P_bar = the offset; the
 optimiser starts at (660, 730) px.
 
-``--impl before`` runs cvsflow/optimise/seed.py as it was at git revision ``--before``
-(default: the last commit before this round's changes), ``after`` the working tree's module,
-``both`` (default) one then the other. Each run writes result.yaml (without the wall times),
-iterations.parquet, errors.parquet and, with ``--cv``, the held-out table as the workflow
-scripts do, and prints their sha256 and wall and CPU seconds (``time.process_time``: the
-machine may be shared, so CPU seconds are the steadier number; with threads, CPU seconds
-can exceed wall seconds).
+``--impl before`` runs the whole ``cvsflow`` package as it was at git revision ``--before``
+(default: the last commit before this round's changes; ``git archive`` into a temporary folder),
+``after`` the working tree's, ``both`` (default) one then the other. Each runs in a fresh
+interpreter with that package first on ``PYTHONPATH`` (swapping modules in one process left
+the held-out scoring on the other revision's PnP), writes result.yaml (without the wall
+times), iterations.parquet, errors.parquet and, with ``--cv``, the held-out table as the
+workflow scripts do, and prints their sha256 and wall and CPU seconds (``time.process_time``:
+the machine may be shared, so CPU seconds are the steadier number; with threads, CPU seconds
+can exceed wall seconds). ``--repeat N`` runs each implementation N times and keeps each
+stage's least CPU (the outputs of every repeat must hash alike): on a shared machine one run's
+CPU seconds scatter by +-10 %.
 """
 
 from __future__ import annotations
 
 import argparse
 import hashlib
-import importlib.util
+import io
+import json
+import os
 import subprocess
 import sys
+import tarfile
 import tempfile
 import time
-from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
@@ -43,17 +49,16 @@ import numpy as np
 import pandas as pd
 import yaml
 
-import cvsflow.evaluate_seed as evaluate_seed
-import cvsflow.optimise.seed as seed_after
 from cvsflow.evaluate_seed import cross_validate_seed
 from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
-from cvsflow.optimise.seed import POSE_DIMS, board_object_points
+from cvsflow.optimise.seed import POSE_DIMS, board_object_points, optimise_seed
 from cvsflow.transforms import T_from_pose6, rvec_tvec_from_T
 
 REPO = Path(__file__).resolve().parents[1]
-#: cvsflow/optimise/seed.py before the lazy Jacobian and buffered projection (issue 20, second
-#: round; ddf966f is the one before the batched multi-candidate solver)
-BEFORE_REV = "c41661e"
+#: The package before the Jacobian planes and the folds' shared PnP rows (issue 20, third round;
+#: c41661e is the one before the lazy Jacobian and buffered projection, ddf966f the one before
+#: the batched multi-candidate solver; the 'before' of those rounds swapped seed.py alone)
+BEFORE_REV = "72e1f3f"
 BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
 DIST = np.array([-0.12, 0.09, 0.0009, -0.0007, -0.02])
 OFFSET = np.array([0.05, -0.03, 0.10, 0.02, -0.01, 0.03])
@@ -88,31 +93,14 @@ def synthesise(n_frames, seed, noise_px=0.2):
     return pairs, corners, K
 
 
-def load_before(rev):
-    """cvsflow/optimise/seed.py at git revision ``rev``, as a module of its own."""
-    src = subprocess.run(["git", "-C", str(REPO), "show", f"{rev}:cvsflow/optimise/seed.py"],
-                         capture_output=True, text=True, check=True).stdout
-    path = Path(tempfile.mkdtemp(prefix="bench_seed_")) / "seed_before.py"
-    path.write_text(src)
-    spec = importlib.util.spec_from_file_location("cvsflow_seed_before", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-@contextmanager
-def using(module):
-    """Let cross_validate_seed call ``module``'s optimiser.
-
-    cvsflow.evaluate_seed binds ``optimise_seed`` by name at import, so its name is the one to swap
-    (swapping the seed module's attribute alone left the held-out scoring on the new code).
-    """
-    saved = seed_after.optimise_seed, evaluate_seed.optimise_seed
-    seed_after.optimise_seed = evaluate_seed.optimise_seed = module.optimise_seed
-    try:
-        yield
-    finally:
-        seed_after.optimise_seed, evaluate_seed.optimise_seed = saved
+def package_at(rev):
+    """A folder holding the ``cvsflow`` package of git revision ``rev`` (``git archive``)."""
+    archive = subprocess.run(["git", "-C", str(REPO), "archive", rev, "cvsflow"],
+                             capture_output=True, check=True).stdout
+    root = Path(tempfile.mkdtemp(prefix=f"bench_seed_{rev}_"))
+    with tarfile.open(fileobj=io.BytesIO(archive)) as tar:
+        tar.extractall(root, filter="data")
+    return root
 
 
 def sha(path):
@@ -126,47 +114,32 @@ def timed(fn):
     return out, time.perf_counter() - w0, time.process_time() - c0
 
 
-def run(module, inputs, opts, cv, out_dir):
-    """Run one implementation; write its outputs as the workflow does; timings and hashes."""
+def run(inputs, opts, cv, out_dir):
+    """Run the imported package once; write its outputs as the workflow does; timings, hashes."""
     out_dir.mkdir(parents=True, exist_ok=True)
     pairs, corners, K, dist, board, folds, ev = inputs
-    with using(module):
-        res, wall, cpu = timed(lambda: module.optimise_seed(pairs, corners, K, dist, board,
-                                                            **opts))
-        stats = {"optimise_seed": (wall, cpu, res.result["n_pnp_solves"])}
-        write_parquet(res.iterations, out_dir / "iterations.parquet")
-        write_parquet(res.errors, out_dir / "errors.parquet")
-        res.result.pop("timings_s", None)
-        write_yaml(res.result, out_dir / "result.yaml")
-        files = list(OUTPUTS)
-        if cv:
-            cv_opts = {**opts, "k_iterations": ev["seed_k_iterations"]}
-            held, wall, cpu = timed(lambda: cross_validate_seed(
-                pairs, corners, K, dist, board, n_folds=ev["n_folds"], block_s=ev["block_s"],
-                seed=ev["seed"], folds=folds, **cv_opts))
-            stats["cross_validate_seed"] = (wall, cpu, None)
-            write_parquet(held, out_dir / "heldout_seed.parquet")
-            files.append("heldout_seed.parquet")
-    return stats, {f: sha(out_dir / f) for f in files}, res.result
+    res, wall, cpu = timed(lambda: optimise_seed(pairs, corners, K, dist, board, **opts))
+    stats = {"optimise_seed": (wall, cpu, res.result["n_pnp_solves"])}
+    write_parquet(res.iterations, out_dir / "iterations.parquet")
+    write_parquet(res.errors, out_dir / "errors.parquet")
+    res.result.pop("timings_s", None)
+    write_yaml(res.result, out_dir / "result.yaml")
+    files = list(OUTPUTS)
+    if cv:
+        cv_opts = {**opts, "k_iterations": ev["seed_k_iterations"]}
+        held, wall, cpu = timed(lambda: cross_validate_seed(
+            pairs, corners, K, dist, board, n_folds=ev["n_folds"], block_s=ev["block_s"],
+            seed=ev["seed"], folds=folds, **cv_opts))
+        stats["cross_validate_seed"] = (wall, cpu, None)
+        write_parquet(held, out_dir / "heldout_seed.parquet")
+        files.append("heldout_seed.parquet")
+    result = {k: res.result[k] for k in ("fx_px", "fy_px", "norm_normalised_init_m",
+                                         "norm_normalised_final_m")}
+    return stats, {f: sha(out_dir / f) for f in files}, result
 
 
-def main():
-    """Parse, run before and/or after, print timings, ratios and hash equality."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--results", type=Path, help="pipeline results folder of one session")
-    ap.add_argument("--config", type=Path, default=REPO / "config" / "config.yaml")
-    ap.add_argument("--session", default="demo")
-    ap.add_argument("--frames", type=int, default=2400, help="synthetic session length")
-    ap.add_argument("--seed", type=int, default=0, help="synthetic session seed")
-    ap.add_argument("--k", type=int, help="k_iterations (default: config, or 50)")
-    ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--objective", help="default: config, or sum_squares")
-    ap.add_argument("--cv", action="store_true", help="also time cross_validate_seed")
-    ap.add_argument("--impl", choices=("before", "after", "both"), default="both")
-    ap.add_argument("--before", default=BEFORE_REV, help="git revision of the 'before' code")
-    ap.add_argument("--out", type=Path, help="keep the outputs here")
-    args = ap.parse_args()
-
+def inputs_and_options(args):
+    """The session (pipeline folder or synthetic), its options and a label."""
     config = yaml.safe_load(args.config.read_text())
     ev = config["evaluate"]
     if args.results is not None:
@@ -189,16 +162,70 @@ def main():
     if args.objective is not None:
         opts["objective"] = args.objective
     opts["n_workers"] = args.workers
-    inputs = (pairs, corners, K, dist, board, folds, ev)
-    print(f"session: {label}; {len(pairs)} pairs; options {opts}")
+    return (pairs, corners, K, dist, board, folds, ev), opts, label
 
-    impls = {"before": lambda: load_before(args.before), "after": lambda: seed_after}
+
+def child(args):
+    """One implementation (the cvsflow on PYTHONPATH), ``--repeat`` times; JSON on stdout."""
+    import cvsflow
+
+    inputs, opts, _ = inputs_and_options(args)
+    best, hashes = None, None
+    for i in range(args.repeat):
+        stats, h, result = run(inputs, opts, args.cv, args.out / f"run{i}")
+        if hashes is not None and h != hashes:
+            sys.exit(f"repeat {i}: outputs differ from repeat 0")
+        hashes = h
+        best = stats if best is None else {  # each stage's least CPU over the repeats
+            k: min(best[k], v, key=lambda x: x[1]) for k, v in stats.items()}
+    print("BENCH_JSON " + json.dumps({"stats": best, "hashes": hashes, "result": result,
+                                      "package": str(Path(cvsflow.__file__).parent)}))
+
+
+def main():
+    """Parse, run before and/or after (each in its own interpreter), print timings and hashes."""
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--results", type=Path, help="pipeline results folder of one session")
+    ap.add_argument("--config", type=Path, default=REPO / "config" / "config.yaml")
+    ap.add_argument("--session", default="demo")
+    ap.add_argument("--frames", type=int, default=2400, help="synthetic session length")
+    ap.add_argument("--seed", type=int, default=0, help="synthetic session seed")
+    ap.add_argument("--k", type=int, help="k_iterations (default: config, or 50)")
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--objective", help="default: config, or sum_squares")
+    ap.add_argument("--cv", action="store_true", help="also time cross_validate_seed")
+    ap.add_argument("--impl", choices=("before", "after", "both"), default="both")
+    ap.add_argument("--before", default=BEFORE_REV, help="git revision of the 'before' code")
+    ap.add_argument("--repeat", type=int, default=1, help="runs per implementation (least CPU)")
+    ap.add_argument("--out", type=Path, help="keep the outputs here")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.child:
+        child(args)
+        return
+
+    _, opts, label = inputs_and_options(args)
+    print(f"session: {label}; options {opts}")
     chosen = ["before", "after"] if args.impl == "both" else [args.impl]
     out_root = args.out or Path(tempfile.mkdtemp(prefix="bench_seed_out_"))
     runs = {}
     for name in chosen:
-        runs[name] = run(impls[name](), inputs, opts, args.cv, out_root / name)
-        stats, hashes, result = runs[name]
+        package = package_at(args.before) if name == "before" else REPO
+        argv = [a for a in sys.argv[1:] if a != "--child"]
+        for flag in ("--out", "--impl"):  # the parent's, replaced below
+            if flag in argv:
+                i = argv.index(flag)
+                del argv[i:i + 2]
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+            [str(package), *filter(None, [os.environ.get("PYTHONPATH")])])}
+        proc = subprocess.run([sys.executable, __file__, *argv, "--child", "--out",
+                               str(out_root / name)], env=env, capture_output=True, text=True)
+        if proc.returncode != 0:
+            sys.exit(f"{name} failed:\n{proc.stderr[-3000:]}")
+        line = next(x for x in proc.stdout.splitlines() if x.startswith("BENCH_JSON "))
+        runs[name] = json.loads(line[len("BENCH_JSON "):])
+        stats, hashes, result = runs[name]["stats"], runs[name]["hashes"], runs[name]["result"]
+        print(f"{name:6s} package {runs[name]['package']}")
         for stage, (wall, cpu, solves) in stats.items():
             extra = f"  pnp_solves {solves}" if solves is not None else ""
             print(f"{name:6s} {stage:20s} wall_s {wall:7.2f}  cpu_s {cpu:7.2f}{extra}")
@@ -208,7 +235,8 @@ def main():
         for f, h in hashes.items():
             print(f"{name:6s} sha256 {h[:16]}  {f}")
     if len(runs) == 2:
-        (sb, hb, _), (sa, ha, _) = runs["before"], runs["after"]
+        sb, hb = runs["before"]["stats"], runs["before"]["hashes"]
+        sa, ha = runs["after"]["stats"], runs["after"]["hashes"]
         for stage in sb:
             (wb, cb, _), (wa, ca, _) = sb[stage], sa[stage]
             print(f"speed-up {stage:20s} wall x{wb / wa:5.2f}  cpu x{cb / ca:5.2f}")

@@ -37,7 +37,9 @@ Speed. Every candidate re-runs PnP on all frames; :mod:`cvsflow.optimise.seed_pn
 all candidates of one grid level as one stack of (candidate, frame) rows, warm-started from
 the poses at the current focal lengths moved by their first-order sensitivity to (fx, fy).
 Every row's arithmetic is independent of the others, so neither the stacking, the chunking
-nor the ``n_workers`` threads change a single bit of the result.
+nor the ``n_workers`` threads change a single bit of the result; nor does a
+:class:`cvsflow.optimise.seed_cache.SeedPoseCache` (``pose_cache``), through which the folds
+of :func:`cvsflow.evaluate_seed.cross_validate_seed` share the rows they have in common.
 """
 
 from __future__ import annotations
@@ -299,6 +301,7 @@ def optimise_seed(
     n_workers=1,
     gn_max_iter=10,
     gn_tol=1e-6,
+    pose_cache=None,
 ):
     """Run the chapter's focal-length and offset optimisation (seed eqs. 1.5-1.12).
 
@@ -336,6 +339,11 @@ def optimise_seed(
         the GIL); the result does not depend on it.
     gn_max_iter, gn_tol : int, float
         Gauss-Newton limits of the per-candidate PnP (rad and metres).
+    pose_cache : cvsflow.optimise.seed_cache.SeedPoseCache, optional
+        Poses solved by earlier runs on other subsets of the same session's pairs (built
+        from a superset of ``pairs`` and from ``corners``, whose pixel corners it holds): the
+        rows it has are taken from it, the others solved and added. The result is the same
+        with and without it, bit for bit.
 
     Returns
     -------
@@ -405,7 +413,12 @@ def optimise_seed(
     if np.unique(frames).size != frames.size:
         raise OptimiseError("pairs.parquet: duplicate frame numbers")
     X_B = board_object_points(board)
-    uv = corner_array(corners, frames, X_B.shape[0], allow_partial=True)
+    if pose_cache is None:
+        uv = corner_array(corners, frames, X_B.shape[0], allow_partial=True)
+    else:
+        pose_cache.bind(K, dist, board, gn_max_iter, gn_tol)
+        cache_rows = pose_cache.positions(pairs)
+        uv = pose_cache.uv_px[cache_rows]
     # The chapter re-estimates every pose at each candidate f from the whole board; frames
     # where a hand or the image border hid some corners are left to se3.
     complete = np.isfinite(uv).all(axis=(1, 2))
@@ -415,6 +428,8 @@ def optimise_seed(
             int((~complete).sum()), len(frames),
         )  # fmt: skip
         pairs, frames, uv = pairs[complete].reset_index(drop=True), frames[complete], uv[complete]
+        if pose_cache is not None:
+            cache_rows = cache_rows[complete]
         if len(pairs) < MIN_PAIRS:
             raise OptimiseError(
                 f"pairs.parquet: {len(pairs)} pairs with the whole board; the seed optimiser "
@@ -430,18 +445,27 @@ def optimise_seed(
     pool = ThreadPoolExecutor(max_workers=int(n_workers)) if int(n_workers) > 1 else None
     n_frames = len(frames)
 
-    def solve(cands, R_start, t_start_):
-        """Poses of every frame at every candidate (fx, fy): one batched solve of all rows."""
+    def solve_stack(frame_rows, fx_rows, fy_rows, R_start, t_start_):
+        """Poses of (candidate, frame) rows: one batched solve."""
+        return solve_rows(uv, frame_rows, X_B, fx_rows, fy_rows, cx, cy, d5, R_start, t_start_,
+                          gn_max_iter, gn_tol, pool=pool, n_workers=n_workers)
+
+    def solve(cands, R_start, t_start_, walk):
+        """Poses of every frame at every candidate (fx, fy), reached along ``walk``."""
         cands = np.asarray(cands, dtype=float).reshape(-1, 2)
-        Rc, tc = solve_rows(uv, np.tile(np.arange(n_frames), len(cands)), X_B,
-                             np.repeat(cands[:, 0], n_frames), np.repeat(cands[:, 1], n_frames),
-                             cx, cy, d5, R_start, t_start_, gn_max_iter, gn_tol,
-                             pool=pool, n_workers=n_workers)
+        if pose_cache is None:
+            Rc, tc = solve_stack(np.tile(np.arange(n_frames), len(cands)),
+                                 np.repeat(cands[:, 0], n_frames), np.repeat(cands[:, 1], n_frames),
+                                 R_start, t_start_)
+        else:
+            Rc, tc = pose_cache.solve(walk, cands, cache_rows, R_start, t_start_, solve_stack)
         return Rc.reshape(len(cands), n_frames, 3, 3), tc.reshape(len(cands), n_frames, 3)
 
     # F(f_init): re-estimated with our PnP so every F is on the same footing.
-    R, t = solve(f, R0, t0)
+    R, t = solve(f, R0, t0, ())
     R, t = R[0], t[0]
+    # the focal lengths visited: with a candidate, they fix its warm starts (pose_cache's key)
+    walk = ((float(f[0]), float(f[1])),)
     rows = []
     n_solves = 0
     t_grid = 0.0
@@ -479,7 +503,8 @@ def optimise_seed(
             dtheta_df = focal_sensitivity(uv, X_B, f[0], f[1], cx, cy, d5, R, t)
             target = P_star[:, :3] + P_bar[:3]
 
-            def score(cands, R=R, t=t, dtheta_df=dtheta_df, target=target, f_now=f.copy()):
+            def score(cands, R=R, t=t, dtheta_df=dtheta_df, target=target, f_now=f.copy(),
+                      walk=walk):
                 """Objective and poses at each candidate; all candidates solved in one stack."""
                 out = [None] * len(cands)
                 moved = []
@@ -493,7 +518,7 @@ def optimise_seed(
                 if moved:
                     Rc, tc = solve([cands[i] for i, _, _ in moved],
                                    np.concatenate([m[1] for m in moved]),
-                                   np.concatenate([m[2] for m in moved]))
+                                   np.concatenate([m[2] for m in moved]), walk)
                     for k, (i, _, _) in enumerate(moved):
                         out[i] = (objective_value(tc[k] - target, objective), Rc[k], tc[k])
                 return out
@@ -520,6 +545,7 @@ def optimise_seed(
             rows.append(row)
             fixed_point = bool(np.all(best[1] == f))
             f, R, t = best[1], best[2], best[3]
+            walk += ((float(f[0]), float(f[1])),)
             log.debug("seed iteration %d: fx %.3f fy %.3f objective %.6g", j, f[0], f[1], best[0])
             if (j + 1) % 10 == 0:  # progress for long runs
                 log.info("seed: iteration %d of %d, f (%.1f, %.1f) px, %d PnP solves in %.1f s",

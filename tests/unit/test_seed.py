@@ -355,3 +355,152 @@ def test_convergence_figure_marks_the_grid_bound_it_reached():
     fig = plot_convergence(convergence(res.iterations), res.result["f_bounds_px"])
     labels = [t.get_text() for t in fig.axes[6].get_legend().get_texts()]
     assert "grid bound 680 px" in labels and "grid bound 100 px" not in labels
+
+
+def _plain_lm(uv, X_B, fx, fy, cx, cy, d5, R, t, max_iter, tol):
+    """The LM of _solve_R_t written plainly: one row at a time, a fresh projection and Jacobian
+    at the current pose every iteration, nothing reused, nothing compacted."""
+    R, t = R.copy(), t.copy()
+    f_x, f_y = np.full((1, 1), fx), np.full((1, 1), fy)
+    for i in range(len(R)):
+        lam = np.full(1, 1e-4)
+        for _ in range(max_iter):
+            Ri, ti = R[i:i + 1], t[i:i + 1]
+            uv_i, _, _, J = _project_with_jacobian(Ri, ti, X_B, f_x, f_y, cx, cy, d5)
+            r = uv[i:i + 1] - uv_i
+            Jf = J.reshape(1, -1, 6)
+            JtJ = Jf.transpose(0, 2, 1) @ Jf
+            Jtr = Jf.transpose(0, 2, 1) @ r.reshape(1, -1, 1)
+            delta = np.linalg.solve(JtJ + lam[:, None, None] * (JtJ * np.eye(6)), Jtr)[..., 0]
+            R_new, t_new = R_from_rvec(delta[:, :3]) @ Ri, ti + delta[:, 3:]
+            res_new = uv[i:i + 1] - _project(R_new, t_new, X_B, f_x, f_y, cx, cy, d5)[0]
+            accept = bool(np.sum(res_new ** 2, axis=(1, 2))[0] <= np.sum(r ** 2, axis=(1, 2))[0])
+            if accept:
+                R[i], t[i] = R_new[0], t_new[0]
+            lam = np.maximum(lam * 0.1, 1e-9) if accept else lam * 10.0
+            if (accept and np.max(np.abs(delta)) < tol) or lam[0] > 1e6:
+                break
+    return R, t
+
+
+def test_lm_equals_the_plain_lm_bit_for_bit_with_rejected_steps():
+    """_solve_R_t (residual reused, Jacobian only for rows that go on, a rejected row's Jacobian
+    kept from its unchanged pose, stopped rows compacted away) equals the plain LM in every bit.
+
+    The starts are far off (0.3 rad, t scaled by 0.5-1.6), so some steps are rejected and rows
+    stop at different iterations: every branch of the bookkeeping is taken.
+    """
+    _, _, _, _, uv, rvec, tvec = _session(40, seed=11)
+    X_B = board_object_points(BOARD)
+    rng = np.random.default_rng(12)
+    R0 = R_from_rvec(rvec + rng.normal(0.0, 0.3, rvec.shape))
+    t0 = tvec * rng.uniform(0.5, 1.6, (40, 1))
+    d5 = dist5(DIST)
+    R, t, n_iter = _solve_R_t(uv, X_B, 690.0, 712.0, 320.0, 240.0, d5, R0, t0, 10, 1e-6)
+    R_p, t_p = _plain_lm(uv, X_B, 690.0, 712.0, 320.0, 240.0, d5, R0, t0, 10, 1e-6)
+    assert R.tobytes() == R_p.tobytes() and t.tobytes() == t_p.tobytes()
+    assert n_iter == 10  # some row ran out of iterations while others had stopped
+    # and the solve went somewhere: near the poses the corners were drawn from
+    assert np.median(np.linalg.norm(t - tvec, axis=1)) < 0.05
+
+
+def _same_run(a, b):
+    """Two optimise_seed results equal in every table value and every result entry."""
+    for name in ("iterations", "errors"):
+        x, y = getattr(a, name), getattr(b, name)
+        assert list(x.columns) == list(y.columns)
+        for c in x.columns:  # NaN where both are NaN (the last row's objective_grid_min)
+            u, v = x[c].to_numpy(), y[c].to_numpy()
+            assert np.array_equal(u, v, equal_nan=u.dtype.kind == "f"), (name, c)
+    drop = ("timings_s",)
+    assert {k: v for k, v in a.result.items() if k not in drop} == \
+        {k: v for k, v in b.result.items() if k not in drop}
+
+
+def test_pose_cache_runs_equal_the_runs_without_it_bit_for_bit():
+    """Runs on overlapping subsets of one session share PnP rows through SeedPoseCache, and
+    each run's tables equal those of the same run without the cache in every bit.
+
+    Two folds (the session without its first, then without its last 20 frames) share their
+    start solve and first iteration; the first fold again takes every row from the cache; a
+    cache too small for more than a few entries keeps the results too.
+    """
+    from cvsflow.optimise.seed_cache import SeedPoseCache
+
+    pairs, corners, K, *_ = _session(60, seed=13)
+    kw = dict(k_iterations=4, f_init_px=(600.0, 800.0), grid_points=3, grid_levels=2,
+              grid_half_width_px=16.0)
+    folds = [pairs.iloc[20:], pairs.iloc[:40]]
+    plain = [optimise_seed(p, corners, K, DIST, BOARD, **kw) for p in folds]
+    # both walks move every iteration, so later iterations' rows (warm-started from other
+    # focal lengths than the first's) are compared too
+    for run in plain:
+        f = run.iterations[["fx_px", "fy_px"]].to_numpy()
+        assert (np.abs(np.diff(f, axis=0)).sum(axis=1) > 0).all()
+
+    cache = SeedPoseCache(pairs, corners, BOARD)
+    cached = [optimise_seed(p, corners, K, DIST, BOARD, pose_cache=cache, **kw) for p in folds]
+    for a, b in zip(plain, cached, strict=True):
+        _same_run(a, b)
+    assert cache.n_reused > 0  # the second fold took its common rows from the first
+    solved = cache.n_solved
+    _same_run(plain[0], optimise_seed(folds[0], corners, K, DIST, BOARD, pose_cache=cache, **kw))
+    assert cache.n_solved == solved  # the same run again: every row from the cache
+
+    small = SeedPoseCache(pairs, corners, BOARD, max_bytes=3 * 60 * 97)  # room for 3 entries
+    for p, a in zip(folds, plain, strict=True):
+        _same_run(a, optimise_seed(p, corners, K, DIST, BOARD, pose_cache=small, **kw))
+    assert len(small._entries) <= 3
+
+
+def test_pose_cache_refuses_other_frames_starts_and_cameras():
+    """A cache answers only runs on its session's pairs with its start poses and its camera."""
+    from cvsflow.optimise.seed_cache import SeedPoseCache
+
+    pairs, corners, K, *_ = _session(30, seed=14)
+    kw = dict(k_iterations=1, grid_points=3, grid_levels=1)
+    cache = SeedPoseCache(pairs.iloc[:25], corners, BOARD)
+    with pytest.raises(OptimiseError, match="frame 125"):
+        optimise_seed(pairs, corners, K, DIST, BOARD, pose_cache=cache, **kw)
+    moved = pairs.iloc[:25].copy()
+    moved["cvs_x_m"] += 0.01
+    with pytest.raises(OptimiseError, match="other start poses"):
+        optimise_seed(moved, corners, K, DIST, BOARD, pose_cache=cache, **kw)
+    optimise_seed(pairs.iloc[:25], corners, K, DIST, BOARD, pose_cache=cache, **kw)
+    K2 = K.copy()
+    K2[0, 2] += 1.0
+    with pytest.raises(OptimiseError, match="another camera"):
+        optimise_seed(pairs.iloc[:25], corners, K2, DIST, BOARD, pose_cache=cache, **kw)
+
+
+def test_pose_cache_solves_the_rows_no_run_on_the_same_walk_had():
+    """SeedPoseCache.solve asks for exactly the (candidate, frame) rows it lacks on that walk,
+    returns the cached rows for the others, and keeps walks apart."""
+    from cvsflow.optimise.seed_cache import SeedPoseCache
+
+    pairs, corners, *_ = _session(10, seed=15)
+    cache = SeedPoseCache(pairs, corners, BOARD)
+    asked = []
+
+    def stack(frame_rows, fx_rows, fy_rows, R, t):  # any function of each row's own inputs
+        asked.append(frame_rows.tolist())
+        return R + fx_rows[:, None, None], t + fy_rows[:, None]
+
+    rng = np.random.default_rng(16)
+    cands = np.array([[700.0, 700.0], [716.0, 700.0]])
+    walk = ((700.0, 700.0),)
+    a, b = pairs.iloc[:6], pairs.iloc[3:]  # frames 3, 4, 5 in both
+    start_a = rng.normal(size=(12, 3, 3)), rng.normal(size=(12, 3))
+    start_b = rng.normal(size=(14, 3, 3)), rng.normal(size=(14, 3))
+    R_a, t_a = cache.solve(walk, cands, cache.positions(a), *start_a, stack)
+    R_b, t_b = cache.solve(walk, cands, cache.positions(b), *start_b, stack)
+    assert asked == [list(range(6)) * 2, [3, 4, 5, 6] * 2]
+    for k in range(2):  # shared frames from run a, new ones solved from run b's starts
+        np.testing.assert_array_equal(R_b[7 * k:7 * k + 3], R_a[6 * k + 3:6 * k + 6])
+        np.testing.assert_array_equal(R_b[7 * k + 3:7 * k + 7],
+                                      start_b[0][7 * k + 3:7 * k + 7] + cands[k, 0])
+        np.testing.assert_array_equal(t_b[7 * k + 3:7 * k + 7],
+                                      start_b[1][7 * k + 3:7 * k + 7] + cands[k, 1])
+    assert (cache.n_solved, cache.n_reused) == (20, 6)
+    cache.solve(walk + ((716.0, 700.0),), cands, cache.positions(b), *start_b, stack)
+    assert asked[-1] == list(range(7)) * 2  # another walk: nothing shared
