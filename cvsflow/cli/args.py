@@ -21,21 +21,20 @@ exit codes: 0 ok, 1 cvsflow error (one line naming the file), 2 usage error;
 """
 
 
-def _parse_squares(text: str) -> tuple[int, int]:
+def _parse_grid(text: str, flag: str, example: str, least: int, what: str) -> tuple[int, int]:
+    """``AxB`` of ``flag`` as two ints of at least ``least`` (argparse's error otherwise)."""
     try:
-        sx, sy = (int(v) for v in text.lower().split("x"))
+        a, b = (int(v) for v in text.lower().split("x"))
     except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"--charuco {text!r}: expected SXxSY squares, e.g. 7x5") from exc
-    if sx < 3 or sy < 3:
-        raise argparse.ArgumentTypeError(f"--charuco {text!r}: expected at least 3x3 squares")
-    return sx, sy
+        raise argparse.ArgumentTypeError(f"{flag} {text!r}: expected {example}") from exc
+    if a < least or b < least:
+        raise argparse.ArgumentTypeError(f"{flag} {text!r}: expected at least {least}x{least} {what}")
+    return a, b
+
+
+def _parse_squares(text: str) -> tuple[int, int]:
+    return _parse_grid(text, "--charuco", "SXxSY squares, e.g. 7x5", 3, "squares")
 
 
 def _parse_inner(text: str) -> tuple[int, int]:
-    try:
-        nx, ny = (int(v) for v in text.lower().split("x"))
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"--inner {text!r}: expected NXxNY, e.g. 9x6") from exc
-    if nx < 2 or ny < 2:
-        raise argparse.ArgumentTypeError(f"--inner {text!r}: expected at least 2x2 inner corners")
-    return nx, ny
+    return _parse_grid(text, "--inner", "NXxNY, e.g. 9x6", 2, "inner corners")
