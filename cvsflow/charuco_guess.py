@@ -98,8 +98,7 @@ def guess_charuco_board(images) -> dict | None:
     max_id = max(int(ids.max()) for _, ids in views)
     sizes = FAMILIES[family]
     dictionary = family if not sizes else f"{family}_{next(s for s in sizes if s > max_id)}"
-    fits = sorted((_layout_misfit(sx, views), sx) for sx in range(3, MAX_SQUARES + 1)
-                  if (sx * ((2 * (max_id + 1)) // sx + 1)) // 2 >= max_id + 1)
+    fits = sorted((_layout_misfit(sx, views), sx) for sx in range(3, MAX_SQUARES + 1))
     squares_x = None
     if fits and fits[0][0] < MAX_FIT_SHARE and (len(fits) == 1 or fits[1][0] > 2 * fits[0][0]):
         squares_x = int(fits[0][1])

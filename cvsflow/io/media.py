@@ -324,6 +324,13 @@ def iter_video_gray(path, start=0, stop=None, undecodable=False
                     state["failed"] += 1
                     state["first_error"] = state["first_error"] or (state["next"], str(exc))
 
+        def gap(until):
+            """Frames [state["next"], until) that did not decode: counted, yielded as None."""
+            for missing in range(state["next"], until):
+                state["missing"] += 1
+                if undecodable:
+                    yield missing, float((all_pts[missing] - origin) * tb), None
+
         origin = None
         n_untimed = 0
         for frame in frames():
@@ -343,10 +350,7 @@ def iter_video_gray(path, start=0, stop=None, undecodable=False
                 index = state["next"]
             if stop is not None and index >= stop:
                 break
-            for missing in range(state["next"], index):
-                state["missing"] += 1
-                if undecodable:
-                    yield missing, float((all_pts[missing] - origin) * tb), None
+            yield from gap(index)
             state["next"] = index + 1
             state["decoded"] += 1
             yield index, float((frame.pts - origin) * tb), _gray(frame, display_turns(frame.rotation, path))
@@ -361,10 +365,7 @@ def iter_video_gray(path, start=0, stop=None, undecodable=False
             end = len(all_pts) if stop is None else min(stop, len(all_pts))
             if origin is None:
                 origin = t0 if t0 is not None else all_pts[0]
-            for missing in range(state["next"], end):
-                state["missing"] += 1
-                if undecodable:
-                    yield missing, float((all_pts[missing] - origin) * tb), None
+            yield from gap(end)
             state["next"] = max(state["next"], end)
     finally:
         container.close()

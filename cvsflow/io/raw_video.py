@@ -73,26 +73,30 @@ def read_timecodes_v2(path) -> np.ndarray:
     return t_s
 
 
-def _count_and_reorder(path) -> tuple[int, bool]:
-    """Packets with data in a raw stream, and whether its decoder reorders frames (B-frames)."""
+def _scan_packets(path) -> tuple[int, bool, bool]:
+    """Packets with data in a stream, whether any carries a timestamp, and whether its
+    decoder reorders frames (B-frames)."""
     import av
 
-    container = av.open(str(path))
+    from cvsflow.io.media import _open_av
+
+    container = _open_av(path)
     try:
         stream = container.streams.video[0]
         n = 0
-        reorders = False
+        timed = reorders = False
         for packet in container.demux(stream):
             if not packet.size:
                 continue
             n += 1
+            timed |= packet.pts is not None
             if n <= 32 and not reorders:  # the reorder delay shows within the first GOP's frames
                 with contextlib.suppress(av.error.FFmpegError):  # a damaged packet: the next
                     packet.decode()
                 reorders = bool(stream.codec_context.has_b_frames)
     finally:
         container.close()
-    return n, reorders
+    return n, timed, reorders
 
 
 def remux_with_times(src, dst, fps=None, timestamps_s=None) -> dict:
@@ -128,8 +132,6 @@ def remux_with_times(src, dst, fps=None, timestamps_s=None) -> dict:
     """
     import av
 
-    from cvsflow.io.media import _open_av
-
     src, dst = Path(src), Path(dst)
     if (fps is None) == (timestamps_s is None):
         raise InputError(f"{src}: give the frame times either as a frame rate or as a "
@@ -140,15 +142,9 @@ def remux_with_times(src, dst, fps=None, timestamps_s=None) -> dict:
         raise InputError(f"{dst}: is the input; write the remuxed video beside it")
     if dst.suffix.lower() not in (".mp4", ".mov"):
         raise InputError(f"{dst}: expected an .mp4 or .mov output")
-    container = _open_av(src)
-    try:
-        has_pts = any(p.pts is not None for p, _ in zip(container.demux(container.streams.video[0]),
-                                                        range(64), strict=False))
-    finally:
-        container.close()
-    if has_pts:
+    n_packets, timed, reorders = _scan_packets(src)
+    if timed:
         raise InputError(f"{src}: its packets carry timestamps already; it is read as it is")
-    n_packets, reorders = _count_and_reorder(src)
     if reorders:
         raise InputError(
             f"{src}: the stream has B-frames (frames decode out of display order), so times "
