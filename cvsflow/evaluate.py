@@ -2,8 +2,8 @@
 
 - :func:`pose_errors` (defined in :mod:`cvsflow.metrics`, re-exported here): per-axis errors
   from the composed transform (not from subtracting 6-vectors), in a named frame.
-- :func:`make_time_blocks` and :func:`cross_validate_se3`: fit on some contiguous time
-  blocks, score on the others; the held-out figures are the ones to state.
+- :func:`make_time_blocks`, :func:`heldout_blocks` and :func:`cross_validate_se3`: fit on some
+  contiguous time blocks, score on the others; the held-out figures are the ones to state.
 - :func:`bootstrap_error_stats`: moving-block bootstrap confidence intervals of the mean,
   standard deviation and covariance Sigma of autocorrelated per-frame errors.
 
@@ -82,6 +82,32 @@ def make_time_blocks(t_s, block_s, n_folds, seed):
     return fold_of_block[np.searchsorted(blocks, block)]
 
 
+def heldout_blocks(corners, board, *, n_folds=5, block_s=5.0, seed=0):
+    """The held-out fold of every frame with corners: the blocks all methods are scored on.
+
+    :func:`cross_validate_se3` fits and scores on these folds, and the seed method's held-out
+    scoring (:func:`cvsflow.evaluate_seed.cross_validate_seed`) takes them from the same
+    corners table, so that it need not wait for se3's held-out scoring to know them.
+
+    Parameters
+    ----------
+    corners : DataFrame
+        corners.parquet.
+    board : dict
+    n_folds, block_s, seed
+        As :func:`make_time_blocks`.
+
+    Returns
+    -------
+    DataFrame
+        ``frame, t_s, fold``: each frame kept by
+        :func:`cvsflow.optimise.se3_start.corner_arrays`, its video time (s) and fold.
+    """
+    frame_ids, t_video, _ = corner_arrays(corners, len(board_object_points(board)))
+    fold = make_time_blocks(t_video, block_s, n_folds, seed)
+    return pd.DataFrame({"frame": frame_ids, "t_s": t_video, "fold": fold})
+
+
 def cross_validate_se3(
     corners, bodies, camera, board, dt_offset_s, *, n_folds=5, block_s=5.0, seed=0,
     frame="C", **se3_options,
@@ -111,8 +137,8 @@ def cross_validate_se3(
     fits : list of dict
         ``result`` of each fold's fit, with ``fold`` added.
     """
-    frame_ids, t_video, _ = corner_arrays(corners, len(board_object_points(board)))
-    fold = make_time_blocks(t_video, block_s, n_folds, seed)
+    blocks = heldout_blocks(corners, board, n_folds=n_folds, block_s=block_s, seed=seed)
+    frame_ids, fold = blocks["frame"].to_numpy(), blocks["fold"].to_numpy()
     parts, fits = [], []
     for k in range(n_folds):
         train = frame_ids[fold != k]

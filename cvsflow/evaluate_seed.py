@@ -41,9 +41,10 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
     n_folds, block_s, seed
         As :func:`make_time_blocks`, used when ``folds`` is not given.
     folds : DataFrame, optional
-        ``t_s`` and ``fold`` of another method's held-out frames (e.g. :func:`cross_validate_se3`
-        output): each pair frame takes the fold of the nearest of those frames in time, so that
-        both methods are scored on the same held-out blocks.
+        ``t_s`` and ``fold`` of other frames (:func:`cvsflow.evaluate.heldout_blocks`, the
+        blocks :func:`cvsflow.evaluate.cross_validate_se3` uses): each pair frame takes the fold
+        of the nearest of those frames in time, so that both methods are scored on the same
+        held-out blocks.
     **seed_options
         Passed to :func:`cvsflow.optimise.seed.optimise_seed`.
 

@@ -28,6 +28,23 @@ def _poses_raw(s):
     return df
 
 
+def _truth_pairs(s, offset=np.zeros(6)):
+    """pairs.parquet of a simulated session from its true poses, P* = F - offset."""
+    from scipy.spatial.transform import Rotation
+
+    from cvsflow.transforms import pose6_from_T
+
+    p6 = pose6_from_T(s["truth"]["T_C_B"])
+    pairs = pd.DataFrame({"frame": s["truth"]["frame"], "t_s": s["truth"]["t_s"]})
+    rv = Rotation.from_matrix(s["truth"]["T_C_B"][:, :3, :3]).as_rotvec()
+    for j, d in enumerate(DIMS):
+        pairs[f"cvs_{d}"] = p6[:, j]
+        pairs[f"vic_{d}"] = p6[:, j] - offset[j]
+    for j in range(3):
+        pairs[f"cvs_rvec_{j}"] = rv[:, j]
+    return pairs
+
+
 def test_se3_run_tables_errors_equal_composed_errors_by_hand(session):
     """eps_* equal pose_errors of the same poses; vic_/cvs_ are pose6 of ref/cvs; norms are RMS."""
     s = session
@@ -50,20 +67,8 @@ def test_se3_run_tables_errors_equal_composed_errors_by_hand(session):
 def test_cross_validate_seed_scores_each_frame_once_with_training_offset():
     """Every pair frame is scored once; its error is F - P* - P̄ with P̄ from the other folds,
     so on a constant-offset synthetic session the held-out error is small and near zero mean."""
-    from cvsflow.transforms import pose6_from_T
-
     s = simulate_session(8, duration_s=12.0, pixel_noise_px=0.2)
-    p6 = pose6_from_T(s["truth"]["T_C_B"])
-    offset = np.array([0.05, -0.02, 0.1, 0.01, 0.02, -0.03])
-    pairs = pd.DataFrame({"frame": s["truth"]["frame"], "t_s": s["truth"]["t_s"]})
-    from scipy.spatial.transform import Rotation
-
-    rv = Rotation.from_matrix(s["truth"]["T_C_B"][:, :3, :3]).as_rotvec()
-    for j, d in enumerate(DIMS):
-        pairs[f"cvs_{d}"] = p6[:, j]
-        pairs[f"vic_{d}"] = p6[:, j] - offset[j]
-    for j in range(3):
-        pairs[f"cvs_rvec_{j}"] = rv[:, j]
+    pairs = _truth_pairs(s, offset=np.array([0.05, -0.02, 0.1, 0.01, 0.02, -0.03]))
     held = cross_validate_seed(pairs, s["corners"], s["camera"]["K"], s["camera"]["dist"],
                                   s["board"], n_folds=3, block_s=2.0, seed=1, k_iterations=1)
     assert held["frame"].is_unique and len(held) == len(pairs)
@@ -106,19 +111,8 @@ def test_compare_methods_ratio_and_rms_by_hand():
 
 def test_cross_validate_seed_takes_the_given_folds():
     """With another method's folds, each pair frame is scored in the fold of the nearest frame."""
-    from cvsflow.transforms import pose6_from_T
-
     s = simulate_session(9, duration_s=9.0, pixel_noise_px=0.2)
-    p6 = pose6_from_T(s["truth"]["T_C_B"])
-    pairs = pd.DataFrame({"frame": s["truth"]["frame"], "t_s": s["truth"]["t_s"]})
-    from scipy.spatial.transform import Rotation
-
-    rv = Rotation.from_matrix(s["truth"]["T_C_B"][:, :3, :3]).as_rotvec()
-    for j, d in enumerate(DIMS):
-        pairs[f"cvs_{d}"] = p6[:, j]
-        pairs[f"vic_{d}"] = p6[:, j]
-    for j in range(3):
-        pairs[f"cvs_rvec_{j}"] = rv[:, j]
+    pairs = _truth_pairs(s)
     # the other method saw every other frame only, in 3 folds by thirds of the take
     other = pairs.iloc[::2][["t_s"]].copy()
     other["fold"] = np.minimum((other["t_s"] / 3.0).astype(int), 2)
@@ -126,6 +120,27 @@ def test_cross_validate_seed_takes_the_given_folds():
                                   s["board"], folds=other, k_iterations=0)
     expected = np.minimum((held["t_s"] / 3.0 + 1e-9).astype(int), 2)
     assert (held["fold"].to_numpy() == expected.to_numpy()).mean() > 0.97
+
+
+def test_seed_and_se3_are_scored_on_the_same_blocks(session):
+    """heldout_blocks, from the corners alone, gives every frame se3's held-out scoring scores
+    the fold it was scored in; the seed method scored on those blocks puts each of its frames
+    in se3's fold of the same frame (the workflow runs the two side by side)."""
+    s = session
+    held_se3, _ = ev.cross_validate_se3(
+        s["corners"], s["bodies"], s["camera"], s["board"], s["truth"]["dt_offset_s"],
+        n_folds=3, block_s=2.0, seed=1, free=("fx", "fy"),
+    )  # fmt: skip
+    blocks = ev.heldout_blocks(s["corners"], s["board"], n_folds=3, block_s=2.0, seed=1)
+    both = held_se3[["frame", "fold"]].merge(blocks, on="frame", suffixes=("_se3", ""))
+    assert len(both) == len(held_se3) == len(blocks)
+    assert (both["fold_se3"] == both["fold"]).all()
+    held_seed = cross_validate_seed(_truth_pairs(s), s["corners"], s["camera"]["K"],
+                                    s["camera"]["dist"], s["board"], folds=blocks, k_iterations=0)
+    both = held_seed[["frame", "fold"]].merge(held_se3[["frame", "fold"]], on="frame",
+                                              suffixes=("_seed", "_se3"))
+    assert len(both) == len(held_seed) and set(both["fold_seed"]) == {0, 1, 2}
+    assert (both["fold_seed"] == both["fold_se3"]).all()
 
 
 def test_compare_methods_leaves_out_non_finite_rows():

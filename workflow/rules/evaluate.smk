@@ -3,7 +3,6 @@ rule heldout_seed:
         pairs="results/{session}/pairs.parquet",
         corners="results/{session}/corners.parquet",
         camera=camera_yaml,
-        se3_folds="results/{session}/heldout/se3.parquet",
     output:
         "results/{session}/heldout/seed.parquet",
     log:
