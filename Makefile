@@ -31,6 +31,7 @@ slurm-up:
 	cluster/slurm-localhost.sh start
 
 test-slurm: install slurm-up
+	$(BIN)/python -m pip install --quiet -e ".[test,slurm]"
 	CVSFLOW_SLURM=1 $(BIN)/python -m pytest tests/workflow/test_slurm.py
 
 clean:

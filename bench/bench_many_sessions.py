@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import copy
 import hashlib
+import importlib.util
 import os
 import shutil
 import subprocess
@@ -133,6 +134,8 @@ def sinfo_answers() -> bool:
 
 def ensure_cluster() -> str | None:
     """None when the single-node cluster answers (started here if needed); else why it does not."""
+    if importlib.util.find_spec("snakemake_executor_plugin_slurm") is None:
+        return "snakemake-executor-plugin-slurm is not installed: .venv/bin/pip install -e '.[test,slurm]'"
     if sinfo_answers():
         return None
     print(f"starting the single-node SLURM cluster: {CLUSTER.relative_to(REPO)} start", flush=True)
