@@ -49,6 +49,7 @@ from pathlib import Path
 
 import pandas as pd
 import yaml
+from job_times import read_job_times  # beside this script
 
 REPO = Path(__file__).resolve().parents[1]
 PROFILE = REPO / "profiles" / "slurm"
@@ -218,16 +219,13 @@ def read_jobs(folder: Path) -> pd.DataFrame:
     ``end - s``; both in seconds since the epoch.
     """
     rows = []
-    for tsv in sorted(folder.rglob("*.tsv")):
-        if tsv.stem == "synth":
+    for job in read_job_times(folder.parent).itertuples():
+        if job.stage == "synth":
             continue
-        rel = tsv.relative_to(folder)
-        session = rel.parts[0] if len(rel.parts) == 2 else "-"
-        b = pd.read_csv(tsv, sep="\t")
-        s = float(b["s"].iloc[0])
-        end = tsv.stat().st_mtime
-        rows.append({"session": session, "stage": tsv.stem, "s": s,
-                     "cpu_s": float(b["cpu_time"].iloc[0]), "start": end - s, "end": end})
+        parts = Path(job.job).parts
+        end = (folder / f"{job.job}.tsv").stat().st_mtime
+        rows.append({"session": parts[0] if len(parts) == 2 else "-", "stage": job.stage,
+                     "s": job.s, "cpu_s": job.cpu_s, "start": end - job.s, "end": end})
     return pd.DataFrame(rows)
 
 

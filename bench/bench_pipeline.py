@@ -4,8 +4,9 @@ Renders the demo at the given length once into a cache folder (``--cache``), the
 whole workflow (every stage after ``synth``: calibration, corners, poses, Vicon, sync, pairs,
 both optimisers, held-out scoring, analysis, figures, summary, flight demo) in a fresh working
 directory and prints the wall time, each rule's time from Snakemake's benchmark files, and
-the peak memory of the slowest job. CPU seconds (``cpu_s``, Snakemake's ``cpu_time``) are printed
-beside wall seconds: on a shared machine they are the steadier number.
+the peak memory of the slowest job. CPU seconds (``cpu_s``, from each job's log:
+bench/job_times.py says why not Snakemake's sampled ``cpu_time``, printed as ``cpu_s_snakemake``)
+are printed beside wall seconds: on a shared machine they are the steadier number.
 
     .venv/bin/python bench/bench_pipeline.py --duration 90 --cores 2
     .venv/bin/python bench/bench_pipeline.py --imports      # start-up cost of each workflow script
@@ -25,8 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
-import pandas as pd
 import yaml
+from job_times import read_job_times  # beside this script
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -67,12 +68,7 @@ def main() -> None:
     run(work, args.cores)
     wall = time.perf_counter() - t0
 
-    rows = []
-    for tsv in sorted((work / "benchmarks").rglob("*.tsv")):
-        b = pd.read_csv(tsv, sep="\t")
-        rows.append({"job": str(tsv.relative_to(work / "benchmarks"))[:-4], "s": b["s"].iloc[0],
-                     "cpu_s": b["cpu_time"].iloc[0], "max_rss_MB": b["max_rss"].iloc[0]})
-    table = pd.DataFrame(rows).sort_values("s", ascending=False)
+    table = read_job_times(work).drop(columns="stage").sort_values("s", ascending=False)
     print(table.to_string(index=False, float_format=lambda v: f"{v:.1f}"))
     print(f"\ndemo {args.duration:g} s, {args.cores} cores: pipeline wall time {wall:.1f} s "
           f"(rendering excluded); jobs' CPU {table['cpu_s'].sum():.1f} s; "

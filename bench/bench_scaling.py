@@ -36,6 +36,7 @@ from pathlib import Path
 
 import pandas as pd
 import yaml
+from job_times import read_job_times  # beside this script
 
 from cvsflow.plots.timing import prefer_whole_runs, stage_exponents
 
@@ -134,14 +135,10 @@ def run_case(case: str, cache_root: Path, cores: int, keep_tables: Path | None,
 
 def read_benchmarks(folder: Path) -> pd.DataFrame:
     """One row per job: stage (the benchmark file's name without the session), s, cpu_s, max_rss_MB."""
-    rows = []
-    for tsv in sorted(folder.rglob("*.tsv")):
-        if tsv.parent.name == "synth" or tsv.stem == "synth":
-            continue
-        b = pd.read_csv(tsv, sep="\t")
-        rows.append({"stage": tsv.stem, "s": float(b["s"].iloc[0]),
-                     "cpu_s": float(b["cpu_time"].iloc[0]), "max_rss_MB": float(b["max_rss"].iloc[0])})
-    return pd.DataFrame(rows)
+    jobs = read_job_times(folder.parent)
+    in_synth = jobs["job"].map(lambda job: "synth" in Path(job).parts[:-1])
+    jobs = jobs[(jobs["stage"] != "synth") & ~in_synth]
+    return jobs[["stage", "s", "cpu_s", "max_rss_MB"]].reset_index(drop=True)
 
 
 def write_table_hashes(results: Path, out: Path) -> None:
