@@ -16,6 +16,7 @@ from cvsflow import transforms as tf
 from cvsflow.board import board_object_points
 from cvsflow.errors import OptimiseError
 from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points
+from cvsflow.optimise.rig_instants import corners_at_instants, interpolation_error_ms
 from cvsflow.optimise.se3_apply import pose_columns, tracks_from_params
 from cvsflow.optimise.se3_model import K_from_intrinsics
 from cvsflow.optimise.se3_start import corner_arrays, solve_pnp_frames
@@ -61,172 +62,6 @@ def _group_instants(t_vicon, group, n_groups):
     return t_g
 
 
-def _corners_at_instants(uv, t_s, t_target_s, max_gap_s, quadratic=True):
-    """One camera's corners moved to its rig frames' instants by interpolation in time.
-
-    Parameters
-    ----------
-    uv : ndarray, shape (F, N, 2)
-        The camera's found frames' corners in time order, px; NaN where not seen.
-    t_s : ndarray, shape (F,)
-        Their times on the Vicon clock, s.
-    t_target_s : ndarray, shape (F,)
-        The instant of the rig frame each belongs to, s.
-    max_gap_s : float
-        Longest interval between the two frames interpolated, s.
-    quadratic : bool
-        Interpolate a corner through three frames (f, its neighbour across the instant and
-        its neighbour on the other side, Lagrange weights) where the third has it: linear
-        interpolation misses the corner's image acceleration a by a tau (1 - tau) dt^2 / 2,
-        comparable to the corner noise for a hand-held board at 25-30 fps. False, or no third
-        frame within ``max_gap_s``: linear.
-
-    Returns
-    -------
-    uv_at : ndarray, shape (F, N, 2)
-        Frame f's corners at ``t_target_s[f]``: its own where the times agree to 1 us,
-        otherwise interpolated between frame f and its neighbour on the other side of the
-        instant, or, where the board was not found there, extrapolated from the neighbour on
-        this side by at most half their interval; NaN where either frame lacks the corner,
-        and for the whole frame where no neighbour within ``max_gap_s`` serves.
-    noise_factor : ndarray, shape (F,)
-        The moved corners' noise over one frame's, the root sum of the squared weights:
-        ``sqrt((1 - w)^2 + w^2)`` for weight w of the neighbour when linear, the three
-        Lagrange weights' where any corner of the frame was interpolated through three
-        frames (their sum of squares is the larger); 1 where not moved.
-    moved : ndarray of bool, shape (F,)
-        Frames that needed interpolation.
-    usable : ndarray of bool, shape (F,)
-        Those of them that had a neighbour for it.
-    """
-    n = len(t_s)
-    dt = t_target_s - t_s
-    moved = np.abs(dt) > 1e-6
-    w = np.zeros(n)
-    j = np.arange(n)
-    usable = np.zeros(n, bool)
-    # the neighbour across the instant first; the one before it (extrapolating at most half
-    # an interval) where the board was not found across it
-    for side, w_lo, w_hi in ((1, 0.0, 1.0), (-1, -0.5, 0.0)):
-        j_side = np.clip(np.arange(n) + side * np.sign(dt).astype(int), 0, max(n - 1, 0))
-        gap = t_s[j_side] - t_s
-        with np.errstate(divide="ignore", invalid="ignore"):
-            w_side = np.where(gap != 0, dt / gap, np.nan)
-        take = moved & ~usable & (np.abs(gap) <= max_gap_s) & (w_side >= w_lo) & (w_side <= w_hi)
-        w, j, usable = np.where(take, w_side, w), np.where(take, j_side, j), usable | take
-    uv_at = (1.0 - w)[:, None, None] * uv + w[:, None, None] * uv[j]
-    factor = np.sqrt((1.0 - w) ** 2 + w**2)
-    if quadratic and n >= 3:
-        i = np.arange(n)
-        k = np.clip(2 * i - j, 0, n - 1)  # f's other neighbour: j is i +- 1
-        third = moved & usable & (w > 0.0) & (k != i) & (np.abs(t_s[k] - t_s) <= max_gap_s)
-        t0, t1, t2, tt = t_s, t_s[j], t_s[k], t_target_s
-        with np.errstate(divide="ignore", invalid="ignore"):
-            L = np.stack([(tt - t1) * (tt - t2) / ((t0 - t1) * (t0 - t2)),
-                          (tt - t0) * (tt - t2) / ((t1 - t0) * (t1 - t2)),
-                          (tt - t0) * (tt - t1) / ((t2 - t0) * (t2 - t1))])  # fmt: skip
-        third &= np.isfinite(L).all(axis=0)
-        L = np.where(third, L, 0.0)
-        uv_q = L[0][:, None, None] * uv + L[1][:, None, None] * uv[j] + L[2][:, None, None] * uv[k]
-        use_q = third[:, None] & np.isfinite(uv_q).all(axis=-1)
-        uv_at = np.where(use_q[..., None], uv_q, uv_at)
-        factor = np.where(use_q.any(axis=1), np.sqrt((L**2).sum(axis=0)), factor)
-    uv_at[moved & ~usable] = np.nan
-    return uv_at, factor, moved, usable
-
-
-def _interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px, half_window=3):
-    """Mean square interpolation error of each frame's corners moved through three frames.
-
-    The three-frame (quadratic) interpolant at the instant misses a corner by the next term of
-    its Newton series, ``f[t_k, t_i, t_j, t_q] (t - t_k)(t - t_i)(t - t_j)``: the third divided
-    difference of the track (nodes k, i, j of :func:`_corners_at_instants` and the frame q
-    beyond j) times the nodes' polynomial at the instant. Its mean square over the frame's
-    corners and both axes, less what corner noise of ``sigma_px`` per axis puts into the
-    difference (``sigma_px^2 omega^2 sum w^2``, w the four divided-difference weights), is the
-    interpolation's variance per corner and axis at low frequencies. Hand tremor at 5-11 Hz
-    is near the Nyquist frequency of a 25-30 fps camera, where the third difference falls
-    short of the interpolation's error (by 1.2-1.7 in amplitude at 2.0-2.5 rad per frame):
-    the variance is scaled by ``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1), the ratio of the
-    three-frame interpolation's error to the third difference's estimate of it for a sinusoid
-    of w rad per frame at tau frames from frame i, w the track's dominant frequency over
-    ``half_window`` frames either side from the power of its unit-step fourth and third
-    differences (``4 sin^2(w / 2)`` their ratio, each less its noise share, 70 and 20
-    ``sigma_px^2``).
-
-    Parameters
-    ----------
-    uv, t_s, t_target_s, max_gap_s
-        As :func:`_corners_at_instants`.
-    sigma_px : float
-        Corner noise per axis, px.
-    half_window : int
-        Frames either side over which the track's dominant frequency is estimated.
-
-    Returns
-    -------
-    ms_px2 : ndarray, shape (F,)
-        Per frame the estimated interpolation variance per corner and axis, px^2; 0 where
-        the frame was not moved or the four frames are not there within ``max_gap_s``.
-    """
-    n = len(t_s)
-    out = np.zeros(n)
-    if n < 4:
-        return out
-    i = np.arange(n)
-    dt = t_target_s - t_s
-    side = np.sign(np.where(np.abs(dt) > 1e-6, dt, 0.0)).astype(int)
-    j, k, q = (np.clip(i + m * side, 0, n - 1) for m in (1, -1, 2))
-    nodes = (k, i, j, q)
-    ts = [t_s[a] for a in nodes]
-    ok = (side != 0) & (k != i) & (q != j) & (j != i)
-    ok &= (np.abs(ts[1] - ts[0]) <= max_gap_s) & (np.abs(ts[2] - ts[1]) <= max_gap_s)
-    ok &= np.abs(ts[3] - ts[2]) <= max_gap_s
-    with np.errstate(divide="ignore", invalid="ignore"):
-        w = [1.0 / np.prod([ts[a] - ts[b] for b in range(4) if b != a], axis=0) for a in range(4)]
-        poly = (t_target_s - ts[0]) * (t_target_s - ts[1]) * (t_target_s - ts[2])
-        e = sum(w[a][:, None, None] * uv[nodes[a]] for a in range(4)) * poly[:, None, None]
-        gain2 = poly**2 * sum(x**2 for x in w)
-    has = np.isfinite(e).all(axis=-1)
-    ok &= has.any(axis=1) & np.isfinite(gain2)
-    ms = (np.where(has[..., None], e, 0.0) ** 2).sum(axis=(1, 2)) / np.maximum(2 * has.sum(axis=1), 1)
-    out[ok] = np.maximum(ms[ok] - float(sigma_px) ** 2 * gain2[ok], 0.0)
-    if n >= 5:
-        tau = np.abs(dt) / np.where(j != i, np.abs(t_s[j] - t_s), np.inf)
-        out *= _nyquist_factor(uv, tau, float(sigma_px), half_window)
-    return out
-
-
-def _mean_square_at(d, n, start, half_window):
-    """Mean square of difference rows ``d`` (row r centred at frame r + start) over the frames
-    within ``half_window`` of each of ``n`` frames (NaN rows and corners skipped)."""
-    sq = np.full(n, np.nan)
-    with np.errstate(invalid="ignore"):
-        sq[start : start + len(d)] = np.nanmean(d**2, axis=(1, 2)) if d.size else np.nan
-    ok = np.isfinite(sq)
-    box = np.ones(2 * half_window + 1)
-    return np.convolve(np.where(ok, sq, 0.0), box, "same") / np.maximum(np.convolve(ok, box, "same"), 1)
-
-
-def _nyquist_factor(uv, tau, sigma_px, half_window):
-    """``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1) per frame: :func:`_interpolation_error_ms`."""
-    n = len(uv)
-    with np.errstate(invalid="ignore"):
-        d3 = uv[3:] - 3 * uv[2:-1] + 3 * uv[1:-2] - uv[:-3]
-        d4 = uv[4:] - 4 * uv[3:-1] + 6 * uv[2:-2] - 4 * uv[1:-3] + uv[:-4]
-        p3 = _mean_square_at(d3, n, 1, half_window) - 20.0 * sigma_px**2
-        p4 = _mean_square_at(d4, n, 2, half_window) - 70.0 * sigma_px**2
-        w = 2.0 * np.arcsin(np.sqrt(np.clip(p4 / p3, 0.0, 4.0)) / 2.0)
-    w = np.where((p3 > 0) & np.isfinite(w), w, 0.0)
-    tau = np.where(np.isfinite(tau), tau, 0.0)
-    # nodes at -1, 0, 1 frames (k, i, j), the instant at tau; the estimate's fourth node at 2
-    E = (tau * (tau - 1) / 2 * np.exp(-1j * w) + (1 - tau**2) + tau * (tau + 1) / 2 * np.exp(1j * w)
-         - np.exp(1j * w * tau))  # fmt: skip
-    D = (np.exp(2j * w) - 3 * np.exp(1j * w) + 3 - np.exp(-1j * w)) / 6 * (tau + 1) * tau * (tau - 1)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.abs(E) ** 2 / np.abs(D) ** 2
-    return np.where(np.isfinite(ratio), np.maximum(ratio, 1.0), 1.0)
-
 def fused_rig_poses(
     params, corners, bodies, board, frames=None, match_tol_s=None, sigma_px=None, calibration_cov=True,
     instant="interpolate", max_residual_px=None, interpolation_cov=True,
@@ -259,8 +94,9 @@ def fused_rig_poses(
         ``"interpolate"``: a rig frame is fused at the time of its member with the lowest
         camera index, every other member's corners interpolated in time between its frame and
         the neighbouring one on the other side of that instant (through a third, the frame's
-        other neighbour, where that has the corner: :func:`_corners_at_instants`), or extrapolated
-        by at most half an interval from the one before (their noise scaled accordingly; a
+        other neighbour, where that has the corner:
+        :func:`cvsflow.optimise.rig_instants.corners_at_instants`), or extrapolated by at
+        most half an interval from the one before (their noise scaled accordingly; a
         member with neither within 1.5 of its frame intervals is left out of that rig
         frame). ``"nearest"``: every member's frame as it is, at the mean of their times
         (cameras not triggered together are then fused as if simultaneous).
@@ -270,8 +106,9 @@ def fused_rig_poses(
         tracker put on the wrong crossing. None (default): every view is used.
     interpolation_cov : bool
         With ``instant="interpolate"``: add each moved view's interpolation error to its
-        corner noise (:func:`_interpolation_error_ms`, the track's third difference), as an
-        error common to the view's corners; False: the corner noise's propagation only.
+        corner noise (:func:`cvsflow.optimise.rig_instants.interpolation_error_ms`, the
+        track's third difference), as an error common to the view's corners; False: the
+        corner noise's propagation only.
 
     Returns
     -------
@@ -318,8 +155,9 @@ def fused_rig_poses(
     moves them by 0.003 px; the renderer has no rolling shutter. With the true calibration
     and no calibration term the two-camera NEES is 6.3 at a 2 ms tolerance and 21.5 at the
     default. ``interpolation_cov`` adds the error to each moved view's corner variance
-    (:func:`_interpolation_error_ms`: the track's third difference scaled for its dominant
-    frequency, taken as an error shared by the view's corners): 6.6 in sample and 7.2 held
+    (:func:`cvsflow.optimise.rig_instants.interpolation_error_ms`: the track's third
+    difference scaled for its dominant frequency, taken as an error shared by the view's
+    corners): 6.6 in sample and 7.2 held
     out with the true calibration, and with the fit's (and its calibration term) 4.7 and 6.2
     (3 folds) on that render, 5.5 and 5.2 on seed 7 (7.4 and 9.4, 7.6 and 6.7 without the
     term); one-camera frames, the 2 ms tolerance (5.9 and 7.9 over 36 frames; seed 7 5.5
@@ -331,10 +169,12 @@ def fused_rig_poses(
     7.2 and 7.6 that way, 5.5 and 6.0 this way). On the 20 s render the two-camera NEES is
     3.9 in sample and 4.3 held out over 257 frames (6.5 and 6.8 without the term; 4.5 and
     4.8 over 86 at 2 ms; one-camera frames 3.8, the calibration term being generous there:
-    with the true calibration 6.1 and 6.7, 15.1 and 15.2 without the term). Not covered: a
-    view extrapolated (no neighbour across the instant, as at the held-out folds' block
-    edges) or interpolated linearly has no term (seed 7: 7 of 120 held-out frames, one of
-    them at NEES 264). In bench/bench_se3_rig.py (seed 3, 6 s, smooth motion) the term
+    with the true calibration 6.1 and 6.7, 15.1 and 15.2 without the term). A view
+    extrapolated (no neighbour across the instant, as at the held-out folds' block edges),
+    interpolated linearly, or through three frames with no fourth beyond gets the next
+    Newton term of its own interpolant (without the frequency factor): held out, seed 7's
+    two-camera NEES 5.21 -> 4.69 (its largest 48, 24 -> 13, 12), seed 19's 6.19 -> 6.03
+    (bench/bench_rig_instants.py). In bench/bench_se3_rig.py (seed 3, 6 s, smooth motion) the term
     changes the NEES by 0.04 at most.
     """
     if instant not in ("interpolate", "nearest"):
@@ -375,7 +215,7 @@ def fused_rig_poses(
     for i, ((fr, uv), g) in enumerate(zip(arrays, group, strict=True)):
         if t_instant is not None and len(fr):
             max_gap_s = 1.5 * float(np.median(np.diff(t_vicon[i]))) if len(fr) > 1 else 0.0
-            uv_at, noise, moved, usable = _corners_at_instants(uv, t_vicon[i], t_instant[g], max_gap_s)
+            uv_at, noise, moved, usable = corners_at_instants(uv, t_vicon[i], t_instant[g], max_gap_s)
             if np.any(moved & ~usable):
                 log.info("se3 rig: camera %d: %d of %d frames off their rig frame's instant have no "
                          "neighbour to interpolate from; left out of those rig frames", i,
@@ -386,7 +226,7 @@ def fused_rig_poses(
                 # of 0.042 px RMS on the stereo render); on the pose, n corners sharing one
                 # error of variance s^2 weigh as n independent ones of variance n s^2 each
                 n_seen = np.isfinite(uv_at).all(axis=-1).sum(axis=1)
-                ms = _interpolation_error_ms(uv, t_vicon[i], t_instant[g], max_gap_s, sigma)
+                ms = interpolation_error_ms(uv, t_vicon[i], t_instant[g], max_gap_s, sigma)
                 interp_g[g, i] = n_seen * ms
         else:
             uv_g[g, i] = uv
