@@ -21,6 +21,12 @@ from cvsflow.geometry import R_from_quat, rotation_angle
 
 log = logging.getLogger(__name__)
 
+#: Scale of the fine step's soft_l1 loss, in units of the stated sigma: Huber's 1.345, at which
+#: the loss keeps 95 % of least squares' efficiency on Gaussian residuals (soft_l1: 95.4 %)
+#: and a PnP reference's planar flips (single frames 10-40 deg off) lose most of their weight.
+SOFT_L1_SCALE = 1.345
+CHI2_1_MEDIAN = 0.454936  # median of chi-square with one degree of freedom
+
 
 # --------------------------------------------------------------------------------------------
 # Time alignment
@@ -153,14 +159,17 @@ def estimate_clock(
        Frame-to-frame speeds first; when their peak is below ``min_quality`` (a PnP reference
        of a far board: tilt noise and planar flips), speeds over the longer
        ``speed_baselines_s`` in turn, the first clear peak taken.
-    2. Fine (below one video frame): least squares over (offset, skew) of the orientation
-       residuals ``log(R_C_B^T R_C_L R_L_Q(tau) R_Q_B)``, with the log SLERPed at the mapped
-       times ``tau`` and the constant rotations R_C_L (and R_Q_B when not given) re-solved in
-       closed form (:func:`rotation_alignment`) at every trial. Orientation only: position
-       drift, scale and invalid positions do not enter.
-    3. Uncertainty of the fine step's (offset, skew): a sandwich (H^-1 M H^-1, H = J^T J of the
-       weighted residuals) whose middle M sums the residuals' score J_i^T r_i over time blocks
-       of ``block_s``: it holds when the stated sigma is off by a factor, and when the
+    2. Fine (below one video frame): a robust fit over (offset, skew) of the orientation
+       residuals ``log(R_C_B^T R_C_L R_L_Q(tau) R_Q_B)`` in units of the stated sigma, with
+       the log SLERPed at the mapped times ``tau`` and the constant rotations R_C_L (and R_Q_B
+       when not given) re-solved in closed form (:func:`rotation_alignment`) at every trial.
+       The loss is soft_l1 with scale :data:`SOFT_L1_SCALE` sigma: a PnP reference's planar
+       flips (single frames 10-40 deg off, which its stated sigma does not cover) lose most
+       of their weight. Orientation only: position drift, scale and invalid positions do not
+       enter.
+    3. Uncertainty of the fine step's (offset, skew): the M-estimator's sandwich
+       (:func:`_block_sandwich`) whose middle sums the residuals' scores over time blocks of
+       ``block_s``: it holds when the stated sigma is off by a factor, and when the
        residuals are correlated in time (the on-board error drifts) over less than a block.
 
     Parameters
@@ -172,7 +181,8 @@ def estimate_clock(
     R_Q_B : ndarray, shape (3, 3), optional
         Board mounting rotation; None: estimated with the clock.
     sigma_rot_rad : ndarray, shape (N_ref,), optional
-        Reference orientation standard deviation per row (weights 1/sigma).
+        Reference orientation standard deviation per row (weights 1/sigma); None: one sigma
+        for all rows, the residuals' robust scale (1.4826 MAD) at the coarse offset.
     rate_hz : float
         Resampling rate of the cross-correlation, Hz.
     max_offset_s : float or None
@@ -229,11 +239,11 @@ def estimate_clock(
         )  # fmt: skip
 
     # fine: orientation residuals; parameters (offset at the reference's centre, skew * 1e3)
-    w = (
-        np.ones(len(t_r))
-        if sigma_rot_rad is None
-        else 1.0 / np.maximum(np.asarray(sigma_rot_rad, float)[m_r], 1e-9)
-    )
+    sigma = (
+        None if sigma_rot_rad is None
+        else np.maximum(np.asarray(sigma_rot_rad, float)[m_r], 1e-9)
+    )  # fmt: skip
+    w = np.ones(len(t_r)) if sigma is None else 1.0 / sigma  # updated in place below
     slerp = Slerp(t_e, Rotation.from_matrix(R_e))
     t_c = 0.5 * (t_r[0] + t_r[-1])
     state = {"R_Q_B": R_Q_B}
@@ -249,23 +259,43 @@ def estimate_clock(
         state["R_Q_B"] = R_QB
         r = Rotation.from_matrix(np.swapaxes(R_r, -1, -2) @ R_CL @ Re @ R_QB).as_rotvec()
         r = np.where(inside[:, None], r * w[:, None], 0.0)
-        return r.ravel() / np.sqrt(inside.sum())
+        # in units of sigma while every row overlaps the log; rows that fall out of it scale
+        # the rest up, so that losing rows does not lower the cost
+        return r.ravel() * np.sqrt(len(t_r) / inside.sum())
+
+    def fit(x_start):
+        return least_squares(
+            residual,
+            x_start,
+            x_scale=[0.01, 0.1][: len(x_start)],
+            diff_step=[1e-5, 1e-3][: len(x_start)],
+            loss="soft_l1",
+            f_scale=SOFT_L1_SCALE,
+        )
 
     x0 = np.array([dt0, 0.0]) if estimate_skew else np.array([dt0])  # dt_c = dt0 when skew = 0
-    res = least_squares(
-        residual,
-        x0,
-        x_scale=[0.01, 0.1][: len(x0)],
-        diff_step=[1e-5, 1e-3][: len(x0)],
-        loss="soft_l1",
-        f_scale=3.0,
-    )
+    sigma_floor = 0.0
+    if sigma is None:
+        # no stated sigma: the residuals' own robust scale at the coarse offset (1.4826 MAD,
+        # the Gaussian sigma), so that the robust loss engages in the same units
+        r0 = np.abs(residual(x0))
+        w /= 1.4826 * max(float(np.median(r0[r0 > 0])), 1e-12)
+        res = fit(x0)
+    else:
+        # the residual is the reference's error plus the log's own, which no sigma states: fit
+        # once, take the floor the stated sigma leaves unexplained, refit with both
+        res = fit(x0)
+        r_rad = res.fun.reshape(-1, 3) / w[:, None]
+        used = np.any(r_rad != 0, axis=1)
+        sigma_floor = _error_floor(r_rad[used], sigma[used])
+        w[:] = 1.0 / np.hypot(sigma, sigma_floor)
+        res = fit(res.x)
     dt_c = float(res.x[0])
     skew = float(res.x[1] * 1e-3) if estimate_skew else 0.0
     # tau = (t_r - t_c)/(1+skew) + t_c - dt_c  =>  t_r = (1+skew)(tau - t_c + dt_c) + t_c
     dt_offset = t_c - (1 + skew) * (t_c - dt_c)
     R_QB_fit = np.asarray(state["R_Q_B"])
-    cov_x = _block_sandwich(residual, res.x, t_r, block_s)
+    cov_x = _block_sandwich(residual, res.x, t_r, block_s, SOFT_L1_SCALE)
     # d dt_offset / d (dt_c, skew * 1e3)
     g = np.array([1 + skew, -(t_c - dt_c) * 1e-3])[: len(res.x)]
     dt_offset_std = float(np.sqrt(g @ cov_x @ g))
@@ -282,7 +312,8 @@ def estimate_clock(
         {
             "xcorr_offset_s": float(dt0),
             "rate_hz": rate_hz,
-            "refine_rms": float(np.sqrt(2 * res.cost / 3)),
+            "refine_rms": float(np.sqrt(np.mean(res.fun**2))),
+            "sigma_floor_rad": float(sigma_floor),
             "refine_status": int(res.status),
             "R_Q_B": R_QB_fit.tolist(),
             "xcorr_baseline_s": baseline_s,
@@ -301,27 +332,73 @@ def estimate_clock(
     return clock
 
 
-def _block_sandwich(residual, x, t_s, block_s, steps=(1e-4, 1e-2)):
-    """Covariance of least-squares parameters from their residuals' scores summed per time block.
+def _error_floor(r_rad, sigma_rad, tol_rad=1e-6):
+    """The error each residual has beyond its stated sigma: a robust variance component.
+
+    Parameters
+    ----------
+    r_rad : ndarray, shape (N, 3)
+        Residuals, rad.
+    sigma_rad : ndarray, shape (N,)
+        Their stated standard deviation per component, rad.
+    tol_rad : float
+        Bisection tolerance, rad.
+
+    Returns
+    -------
+    float
+        ``s0`` >= 0 such that ``r^2 / (sigma^2 + s0^2)`` has its median, weighted by
+        ``1 / (sigma^2 + s0^2)``, at the median of chi-square(1), 0.455: the robust form of
+        the variance component's likelihood equation, whose weights let the precise rows,
+        where the floor shows, decide. 0 when the stated sigma already covers the residuals.
+    """
+    r2 = np.asarray(r_rad, float) ** 2
+    v_stated = np.asarray(sigma_rad, float) ** 2
+
+    def excess(s0):
+        v = np.repeat(v_stated + s0**2, 3)
+        q = r2.ravel() / v
+        order = np.argsort(q)
+        cw = np.cumsum(1.0 / v[order])
+        return q[order][np.searchsorted(cw, 0.5 * cw[-1])] - CHI2_1_MEDIAN
+
+    if excess(0.0) <= 0:
+        return 0.0
+    lo, hi = 0.0, float(np.sqrt(r2.max()))
+    while hi - lo > tol_rad:
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if excess(mid) > 0 else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+def _block_sandwich(residual, x, t_s, block_s, f_scale, steps=(1e-4, 1e-2)):
+    """Covariance of soft_l1 M-estimated parameters from their scores summed per time block.
 
     Parameters
     ----------
     residual : callable
-        x -> weighted residuals, shape (3 N,), three per row of ``t_s`` (0 where unused).
+        x -> residuals in units of their sigma, shape (3 N,), three per row of ``t_s`` (0
+        where unused).
     x : ndarray, shape (P,)
         The solution.
     t_s : ndarray, shape (N,)
         Time of each row, seconds.
     block_s : float
         Block length, seconds.
+    f_scale : float
+        The soft_l1 loss's scale, units of the residuals.
     steps : sequence of float
         Central-difference steps of the parameters.
 
     Returns
     -------
     cov : ndarray, shape (P, P)
-        ``H^-1 M H^-1 B / (B - 1)``, H = J^T J, M = sum over the B blocks of s_b s_b^T with
-        s_b = sum of J_i^T r_i over the block's rows.
+        ``H^-1 M H^-1 B / (B - 1)`` (the M-estimator's sandwich, Huber 1967): with
+        ``z = (r / f_scale)^2``, H = sum of psi'(r_i) J_i^T J_i, psi'(r) = (1 + z)^-3/2 the
+        derivative of the loss's influence function ``psi(r) = r (1 + z)^-1/2``; M = sum over
+        the B blocks of s_b s_b^T with s_b = (I - H_b H^-1)^-1 sum of J_i^T psi(r_i) over
+        the block's rows, H_b the block's part of H (CR3 small-sample correction: H^-1 s_b
+        is the one-step change of the solution when the block is left out).
     """
     x = np.asarray(x, float)
     r = residual(x).reshape(len(t_s), 3)
@@ -330,11 +407,24 @@ def _block_sandwich(residual, x, t_s, block_s, steps=(1e-4, 1e-2)):
         h = np.zeros(len(x))
         h[k] = steps[k]
         J[:, :, k] = (residual(x + h) - residual(x - h)).reshape(len(t_s), 3) / (2 * steps[k])
-    score = np.einsum("nip,ni->np", J, r)
+    z = (r / f_scale) ** 2
+    score = np.einsum("nip,ni->np", J, r / np.sqrt(1 + z))
+    H_row = np.einsum("ni,nip,niq->npq", (1 + z) ** -1.5, J, J)
     block = np.floor((t_s - t_s[0]) / block_s).astype(int)
     S = np.zeros((block.max() + 1, len(x)))
+    H_b = np.zeros((block.max() + 1, len(x), len(x)))
     np.add.at(S, block, score)
-    S = S[np.any(S != 0, axis=1)]
+    np.add.at(H_b, block, H_row)
+    used = np.any(S != 0, axis=1)
+    S, H_b = S[used], H_b[used]
     n_b = len(S)
-    H_inv = np.linalg.inv(np.einsum("nip,niq->pq", J, J))
+    # a block that carries much of H pulls the fit to its own residuals, which then understate
+    # its error: scale its score by (I - H_b H^-1)^-1, its leverage undone (CR3, the one-step
+    # delete-one-block jackknife; MacKinnon, Nielsen and Webb 2023 for few, unequal blocks)
+    lam, V = np.linalg.eigh(H_b.sum(axis=0))
+    H_half, H_mhalf = (V * lam**0.5) @ V.T, (V * lam**-0.5) @ V.T
+    for b in range(n_b):
+        lev, U = np.linalg.eigh(H_mhalf @ H_b[b] @ H_mhalf)
+        S[b] = H_half @ ((U / np.maximum(1 - lev, 1e-3)) @ U.T) @ H_mhalf @ S[b]
+    H_inv = (V / lam) @ V.T
     return H_inv @ (S.T @ S) @ H_inv * n_b / max(n_b - 1, 1)
