@@ -19,6 +19,7 @@ their own chunk, so it must be picklable (a module-level function or a ``partial
 
 from __future__ import annotations
 
+import gc
 import itertools
 import logging
 import multiprocessing
@@ -452,10 +453,18 @@ def extract_corners_parallel(
     # the pool: shrink the pool to this thread before forking, restore it afterwards.
     n_threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
+    # A child also inherits this process's unreachable PyAV containers (reference cycles the
+    # collector has not freed yet, e.g. of video_timing's read) with their decoders' slice
+    # threads, which do not exist in the child: collecting one there waits forever for those
+    # threads to join. Free them here, where the threads are, and freeze what is left so that
+    # no child's collector frees an object it inherited.
+    gc.collect()
+    gc.freeze()
     try:
         with ProcessPoolExecutor(max_workers=min(n_workers, len(ranges)), mp_context=context) as ex:
             chunks = list(ex.map(_run_chunk, jobs))
     finally:
+        gc.unfreeze()
         cv2.setNumThreads(n_threads)
     corners = merge_corner_chunks(chunks)
     a = corners.attrs
