@@ -151,6 +151,7 @@ def estimate_clock(
     min_quality: float = 0.3,
     speed_baselines_s=(None, 0.2, 0.4, 0.8),
     block_s: float = 2.0,
+    max_floor_deg: float = 8.0,
 ) -> Clock:
     """Time offset (and skew) of the log against the camera stream.
 
@@ -197,6 +198,10 @@ def estimate_clock(
     block_s : float
         Time block of the uncertainty's sandwich, seconds (longer than the on-board error's
         correlation time).
+    max_floor_deg : float
+        Largest orientation error of the log beyond the reference's stated sigma (the fine
+        step's floor, ``details["sigma_floor_rad"]``) at which the streams count as aligned;
+        above it the next baseline's peak is tried. Only with ``sigma_rot_rad``.
 
     Returns
     -------
@@ -210,8 +215,9 @@ def estimate_clock(
     Raises
     ------
     SyncError
-        Too few valid orientations or a correlation peak below ``min_quality`` at every
-        baseline.
+        Too few valid orientations, a correlation peak below ``min_quality`` at every
+        baseline, or every clear peak leaving the orientations more than ``max_floor_deg``
+        apart beyond the stated sigma.
     """
     m_r = reference["rot_valid"].to_numpy(bool)
     t_r, R_r = _valid_rot(reference)
@@ -224,26 +230,12 @@ def estimate_clock(
     # the shortest baseline whose peak is clear: frame-to-frame speeds are sharpest, but a
     # far, small board's PnP tilt noise (and its planar flips, single-frame 10-40 deg jumps)
     # swamps them; over a longer baseline the orientation noise shrinks with the span
-    tried = []
-    for baseline_s in speed_baselines_s:
-        dt0, quality = _xcorr_offset(t_r, R_r, t_e, R_e, rate_hz, max_offset_s, baseline_s)
-        tried.append((baseline_s, quality, dt0))
-        if quality >= min_quality:
-            break
-    else:
-        raise SyncError(
-            "time alignment: angular-speed correlation peak below min_quality "
-            f"{min_quality} at every baseline: "
-            + ", ".join(f"{q:.2f} at offset {d:.3f} s over {b or 'one frame'} s"
-                        for b, q, d in tried)
-        )  # fmt: skip
-
     # fine: orientation residuals; parameters (offset at the reference's centre, skew * 1e3)
     sigma = (
         None if sigma_rot_rad is None
         else np.maximum(np.asarray(sigma_rot_rad, float)[m_r], 1e-9)
     )  # fmt: skip
-    w = np.ones(len(t_r)) if sigma is None else 1.0 / sigma  # updated in place below
+    w = np.ones(len(t_r))  # the residuals' weights, set by fine() below
     slerp = Slerp(t_e, Rotation.from_matrix(R_e))
     t_c = 0.5 * (t_r[0] + t_r[-1])
     state = {"R_Q_B": R_Q_B}
@@ -273,23 +265,55 @@ def estimate_clock(
             f_scale=SOFT_L1_SCALE,
         )
 
-    x0 = np.array([dt0, 0.0]) if estimate_skew else np.array([dt0])  # dt_c = dt0 when skew = 0
-    sigma_floor = 0.0
-    if sigma is None:
-        # no stated sigma: the residuals' own robust scale at the coarse offset (1.4826 MAD,
-        # the Gaussian sigma), so that the robust loss engages in the same units
-        r0 = np.abs(residual(x0))
-        w /= 1.4826 * max(float(np.median(r0[r0 > 0])), 1e-12)
-        res = fit(x0)
-    else:
+    def fine(dt0):
+        x0 = np.array([dt0, 0.0]) if estimate_skew else np.array([dt0])  # dt_c = dt0, skew 0
+        w[:] = 1.0 if sigma is None else 1.0 / sigma
+        if sigma is None:
+            # no stated sigma: the residuals' own robust scale at the coarse offset (1.4826
+            # MAD, the Gaussian sigma), so that the robust loss engages in the same units
+            r0 = np.abs(residual(x0))
+            w[:] /= 1.4826 * max(float(np.median(r0[r0 > 0])), 1e-12)
+            return fit(x0), 0.0
         # the residual is the reference's error plus the log's own, which no sigma states: fit
         # once, take the floor the stated sigma leaves unexplained, refit with both
         res = fit(x0)
         r_rad = res.fun.reshape(-1, 3) / w[:, None]
         used = np.any(r_rad != 0, axis=1)
-        sigma_floor = _error_floor(r_rad[used], sigma[used])
-        w[:] = 1.0 / np.hypot(sigma, sigma_floor)
-        res = fit(res.x)
+        floor = _error_floor(r_rad[used], sigma[used])
+        w[:] = 1.0 / np.hypot(sigma, floor)
+        return fit(res.x), floor
+
+    # the shortest baseline whose peak is clear: frame-to-frame speeds are sharpest, but a
+    # far, small board's PnP tilt noise (and its planar flips, single-frame 10-40 deg jumps)
+    # swamps them; over a longer baseline the orientation noise shrinks with the span. A clear
+    # peak at the wrong lag leaves the orientations tens of degrees apart beyond their stated
+    # sigma (14-22 deg on rendered flights, against 0.4-1 deg aligned): the next baseline's
+    # peak is tried then
+    tried, misaligned = [], []
+    for baseline_s in speed_baselines_s:
+        dt0, quality = _xcorr_offset(t_r, R_r, t_e, R_e, rate_hz, max_offset_s, baseline_s)
+        tried.append((baseline_s, quality, dt0))
+        if quality < min_quality:
+            continue
+        res, sigma_floor = fine(dt0)
+        if sigma_floor <= np.radians(max_floor_deg):
+            break
+        misaligned.append((baseline_s, dt0, sigma_floor))
+    else:
+        if misaligned:
+            raise SyncError(
+                "time alignment: at every clear correlation peak the log's orientation stays "
+                f"more than {max_floor_deg:g} deg from the reference's beyond its stated sigma ("
+                + ", ".join(f"{np.degrees(f):.1f} deg at offset {d:.3f} s over {b or 'one frame'} s"
+                            for b, d, f in misaligned)
+                + "): the clocks are not aligned; narrow max_offset_s around the true offset"
+            )  # fmt: skip
+        raise SyncError(
+            "time alignment: angular-speed correlation peak below min_quality "
+            f"{min_quality} at every baseline: "
+            + ", ".join(f"{q:.2f} at offset {d:.3f} s over {b or 'one frame'} s"
+                        for b, q, d in tried)
+        )  # fmt: skip
     dt_c = float(res.x[0])
     skew = float(res.x[1] * 1e-3) if estimate_skew else 0.0
     # tau = (t_r - t_c)/(1+skew) + t_c - dt_c  =>  t_r = (1+skew)(tau - t_c + dt_c) + t_c

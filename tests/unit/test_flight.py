@@ -366,6 +366,35 @@ def test_clock_robust_to_flips_and_its_std_holds():
     assert np.sqrt(np.mean(np.square(z))) < 1.3, z
 
 
+def test_a_clear_peak_at_the_wrong_lag_is_refused_by_the_fine_step(monkeypatch):
+    """A correlation peak that passes min_quality at the wrong lag (as the PnP flights of
+    seeds 103 and 111 had at the 0.2 s baseline, 40 s off) leaves the orientations far apart
+    beyond their stated sigma: the next baseline's peak is taken. When every peak is wrong the
+    clock is a SyncError, not a silent offset."""
+    from cvsflow.flight import clock as clock_mod
+
+    ref, onboard, sigma, R_Q_B, truth = _orientation_streams_with_flips(0)
+    right = F.estimate_clock(ref, onboard, R_Q_B=R_Q_B, sigma_rot_rad=sigma)
+    real_xcorr = clock_mod._xcorr_offset
+    calls = []
+
+    def first_wrong(*args):
+        dt0, quality = real_xcorr(*args)
+        calls.append(args[-1])
+        return (dt0 + 7.3, 0.9) if len(calls) == 1 else (dt0, quality)
+
+    monkeypatch.setattr(clock_mod, "_xcorr_offset", first_wrong)
+    k = F.estimate_clock(ref, onboard, R_Q_B=R_Q_B, sigma_rot_rad=sigma)
+    assert len(calls) == 2 and k.details["xcorr_baseline_s"] == calls[1]
+    t_c = k.details["t_centre_s"]
+    assert abs(k.to_log(t_c) - truth.to_log(t_c)) < 3 * k.details["dt_centre_std_s"]
+    assert k.details["sigma_floor_rad"] < np.radians(2.0)
+    assert abs(k.to_log(t_c) - right.to_log(t_c)) < 1e-3
+    monkeypatch.setattr(clock_mod, "_xcorr_offset", lambda *a: (real_xcorr(*a)[0] + 7.3, 0.9))
+    with pytest.raises(SyncError, match="clocks are not aligned"):
+        F.estimate_clock(ref, onboard, R_Q_B=R_Q_B, sigma_rot_rad=sigma)
+
+
 def test_recovered_error_matches_injected_within_reference_uncertainty_known_frames(demo):
     """True clock and T_C_L: recovered minus injected error is the reference noise, z-RMS ~ 1."""
     r = F.evaluate_flight(
