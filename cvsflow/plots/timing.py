@@ -2,7 +2,8 @@
 
 Takes the benchmark table that script writes (one row per case and stage: ``case``,
 ``duration_s``, ``width_px``, ``height_px``, ``stage``, ``s`` wall seconds, ``cpu_s``,
-``max_rss_MB``), read from Snakemake's per-job benchmark files.
+``max_rss_MB``), read from Snakemake's per-job benchmark files (the CPU seconds from the
+jobs' logs: bench/job_times.py).
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ def plot_stage_scaling(table, height_px=480):
     fig = Figure(figsize=(15.0, 5.0), layout="constrained")
     axes = fig.subplots(1, 3)
     fig.suptitle(f"Cost of each stage against session length ({rows['width_px'].iloc[0]}x{height_px}, "
-                 "rendering excluded; from Snakemake's benchmark files)")
+                 "rendering excluded; from the jobs' benchmark files and logs)")
     lengths = np.sort(rows["duration_s"].unique())
     for stage in order[:MAX_STAGES]:
         g = rows[rows["stage"] == stage].sort_values("duration_s")
