@@ -8,6 +8,8 @@ waited forever for them to join: the suite hung in test_media's damaged-recordin
 
 from __future__ import annotations
 
+import os
+import signal
 import subprocess
 import sys
 import textwrap
@@ -42,10 +44,14 @@ CHILD = textwrap.dedent("""
 
 def test_forked_corner_workers_do_not_free_the_parents_decoders(tmp_path):
     code = CHILD.format(here=str(HERE), path=str(tmp_path / "v.mp4"))
+    # its own process group, so that hung workers are killed with it
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
     try:
-        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                              timeout=60)
+        out, err = proc.communicate(timeout=60)
     except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
         raise AssertionError("extract_corners_parallel hung in a forked worker") from None
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "frames 90" in proc.stdout
+    assert proc.returncode == 0, err[-2000:]
+    assert "frames 90" in out
