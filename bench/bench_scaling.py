@@ -4,9 +4,9 @@ Renders the demo session (config/config.yaml's ``demo``, fast preset) at several
 resolutions into a cache folder (``--cache``; each case once, reruns reuse it), runs the whole
 workflow after ``synth`` on each case in a fresh working directory, and reads every job's
 Snakemake benchmark file (``benchmarks/<session>/<stage>.tsv``: wall seconds and peak resident
-memory) and its log (CPU seconds: bench/job_times.py) per stage. Then, per stage, it fits ``cost = a * duration**b`` by least
-squares in log-log over the 640x480 cases and prints the exponent b of CPU time, wall time and
-peak memory (b = 1: linear; b = 0: flat).
+memory) and its log (CPU seconds: bench/job_times.py). Then, per stage, it fits
+``cost = a * duration**b`` by least squares in log-log over the 640x480 cases and prints the
+exponent b of CPU time, wall time and peak memory (b = 1: linear; b = 0: flat).
 
     .venv/bin/python bench/bench_scaling.py --cores 2                       # every case
     .venv/bin/python bench/bench_scaling.py --cases 90x480 --keep-tables DIR # one case, keep its tables

@@ -19,7 +19,6 @@ with stage_logging(snakemake.log[0], "heldout_seed") as log:
     heldout = cross_validate_seed(
         read_parquet(snakemake.input.pairs), corners,
         np.array(camera["K"]), np.array(camera["dist"]), snakemake.params.board,
-        n_folds=ev["n_folds"], block_s=ev["block_s"], seed=ev["seed"],
         folds=folds, **seed_options,
     )
     log.info("%d held-out frames", len(heldout))
