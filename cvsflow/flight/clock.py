@@ -18,6 +18,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from cvsflow.errors import SyncError
 from cvsflow.flight.alignment import rotation_alignment
 from cvsflow.geometry import R_from_quat, rotation_angle
+from cvsflow.sandwich import leverage_corrected_scores
 
 log = logging.getLogger(__name__)
 
@@ -443,12 +444,7 @@ def _block_sandwich(residual, x, t_s, block_s, f_scale, steps=(1e-4, 1e-2)):
     S, H_b = S[used], H_b[used]
     n_b = len(S)
     # a block that carries much of H pulls the fit to its own residuals, which then understate
-    # its error: scale its score by (I - H_b H^-1)^-1, its leverage undone (CR3, the one-step
-    # delete-one-block jackknife; MacKinnon, Nielsen and Webb 2023 for few, unequal blocks)
-    lam, V = np.linalg.eigh(H_b.sum(axis=0))
-    H_half, H_mhalf = (V * lam**0.5) @ V.T, (V * lam**-0.5) @ V.T
-    for b in range(n_b):
-        lev, U = np.linalg.eigh(H_mhalf @ H_b[b] @ H_mhalf)
-        S[b] = H_half @ ((U / np.maximum(1 - lev, 1e-3)) @ U.T) @ H_mhalf @ S[b]
+    # its error: its leverage undone (CR3, cvsflow.sandwich)
+    S, lam, V = leverage_corrected_scores(S, H_b)
     H_inv = (V / lam) @ V.T
     return H_inv @ (S.T @ S) @ H_inv * n_b / max(n_b - 1, 1)

@@ -1,0 +1,51 @@
+"""Cluster-robust sandwich covariance of an M-estimator with few, unequal clusters.
+
+The sandwich ``H^-1 (sum_c s_c s_c^T) H^-1`` (Huber 1967) over clusters c of rows that share
+an error (a time block of frames: the Vicon noise and the corner errors of neighbouring
+frames persist) is biased low when the clusters are few or one of them carries much of H:
+the fit follows that cluster's residuals, which then understate its error. CR3 (the one-step
+delete-one-cluster jackknife; MacKinnon, Nielsen and Webb 2023, "Fast and reliable jackknife
+and bootstrap methods for cluster-robust inference") undoes each cluster's leverage first:
+``H^-1 (I - H_c H^-1)^-1 s_c`` is the one-step change of the solution when c is left out.
+
+Used by the se3 fit (:mod:`cvsflow.optimise.se3_cov`) and the flight clock
+(:mod:`cvsflow.flight.clock`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def leverage_corrected_scores(S, H_c, H=None):
+    """Each cluster's score with its leverage undone: ``H^1/2 (I - A_c)^-1 H^-1/2 s_c``.
+
+    ``A_c = H^-1/2 H_c H^-1/2`` is the cluster's share of the information in symmetric form,
+    so that ``H^-1`` times the result is ``(H - H_c)^-1 s_c``, the one-step change of the
+    solution when cluster c is left out (its eigenvalues are floored at 1e-3 of 1 - lev, for
+    a cluster that alone determines some direction).
+
+    Parameters
+    ----------
+    S : ndarray, shape (C, P)
+        Score sum of each cluster, ``sum J_i^T psi(r_i)`` over its rows.
+    H_c : ndarray, shape (C, P, P)
+        Each cluster's part of H, ``sum psi'(r_i) J_i^T J_i`` over its rows.
+    H : ndarray, shape (P, P), optional
+        The whole H; default ``H_c.sum(axis=0)``.
+
+    Returns
+    -------
+    S_corrected : ndarray, shape (C, P)
+    lam, V : ndarray, shapes (P,), (P, P)
+        Eigen-decomposition of H (``H^-1 = (V / lam) @ V.T``), eigenvalues floored at 1e-15 of
+        the largest (a direction the data do not fix has no leverage to undo).
+    """
+    lam, V = np.linalg.eigh(H_c.sum(axis=0) if H is None else H)
+    lam = np.maximum(lam, lam.max() * 1e-15)
+    H_half, H_mhalf = (V * lam**0.5) @ V.T, (V * lam**-0.5) @ V.T
+    out = np.array(S, float, copy=True)
+    for c in range(len(out)):
+        lev, U = np.linalg.eigh(H_mhalf @ H_c[c] @ H_mhalf)
+        out[c] = H_half @ ((U / np.maximum(1 - lev, 1e-3)) @ U.T) @ H_mhalf @ out[c]
+    return out, lam, V
