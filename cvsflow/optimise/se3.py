@@ -87,6 +87,30 @@ DEFAULT_FREE = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 MIN_FRAMES = 10
 #: Half-width (s) of the time window around t_i + dt0 that must hold valid Vicon samples.
 DT_MARGIN_S = 0.05
+#: A fit whose median corner residual exceeds this (px) explains nothing: corner noise is
+#: under 1 px on any camera, so the Vicon poses do not predict the board.
+IMPLAUSIBLE_MEDIAN_PX = 10.0
+#: Largest factor a fitted focal length may move from the calibration's.
+IMPLAUSIBLE_FOCAL_FACTOR = 2.0
+
+
+def _refuse_implausible_fit(f_px, f0_px, r_px):
+    """OptimiseError when the fit's focal lengths or residuals say it explains nothing."""
+    why = (" The corners and the Vicon poses do not agree: check the board (squares_x, "
+           "squares_y, square_m), which Vicon body is the camera and which the board, the sync "
+           "offset, and that the calibration is this camera's.")
+    for name, f, f0 in zip(("fx", "fy"), f_px, f0_px, strict=True):
+        if not (f > 0 and 1 / IMPLAUSIBLE_FOCAL_FACTOR <= f / f0 <= IMPLAUSIBLE_FOCAL_FACTOR):
+            raise OptimiseError(
+                f"se3: the fit took {name} from the calibration's {f0:.1f} px to {f:.1f} px "
+                f"(more than a factor {IMPLAUSIBLE_FOCAL_FACTOR:g})." + why
+            )
+    med = float(np.median(np.abs(r_px)))
+    if not med <= IMPLAUSIBLE_MEDIAN_PX:
+        raise OptimiseError(
+            f"se3: after the fit the median corner residual is {med:.3g} px (more than "
+            f"{IMPLAUSIBLE_MEDIAN_PX:g} px)." + why
+        )
 
 
 def optimise_se3(
@@ -194,8 +218,10 @@ def optimise_se3(
     Raises
     ------
     OptimiseError
-        Bad tables, fewer than ``MIN_FRAMES`` usable frames, bad options, or a failed
-        hand-eye initialisation.
+        Bad tables, fewer than ``MIN_FRAMES`` usable frames, bad options, a failed
+        hand-eye initialisation, or a fit that explains nothing: a focal length moved by more
+        than ``IMPLAUSIBLE_FOCAL_FACTOR`` from the calibration's, or a median corner residual
+        above ``IMPLAUSIBLE_MEDIAN_PX`` (swapped bodies, a wrong clock or board).
 
     Notes
     -----
@@ -361,6 +387,7 @@ def optimise_se3(
         raise OptimiseError(f"se3: the solver diverged ({sol.message})")
     x = sol.x
     r = model.residuals(x)
+    _refuse_implausible_fit(model.unpack(x)[0][:2], intr0[:2], r)
     J = model.jacobian(x)
     frame_of_row = np.repeat(np.nonzero(model.seen)[0], 2)
     block = np.floor((t_video - t_video[0]) / max(cluster_s, 1e-9)).astype(int)

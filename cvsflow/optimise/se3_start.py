@@ -191,14 +191,66 @@ def solve_hand_eye(T_Cm_Bm, T_C_B):
             "se3 hand-eye: the board rotations are too alike to separate T_Cm_C from T_Bm_B "
             f"(second smallest eigenvalue {evals[1]:.3g}); the board must turn about two axes"
         )
-    v = evecs[:, 0]
-    X = v[:9].reshape(3, 3, order="F")
-    Z = v[9:].reshape(3, 3, order="F")
-    if np.linalg.det(X) < 0:
-        X, Z = -X, -Z
-    R_X, R_Z = project_SO3(X), project_SO3(Z)
+    R_X, R_Z = _rotations_from_null_vector(evecs[:, 0])
     # translations: R_A t_X - t_Z = R_Z t_B - t_A
     lhs = np.concatenate([RA, -np.broadcast_to(eye3, RA.shape)], axis=2).reshape(3 * n, 6)
     rhs = (np.einsum("ij,nj->ni", R_Z, B[:, :3, 3]) - A[:, :3, 3]).reshape(3 * n)
     t_XZ = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+    inlier = _consistent_pairs(RA, RB, R_X, R_Z, lhs, rhs)
+    if not inlier.all():
+        # a PnP pose far off (a flipped or garbled board) pulls a least-squares solution by
+        # its full error: solve again without the pairs that disagree with the rest
+        log.warning(
+            "se3 hand-eye: %d of %d pose pairs left out of the start (their PnP pose disagrees "
+            "with the Vicon by more than %g times the median pair)", int((~inlier).sum()), n,
+            OUTLIER_FACTOR,
+        )  # fmt: skip
+        if inlier.sum() < 3:
+            raise OptimiseError(
+                f"se3 hand-eye: {int(inlier.sum())} of {n} pose pairs agree with each other; "
+                "need at least 3"
+            )
+        MtM = np.einsum("nij,nik->jk", M[inlier], M[inlier])
+        R_X, R_Z = _rotations_from_null_vector(np.linalg.eigh(MtM)[1][:, 0])
+        keep3 = np.repeat(inlier, 3)
+        rhs = (np.einsum("ij,nj->ni", R_Z, B[:, :3, 3]) - A[:, :3, 3]).reshape(3 * n)
+        t_XZ = np.linalg.lstsq(lhs[keep3], rhs[keep3], rcond=None)[0]
     return tf.make_T(R_Z, t_XZ[3:]), tf.make_T(R_X, t_XZ[:3])
+
+
+#: A pose pair is left out of the hand-eye start when its rotation or translation residual
+#: exceeds this many times the median pair's (plus OUTLIER_FLOOR): about 7 standard deviations
+#: of a 3-D Gaussian residual, so only gross errors go (a PnP flip, a mis-indexed board).
+OUTLIER_FACTOR = 5.0
+#: Floor of the outlier threshold (rad, m), so that near-exact pairs drop none.
+OUTLIER_FLOOR = (1e-3, 1e-3)
+
+
+def _rotations_from_null_vector(v):
+    """R_X, R_Z from the null vector of Shah's rotation system, scaled to det > 0."""
+    X = v[:9].reshape(3, 3, order="F")
+    Z = v[9:].reshape(3, 3, order="F")
+    if np.linalg.det(X) < 0:
+        X, Z = -X, -Z
+    return project_SO3(X), project_SO3(Z)
+
+
+def _consistent_pairs(RA, RB, R_X, R_Z, lhs, rhs, n_irls=30):
+    """Pairs whose residuals are within OUTLIER_FACTOR of the median pair's.
+
+    Rotation: the angle of R_A R_X against R_Z R_B. Translation: the residual norm under the
+    least-absolute-deviation solution (iteratively reweighted least squares), which gross
+    outliers in t_B cannot drag the way they drag the least-squares one.
+    """
+    n = len(RA)
+    ang = tf.rotation_angle(np.einsum("nij,jk->nik", RA, R_X)
+                            @ np.swapaxes(np.einsum("ij,njk->nik", R_Z, RB), 1, 2))
+    w = np.ones(n)
+    for _ in range(n_irls):
+        sw = np.repeat(np.sqrt(w), 3)
+        t = np.linalg.lstsq(lhs * sw[:, None], rhs * sw, rcond=None)[0]
+        res = np.linalg.norm((lhs @ t - rhs).reshape(n, 3), axis=1)
+        w = 1.0 / np.maximum(res, 1e-9)
+    ok_rot = ang <= OUTLIER_FACTOR * np.median(ang) + OUTLIER_FLOOR[0]
+    ok_t = res <= OUTLIER_FACTOR * np.median(res) + OUTLIER_FLOOR[1]
+    return ok_rot & ok_t
