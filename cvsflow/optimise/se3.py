@@ -94,21 +94,31 @@ IMPLAUSIBLE_MEDIAN_PX = 10.0
 IMPLAUSIBLE_FOCAL_FACTOR = 2.0
 
 
-def _refuse_implausible_fit(f_px, f0_px, r_px):
-    """OptimiseError when the fit's focal lengths or residuals say it explains nothing."""
+def refuse_implausible_fit(f_px, f0_px, r_px, who="se3"):
+    """OptimiseError when a fit's focal lengths or residuals say it explains nothing.
+
+    Parameters
+    ----------
+    f_px, f0_px : sequence of float
+        Fitted and starting (calibration) fx, fy, px.
+    r_px : ndarray
+        The fit's corner residuals, px.
+    who : str
+        Prefix of the message (``"se3"``, ``"se3 rig: camera 1"``).
+    """
     why = (" The corners and the Vicon poses do not agree: check the board (squares_x, "
            "squares_y, square_m), which Vicon body is the camera and which the board, the sync "
            "offset, and that the calibration is this camera's.")
     for name, f, f0 in zip(("fx", "fy"), f_px, f0_px, strict=True):
         if not (f > 0 and 1 / IMPLAUSIBLE_FOCAL_FACTOR <= f / f0 <= IMPLAUSIBLE_FOCAL_FACTOR):
             raise OptimiseError(
-                f"se3: the fit took {name} from the calibration's {f0:.1f} px to {f:.1f} px "
+                f"{who}: the fit took {name} from the calibration's {f0:.1f} px to {f:.1f} px "
                 f"(more than a factor {IMPLAUSIBLE_FOCAL_FACTOR:g})." + why
             )
     med = float(np.median(np.abs(r_px)))
     if not med <= IMPLAUSIBLE_MEDIAN_PX:
         raise OptimiseError(
-            f"se3: after the fit the median corner residual is {med:.3g} px (more than "
+            f"{who}: after the fit the median corner residual is {med:.3g} px (more than "
             f"{IMPLAUSIBLE_MEDIAN_PX:g} px)." + why
         )
 
@@ -387,7 +397,7 @@ def optimise_se3(
         raise OptimiseError(f"se3: the solver diverged ({sol.message})")
     x = sol.x
     r = model.residuals(x)
-    _refuse_implausible_fit(model.unpack(x)[0][:2], intr0[:2], r)
+    refuse_implausible_fit(model.unpack(x)[0][:2], intr0[:2], r)
     J = model.jacobian(x)
     frame_of_row = np.repeat(np.nonzero(model.seen)[0], 2)
     block = np.floor((t_video - t_video[0]) / max(cluster_s, 1e-9)).astype(int)

@@ -60,6 +60,7 @@ from cvsflow.optimise.se3 import (
     MIN_FRAMES,
     camera_start,
     correlation_warnings,
+    refuse_implausible_fit,
     usable_frames,
 )
 from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD, fixed_intrinsic_std, parameter_covariance
@@ -411,6 +412,9 @@ def optimise_se3_rig(
         raise OptimiseError(f"se3 rig: the solver diverged ({sol.message})")
     x = sol.x
     r = model.residuals(x)
+    for i, m in enumerate(models):
+        refuse_implausible_fit(m.unpack(model.local(x, i))[0][:2], m.intr0[:2],
+                               r[model.rows[i]], f"se3 rig: camera {i}")
     J = model.jacobian(x)
 
     # clusters: time blocks of the common timeline (frames at one instant share Vicon noise)

@@ -448,7 +448,8 @@ def test_rig_fuses_unsynchronised_cameras_at_one_instant():
 
 
 def test_rig_named_errors(rig):
-    """A camera with no corners, all frames lost, a frame with two times, or unordered times."""
+    """A camera with no corners, all frames lost, a frame with two times, unordered times, or
+    a fit that explains nothing."""
     good = _entries(rig)
     bad = [dict(good[0]), dict(good[1], corners=good[1]["corners"].iloc[:0])]
     with pytest.raises(OptimiseError, match="camera 1: corners table is empty"):
@@ -469,5 +470,9 @@ def test_rig_named_errors(rig):
         optimise_se3_rig([good[0], {"corners": good[1]["corners"]}], rig["bodies"], rig["board"])
     with pytest.raises(OptimiseError, match="camera 1: 0 frames"):
         optimise_se3_rig([good[0], dict(good[1], dt_offset_s=500.0)], rig["bodies"], rig["board"])
+    # camera 1's corners read with the wrong clock (3 s off): the fit cannot explain them
+    with pytest.raises(OptimiseError, match="se3 rig: camera 1: .*do not agree: check the board"):
+        optimise_se3_rig([good[0], dict(good[1], dt_offset_s=good[1]["dt_offset_s"] + 3.0)],
+                         rig["bodies"], rig["board"], free=FREE)
     with pytest.raises(OptimiseError, match="3 corner tables for 2 cameras"):
         fused_rig_poses({"cameras": [{}, {}]}, [good[0]["corners"]] * 3, rig["bodies"], rig["board"])
