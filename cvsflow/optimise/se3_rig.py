@@ -413,8 +413,8 @@ def optimise_se3_rig(
     x = sol.x
     r = model.residuals(x)
     for i, m in enumerate(models):
-        refuse_implausible_fit(m.unpack(model.local(x, i))[0][:2], m.intr0[:2],
-                               r[model.rows[i]], f"se3 rig: camera {i}")
+        refuse_implausible_fit(m.unpack(model.local(x, i))[0][:2], r[model.rows[i]],
+                               f"se3 rig: camera {i}")
     J = model.jacobian(x)
 
     # clusters: time blocks of the common timeline (frames at one instant share Vicon noise)

@@ -178,7 +178,7 @@ def test_hand_eye_leaves_out_gross_pnp_errors(caplog):
         dt_m, dr_rad = _pose_err(T_true, T_est)
         assert dt_m < 0.010 and dr_rad < np.radians(0.5), (dt_m, np.degrees(dr_rad))
     # the plain least squares on every pair, as before
-    RA, RB = A[:, :3, :3], B[:, :3, :3]
+    RA = A[:, :3, :3]
     lhs = np.concatenate([RA, -np.broadcast_to(np.eye(3), RA.shape)], axis=2).reshape(-1, 6)
     rhs = (np.einsum("ij,nj->ni", Z_est[:3, :3], B[:, :3, 3]) - A[:, :3, 3]).ravel()
     assert np.linalg.norm(np.linalg.lstsq(lhs, rhs, rcond=None)[0][3:] - Z[:3, 3]) > 100.0
