@@ -432,8 +432,10 @@ def optimise_seed(
             cache_rows = cache_rows[complete]
         if len(pairs) < MIN_PAIRS:
             raise OptimiseError(
-                f"pairs.parquet: {len(pairs)} pairs with the whole board; the seed optimiser "
-                f"needs at least {MIN_PAIRS}"
+                f"pairs.parquet: {len(pairs)} pairs with the whole board (a hand or the image "
+                f"border hides part of it in the other {int((~complete).sum())}); the seed "
+                f"optimiser (the chapter's method) needs at least {MIN_PAIRS}. se3 uses partly "
+                "hidden boards: run it alone with optimise.methods: [se3]"
             )
     P_star = pairs[vic_cols].to_numpy(dtype=float)
     if not np.isfinite(P_star).all():

@@ -317,6 +317,15 @@ def test_seed_leaves_out_pairs_with_part_of_the_board():
         corner_array(corners, [0, 1, 2], 4, allow_partial=True)
 
 
+def test_seed_without_whole_boards_says_to_run_se3_alone():
+    """Every frame with a corner hidden (a hand over the board throughout, as on the realistic
+    640x480 render): the error names the count and the way out."""
+    pairs, corners, K, *_ = _session(12, seed=11)
+    partial = corners[corners["corner"] != 0]
+    with pytest.raises(OptimiseError, match=r"0 pairs with the whole board .*optimise.methods: \[se3\]"):
+        optimise_seed(pairs, partial, K, DIST, BOARD)
+
+
 def test_divergence_flags_by_hand():
     """Bound, focal ratio and translation-std criteria each give their own reason."""
     from cvsflow.optimise.seed import seed_divergence
