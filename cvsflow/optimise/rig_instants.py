@@ -9,6 +9,8 @@ term of the interpolant, from the track's divided differences).
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 #: How far (in ``max_gap_s``) the extra frame of :func:`interpolation_error_ms`'s fallback
@@ -147,7 +149,9 @@ def interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px, half_window
         linearly or by extrapolation (:func:`corners_at_instants`: a block edge, a dropped
         frame) or through three frames without the fourth beyond j gets the next term of the
         interpolant it had, the divided difference taken with the frame beyond either end of
-        its nodes, without the frequency factor.
+        its nodes, and the same frequency factor for its own nodes
+        (:func:`_nyquist_factor_nodes`). The frequency is estimated from evenly spaced frames
+        only.
     """
     n = len(t_s)
     out = np.zeros(n)
@@ -165,7 +169,7 @@ def interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px, half_window
     out[ok] = ms[ok]
     if n >= 5:
         tau = np.abs(dt) / np.where(j != i, np.abs(t_s[j] - t_s), np.inf)
-        out *= _nyquist_factor(uv, tau, float(sigma_px), half_window)
+        out *= _nyquist_factor(uv, tau, float(sigma_px), half_window, t_s)
     # The others (a block edge or a dropped frame next to them): the next term of the
     # interpolant they had, with the frame beyond either end of its nodes as the extra one.
     moved, usable, _, j_used, k_used, third = _instant_nodes(t_s, t_target_s, max_gap_s)
@@ -186,6 +190,12 @@ def interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px, half_window
             continue
         ms_rest, valid = _newton_remainder_ms(uv, t_s, t_target_s, used, extra, sigma_px)
         take &= valid
+        if n >= 5 and take.any():
+            w = _dominant_frequency(uv, t_s, float(sigma_px), half_window)
+            h = float(np.median(np.diff(t_s)))
+            pos = [(t_s[u] - t_s) / h for u in used]
+            ms_rest = ms_rest * _nyquist_factor_nodes(
+                w, pos, (t_s[extra] - t_s) / h, (t_target_s - t_s) / h)
         out[take] = ms_rest[take]
         rest &= ~take
     return out
@@ -214,23 +224,73 @@ def _mean_square_at(d, n, start, half_window):
     """Mean square of difference rows ``d`` (row r centred at frame r + start) over the frames
     within ``half_window`` of each of ``n`` frames (NaN rows and corners skipped)."""
     sq = np.full(n, np.nan)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # rows left out (NaN) have no mean
         sq[start : start + len(d)] = np.nanmean(d**2, axis=(1, 2)) if d.size else np.nan
     ok = np.isfinite(sq)
     box = np.ones(2 * half_window + 1)
     return np.convolve(np.where(ok, sq, 0.0), box, "same") / np.maximum(np.convolve(ok, box, "same"), 1)
 
 
-def _nyquist_factor(uv, tau, sigma_px, half_window):
-    """``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1) per frame: :func:`interpolation_error_ms`."""
+def _dominant_frequency(uv, t_s, sigma_px, half_window):
+    """Each frame's dominant track frequency, rad per frame (0 where unknown):
+    :func:`interpolation_error_ms`. Differences whose frames are not evenly spaced (a dropped
+    frame inside) are left out: across a gap they mistake the gap for motion."""
     n = len(uv)
+    step = np.diff(t_s)
+    even = np.abs(step - np.median(step)) <= 0.1 * np.median(step)
     with np.errstate(invalid="ignore"):
         d3 = uv[3:] - 3 * uv[2:-1] + 3 * uv[1:-2] - uv[:-3]
         d4 = uv[4:] - 4 * uv[3:-1] + 6 * uv[2:-2] - 4 * uv[1:-3] + uv[:-4]
+        d3[~(even[2:] & even[1:-1] & even[:-2])] = np.nan
+        d4[~(even[3:] & even[2:-1] & even[1:-2] & even[:-3])] = np.nan
         p3 = _mean_square_at(d3, n, 1, half_window) - 20.0 * sigma_px**2
         p4 = _mean_square_at(d4, n, 2, half_window) - 70.0 * sigma_px**2
         w = 2.0 * np.arcsin(np.sqrt(np.clip(p4 / p3, 0.0, 4.0)) / 2.0)
-    w = np.where((p3 > 0) & np.isfinite(w), w, 0.0)
+    return np.where((p3 > 0) & np.isfinite(w), w, 0.0)
+
+
+#: Below this track frequency (rad per frame) the Newton term's estimate of the interpolation
+#: error is exact to within a few per cent and the ratio of two tiny numbers is left at 1.
+LOW_FREQUENCY_RAD = 0.05
+
+
+def _nyquist_factor_nodes(w, offsets, extra, tau):
+    """``|E|^2 / |D|^2`` (at least 1) for interpolants through arbitrary nodes.
+
+    For a sinusoid of w rad per frame, E is the interpolant's error at tau and D the next
+    Newton term's estimate of it (divided difference with the node ``extra``). All positions
+    are in frames from frame i.
+
+    Parameters
+    ----------
+    w : ndarray, shape (F,)
+    offsets : sequence of ndarray, shape (F,)
+        The interpolant's nodes.
+    extra : ndarray, shape (F,)
+    tau : ndarray, shape (F,)
+
+    Returns
+    -------
+    factor : ndarray, shape (F,)
+    """
+    nodes = [*offsets, extra]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        E = -np.exp(1j * w * tau)
+        for a, o in enumerate(offsets):
+            L = np.prod([(tau - b) / (o - b) for c, b in enumerate(offsets) if c != a], axis=0)
+            E = E + L * np.exp(1j * w * o)
+        dd = sum(np.exp(1j * w * o) / np.prod([o - b for c, b in enumerate(nodes) if c != a], axis=0)
+                 for a, o in enumerate(nodes))
+        D = dd * np.prod([tau - o for o in offsets], axis=0)
+        ratio = np.abs(E) ** 2 / np.abs(D) ** 2
+    ok = np.isfinite(ratio) & (w >= LOW_FREQUENCY_RAD)
+    return np.where(ok, np.maximum(ratio, 1.0), 1.0)
+
+
+def _nyquist_factor(uv, tau, sigma_px, half_window, t_s):
+    """``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1) per frame: :func:`interpolation_error_ms`."""
+    w = _dominant_frequency(uv, t_s, sigma_px, half_window)
     tau = np.where(np.isfinite(tau), tau, 0.0)
     # nodes at -1, 0, 1 frames (k, i, j), the instant at tau; the estimate's fourth node at 2
     E = (tau * (tau - 1) / 2 * np.exp(-1j * w) + (1 - tau**2) + tau * (tau + 1) / 2 * np.exp(1j * w)
