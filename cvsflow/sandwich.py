@@ -7,9 +7,11 @@ the fit follows that cluster's residuals, which then understate its error. CR3 (
 delete-one-cluster jackknife; MacKinnon, Nielsen and Webb 2023, "Fast and reliable jackknife
 and bootstrap methods for cluster-robust inference") undoes each cluster's leverage first:
 ``H^-1 (I - H_c H^-1)^-1 s_c`` is the one-step change of the solution when c is left out.
+CR2 (Bell and McCaffrey 2002; Pustejovsky and Tipton 2018) takes the square root of that
+correction and is unbiased for independent errors.
 
-Used by the se3 fit (:mod:`cvsflow.optimise.se3_cov`) and the flight clock
-(:mod:`cvsflow.flight.clock`).
+Used by the se3 fit (CR2, :mod:`cvsflow.optimise.se3_cov`) and the flight clock (CR3,
+:mod:`cvsflow.flight.clock`).
 """
 
 from __future__ import annotations
@@ -17,13 +19,15 @@ from __future__ import annotations
 import numpy as np
 
 
-def leverage_corrected_scores(S, H_c, H=None):
-    """Each cluster's score with its leverage undone: ``H^1/2 (I - A_c)^-1 H^-1/2 s_c``.
+def leverage_corrected_scores(S, H_c, H=None, power=1.0):
+    """Each cluster's score with its leverage undone: ``H^1/2 (I - A_c)^-power H^-1/2 s_c``.
 
-    ``A_c = H^-1/2 H_c H^-1/2`` is the cluster's share of the information in symmetric form,
-    so that ``H^-1`` times the result is ``(H - H_c)^-1 s_c``, the one-step change of the
-    solution when cluster c is left out (its eigenvalues are floored at 1e-3 of 1 - lev, for
-    a cluster that alone determines some direction).
+    ``A_c = H^-1/2 H_c H^-1/2`` is the cluster's share of the information in symmetric form.
+    With ``power=1`` (CR3), ``H^-1`` times the result is ``(H - H_c)^-1 s_c``, the one-step
+    change of the solution when cluster c is left out. With ``power=0.5`` (CR2, Bell and
+    McCaffrey 2002) the meat ``sum s~ s~^T`` is unbiased for independent errors; CR3 is wider
+    still, too wide when the clusters are barely more than the parameters. The eigenvalues of
+    ``1 - A_c`` are floored at 1e-3, for a cluster that alone determines some direction.
 
     Parameters
     ----------
@@ -33,6 +37,8 @@ def leverage_corrected_scores(S, H_c, H=None):
         Each cluster's part of H, ``sum psi'(r_i) J_i^T J_i`` over its rows.
     H : ndarray, shape (P, P), optional
         The whole H; default ``H_c.sum(axis=0)``.
+    power : float
+        1 (CR3, the jackknife) or 0.5 (CR2).
 
     Returns
     -------
@@ -47,5 +53,5 @@ def leverage_corrected_scores(S, H_c, H=None):
     out = np.array(S, float, copy=True)
     for c in range(len(out)):
         lev, U = np.linalg.eigh(H_mhalf @ H_c[c] @ H_mhalf)
-        out[c] = H_half @ ((U / np.maximum(1 - lev, 1e-3)) @ U.T) @ H_mhalf @ out[c]
+        out[c] = H_half @ ((U / np.maximum(1 - lev, 1e-3) ** power) @ U.T) @ H_mhalf @ out[c]
     return out, lam, V

@@ -41,7 +41,7 @@ Uncertainty: the Gauss-Newton covariance of an M-estimator (Huber 1981, sec. 7.6
 ``sum r^2 / (m - n)`` for a quadratic loss), and a cluster-robust sandwich
 ``H^-1 (sum_c g_c g_c^T) H^-1`` over contiguous time blocks (residuals of one frame share the
 Vicon pose noise and are not independent), each block's score corrected for its leverage
-(CR3, :mod:`cvsflow.sandwich`: a 12 s session has only 12 blocks). The data-only standard
+(CR2, :mod:`cvsflow.sandwich`: a 12 s session has only 12 blocks). The data-only standard
 errors are the larger of the two per parameter; correlations (identifiability) come from
 ``(J^T J)^-1``. The intrinsics
 held fixed are not exact: their calibration uncertainty (camera.yaml ``std``) is carried into

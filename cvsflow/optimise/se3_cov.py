@@ -43,9 +43,9 @@ def covariances(J, r, loss, f_scale, clusters):
     cov_gn : ndarray, shape (n, n)
         ``sigma_eff^2 (J^T J)^-1``, sigma_eff^2 = m/(m-n) mean(psi^2) / mean(psi')^2.
     cov_cl : ndarray, shape (n, n)
-        Cluster-robust sandwich ``H^-1 (sum_c g_c g_c^T) H^-1 (G - 1) / G`` with each
-        cluster's score g_c corrected for its leverage (CR3,
-        :func:`cvsflow.sandwich.leverage_corrected_scores`).
+        Cluster-robust sandwich ``H^-1 (sum_c g_c g_c^T) H^-1`` with each cluster's score
+        g_c corrected for its leverage (CR2,
+        :func:`cvsflow.sandwich.leverage_corrected_scores` with power 1/2).
     JtJ_inv : ndarray, shape (n, n)
         Pseudo-inverse of J^T J.
     sigma2 : float
@@ -66,15 +66,15 @@ def covariances(J, r, loss, f_scale, clusters):
     G = len(labels)
     g_c = np.zeros((G, n))
     np.add.at(g_c, inv, g_rows)
-    # CR3: each cluster's leverage undone before its score enters the meat, the one-step
-    # delete-one-cluster jackknife with its (G - 1) / G (cvsflow.sandwich). The plain CR1
-    # sandwich was 20-36 % short with the 10-12 one-second blocks of a 12 s session
+    # CR2 (Bell and McCaffrey 2002): each cluster's score scaled by (I - H_c H^-1)^-1/2,
+    # which makes the meat unbiased for independent errors however few the clusters. The
+    # plain CR1 sandwich was 20-36 % short with the 10-12 one-second blocks of a 12 s session;
+    # CR3 (the jackknife, power 1) was as much too wide with 8 blocks or a rig's 30 parameters
     # (docs/findings.md, "se3's standard errors").
     order = np.argsort(inv, kind="stable")
     bounds = np.searchsorted(inv[order], np.arange(G + 1))
     H_c = np.stack([gram(J[rows], dpsi[rows]) for rows in np.split(order, bounds[1:-1])])
-    g_c = leverage_corrected_scores(g_c, H_c, H)[0]
-    meat = gram(g_c) * ((G - 1) / max(G, 1))
+    meat = gram(leverage_corrected_scores(g_c, H_c, H, power=0.5)[0])
     cov_cl = H_inv @ meat @ H_inv
     return cov_gn, cov_cl, JtJ_inv, float(sigma2), G
 

@@ -33,12 +33,12 @@ def _errors(fit, truth, bodies):
 
 
 def test_cluster_std_covers_the_truth_with_few_blocks():
-    """30 sessions of 12 s (12 one-second blocks for 15 parameters), each estimate's error
-    over its std: the cluster-robust std alone puts 62-78 % of the errors inside 1 sigma and
-    at least 93 % inside 2 (the CR1 sandwich before CR3 put 56 % and 87 %); the reported std
-    (the larger of Gauss-Newton and cluster) at least 93 % inside 2 and at most 80 % inside 1
-    (not needlessly wide)."""
-    z_cl, z = [], []
+    """30 sessions of 12 s (12 one-second blocks for 15 parameters). The cluster-robust
+    variance (CR2) averaged over the sessions is 0.9-1.35 times the estimates' mean squared
+    error, pooled over the parameters (1.16 here, 1.00 over 60 sessions); the CR1 sandwich
+    before CR2 gave 0.83 here (0.74 over 60), CR3 1.69 over 60. The reported std (the larger of Gauss-Newton and cluster) puts 62-76 % of
+    the errors inside 1 sigma and at least 93 % inside 2."""
+    err2, var_cl, z = [], [], []
     for seed in range(30):
         s = simulate_session(seed, duration_s=12.0)
         tr = s["truth"]
@@ -49,11 +49,12 @@ def test_cluster_std_covers_the_truth_with_few_blocks():
         cam = {**s["camera"], "std": dict.fromkeys(INTRINSICS, 0.0)}
         fit = se3.optimise_se3(c_in, s["bodies"], cam, s["board"], tr["dt_offset_s"] + 0.01,
                                free=("fx", "fy"))
-        for n, e in _errors(fit, tr, s["bodies"]).items():
-            z_cl.append(e / fit.result["std_errors_cluster"][n])
-            z.append(e / fit.result["std_errors"][n])
-    assert len(z) >= 24 * 15
-    z_cl, z = np.abs(z_cl), np.abs(z)
-    assert 0.62 < np.mean(z_cl < 1) < 0.78 and np.mean(z_cl < 2) > 0.93, (
-        np.mean(z_cl < 1), np.mean(z_cl < 2))
-    assert np.mean(z < 2) > 0.93 and np.mean(z < 1) < 0.80, (np.mean(z < 1), np.mean(z < 2))
+        err = _errors(fit, tr, s["bodies"])
+        err2.append([e**2 for e in err.values()])
+        var_cl.append([fit.result["std_errors_cluster"][n] ** 2 for n in err])
+        z += [e / fit.result["std_errors"][n] for n, e in err.items()]
+    assert len(err2) >= 24
+    ratio = np.mean(np.mean(var_cl, axis=0) / np.mean(err2, axis=0))
+    assert 0.9 < ratio < 1.35, ratio
+    z = np.abs(z)
+    assert 0.62 < np.mean(z < 1) < 0.76 and np.mean(z < 2) > 0.93, (np.mean(z < 1), np.mean(z < 2))
