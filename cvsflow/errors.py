@@ -29,6 +29,10 @@ class OptimiseError(CvsflowError):
     """An optimiser cannot proceed (no pairs, diverged)."""
 
 
+class WholeBoardError(OptimiseError):
+    """Too few frames show the whole board for the chapter's seed method."""
+
+
 class ImplausibleError(CvsflowError):
     """A stage's input or result is outside what the physical set-up allows (plausibility check)."""
 

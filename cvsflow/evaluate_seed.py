@@ -12,6 +12,7 @@ import logging
 import numpy as np
 import pandas as pd
 
+from cvsflow.errors import WholeBoardError
 from cvsflow.evaluate import make_time_blocks
 from cvsflow.metrics import ERROR_DIMS
 from cvsflow.optimise.seed import compute_eps, optimise_seed
@@ -52,7 +53,14 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
     -------
     heldout : DataFrame
         ``frame, t_s, fold, fx_px, fy_px``, ``eps_{dim}`` (6-vector errors, m and rad), and
-        ``diverged``, ``diverged_reason`` of the fold's fit (:func:`optimise_seed`).
+        ``diverged``, ``diverged_reason`` of the fold's fit (:func:`optimise_seed`). A fold
+        whose training or held-out frames hold fewer than ``MIN_PAIRS`` whole boards (a hand
+        over the board for a while) is left out with a WARNING, its frames unscored.
+
+    Raises
+    ------
+    WholeBoardError
+        No fold could be fitted and scored.
     """
     t_s = pairs["t_s"].to_numpy(float)
     if folds is None:
@@ -69,14 +77,23 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
     parts = []
     cache = SeedPoseCache(pairs, corners, board)
     seed_options = {**seed_options, "pose_cache": cache}
+    left_out = []
     for k in range(n_folds):
         train, test = pairs[fold != k], pairs[fold == k]
         if len(test) == 0:
             continue
-        fit = optimise_seed(train, corners, K, dist, board, **seed_options)
-        f = (fit.result["fx_px"], fit.result["fy_px"])
-        opts = {**seed_options, "k_iterations": 0, "f_init_px": f}
-        scored = optimise_seed(test, corners, K, dist, board, **opts).errors
+        try:
+            fit = optimise_seed(train, corners, K, dist, board, **seed_options)
+            f = (fit.result["fx_px"], fit.result["fy_px"])
+            opts = {**seed_options, "k_iterations": 0, "f_init_px": f}
+            scored = optimise_seed(test, corners, K, dist, board, **opts).errors
+        except WholeBoardError as exc:
+            # a hand over the board for a block of the take: this fold cannot be fitted or
+            # scored by a method that needs the whole board; the others still can
+            log.warning("seed cross-validation fold %d left out (%d test frames): %s",
+                        k, len(test), exc)
+            left_out.append(f"fold {k}: {exc}")
+            continue
         F = scored[[f"cvs_{d}" for d in dims]].to_numpy(float)
         P_star = scored[[f"vic_{d}" for d in dims]].to_numpy(float)
         eps = compute_eps(F, P_star, np.asarray(fit.result["P_bar"], float))  # eq. 1.11
@@ -91,4 +108,7 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
                  k, len(train), len(test), *f)
     log.info("seed cross-validation: %d (candidate, frame) PnP rows solved, %d shared by folds",
              cache.n_solved, cache.n_reused)
+    if not parts:
+        raise WholeBoardError("seed cross-validation: no fold could be fitted and scored; "
+                              + "; ".join(left_out))
     return pd.concat(parts, ignore_index=True).sort_values("frame", ignore_index=True)

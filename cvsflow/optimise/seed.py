@@ -52,7 +52,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.calibration import board_object_points
-from cvsflow.errors import OptimiseError
+from cvsflow.errors import OptimiseError, WholeBoardError
 from cvsflow.geometry.transforms import R_from_rvec, euler_from_R, wrap_angle
 from cvsflow.optimise import OptimiseResult
 from cvsflow.optimise.seed_pnp import dist5, focal_sensitivity, solve_rows
@@ -431,7 +431,7 @@ def optimise_seed(
         if pose_cache is not None:
             cache_rows = cache_rows[complete]
         if len(pairs) < MIN_PAIRS:
-            raise OptimiseError(
+            raise WholeBoardError(
                 f"pairs.parquet: {len(pairs)} pairs with the whole board (a hand or the image "
                 f"border hides part of it in the other {int((~complete).sum())}); the seed "
                 f"optimiser (the chapter's method) needs at least {MIN_PAIRS}. se3 uses partly "

@@ -76,6 +76,31 @@ def test_cross_validate_seed_scores_each_frame_once_with_training_offset():
     assert np.abs(held["eps_x_m"]).median() < 0.01
 
 
+def test_cross_validate_seed_leaves_out_folds_without_whole_boards(caplog):
+    """A hand over one corner for the first 8 s of a 12 s take (folds by 2 s block, as the
+    realistic 720p render, where one fold's training held under 10 whole boards): the folds
+    that cannot be fitted or scored are left out with a WARNING naming them, the rest are
+    scored as before; with the hand there throughout, the error says so."""
+    from cvsflow.errors import WholeBoardError
+
+    s = simulate_session(8, duration_s=12.0, pixel_noise_px=0.2)
+    pairs = _truth_pairs(s)
+    c = s["corners"]
+    hidden = (c["corner"] == 0) & (c["t_s"] < 8.0)
+    args = (s["camera"]["K"], s["camera"]["dist"], s["board"])
+    kw = dict(n_folds=3, block_s=2.0, seed=1, k_iterations=1)
+    full = cross_validate_seed(pairs, c, *args, **kw)
+    with caplog.at_level("WARNING"):
+        held = cross_validate_seed(pairs, c[~hidden], *args, **kw)
+    out = {0, 1, 2} - set(held["fold"])
+    assert out and all(f"cross-validation fold {k} left out" in caplog.text for k in out)
+    # every frame of a kept fold that shows the whole board is scored, and only those
+    expect = full[full["fold"].isin(held["fold"]) & (full["t_s"] >= 8.0)]
+    assert set(held["frame"]) == set(expect["frame"])
+    with pytest.raises(WholeBoardError, match="no fold could be fitted"):
+        cross_validate_seed(pairs, c[c["corner"] != 0], *args, **kw)
+
+
 def test_crossfit_error_model_bands_on_model_data():
     """On errors drawn from the model's own form, pooled held-out band shares are near 68/95 %."""
     rng = np.random.default_rng(4)
