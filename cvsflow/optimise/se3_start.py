@@ -150,7 +150,8 @@ def solve_hand_eye(T_Cm_Bm, T_C_B):
     Raises
     ------
     OptimiseError
-        Fewer than 3 pairs, mismatched shapes, or rotations too alike to separate X from Z.
+        Fewer than 3 pairs (or fewer than 3 consistent ones), mismatched shapes, or rotations
+        too alike to separate X from Z.
 
     Notes
     -----
@@ -162,6 +163,9 @@ def solve_hand_eye(T_Cm_Bm, T_C_B):
     [R_A, -I] [t_X; t_Z] = R_Z t_B - t_A, linear least squares (Shah eq. 14). This is the
     problem ``cv2.calibrateRobotWorldHandEye`` solves with A = cTw ("world2cam"),
     X = wTb ("base2world"), Z = cTg ("gripper2cam"), B = gTb ("base2gripper").
+    Pairs with a gross error (rotation or least-absolute-deviation translation residual
+    beyond ``OUTLIER_FACTOR`` times the median pair's plus ``OUTLIER_FLOOR``: a garbled or
+    flipped PnP pose) are left out with a WARNING and both solves repeated without them.
     """
     A = np.asarray(T_Cm_Bm, float)
     B = np.asarray(T_C_B, float)
