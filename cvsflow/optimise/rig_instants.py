@@ -167,9 +167,11 @@ def interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px, half_window
     ms, valid = _newton_remainder_ms(uv, t_s, t_target_s, (k, i, j), q, sigma_px)
     ok &= valid
     out[ok] = ms[ok]
+    # the track's dominant frequency, rad per frame: none to speak of on fewer than 5 frames
+    w = _dominant_frequency(uv, t_s, float(sigma_px), half_window) if n >= 5 else np.zeros(n)
     if n >= 5:
         tau = np.abs(dt) / np.where(j != i, np.abs(t_s[j] - t_s), np.inf)
-        out *= _nyquist_factor(uv, tau, float(sigma_px), half_window, t_s)
+        out *= _nyquist_factor(w, tau)
     # The others (a block edge or a dropped frame next to them): the next term of the
     # interpolant they had, with the frame beyond either end of its nodes as the extra one.
     moved, usable, _, j_used, k_used, third = _instant_nodes(t_s, t_target_s, max_gap_s)
@@ -191,7 +193,6 @@ def interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px, half_window
         ms_rest, valid = _newton_remainder_ms(uv, t_s, t_target_s, used, extra, sigma_px)
         take &= valid
         if n >= 5 and take.any():
-            w = _dominant_frequency(uv, t_s, float(sigma_px), half_window)
             h = float(np.median(np.diff(t_s)))
             pos = [(t_s[u] - t_s) / h for u in used]
             ms_rest = ms_rest * _nyquist_factor_nodes(
@@ -288,9 +289,9 @@ def _nyquist_factor_nodes(w, offsets, extra, tau):
     return np.where(ok, np.maximum(ratio, 1.0), 1.0)
 
 
-def _nyquist_factor(uv, tau, sigma_px, half_window, t_s):
-    """``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1) per frame: :func:`interpolation_error_ms`."""
-    w = _dominant_frequency(uv, t_s, sigma_px, half_window)
+def _nyquist_factor(w, tau):
+    """``|E(w, tau)|^2 / |D(w, tau)|^2`` (at least 1) per frame for the four-frame nodes
+    (:func:`interpolation_error_ms`), w the track's frequency in rad per frame."""
     tau = np.where(np.isfinite(tau), tau, 0.0)
     # nodes at -1, 0, 1 frames (k, i, j), the instant at tau; the estimate's fourth node at 2
     E = (tau * (tau - 1) / 2 * np.exp(-1j * w) + (1 - tau**2) + tau * (tau + 1) / 2 * np.exp(1j * w)

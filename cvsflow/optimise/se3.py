@@ -77,7 +77,13 @@ from cvsflow.optimise.se3_cov import (
     fixed_intrinsic_std,
     parameter_covariance,
 )
-from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, loss_weights, robust_cost
+from cvsflow.optimise.se3_lm import (
+    LOSSES,
+    levenberg_marquardt,
+    loss_weights,
+    refuse_implausible_fit,
+    robust_cost,
+)
 from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model
 from cvsflow.optimise.se3_start import corner_arrays, solve_hand_eye, solve_pnp_frames
 
@@ -89,51 +95,6 @@ DEFAULT_FREE = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
 MIN_FRAMES = 10
 #: Half-width (s) of the time window around t_i + dt0 that must hold valid Vicon samples.
 DT_MARGIN_S = 0.05
-#: A fit whose median corner residual exceeds this (px) explains nothing: corner noise is
-#: under 1 px on any camera, so the Vicon poses do not predict the board.
-IMPLAUSIBLE_MEDIAN_PX = 10.0
-
-
-def refuse_implausible_fit(f_px, r_px, who="se3"):
-    """OptimiseError when a fit's focal lengths or residuals say it explains nothing.
-
-    The stage's range checks (:func:`cvsflow.plausibility.check_se3_result`: focal lengths
-    near the calibration, mountings, time offset) come after; this one sees the residuals,
-    and also guards the held-out folds' and the rig's fits.
-
-    Parameters
-    ----------
-    f_px : sequence of float
-        Fitted fx, fy, px.
-    r_px : ndarray
-        The fit's corner residuals, px.
-    who : str
-        Prefix of the message (``"se3"``, ``"se3 rig: camera 1"``).
-
-    Returns
-    -------
-    None
-
-    Raises
-    ------
-    OptimiseError
-        A focal length not finite and positive, or a median residual above
-        ``IMPLAUSIBLE_MEDIAN_PX``.
-    """
-    why = (" The corners and the Vicon poses do not agree: check the board (squares_x, "
-           "squares_y, square_m), which Vicon body is the camera and which the board, the sync "
-           "offset, and that the calibration is this camera's.")
-    for name, f in zip(("fx", "fy"), f_px, strict=True):
-        if not (np.isfinite(f) and f > 0):
-            raise OptimiseError(f"{who}: the fit took {name} to {f:.4g} px." + why)
-    med = float(np.median(np.abs(r_px)))
-    if not med <= IMPLAUSIBLE_MEDIAN_PX:
-        raise OptimiseError(
-            f"{who}: after the fit the median corner residual is {med:.3g} px (more than "
-            f"{IMPLAUSIBLE_MEDIAN_PX:g} px)." + why
-        )
-
-
 def optimise_se3(
     corners,
     bodies,
@@ -242,7 +203,7 @@ def optimise_se3(
         Bad tables, fewer than ``MIN_FRAMES`` usable frames, bad options, a failed
         hand-eye initialisation, or a fit that explains nothing: a focal length not positive,
         or a median corner residual above ``IMPLAUSIBLE_MEDIAN_PX`` (swapped bodies, a wrong
-        clock or board; :func:`refuse_implausible_fit`).
+        clock or board; :func:`cvsflow.optimise.se3_lm.refuse_implausible_fit`).
 
     Notes
     -----

@@ -1,4 +1,5 @@
-"""Robust least squares for the ``se3`` method: the loss, its cost and Levenberg-Marquardt.
+"""Robust least squares for the ``se3`` method: the loss, its cost, Levenberg-Marquardt, and
+the check that refuses a fit that explains nothing (:func:`refuse_implausible_fit`).
 
 The cost is scipy's robust cost 0.5 sum c^2 rho((r/c)^2) (``scipy.optimize.least_squares``'s
 ``loss`` and ``f_scale``), minimised by Levenberg-Marquardt on the normal equations with the
@@ -9,6 +10,8 @@ Jacobian (m x ~22) makes the work per iteration one m x n product.
 from __future__ import annotations
 
 import numpy as np
+
+from cvsflow.errors import OptimiseError
 
 #: Robust losses (scipy's names).
 LOSSES = ("linear", "soft_l1", "huber")
@@ -171,3 +174,48 @@ def levenberg_marquardt(fun, jac, x0, loss, f_scale, max_nfev, max_iter=100):
             status, message = 1, "converged (step below 1e-6 sigma or relative decrease < 1e-12)"
             break
     return LMSolution(x, cost, nfev, njev, status, message)
+
+
+#: A fit whose median corner residual exceeds this (px) explains nothing: corner noise is
+#: under 1 px on any camera, so the Vicon poses do not predict the board.
+IMPLAUSIBLE_MEDIAN_PX = 10.0
+
+
+def refuse_implausible_fit(f_px, r_px, who="se3"):
+    """OptimiseError when a fit's focal lengths or residuals say it explains nothing.
+
+    The stage's range checks (:func:`cvsflow.plausibility.check_se3_result`: focal lengths
+    near the calibration, mountings, time offset) come after; this one sees the residuals,
+    and also guards the held-out folds' and the rig's fits.
+
+    Parameters
+    ----------
+    f_px : sequence of float
+        Fitted fx, fy, px.
+    r_px : ndarray
+        The fit's corner residuals, px.
+    who : str
+        Prefix of the message (``"se3"``, ``"se3 rig: camera 1"``).
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    OptimiseError
+        A focal length not finite and positive, or a median residual above
+        ``IMPLAUSIBLE_MEDIAN_PX``.
+    """
+    why = (" The corners and the Vicon poses do not agree: check the board (squares_x, "
+           "squares_y, square_m), which Vicon body is the camera and which the board, the sync "
+           "offset, and that the calibration is this camera's.")
+    for name, f in zip(("fx", "fy"), f_px, strict=True):
+        if not (np.isfinite(f) and f > 0):
+            raise OptimiseError(f"{who}: the fit took {name} to {f:.4g} px." + why)
+    med = float(np.median(np.abs(r_px)))
+    if not med <= IMPLAUSIBLE_MEDIAN_PX:
+        raise OptimiseError(
+            f"{who}: after the fit the median corner residual is {med:.3g} px (more than "
+            f"{IMPLAUSIBLE_MEDIAN_PX:g} px)." + why
+        )

@@ -60,11 +60,10 @@ from cvsflow.optimise.se3 import (
     MIN_FRAMES,
     camera_start,
     correlation_warnings,
-    refuse_implausible_fit,
     usable_frames,
 )
 from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD, fixed_intrinsic_std, parameter_covariance
-from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, robust_cost
+from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, refuse_implausible_fit, robust_cost
 from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model, jacobian_fd
 from cvsflow.optimise.se3_rig_poses import fused_rig_poses
 from cvsflow.optimise.se3_start import corner_arrays, solve_hand_eye, solve_pnp_frames
