@@ -36,10 +36,9 @@ from cvsflow.plausibility import (
     check_pair_distances,
     check_poses_found,
     check_rows,
-    check_se3_result,
-    check_seed_result,
     check_sync_inputs,
 )
+from cvsflow.plausibility_results import check_se3_result, check_seed_result
 from cvsflow.transforms import make_T, transform_points
 
 REPO = Path(__file__).resolve().parents[2]
