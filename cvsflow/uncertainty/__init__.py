@@ -10,14 +10,16 @@
   (:func:`measurement_features`, the corner noise its reprojection implies).
 - :mod:`cvsflow.uncertainty.transfer`: model (T), fitted on some sessions, predicting
   another or a flight (:func:`fit_transfer_model`, :func:`transfer_covariance`,
-  :func:`leave_one_session_out`, :data:`RENDERED_TRANSFER_MODEL`).
+  :data:`RENDERED_TRANSFER_MODEL`); :mod:`cvsflow.uncertainty.transfer_scoring` scores it on
+  frames it did not see (:func:`score_transfer`, :func:`leave_one_session_out`,
+  :func:`crossfit_transfer`).
 - :mod:`cvsflow.uncertainty.scoring`: band coverage and NEES (:func:`score_covariance`,
   :func:`nees_values`, :func:`band_multipliers`), and the same with the errors whitened by
   an AR(1) in time (:func:`fit_ar1`, :func:`score_time_correlated`).
 - :mod:`cvsflow.uncertainty.crb`: the Cramer-Rao floor (:func:`cramer_rao_sigma`).
 
 The submodules import each other downwards (propagation, scoring < models, features, crb <
-transfer); this package only re-exports their public names.
+transfer < transfer_scoring); this package only re-exports their public names.
 """
 
 from cvsflow.uncertainty.crb import cramer_rao_sigma
@@ -68,13 +70,15 @@ from cvsflow.uncertainty.scoring import (
 from cvsflow.uncertainty.transfer import (
     RENDERED_TRANSFER_MODEL,
     TRANSFER_PARAMS,
-    crossfit_transfer,
     fit_transfer_model,
+    transfer_covariance,
+    transfer_mean,
+)
+from cvsflow.uncertainty.transfer_scoring import (
+    crossfit_transfer,
     leave_one_session_out,
     score_transfer,
     time_correlation_of,
-    transfer_covariance,
-    transfer_mean,
 )
 
 __all__ = [
