@@ -57,6 +57,7 @@ def make_time_blocks(t_s, block_s, n_folds, seed):
     -------
     fold : ndarray of int, shape (N,)
         Fold of every frame, 0..n_folds-1; each fold gets whole blocks, in near-equal numbers.
+        A last block shorter than ``block_s / 2`` is part of the one before it.
 
     Raises
     ------
@@ -69,6 +70,11 @@ def make_time_blocks(t_s, block_s, n_folds, seed):
             f"make_time_blocks: n_folds={n_folds}, block_s={block_s}; expected >= 2 and > 0 s"
         )
     block = np.floor((t - t.min()) / block_s).astype(int)
+    # A tail shorter than half a block joins the block before it: alone it would make a fold
+    # of a few frames (a 10.07 s take in 2 s blocks gave one fold 3 frames, another 118).
+    last = block.max()
+    if last > 0 and t.max() - t.min() - last * block_s < 0.5 * block_s:
+        block[block == last] = last - 1
     blocks = np.unique(block)
     if len(blocks) < n_folds:
         raise OptimiseError(
@@ -433,8 +439,10 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
 
     Parameters
     ----------
-    seed_heldout : DataFrame
-        :func:`cvsflow.evaluate_seed.cross_validate_seed` output (``eps_*``, 6-vector errors).
+    seed_heldout : DataFrame or None
+        :func:`cvsflow.evaluate_seed.cross_validate_seed` output (``eps_*``, 6-vector errors);
+        None for a session that runs se3 alone: the comparison then has no ``seed`` section
+        and no ``rms_ratio_se3_to_seed``, and the error model is scored as with both.
     se3_heldout : DataFrame
         :func:`cross_validate_se3` output (``err_*`` composed errors, ``fold``, ``sigma_px``).
     se3_result : dict
@@ -479,7 +487,8 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     for d in ERROR_DIMS:
         se3[f"eps_{d}"] = se3[f"err_{d}"]
     fps = 1.0 / np.median(np.diff(np.sort(se3["t_s"].to_numpy())))
-    comparison = compare_methods({"seed": seed_heldout, "se3": se3},
+    by_method = {"se3": se3} if seed_heldout is None else {"seed": seed_heldout, "se3": se3}
+    comparison = compare_methods(by_method,
                                  block_len=max(1, int(round(boot_block_s * fps))),
                                  n_boot=n_boot, seed=seed)
     if corners is not None:
@@ -504,7 +513,8 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
             se3[f"crb_{d}"] = crb[:, j]
         se3["nees"] = un.nees_values(cov, se3, mean=mu)
         comparison["error_frame"] = frame
-        mark_seed_divergence(comparison, seed_heldout)
+        if seed_heldout is not None:
+            mark_seed_divergence(comparison, seed_heldout)
         return comparison, se3, sigma, mu
     features, cov_err = un.error_features(
         se3, board_object_points(board), np.asarray(se3_result["K"], float),
@@ -514,7 +524,8 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     score, sigma, mu = crossfit_error_model(se3, features, cov_err)
     comparison["error_model"] = score
     comparison["error_frame"] = frame
-    mark_seed_divergence(comparison, seed_heldout)
+    if seed_heldout is not None:
+        mark_seed_divergence(comparison, seed_heldout)
     return comparison, se3, sigma, mu
 
 

@@ -15,7 +15,7 @@ import pandas as pd
 from cvsflow.errors import WholeBoardError
 from cvsflow.evaluate import make_time_blocks
 from cvsflow.metrics import ERROR_DIMS
-from cvsflow.optimise.seed import compute_eps, optimise_seed
+from cvsflow.optimise.seed import MIN_PAIRS, compute_eps, optimise_seed
 from cvsflow.optimise.seed_cache import SeedPoseCache
 
 log = logging.getLogger(__name__)
@@ -54,8 +54,8 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
     heldout : DataFrame
         ``frame, t_s, fold, fx_px, fy_px``, ``eps_{dim}`` (6-vector errors, m and rad), and
         ``diverged``, ``diverged_reason`` of the fold's fit (:func:`optimise_seed`). A fold
-        whose training or held-out frames hold fewer than ``MIN_PAIRS`` whole boards (a hand
-        over the board for a while) is left out with a WARNING, its frames unscored.
+        whose training or held-out frames hold fewer than ``MIN_PAIRS`` pairs, or whole boards
+        (a hand over the board for a while), is left out with a WARNING, its frames unscored.
 
     Raises
     ------
@@ -81,6 +81,14 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
     for k in range(n_folds):
         train, test = pairs[fold != k], pairs[fold == k]
         if len(test) == 0:
+            continue
+        if min(len(train), len(test)) < MIN_PAIRS:
+            # a fold whose block held few poses (the board lost for a while): too few to fit
+            # or score by the chapter's method, as when a hand hides it
+            why = (f"{len(train)} training and {len(test)} held-out pairs; the seed method "
+                   f"needs at least {MIN_PAIRS} of each")
+            log.warning("seed cross-validation fold %d left out: %s", k, why)
+            left_out.append(f"fold {k}: {why}")
             continue
         try:
             fit = optimise_seed(train, corners, K, dist, board, **seed_options)

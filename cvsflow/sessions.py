@@ -151,6 +151,30 @@ def check_sessions(sessions: dict) -> dict[str, tuple[str, ...]]:
     return {name: session_stages(name, sessions) for name in sessions}
 
 
+def session_methods(name: str, sessions: dict, default) -> tuple[str, ...]:
+    """The optimisers session ``name`` runs: its own ``methods``, else ``optimise.methods``.
+
+    A session whose hand or image border hides part of the board in every frame cannot be
+    fitted by the seed method (it needs whole boards); ``methods: [se3]`` on that session
+    alone lets the others keep both.
+
+    Parameters
+    ----------
+    name : str
+        Session key in ``config["sessions"]`` (after :func:`expand_rig_sessions`).
+    sessions : dict
+        The sessions, validated against the schema.
+    default : sequence of str
+        ``config["optimise"]["methods"]``.
+
+    Returns
+    -------
+    tuple of str
+        In the order given.
+    """
+    return tuple(sessions[name].get("methods", default))
+
+
 def rig_camera_session(rig: str, camera: str) -> str:
     """The session name of camera ``camera`` of rig session ``rig``: ``{rig}-{camera}``.
 
@@ -214,6 +238,9 @@ def expand_rig_sessions(sessions: dict) -> tuple[dict, dict]:
             raise ConfigError(f"{where}.cameras: every camera needs a distinct name, got {names}")
         if "markers" not in s:
             raise ConfigError(f"{where}: a rig needs markers.camera (the rig body) and markers.board")
+        if "methods" in s:
+            raise ConfigError(f"{where}.methods: a rig is fitted by optimise_se3_rig alone; "
+                              "methods is for sessions with one camera")
         if not synth and "vicon" not in s:
             raise ConfigError(f"{where}: a rig needs its motion-capture export (vicon) or a synth block")
         mocap = {k: s[k] for k in ("board", "markers", "mocap") if k in s}

@@ -435,7 +435,8 @@ def optimise_seed(
                 f"pairs.parquet: {len(pairs)} pairs with the whole board (a hand or the image "
                 f"border hides part of it in the other {int((~complete).sum())}); the seed "
                 f"optimiser (the chapter's method) needs at least {MIN_PAIRS}. se3 uses partly "
-                "hidden boards: run it alone with optimise.methods: [se3]"
+                "hidden boards: run it alone, for this session with methods: [se3] in its "
+                "sessions.<name> block (or for all with optimise.methods: [se3])"
             )
     P_star = pairs[vic_cols].to_numpy(dtype=float)
     if not np.isfinite(P_star).all():

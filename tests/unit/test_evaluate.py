@@ -73,6 +73,22 @@ def test_time_blocks_are_contiguous_balanced_and_seeded():
         ev.make_time_blocks(t[:30], 3.0, 5, seed=0)
 
 
+def test_a_short_tail_block_joins_the_one_before():
+    """The portrait 1080p render's board was found over 10.07 s: in 2 s blocks its last 0.07 s
+    (3 frames) was a fold of its own for every seed that left it alone in one. The tail now
+    joins the block before, so every fold gets one 2 s block; a tail of over half a block
+    stays a block."""
+    t = np.arange(303) / 30.0  # 0 .. 10.067 s
+    for seed in range(8):
+        counts = np.bincount(ev.make_time_blocks(t, 2.0, 5, seed=seed), minlength=5)
+        assert counts.min() >= 60 and counts.sum() == 303, (seed, counts)
+    with pytest.raises(OptimiseError, match="5 blocks of 2.0 s"):
+        ev.make_time_blocks(t, 2.0, 6, seed=0)
+    t = np.arange(340) / 30.0  # 0 .. 11.3 s: a 1.3 s tail is a sixth block
+    fold = ev.make_time_blocks(t, 2.0, 6, seed=0)
+    assert (fold == fold[-1]).sum() == (t >= 10.0).sum() == 40
+
+
 def test_bootstrap_ci_coverage_on_iid_normal():
     """On iid N(0.3, 1) data (n=200), the 95 % CIs of the mean and std contain the truth in
     roughly 95 % of 200 seeded repetitions (accepted 88-99 %)."""

@@ -99,6 +99,14 @@ def test_cross_validate_seed_leaves_out_folds_without_whole_boards(caplog):
     assert set(held["frame"]) == set(expect["frame"])
     with pytest.raises(WholeBoardError, match="no fold could be fitted"):
         cross_validate_seed(pairs, c[c["corner"] != 0], *args, **kw)
+    # a fold whose blocks held 3 poses (the portrait render's 3-frame fold stopped the stage)
+    few = full["frame"][full["fold"] == 0].to_numpy()[3:]
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        held = cross_validate_seed(pairs[~pairs["frame"].isin(few)], c, *args,
+                                   **{**kw, "folds": full[["t_s", "fold"]]})
+    assert set(held["fold"]) == {1, 2} and "fold 0 left out: " in caplog.text
+    assert "3 held-out pairs" in caplog.text
 
 
 def test_crossfit_error_model_bands_on_model_data():
@@ -202,7 +210,7 @@ def test_compare_heldout_with_corners_scores_model_T_per_fold(session):
     downstream tools read: error_model.folds[].nees_mean and inside_95 per axis), the model
     fitted on other sessions and the Cramer-Rao ratio; on a session of iid 0.3 px corner noise
     the held-out errors are within a factor 2 of the bound, the within-session NEES is near 6,
-    and the figures build."""
+    and the figures build. Without the seed table the se3 half is the same."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -235,3 +243,11 @@ def test_compare_heldout_with_corners_scores_model_T_per_fold(session):
     assert {"nees", "crb_x_m", "sigma_yaw_rad"} <= set(scored.columns)
     uplots.plot_calibration_table(comp)
     uplots.plot_nees_histogram(scored)
+    # se3 alone (a session with methods: [se3]): no seed section, the same se3 statistics and
+    # error model
+    alone, scored_alone, _, _ = ev.compare_heldout(
+        None, held, full, fits, s["board"], n_boot=50, corners=s["corners"]
+    )
+    assert "seed" in comp and "seed" not in alone and "rms_ratio_se3_to_seed" not in alone
+    assert alone["se3"] == comp["se3"] and alone["error_model"] == comp["error_model"]
+    pd.testing.assert_frame_equal(scored_alone, scored)

@@ -322,7 +322,8 @@ def test_seed_without_whole_boards_says_to_run_se3_alone():
     640x480 render): the error names the count and the way out."""
     pairs, corners, K, *_ = _session(12, seed=11)
     partial = corners[corners["corner"] != 0]
-    with pytest.raises(OptimiseError, match=r"0 pairs with the whole board .*optimise.methods: \[se3\]"):
+    with pytest.raises(OptimiseError, match=r"0 pairs with the whole board .*methods: \[se3\] "
+                       r"in its sessions\.<name> block"):
         optimise_seed(pairs, partial, K, DIST, BOARD)
 
 

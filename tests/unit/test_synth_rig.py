@@ -210,3 +210,14 @@ def test_rig_session_expands_into_plain_sessions():
         expand_rig_sessions({"r": real})
     with pytest.raises(ConfigError, match="already a session"):
         expand_rig_sessions({"r": dict(real, cameras=real["cameras"][:1]), "r-a": demo})
+    with pytest.raises(ConfigError, match=r"sessions\.r\.methods: a rig is fitted by optimise_se3_rig"):
+        expand_rig_sessions({"r": dict(real, methods=["se3"])})
+
+
+def test_a_sessions_methods_override_the_global_ones():
+    """methods on a session wins over optimise.methods for it alone (the workflow's METHODS)."""
+    from cvsflow.sessions import session_methods
+
+    sessions = {"a": {"board": {}}, "b": {"board": {}, "methods": ["se3"]}}
+    assert session_methods("a", sessions, ["seed", "se3"]) == ("seed", "se3")
+    assert session_methods("b", sessions, ["seed", "se3"]) == ("se3",)

@@ -426,3 +426,14 @@ def test_stage_scaling_figure_only_when_its_benchmark_exists(tmp_path):
     snakemake(tmp_path, "results/figures/stage_scaling.png")
     assert (tmp_path / "results/figures/stage_scaling.png").stat().st_size > 10_000
     assert "stage stage_scaling done" in (tmp_path / "logs/stage_scaling.log").read_text()
+
+
+def test_a_session_with_se3_alone_still_gets_its_comparison(tmp_path):
+    """methods: [se3] on the demo session: no seed job of any kind, and compare (the error
+    model) and the headline still run, from se3's held-out table alone."""
+    config = demo_config()
+    config["sessions"]["demo"]["methods"] = ["se3"]
+    write_config(tmp_path, config)
+    jobs = dry_run_jobs(tmp_path)
+    assert {"optimise_se3", "heldout_se3", "compare", "headline"} <= jobs
+    assert not {"optimise_seed", "heldout_seed"} & jobs

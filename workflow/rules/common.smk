@@ -2,7 +2,7 @@
 import os
 
 from cvsflow.io.mocap_formats import mocap_settings
-from cvsflow.sessions import camera_session, check_sessions, expand_rig_sessions
+from cvsflow.sessions import camera_session, check_sessions, expand_rig_sessions, session_methods
 
 
 wildcard_constraints:
@@ -21,6 +21,8 @@ SYNTH_RIG_PATTERN = "|".join(r for r in RIGS if RIGS[r]["synth"]) or "(?!x)x"
 RIG_OF_CAMERA = {cam: rig for rig, r in RIGS.items() for cam in r["sessions"]}
 # What each session runs; a session naming an input it cannot use stops here, before any job.
 SESSION_STAGES = check_sessions(SESSIONS)
+# The optimisers each session runs: its own methods, else optimise.methods.
+METHODS = {s: session_methods(s, SESSIONS, config["optimise"]["methods"]) for s in SESSIONS}
 
 
 # How each session's motion-capture export is read (format, bodies_from); checked here, at parse time.
@@ -116,7 +118,7 @@ def session_targets(session):
             f"results/{session}/figures/sync.png",
         ]
         out += optimiser_targets(session)
-        if {"seed", "se3"} <= set(config["optimise"]["methods"]):
+        if "se3" in METHODS[session]:
             out.append(f"results/{session}/comparison.yaml")
     return out
 
@@ -165,7 +167,7 @@ def analysis_figure(name):
 
 def optimiser_targets(session):
     out = []
-    for method in config["optimise"]["methods"]:
+    for method in METHODS[session]:
         for value in config["optimise"]["f_init"]:
             base = f"results/{session}/{method}/{finit_label(value)}"
             out += [f"{base}/result.yaml", f"{base}/stats.json"]
@@ -177,7 +179,7 @@ def optimiser_runs():
     runs = []
     for session in SESSIONS:
         if runs_stage(session, "pairs"):
-            for method in config["optimise"]["methods"]:
+            for method in METHODS[session]:
                 for value in config["optimise"]["f_init"]:
                     runs.append((session, method, finit_label(value)))
     return runs

@@ -63,7 +63,6 @@ rule stage_scaling:
 def headline_inputs(wildcards):
     """Per session the files the headline table reads (only those its stages write)."""
     files = {}
-    methods = set(config["optimise"]["methods"])
     for session in SESSIONS:
         cam = camera_session(session, SESSIONS)
         if cam is not None and (cam != session or runs_stage(session, "calibrate")):
@@ -76,10 +75,10 @@ def headline_inputs(wildcards):
             files[f"{session}/vicon_repair"] = f"results/{session}/vicon_repair.yaml"
         if runs_stage(session, "pairs"):
             files[f"{session}/sync"] = f"results/{session}/sync.yaml"
-            for method in methods:
+            for method in METHODS[session]:
                 # The headline reports the run from the calibrated focal lengths.
                 files[f"{session}/{method}"] = f"results/{session}/{method}/calib/result.yaml"
-            if {"seed", "se3"} <= methods:
+            if "se3" in METHODS[session]:
                 files[f"{session}/comparison"] = f"results/{session}/comparison.yaml"
     for flight in FLIGHTS:
         files[f"flight {flight}/stats"] = f"results/flights/{flight}/stats.yaml"

@@ -11,14 +11,18 @@ from cvsflow.plots import uncertainty as uplots
 with stage_logging(snakemake.log[0], "compare") as log:
     ev = snakemake.params.evaluate
     result = read_yaml(snakemake.input.se3_result)
+    # a session that runs se3 alone (methods: [se3]) has no seed table
+    inputs = dict(snakemake.input.items())
+    seed = read_parquet(inputs["seed"]) if "seed" in inputs else None
     comparison, se3, sigma, mu = compare_heldout(
-        read_parquet(snakemake.input.seed), read_parquet(snakemake.input.se3), result,
+        seed, read_parquet(snakemake.input.se3), result,
         read_yaml(snakemake.input.se3_folds)["folds"], snakemake.params.board, frame=ev["frame"],
         boot_block_s=ev["boot_block_s"], n_boot=ev["n_boot"], seed=ev["seed"],
         corners=read_parquet(snakemake.input.corners), bodies=read_parquet(snakemake.input.bodies),
     )
     score = comparison["error_model"]
-    log.info("se3/seed held-out RMS ratio: %s", comparison["rms_ratio_se3_to_seed"])
+    if seed is not None:
+        log.info("se3/seed held-out RMS ratio: %s", comparison["rms_ratio_se3_to_seed"])
     log.info("error model: %.1f %% inside 68 %%, %.1f %% inside 95 %%, NEES %.2f",
              100 * score["inside_68_all"], 100 * score["inside_95_all"], score["nees_mean"])
     log.info("error model fitted on other sessions: NEES %.2f; held-out error / CRB %s",
