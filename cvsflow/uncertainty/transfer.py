@@ -75,11 +75,13 @@ def _shrink_terms(features):
     return n_c, pool
 
 
-def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, shrink=None, s_corr=0.0):
+def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, shrink=None, s_corr=0.0,
+                  r_rs=0.0):
     """Model (T) mean (N, 6) and covariance (N, 6, 6), working units; ``q`` of 11 entries
     (the last log k) with ``shrink`` = :func:`_shrink_terms` shrinks the corner noise;
     ``s_corr`` is the correlated share of the corner noise (its variance s_corr^2 sigma_px^2
-    through ``C``, per px^2)."""
+    through ``C``, per px^2); ``r_rs`` the relative error of the shear's prediction (variance
+    r_rs^2 mu mu^T)."""
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, _ = _unpack_transfer(q)
     if len(q) > 10 and shrink is not None:
         reproj = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
@@ -90,10 +92,13 @@ def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, shrink=None, s_cor
          + filled[:, None, None] * np.diag(fill**2)[None])  # fmt: skip
     if s_corr and C is not None:
         S = S + (s_corr**2 * var_px)[:, None, None] * C
-    return s_rs * RS, S
+    mu = s_rs * RS
+    if r_rs:
+        S = S + r_rs**2 * mu[:, :, None] * mu[:, None, :]
+    return mu, S
 
 
-def _transfer_nll(q, s_corr, E, terms, shrink=None):
+def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0):
     """Mean negative log-likelihood of model (T) and its analytic gradient.
 
     The frames' errors ``E`` (N, 6, working units) are multivariate Student-t with nu degrees
@@ -118,6 +123,8 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None):
         :func:`_transfer_terms` of the frames.
     shrink : tuple, optional
         :func:`_shrink_terms` of the frames.
+    r_rs : float
+        Relative error of the shear's prediction (0: no such term).
 
     Returns
     -------
@@ -127,15 +134,17 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None):
         d nll / d q (zero where the covariance failed).
     grad_log_s_corr : float
         d nll / d ln s_corr.
+    grad_log_r_rs : float
+        d nll / d ln r_rs.
     """
     U, P, RS, speed, reproj, filled, C = terms
     d = E.shape[1]
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, nu = _unpack_transfer(q)
-    mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, shrink, s_corr)
+    mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, shrink, s_corr, r_rs)
     try:
         L = np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
-        return 1e30, np.zeros(len(q)), 0.0
+        return 1e30, np.zeros(len(q)), 0.0, 0.0
     L_inv = np.linalg.inv(L)
     S_inv = np.matmul(np.swapaxes(L_inv, 1, 2), L_inv)
     r = E - mu
@@ -161,7 +170,10 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None):
     g[1] = np.mean(tr_var * 2.0 * (s_speed * speed) ** 2)
     g[2] = np.mean(tr_var * 2.0 * (s_reproj * n_px) ** 2)
     g[3] = np.mean(tr_P * 2.0 * c**2)
-    g[4] = np.mean(beta * np.einsum("ni,ni->n", w, mu))  # d ll / d ln s_rs (mu = s_rs RS)
+    # d ll / d ln r_rs per frame: S holds r_rs^2 mu mu^T, so tr(G 2 r_rs^2 mu mu^T)
+    tr_rs = 2.0 * r_rs**2 * np.einsum("ni,nij,nj->n", mu, G, mu) if r_rs else np.zeros(len(E))
+    # d ll / d ln s_rs: mu = s_rs RS moves the mean and, as s_rs^2, the shear's variance
+    g[4] = np.mean(beta * np.einsum("ni,ni->n", w, mu) + tr_rs)
     inv_wu2 = 1.0 / WORKING_UNITS**2
     g_floor = 2.0 * np.mean(G_diag, axis=0) * inv_wu2
     g_fill = 2.0 * np.mean(filled[:, None] * G_diag, axis=0) * inv_wu2
@@ -176,7 +188,7 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None):
         dn2_dlogk = k * dof * (shrink[1] ** 2 - reproj**2) / (dof + k) ** 2
         g[10] = np.mean(tr_var * s_reproj**2 * dn2_dlogk)
     g_corr = np.mean(tr_C * 2.0 * s_corr**2 * var_px) if use_corr else 0.0
-    return -float(np.mean(ll)), -g, -float(g_corr)
+    return -float(np.mean(ll)), -g, -float(g_corr), -float(np.mean(tr_rs))
 
 
 def fit_transfer_model(features, errors, shrink=None):
@@ -188,6 +200,7 @@ def fit_transfer_model(features, errors, shrink=None):
         mu_i = s_rs r_i
         Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
                   + f_i diag(b_fill_pos^2 I3, b_fill_rot^2 I3) [+ s_corr^2 sigma_px,i^2 C_i]
+                  [+ r_rs^2 mu_i mu_i^T]
 
     with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
     saw (it carries the distance, the view angles, the corner count and their spread), v_i the
@@ -206,7 +219,12 @@ def fit_transfer_model(features, errors, shrink=None):
     between corners (a video codec's shared error: one PnP absorbs into the pose, so n_i
     does not show it), whose standard deviation is the share s_corr of the frame's corner
     noise sigma_px,i (on the rendered sessions' true corner errors the common shift is
-    0.15-0.18 of the iid noise), fitted too; else the term is absent. The errors are multivariate
+    0.15-0.18 of the iid noise), fitted too; else the term is absent. When some frame has a
+    shear (a fitted line delay), r_rs is the relative error of its prediction: the line
+    delay's error and the corner velocities' (finite differences of the track) scale the
+    whole shear, so the term is rank one along mu_i (on the three rolling-shutter renders of
+    config/realistic.yaml the held-out error left after mu_i was 0.07-0.18 of |mu_i| and the
+    z-scores of the frames with the largest shear 1.1-1.7); bounded by 1. The errors are multivariate
     Student-t with nu > 2 degrees of freedom and covariance Sigma_i. Every scale is in
     physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
     fitted on some sessions predicts another. L-BFGS-B maximises the likelihood from two
@@ -229,7 +247,8 @@ def fit_transfer_model(features, errors, shrink=None):
         ``kind: T``, ``dims``, one entry per :data:`TRANSFER_PARAMS` (px, -, -, -, -, m, rad,
         -),
         ``nll`` (mean per frame), ``n_train``; with ``shrink`` also ``k_shrink``; with
-        ``corrcov`` features also ``s_corr`` (-).
+        ``corrcov`` features also ``s_corr`` (-); with a shear in some frame also ``r_rs``
+        (-).
 
     Raises
     ------
@@ -245,6 +264,7 @@ def fit_transfer_model(features, errors, shrink=None):
     E = errors[cols].to_numpy(float) / WORKING_UNITS
     U, P, RS, speed, reproj, filled, C = _transfer_terms(features)
     fit_corr = _has_corr(features)
+    fit_rrs = bool(np.any(RS != 0.0))
     if len(E) != len(U) or len(E) < 20:
         raise OptimiseError(
             f"fit_transfer_model: {len(E)} error rows and {len(U)} feature rows; need equal, >= 20"
@@ -263,20 +283,29 @@ def fit_transfer_model(features, errors, shrink=None):
     sh = _shrink_terms(features) if shrink is not None else None
     k_fixed = [] if shrink is None or fit_k else [np.log(max(float(shrink), 1e-12))]
 
+    n_extra = int(fit_corr) + int(fit_rrs)  # log s_corr, log r_rs after the model's entries
+
     def full(q):
-        q = q[:-1] if fit_corr else q
+        q = q[:len(q) - n_extra]
         q = q if fit_rs else np.r_[q[:4], 0.0, q[4:]]
         return np.r_[q, k_fixed]
+
+    def extras(x):
+        tail = np.exp(x[len(x) - n_extra:])
+        s_corr = float(tail[0]) if fit_corr else 0.0
+        r_rs = float(tail[-1]) if fit_rrs else 0.0
+        return s_corr, r_rs
 
     terms = (U, P, RS, speed, reproj, filled, C)
     # which entries of the full vector (10 or 11) the optimiser moves, in its order
     free = [i for i in range(10) if fit_rs or i != 4] + ([10] if fit_k else [])
 
     def nll(x):
-        s_corr = float(np.exp(x[-1])) if fit_corr else 0.0
-        f, g_q, g_corr = _transfer_nll(full(x), s_corr, E, terms, sh)
+        s_corr, r_rs = extras(x)
+        f, g_q, g_corr, g_rrs = _transfer_nll(full(x), s_corr, E, terms, sh, r_rs)
         g = g_q[free]
-        return f, (np.r_[g, g_corr] if fit_corr else g)
+        g = np.r_[g, g_corr] if fit_corr else g
+        return f, (np.r_[g, g_rrs] if fit_rrs else g)
 
     x0 = np.log([0.2, 0.02, 0.3, 1.0, 1.0, 5e-4, 5e-4, 2e-3, 2e-3, 5.0])
     best = None
@@ -295,6 +324,9 @@ def fit_transfer_model(features, errors, shrink=None):
     if fit_corr:
         bounds.append((-25, 5))
         starts = [np.r_[x, np.log(0.15)] for x in starts]
+    if fit_rrs:
+        bounds.append((-25, 0))
+        starts = [np.r_[x, np.log(0.1)] for x in starts]
     for start in starts:
         sol = minimize(nll, start, jac=True, method="L-BFGS-B", bounds=bounds,
                        options={"maxiter": 500, "ftol": 1e-12, "gtol": 1e-9})
@@ -307,8 +339,11 @@ def fit_transfer_model(features, errors, shrink=None):
     model.update({name: float(v) for name, v in zip(TRANSFER_PARAMS, vals, strict=True)})
     if shrink is not None:
         model["k_shrink"] = float(np.exp(q_best[10]))
+    s_corr, r_rs = extras(best.x)
     if fit_corr:
-        model["s_corr"] = float(np.exp(best.x[-1]))
+        model["s_corr"] = s_corr
+    if fit_rrs:
+        model["r_rs"] = r_rs
     return model
 
 
@@ -326,7 +361,7 @@ def _model_cov(model, features):
         raise OptimiseError("model (T) has s_corr but the features lack corrcov columns "
                             "(measurement_features(corr_length_px=...))")
     return _transfer_cov(_q_from_model(model), *_transfer_terms(features), shrink=sh,
-                         s_corr=s_corr)
+                         s_corr=s_corr, r_rs=float(model.get("r_rs") or 0.0))
 
 
 def transfer_covariance(model, features):
