@@ -79,7 +79,9 @@ def make_time_blocks(t_s, block_s, n_folds, seed):
     if len(blocks) < n_folds:
         raise OptimiseError(
             f"make_time_blocks: {len(blocks)} blocks of {block_s} s in {np.ptp(t):.1f} s, "
-            f"fewer than {n_folds} folds; shorten block_s"
+            f"fewer than {n_folds} folds; a longer recording, or fewer folds "
+            f"(evaluate.n_folds) or shorter blocks (evaluate.block_s, not under the errors' "
+            f"correlation time of about a second)"
         )
     rng = np.random.default_rng(seed)
     order = rng.permutation(len(blocks))

@@ -180,6 +180,9 @@ def parse_effects(synth_cfg, image_noise_sigma, video_quality) -> Effects:
         raise ConfigError(
             f"session config, synth.rolling_shutter.line_delay_s: expected 0 .. 1 / (fps * height) = "
             f"{1.0 / (fps * size[1]):.3g} s (readout within one frame period), got {line_delay}"
+            + ("" if "line_delay_s" in (synth_cfg.get("rolling_shutter") or {}) else
+               f" (the {preset} preset's default; give synth.rolling_shutter.line_delay_s for "
+               f"this frame rate and height)")
         )
     codec = r["codec"]
     if codec["name"] not in CODECS:

@@ -153,6 +153,9 @@ def test_preset_fills_defaults_and_explicit_keys_win():
     assert mixed.codec == "h264" and mixed.crf == 30 and mixed.occlusion
     only_size = parse_effects({"image_size": [1080, 1920]}, 2.0, 75)
     assert only_size.image_size == (1080, 1920) and only_size.codec == "mp4v"
+    # the preset's 3e-5 s per row reads 720 rows out in 21.6 ms: too slow for 60 fps
+    with pytest.raises(ConfigError, match="the realistic preset's default; give synth"):
+        parse_effects({"preset": "realistic", "fps": 60}, 2.0, 75)
 
 
 @pytest.mark.parametrize(
