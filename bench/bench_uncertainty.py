@@ -123,7 +123,8 @@ def main(names, shrink=None, time_offset=False, corr_length_px=None, ar1=False):
               f"s_speed {m['s_speed']:.3f} s_reproj {m['s_reproj']:.2f} c_cal {m['c_cal']:.2f} "
               f"b {m['b_pos_m'] * 1e3:.2f} mm {m['b_rot_rad'] * 1e3:.2f} mrad nu {m['nu']:.1f}"
               + (f" k_shrink {m['k_shrink']:.3g}" if "k_shrink" in m else "")
-              + (f" s_corr {m['s_corr']:.3f}" if "s_corr" in m else ""))
+              + (f" s_corr {m['s_corr']:.3f}" if "s_corr" in m else "")
+              + (f" r_rs {m['r_rs']:.3f}" if "r_rs" in m else ""))
         print(f"   inside 95: {fmt_axes(sc['inside_95'])}")
         print(f"   inside 68: {fmt_axes(sc['inside_68'])}")
         print(f"   z RMS:     {fmt_axes(sc['z_rms'])}")
@@ -162,6 +163,8 @@ def main(names, shrink=None, time_offset=False, corr_length_px=None, ar1=False):
         print(f"pooled model k_shrink {pm['k_shrink']:.4g}")
     if "s_corr" in pm:
         print(f"pooled model s_corr {pm['s_corr']:.4g}")
+    if "r_rs" in pm:
+        print(f"pooled model r_rs {pm['r_rs']:.4g}")
     tag = (("" if shrink is None else f"_shrink_{shrink}") + ("_dt" if time_offset else "")
            + ("" if corr_length_px is None else f"_corr_{corr_length_px:g}") + ("_ar1" if ar1 else ""))
     out = ROOT / "results" / "bench_uncertainty" / f"loso{tag}.yaml"

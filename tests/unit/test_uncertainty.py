@@ -611,6 +611,9 @@ def test_transfer_model_fits_the_shears_relative_error():
     assert (nees[big] < 12.59).mean() < 0.6  # 0.47: the shear's error is most of theirs
     plain = feats.drop(columns=[f"rs_err_{d}" for d in ev.ERROR_DIMS])
     assert "r_rs" not in un.fit_transfer_model(plain.iloc[:300], E.iloc[:300])
+    # the within-session cross-fit records each fold's r_rs (comparison.yaml error_model.folds)
+    score, _, _ = un.crossfit_transfer(feats.iloc[:900], E.iloc[:900].assign(fold=np.arange(900) % 3))
+    assert all(0.1 < f["params"]["r_rs"] < 0.3 for f in score["folds"])
 
 
 def test_quantiles_without_scipy_stats_equal_scipy_stats_bit_for_bit():
