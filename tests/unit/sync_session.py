@@ -56,7 +56,8 @@ def board_motion(t_s, seed=0, still_s=1.0):
 
 
 def make_session(duration_video_s=12.0, lead_s=DT_OFFSET_S, tail_s=1.0, noise_m=0.0003,
-                 rot_noise_rad=np.radians(0.1), pos_noise_m=0.001, drop_frac=0.05, seed=0):
+                 rot_noise_rad=np.radians(0.1), pos_noise_m=0.001, drop_frac=0.05, seed=0,
+                 fps=FPS):
     """Synthetic Vicon bodies (via markers and fit_bodies) and poses_raw with known offset."""
     rng = np.random.default_rng(seed)
     n_v = int(round((lead_s + duration_video_s + tail_s) * RATE_HZ))
@@ -73,8 +74,8 @@ def make_session(duration_video_s=12.0, lead_s=DT_OFFSET_S, tail_s=1.0, noise_m=
     markers = pd.DataFrame(data)
     markers.attrs["rate_hz"] = RATE_HZ
     bodies = fit_bodies(markers, SPECS)
-    n_f = int(round(duration_video_s * FPS))
-    t_video = np.arange(n_f) / FPS
+    n_f = int(round(duration_video_s * fps))
+    t_video = np.arange(n_f) / fps
     T_true = invert_T(T_CM_C) @ invert_T(T_W_CM) @ board_motion(t_video + lead_s, seed=seed, still_s=lead_s + 1.0) @ T_BM_B
     dR = Rotation.from_rotvec(rng.normal(0, rot_noise_rad, (n_f, 3))).as_matrix()
     T_noisy = make_T(T_true[:, :3, :3] @ dR, T_true[:, :3, 3] + rng.normal(0, pos_noise_m, (n_f, 3)))

@@ -73,6 +73,20 @@ def test_sync_angular_speed_refined_within_1ms(seed):
     assert np.radians(0.05) < d["residual_rms_rad"] < np.radians(0.5)
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_sync_at_60_fps_with_noisy_poses(seed):
+    """60 fps and 0.5 deg of PnP rotation noise (a board 2-4 m away): frame to frame the speed
+    noise is sqrt(2) x 0.5 deg x 60 /s and the quality falls under the 0.25 minimum (0.01-0.30);
+    over the 0.1 s baseline it is above 0.9 and the offset within 1 ms."""
+    poses, bodies, _ = make_session(fps=60, rot_noise_rad=np.radians(0.5), seed=seed)
+    out = sync_angular_speed(poses, bodies, max_offset_s=10.0, min_quality=0.25)
+    assert out["quality"] > 0.9 and out["details"]["window_frames"] == 6
+    assert abs(out["dt_offset_s"] - DT_OFFSET_S) < 0.001
+    frame_to_frame = sync_angular_speed(poses, bodies, max_offset_s=10.0, min_quality=0.0,
+                                        speed_window_s=1 / 60)  # fmt: skip
+    assert frame_to_frame["quality"] < 0.35
+
+
 def test_sync_leaves_out_pose_flips(session):
     """Video poses flipped by 30 deg (PnP's ambiguity), single frames and a run of 3, made the
     former correlation peak land seconds off on a rendered session: they are left out
