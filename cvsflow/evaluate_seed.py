@@ -15,7 +15,7 @@ import pandas as pd
 from cvsflow.errors import WholeBoardError
 from cvsflow.evaluate import make_time_blocks
 from cvsflow.metrics import ERROR_DIMS
-from cvsflow.optimise.seed import MIN_PAIRS, compute_eps, optimise_seed
+from cvsflow.optimise.seed import MIN_PAIRS, SE3_ALONE, compute_eps, optimise_seed
 from cvsflow.optimise.seed_cache import SeedPoseCache
 
 log = logging.getLogger(__name__)
@@ -100,7 +100,8 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
             # scored by a method that needs the whole board; the others still can
             log.warning("seed cross-validation fold %d left out (%d test frames): %s",
                         k, len(test), exc)
-            left_out.append(f"fold {k}: {exc}")
+            # the advice once, at the end of the error, not once per fold
+            left_out.append(f"fold {k}: {str(exc).replace(SE3_ALONE, '').strip()}")
             continue
         F = scored[[f"cvs_{d}" for d in dims]].to_numpy(float)
         P_star = scored[[f"vic_{d}" for d in dims]].to_numpy(float)
@@ -118,5 +119,5 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
              cache.n_solved, cache.n_reused)
     if not parts:
         raise WholeBoardError("seed cross-validation: no fold could be fitted and scored; "
-                              + "; ".join(left_out))
+                              + "; ".join(left_out) + f". {SE3_ALONE}")
     return pd.concat(parts, ignore_index=True).sort_values("frame", ignore_index=True)

@@ -65,6 +65,9 @@ POSE_DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 OBJECTIVES = ("summed", "sum_abs", "sum_squares")
 #: Fewest pairs the optimiser accepts (6 unknowns of P_bar, 2 focal lengths).
 MIN_PAIRS = 10
+#: The way out when too few frames show the whole board.
+SE3_ALONE = ("se3 uses partly hidden boards: run it alone, for this session with methods: [se3] "
+             "in its sessions.<name> block (or for all with optimise.methods: [se3])")
 
 
 # --------------------------------------------------------------------------- board, corners
@@ -434,9 +437,7 @@ def optimise_seed(
             raise WholeBoardError(
                 f"pairs.parquet: {len(pairs)} pairs with the whole board (a hand or the image "
                 f"border hides part of it in the other {int((~complete).sum())}); the seed "
-                f"optimiser (the chapter's method) needs at least {MIN_PAIRS}. se3 uses partly "
-                "hidden boards: run it alone, for this session with methods: [se3] in its "
-                "sessions.<name> block (or for all with optimise.methods: [se3])"
+                f"optimiser (the chapter's method) needs at least {MIN_PAIRS}. {SE3_ALONE}"
             )
     P_star = pairs[vic_cols].to_numpy(dtype=float)
     if not np.isfinite(P_star).all():

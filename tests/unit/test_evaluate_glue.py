@@ -97,8 +97,11 @@ def test_cross_validate_seed_leaves_out_folds_without_whole_boards(caplog):
     # every frame of a kept fold that shows the whole board is scored, and only those
     expect = full[full["fold"].isin(held["fold"]) & (full["t_s"] >= 8.0)]
     assert set(held["frame"]) == set(expect["frame"])
-    with pytest.raises(WholeBoardError, match="no fold could be fitted"):
+    with pytest.raises(WholeBoardError, match="no fold could be fitted") as err:
         cross_validate_seed(pairs, c[c["corner"] != 0], *args, **kw)
+    # every fold named, the way out said once
+    assert all(f"fold {k}: " in str(err.value) for k in range(3))
+    assert str(err.value).count("run it alone") == 1
     # a fold whose blocks held 3 poses (the portrait render's 3-frame fold stopped the stage)
     few = full["frame"][full["fold"] == 0].to_numpy()[3:]
     caplog.clear()
