@@ -9,6 +9,8 @@ noise a reprojection RMS implies and its shrinkage toward a pooled value are her
 
 from __future__ import annotations
 
+import warnings
+
 import cv2
 import numpy as np
 import pandas as pd
@@ -47,9 +49,14 @@ def seen_corners(corners, frame_ids, n_corners):
         Observed pixels, NaN where unseen.
     speed_px : ndarray, shape (N,)
         Image speed, px per frame period (the mean travel of its corners between its
-        neighbours; 0 where a neighbour is missing or far in time).
+        neighbours; next to a gap, to the one neighbour within 3.5 periods; 0 with neither).
     vel_px_s : ndarray, shape (N, P, 2)
-        Each corner's image velocity, px/s (NaN where not seen in the neighbours).
+        Each seen corner's image velocity, px/s: the central difference between the frame's
+        neighbours where both saw it, else the one-sided difference to the one that did; a
+        seen corner that neither neighbour saw (a fast swing loses corners in the track)
+        takes the affine velocity field of the frame's other corners (the board is flat
+        and rigid), or their mean with fewer than 4; NaN where no corner of the frame was
+        seen by a neighbour (and not meaningful where the frame did not see the corner).
 
     Raises
     ------
@@ -63,16 +70,49 @@ def seen_corners(corners, frame_ids, n_corners):
         missing = sorted(set(np.asarray(frame_ids).tolist()) - set(fr.tolist()))[:5]
         raise OptimiseError(f"measurement_features: frames {missing} have no corners")
     period = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
-    prev = np.clip(np.arange(len(fr)) - 1, 0, None)
-    nxt = np.clip(np.arange(len(fr)) + 1, None, len(fr) - 1)
+    n = np.arange(len(fr))
+    prev = np.clip(n - 1, 0, None)
+    nxt = np.clip(n + 1, None, len(fr) - 1)
     span = np.where(nxt > prev, t[nxt] - t[prev], np.inf)
-    travel = np.nanmean(np.linalg.norm(uv[nxt] - uv[prev], axis=-1), axis=1)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # frames without shared corners
+        travel = np.nanmean(np.linalg.norm(uv[nxt] - uv[prev], axis=-1), axis=1)
     speed = travel / span * period
-    # a neighbour without shared corners or far away in time (a gap): no estimate, say 0 px
     near = span < 3.5 * period
-    speed = np.where(np.isfinite(speed) & near, speed, 0.0)
     vel = (uv[nxt] - uv[prev]) / np.where(near, span, np.nan)[:, None, None]
+    # one-sided differences next to a gap, or for corners one neighbour did not see
+    gap_prev = np.where(prev < n, t - t[prev], np.inf)
+    gap_next = np.where(nxt > n, t[nxt] - t, np.inf)
+    back = (uv - uv[prev]) / np.where(gap_prev < 2.5 * period, gap_prev, np.nan)[:, None, None]
+    fwd = (uv[nxt] - uv) / np.where(gap_next < 2.5 * period, gap_next, np.nan)[:, None, None]
+    side = np.where(np.isfinite(back), back, fwd)
+    vel = np.where(np.isfinite(vel), vel, side)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        side_speed = np.nanmean(np.linalg.norm(side, axis=-1), axis=1) * period
+    # a neighbour without shared corners or far away in time (a gap): the one-sided travel,
+    # else no estimate, say 0 px
+    speed = np.where(np.isfinite(speed) & near, speed,
+                     np.where(np.isfinite(side_speed), side_speed, 0.0))  # fmt: skip
+    vel = _fill_velocity_field(uv, vel)
     return uv[idx], speed[idx], vel[idx]
+
+
+def _fill_velocity_field(uv, vel):
+    """Velocities of seen corners without one, from the affine field of the frame's others."""
+    seen = np.isfinite(uv).all(axis=-1)
+    has = np.isfinite(vel).all(axis=-1) & seen
+    out = vel.copy()
+    for i in np.flatnonzero((seen & ~has).any(axis=1) & has.any(axis=1)):
+        fill = seen[i] & ~has[i]
+        src = has[i]
+        if src.sum() >= 4:
+            A = np.c_[uv[i, src], np.ones(src.sum())]
+            coef, *_ = np.linalg.lstsq(A, vel[i, src], rcond=None)
+            out[i, fill] = np.c_[uv[i, fill], np.ones(fill.sum())] @ coef
+        else:
+            out[i, fill] = vel[i, src].mean(axis=0)
+    return out
 
 
 
