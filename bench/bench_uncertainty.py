@@ -193,7 +193,7 @@ def worst_frames(names, held):
     Sig = un.transfer_covariance(m, f)
     E = e[cols].to_numpy() - un.transfer_mean(m, f)
     m2 = np.einsum("ni,nij,nj->n", E, np.linalg.inv(Sig), E)
-    U, P, _, speed, reproj, _, _ = un_transfer._transfer_terms(f)
+    U, P, _, speed, reproj, _, _, _ = un_transfer._transfer_terms(f)
     var_px = m["s0_px"] ** 2 + (m["s_speed"] * speed) ** 2 + (m["s_reproj"] * reproj) ** 2
     t_noise = np.einsum("nii->n", var_px[:, None, None] * U)
     t_cal = np.einsum("nii->n", m["c_cal"] ** 2 * P)

@@ -25,6 +25,7 @@ from cvsflow.uncertainty.propagation import (
     parameter_covariance,
     propagated_pose_covariance,
 )
+from cvsflow.uncertainty.reference_noise import camera_body_error_cov, moving_body_noise
 
 #: Per-frame quantities known when a frame is measured (:func:`measurement_features`).
 MEASUREMENT_FEATURES = ("distance_m", "tilt_rad", "radius_norm", "n_corners", "spread_px",
@@ -253,7 +254,9 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
     bodies : DataFrame, optional
         bodies.parquet (``t_s``, ``body``, ``n_filled``): adds ``vicon_filled``, 1 where a
         board marker was gap-filled within :data:`FILL_WINDOW_S` of the frame's Vicon time
-        (``t_vicon_s``), else 0.
+        (``t_vicon_s``), else 0; with ``fits`` whose camera body moved (``camera_static``
+        false), also ``refcov_{a}{b}``, the error covariance the camera body's own pose noise
+        puts into the reference (:mod:`cvsflow.uncertainty.reference_noise`).
     time_offset : bool
         Include the fit's time offset in ``parcov`` (:func:`parameter_covariance`).
     corr_length_px : float, optional
@@ -334,6 +337,11 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
             out[name] = corr[:, iu[0][c], iu[1][c]]
     if bodies is not None and "n_filled" in bodies and "t_vicon_s" in heldout:
         out["vicon_filled"] = vicon_filled(bodies, heldout["t_vicon_s"].to_numpy(float))
+    if bodies is not None and fits and any(f.get("camera_static") is False for f in fits):
+        # a static camera's mean pose carries no noise worth a term: the demo has none
+        ref = camera_body_error_cov(rvec, tvec, *moving_body_noise(bodies), frame=frame)
+        for c, name in enumerate(cov_columns("refcov")):
+            out[name] = ref[:, iu[0][c], iu[1][c]]
     if fits and all("correlation" in f for f in fits):
         cov_par, _ = parameter_covariance(heldout, p_B, fits, frame=frame,
                                           time_offset=time_offset)

@@ -37,7 +37,8 @@ TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "
 
 def _transfer_terms(features):
     """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), corner noise (N,), Vicon
-    gap-filled (N,)), working units."""
+    gap-filled (N,), C per px^2, the moving camera body's reference noise R (N, 6, 6)),
+    working units."""
     U = cov_from_columns(features, "unitcov")
 
     def block(name):
@@ -53,11 +54,16 @@ def _transfer_terms(features):
           else np.zeros((len(U), 6)))  # fmt: skip
     filled = (features["vicon_filled"].to_numpy(float) if "vicon_filled" in features
               else np.zeros(len(U)))  # fmt: skip
-    return U * scale, block("parcov") * scale, RS, speed, reproj, filled, block("corrcov") * scale
+    return (U * scale, block("parcov") * scale, RS, speed, reproj, filled,
+            block("corrcov") * scale, block("refcov") * scale)
 
 
 def _has_corr(features):
     return all(c in features.columns for c in cov_columns("corrcov"))
+
+
+def _has_ref(features):
+    return all(c in features.columns for c in cov_columns("refcov"))
 
 
 def _unpack_transfer(q):
@@ -75,13 +81,13 @@ def _shrink_terms(features):
     return n_c, pool
 
 
-def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, shrink=None, s_corr=0.0,
-                  r_rs=0.0):
+def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, R=None, shrink=None, s_corr=0.0,
+                  r_rs=0.0, c_ref=0.0):
     """Model (T) mean (N, 6) and covariance (N, 6, 6), working units; ``q`` of 11 entries
     (the last log k) with ``shrink`` = :func:`_shrink_terms` shrinks the corner noise;
     ``s_corr`` is the correlated share of the corner noise (its variance s_corr^2 sigma_px^2
     through ``C``, per px^2); ``r_rs`` the relative error of the shear's prediction (variance
-    r_rs^2 mu mu^T)."""
+    r_rs^2 mu mu^T); ``c_ref`` the scale of the moving camera body's reference noise ``R``."""
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, _ = _unpack_transfer(q)
     if len(q) > 10 and shrink is not None:
         reproj = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
@@ -95,10 +101,12 @@ def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, shrink=None, s_cor
     mu = s_rs * RS
     if r_rs:
         S = S + r_rs**2 * mu[:, :, None] * mu[:, None, :]
+    if c_ref and R is not None:
+        S = S + c_ref**2 * R
     return mu, S
 
 
-def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0):
+def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0):
     """Mean negative log-likelihood of model (T) and its analytic gradient.
 
     The frames' errors ``E`` (N, 6, working units) are multivariate Student-t with nu degrees
@@ -125,6 +133,8 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0):
         :func:`_shrink_terms` of the frames.
     r_rs : float
         Relative error of the shear's prediction (0: no such term).
+    c_ref : float
+        Scale of the moving camera body's reference noise (0: no such term).
 
     Returns
     -------
@@ -136,15 +146,17 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0):
         d nll / d ln s_corr.
     grad_log_r_rs : float
         d nll / d ln r_rs.
+    grad_log_c_ref : float
+        d nll / d ln c_ref.
     """
-    U, P, RS, speed, reproj, filled, C = terms
+    U, P, RS, speed, reproj, filled, C, R = terms
     d = E.shape[1]
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, nu = _unpack_transfer(q)
-    mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, shrink, s_corr, r_rs)
+    mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, R, shrink, s_corr, r_rs, c_ref)
     try:
         L = np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
-        return 1e30, np.zeros(len(q)), 0.0, 0.0
+        return 1e30, np.zeros(len(q)), 0.0, 0.0, 0.0
     L_inv = np.linalg.inv(L)
     S_inv = np.matmul(np.swapaxes(L_inv, 1, 2), L_inv)
     r = E - mu
@@ -188,7 +200,8 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0):
         dn2_dlogk = k * dof * (shrink[1] ** 2 - reproj**2) / (dof + k) ** 2
         g[10] = np.mean(tr_var * s_reproj**2 * dn2_dlogk)
     g_corr = np.mean(tr_C * 2.0 * s_corr**2 * var_px) if use_corr else 0.0
-    return -float(np.mean(ll)), -g, -float(g_corr), -float(np.mean(tr_rs))
+    g_ref = np.mean(2.0 * c_ref**2 * np.einsum("nij,nij->n", G, R)) if c_ref and R is not None else 0.0
+    return -float(np.mean(ll)), -g, -float(g_corr), -float(np.mean(tr_rs)), -float(g_ref)
 
 
 def fit_transfer_model(features, errors, shrink=None):
@@ -200,7 +213,7 @@ def fit_transfer_model(features, errors, shrink=None):
         mu_i = s_rs r_i
         Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
                   + f_i diag(b_fill_pos^2 I3, b_fill_rot^2 I3) [+ s_corr^2 sigma_px,i^2 C_i]
-                  [+ r_rs^2 mu_i mu_i^T]
+                  [+ r_rs^2 mu_i mu_i^T] [+ c_ref^2 R_i]
 
     with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
     saw (it carries the distance, the view angles, the corner count and their spread), v_i the
@@ -224,8 +237,12 @@ def fit_transfer_model(features, errors, shrink=None):
     delay's error and the corner velocities' (finite differences of the track) scale the
     whole shear, so the term is rank one along mu_i (on the three rolling-shutter renders of
     config/realistic.yaml the held-out error left after mu_i was 0.07-0.18 of |mu_i| and the
-    z-scores of the frames with the largest shear 1.1-1.7); bounded by 1. The errors are multivariate
-    Student-t with nu > 2 degrees of freedom and covariance Sigma_i. Every scale is in
+    z-scores of the frames with the largest shear 1.1-1.7); bounded by 1. When the features
+    carry ``refcov`` (a moving camera body, :mod:`cvsflow.uncertainty.reference_noise`), R_i
+    is the reference noise that body's own pose noise puts into the error (its rotation noise
+    times the board's distance) and c_ref its scale (1 in physics; fitted, bounded by 3).
+    The errors are multivariate Student-t with nu > 2 degrees of freedom and covariance
+    Sigma_i. Every scale is in
     physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
     fitted on some sessions predicts another. L-BFGS-B maximises the likelihood from two
     starts with its analytic gradient (:func:`_transfer_nll`), to ftol 1e-12 and gtol 1e-9.
@@ -248,7 +265,7 @@ def fit_transfer_model(features, errors, shrink=None):
         -),
         ``nll`` (mean per frame), ``n_train``; with ``shrink`` also ``k_shrink``; with
         ``corrcov`` features also ``s_corr`` (-); with a shear in some frame also ``r_rs``
-        (-).
+        (-); with ``refcov`` features also ``c_ref`` (-).
 
     Raises
     ------
@@ -262,9 +279,10 @@ def fit_transfer_model(features, errors, shrink=None):
     if missing:
         raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
     E = errors[cols].to_numpy(float) / WORKING_UNITS
-    U, P, RS, speed, reproj, filled, C = _transfer_terms(features)
+    U, P, RS, speed, reproj, filled, C, R = _transfer_terms(features)
     fit_corr = _has_corr(features)
     fit_rrs = bool(np.any(RS != 0.0))
+    fit_ref = _has_ref(features)
     if len(E) != len(U) or len(E) < 20:
         raise OptimiseError(
             f"fit_transfer_model: {len(E)} error rows and {len(U)} feature rows; need equal, >= 20"
@@ -283,7 +301,8 @@ def fit_transfer_model(features, errors, shrink=None):
     sh = _shrink_terms(features) if shrink is not None else None
     k_fixed = [] if shrink is None or fit_k else [np.log(max(float(shrink), 1e-12))]
 
-    n_extra = int(fit_corr) + int(fit_rrs)  # log s_corr, log r_rs after the model's entries
+    # log s_corr, log r_rs, log c_ref after the model's entries, those the data have
+    n_extra = int(fit_corr) + int(fit_rrs) + int(fit_ref)
 
     def full(q):
         q = q[:len(q) - n_extra]
@@ -291,21 +310,23 @@ def fit_transfer_model(features, errors, shrink=None):
         return np.r_[q, k_fixed]
 
     def extras(x):
-        tail = np.exp(x[len(x) - n_extra:])
-        s_corr = float(tail[0]) if fit_corr else 0.0
-        r_rs = float(tail[-1]) if fit_rrs else 0.0
-        return s_corr, r_rs
+        tail = list(np.exp(x[len(x) - n_extra:]))
+        s_corr = float(tail.pop(0)) if fit_corr else 0.0
+        r_rs = float(tail.pop(0)) if fit_rrs else 0.0
+        c_ref = float(tail.pop(0)) if fit_ref else 0.0
+        return s_corr, r_rs, c_ref
 
-    terms = (U, P, RS, speed, reproj, filled, C)
+    terms = (U, P, RS, speed, reproj, filled, C, R)
     # which entries of the full vector (10 or 11) the optimiser moves, in its order
     free = [i for i in range(10) if fit_rs or i != 4] + ([10] if fit_k else [])
 
     def nll(x):
-        s_corr, r_rs = extras(x)
-        f, g_q, g_corr, g_rrs = _transfer_nll(full(x), s_corr, E, terms, sh, r_rs)
+        s_corr, r_rs, c_ref = extras(x)
+        f, g_q, g_corr, g_rrs, g_ref = _transfer_nll(full(x), s_corr, E, terms, sh, r_rs, c_ref)
         g = g_q[free]
         g = np.r_[g, g_corr] if fit_corr else g
-        return f, (np.r_[g, g_rrs] if fit_rrs else g)
+        g = np.r_[g, g_rrs] if fit_rrs else g
+        return f, (np.r_[g, g_ref] if fit_ref else g)
 
     x0 = np.log([0.2, 0.02, 0.3, 1.0, 1.0, 5e-4, 5e-4, 2e-3, 2e-3, 5.0])
     best = None
@@ -327,6 +348,9 @@ def fit_transfer_model(features, errors, shrink=None):
     if fit_rrs:
         bounds.append((-25, 0))
         starts = [np.r_[x, np.log(0.1)] for x in starts]
+    if fit_ref:
+        bounds.append((-25, np.log(3.0)))
+        starts = [np.r_[x, 0.0] for x in starts]
     for start in starts:
         sol = minimize(nll, start, jac=True, method="L-BFGS-B", bounds=bounds,
                        options={"maxiter": 500, "ftol": 1e-12, "gtol": 1e-9})
@@ -339,11 +363,13 @@ def fit_transfer_model(features, errors, shrink=None):
     model.update({name: float(v) for name, v in zip(TRANSFER_PARAMS, vals, strict=True)})
     if shrink is not None:
         model["k_shrink"] = float(np.exp(q_best[10]))
-    s_corr, r_rs = extras(best.x)
+    s_corr, r_rs, c_ref = extras(best.x)
     if fit_corr:
         model["s_corr"] = s_corr
     if fit_rrs:
         model["r_rs"] = r_rs
+    if fit_ref:
+        model["c_ref"] = c_ref
     return model
 
 
@@ -360,8 +386,10 @@ def _model_cov(model, features):
     if s_corr and not _has_corr(features):
         raise OptimiseError("model (T) has s_corr but the features lack corrcov columns "
                             "(measurement_features(corr_length_px=...))")
+    # a model fitted without a moving camera scores one with the physical scale, 1
+    c_ref = float(model.get("c_ref", 1.0)) if _has_ref(features) else 0.0
     return _transfer_cov(_q_from_model(model), *_transfer_terms(features), shrink=sh,
-                         s_corr=s_corr, r_rs=float(model.get("r_rs") or 0.0))
+                         s_corr=s_corr, r_rs=float(model.get("r_rs") or 0.0), c_ref=c_ref)
 
 
 def transfer_covariance(model, features):

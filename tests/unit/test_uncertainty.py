@@ -673,11 +673,12 @@ def test_quantiles_without_scipy_stats_equal_scipy_stats_bit_for_bit():
     np.testing.assert_allclose(chi2_pdf(x, 6), stats.chi2.pdf(x, 6), rtol=1e-12, atol=1e-300)
 
 
-@pytest.mark.parametrize("case", ["plain", "correlated", "shrunk", "shear"])
+@pytest.mark.parametrize("case", ["plain", "correlated", "shrunk", "shear", "reference"])
 def test_transfer_likelihood_gradient_matches_central_differences(case):
     """The analytic gradient of model (T)'s likelihood (what L-BFGS-B is given) equals central
     differences of the likelihood in every parameter, with a rolling-shutter mean, gap-filled
-    frames, the correlated corner term, the shrinkage's k and the shear's relative error."""
+    frames, the correlated corner term, the shrinkage's k, the shear's relative error and a
+    moving camera body's reference noise."""
     from cvsflow.uncertainty import transfer as tr
 
     rng = np.random.default_rng(11)
@@ -692,19 +693,31 @@ def test_transfer_likelihood_gradient_matches_central_differences(case):
         iu = np.triu_indices(6)
         for c, name in enumerate(un.cov_columns("corrcov")):
             feats[name] = C[:, iu[0][c], iu[1][c]]
+    if case == "reference":
+        B = rng.normal(size=(300, 6, 3)) * 1e-3
+        Rc = B @ np.swapaxes(B, 1, 2) + np.eye(6) * 1e-10
+        iu = np.triu_indices(6)
+        for c, name in enumerate(un.cov_columns("refcov")):
+            feats[name] = Rc[:, iu[0][c], iu[1][c]]
     terms = tr._transfer_terms(feats)
     e = E.to_numpy(float) / un.WORKING_UNITS
     q = np.log([0.3, 0.05, 0.6, 0.8, 1.3, 3e-4, 6e-4, 1e-3, 3e-3, 4.0])
     shrink, s_corr = None, 0.3 if case == "correlated" else 0.0
     r_rs = 0.4 if case == "shear" else 0.0
+    c_ref = 0.8 if case == "reference" else 0.0
     if case == "shrunk":
         q, shrink = np.r_[q, np.log(20.0)], tr._shrink_terms(feats)
 
-    def f(q, s, r=r_rs):
-        return tr._transfer_nll(q, s, e, terms, shrink, r)[0]
+    def f(q, s, r=r_rs, cr=c_ref):
+        return tr._transfer_nll(q, s, e, terms, shrink, r, cr)[0]
 
-    nll, grad, grad_corr, grad_rrs = tr._transfer_nll(q, s_corr, e, terms, shrink, r_rs)
+    nll, grad, grad_corr, grad_rrs, grad_ref = tr._transfer_nll(q, s_corr, e, terms, shrink, r_rs,
+                                                                c_ref)  # fmt: skip
     assert nll == pytest.approx(f(q, s_corr))
+    if case == "reference":
+        h = 1e-5
+        fd_ref = (f(q, s_corr, cr=c_ref * np.exp(h)) - f(q, s_corr, cr=c_ref * np.exp(-h))) / (2 * h)
+        assert abs(grad_ref) > 1e-6 and grad_ref == pytest.approx(fd_ref, rel=1e-5)
     if case == "shear":
         fd_rrs = (f(q, s_corr, r_rs * np.exp(h := 1e-5)) - f(q, s_corr, r_rs * np.exp(-h))) / (2 * h)
         assert abs(grad_rrs) > 1e-6 and grad_rrs == pytest.approx(fd_rrs, rel=1e-5)
