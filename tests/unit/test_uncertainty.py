@@ -687,18 +687,15 @@ def test_transfer_likelihood_gradient_matches_central_differences(case):
         feats[f"rs_err_{d}"] = rng.normal(size=300) * 2e-4 * (j + 1)
     feats["vicon_filled"] = (rng.uniform(size=300) < 0.2).astype(float)
     feats["n_corners"] = rng.integers(8, 21, 300)
-    if case == "correlated":
-        B = rng.normal(size=(300, 6, 2)) * 2e-3
+    # a random low-rank 6x6 block per frame: the correlated corners' or the camera body's
+    block = {"correlated": ("corrcov", 2, 2e-3), "reference": ("refcov", 3, 1e-3)}.get(case)
+    if block is not None:
+        name, rank, scale = block
+        B = rng.normal(size=(300, 6, rank)) * scale
         C = B @ np.swapaxes(B, 1, 2) + np.eye(6) * 1e-10
         iu = np.triu_indices(6)
-        for c, name in enumerate(un.cov_columns("corrcov")):
-            feats[name] = C[:, iu[0][c], iu[1][c]]
-    if case == "reference":
-        B = rng.normal(size=(300, 6, 3)) * 1e-3
-        Rc = B @ np.swapaxes(B, 1, 2) + np.eye(6) * 1e-10
-        iu = np.triu_indices(6)
-        for c, name in enumerate(un.cov_columns("refcov")):
-            feats[name] = Rc[:, iu[0][c], iu[1][c]]
+        for c, col in enumerate(un.cov_columns(name)):
+            feats[col] = C[:, iu[0][c], iu[1][c]]
     terms = tr._transfer_terms(feats)
     e = E.to_numpy(float) / un.WORKING_UNITS
     q = np.log([0.3, 0.05, 0.6, 0.8, 1.3, 3e-4, 6e-4, 1e-3, 3e-3, 4.0])
