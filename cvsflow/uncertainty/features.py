@@ -116,7 +116,6 @@ def _fill_velocity_field(uv, vel):
     return out
 
 
-
 def frame_noise_terms(uv_px, vel_px_s, rvec, tvec, p_B, K, dist, line_delay_s=0.0, frame="C"):
     """Per frame: the PnP error covariance per px^2 of corner noise over the corners it saw,
     and the pose error its rolling shutter's shear predicts.
