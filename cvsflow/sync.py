@@ -121,7 +121,7 @@ def sync_angular_speed(
         and the Vicon's over the same span. Frame to frame, a PnP rotation noise sigma gives
         a speed noise of sqrt(2) sigma times the frame rate; at 60 fps with the board 2-4 m
         away that left a correlation of 0.64 against a second peak of 0.52 (quality 0.15),
-        over 0.1 s it is 0.93 against 0.45 (0.82). Hand motion is slower than 0.1 s.
+        over 0.1 s it is 0.975 against 0.48 (0.93). Hand motion is slower than 0.1 s.
 
     Returns
     -------
