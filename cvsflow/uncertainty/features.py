@@ -336,6 +336,14 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
             out[name] = corr[:, iu[0][c], iu[1][c]]
     if bodies is not None and "n_filled" in bodies and "t_vicon_s" in heldout:
         out["vicon_filled"] = vicon_filled(bodies, heldout["t_vicon_s"].to_numpy(float))
+    if bodies is not None and fits and all("T_Bm_B" in f for f in fits):
+        # the board body's noise over the reference's smoothing scale, and the position noise
+        # it gives the board's origin (the lever: T_Bm_B's translation)
+        s_rot, s_pos = moving_body_noise(bodies, "board")
+        lever = float(np.median([np.linalg.norm(np.asarray(f["T_Bm_B"], float)[:3, 3])
+                                 for f in fits]))  # fmt: skip
+        out["board_noise_rot_rad"] = s_rot
+        out["board_noise_pos_m"] = float(np.hypot(s_pos, s_rot * lever))
     if bodies is not None and fits and any(f.get("camera_static") is False for f in fits):
         # a static camera's mean pose carries no noise worth a term: the demo has none
         ref = camera_body_error_cov(rvec, tvec, *moving_body_noise(bodies), frame=frame)

@@ -265,7 +265,9 @@ def fit_transfer_model(features, errors, shrink=None):
         -),
         ``nll`` (mean per frame), ``n_train``; with ``shrink`` also ``k_shrink``; with
         ``corrcov`` features also ``s_corr`` (-); with a shear in some frame also ``r_rs``
-        (-); with ``refcov`` features also ``c_ref`` (-).
+        (-); with ``refcov`` features also ``c_ref`` (-); with the
+        :data:`BOARD_NOISE_COLUMNS` also ``board_noise`` (their medians: the scale of the
+        floors, :func:`_floors_for`).
 
     Raises
     ------
@@ -370,6 +372,9 @@ def fit_transfer_model(features, errors, shrink=None):
         model["r_rs"] = r_rs
     if fit_ref:
         model["c_ref"] = c_ref
+    noise = board_noise_of(features)
+    if noise is not None:
+        model["board_noise"] = noise
     return model
 
 
@@ -380,7 +385,44 @@ def _q_from_model(model):
     return q if k is None else np.r_[q, np.log(max(float(k), 1e-12))]
 
 
+#: Per-session columns of :func:`measurement_features` (with ``bodies``): the board body's
+#: own pose noise, rotation (rad) and the position noise it and the lever to the board's
+#: origin give (m), over the reference's smoothing.
+BOARD_NOISE_COLUMNS = ("board_noise_rot_rad", "board_noise_pos_m")
+_FLOORS = {"board_noise_pos_m": ("b_pos_m", "b_fill_pos_m"),
+           "board_noise_rot_rad": ("b_rot_rad", "b_fill_rot_rad")}
+
+
+def board_noise_of(features):
+    """The board body's noise of a set of frames (the median of each column), or None."""
+    if not all(c in features.columns for c in BOARD_NOISE_COLUMNS):
+        return None
+    return {c: float(np.median(features[c].to_numpy(float))) for c in BOARD_NOISE_COLUMNS}
+
+
+def _floors_for(model, features):
+    """The model with its reference floors scaled to the scored frames' board noise.
+
+    The floors b_pos, b_rot (and the gap-filled ones) are the Vicon board body's own noise:
+    fitted on sessions of one mocap they are that mocap's. A model that records the board
+    noise of its training frames (``board_noise``) scales them by the scored frames' over
+    it: 0.3 mm markers gave 0.086 mm / 0.135 mrad and floors of 0.082 mm / 0.123 mrad; 1 mm
+    markers 0.27 mm / 0.43 mrad and within-session floors of 0.19-0.22 mm / 0.38-0.43 mrad.
+    Frames of the training session itself get the floors unchanged (the ratio is exactly 1).
+    """
+    ref, now = model.get("board_noise"), board_noise_of(features)
+    if not ref or now is None:
+        return model
+    out = dict(model)
+    for col, names in _FLOORS.items():
+        ratio = now[col] / ref[col]
+        for n in names:
+            out[n] = model[n] * ratio
+    return out
+
+
 def _model_cov(model, features):
+    model = _floors_for(model, features)
     sh = _shrink_terms(features) if model.get("k_shrink") is not None else None
     s_corr = float(model.get("s_corr") or 0.0)
     if s_corr and not _has_corr(features):
@@ -448,4 +490,7 @@ RENDERED_TRANSFER_MODEL = {
     "s0_px": 0.01084, "s_speed": 4.987e-06, "s_reproj": 1.127, "c_cal": 1.011, "s_rs": 1.0,
     "b_pos_m": 8.242e-05, "b_rot_rad": 0.0001234, "b_fill_pos_m": 0.000779,
     "b_fill_rot_rad": 0.002943, "nu": 13.44,
+    # the board body's noise of those sessions (medians of measurement_features' columns;
+    # added after the fit, which had no such columns): the scale of the floors
+    "board_noise": {"board_noise_rot_rad": 1.3362e-04, "board_noise_pos_m": 8.548e-05},
 }  # fmt: skip

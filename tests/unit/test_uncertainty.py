@@ -655,6 +655,30 @@ def test_transfer_model_fits_the_shears_relative_error():
     assert all(0.1 < f["params"]["r_rs"] < 0.3 for f in score["folds"])
 
 
+def test_transfer_model_floors_follow_the_board_bodys_noise():
+    """The floors are the mocap board body's own noise: a model fitted on frames whose board
+    noise is n scores frames of a mocap three times noisier (errors drawn with floors 3x,
+    board-noise columns 3 n) with its floors scaled by 3, and the bands hold; unscaled they
+    do not. Frames of the fitted session itself keep the floors bit for bit."""
+    from cvsflow.uncertainty import transfer as tr
+
+    truth = {**TRUTH_T, "s0_px": 0.02, "s_reproj": 0.2, "b_pos_m": 1.5e-3, "b_rot_rad": 1.2e-3}
+    feats, E, _ = _draw_transfer(np.random.default_rng(31), 3000, truth, n_blocks=100)
+    feats["board_noise_rot_rad"], feats["board_noise_pos_m"] = 1.3e-4, 8.5e-5
+    m = un.fit_transfer_model(feats, E)
+    assert m["board_noise"] == {"board_noise_rot_rad": 1.3e-4, "board_noise_pos_m": 8.5e-5}
+    assert tr._floors_for(m, feats)["b_pos_m"] == m["b_pos_m"]
+    noisy = {**truth, "b_pos_m": 4.5e-3, "b_rot_rad": 3.6e-3}
+    f2, E2, _ = _draw_transfer(np.random.default_rng(32), 3000, noisy, n_blocks=100)
+    f2["board_noise_rot_rad"], f2["board_noise_pos_m"] = 3.9e-4, 2.55e-4
+    scaled = un.score_covariance(un.transfer_covariance(m, f2), E2, nu=m["nu"])
+    plain = un.score_covariance(un.transfer_covariance({**m, "board_noise": None}, f2), E2,
+                                nu=m["nu"])  # fmt: skip
+    assert 5.0 < scaled["nees_mean"] < 7.0 and plain["nees_mean"] > 9.0
+    for d in ev.ERROR_DIMS:
+        assert 0.92 < scaled["inside_95"][d] < 0.98, d
+
+
 def test_quantiles_without_scipy_stats_equal_scipy_stats_bit_for_bit():
     """chi2_quantile / student_t_quantile are chi2.ppf / t.ppf exactly (the demo's tables rely on
     it); chi2_pdf is chi2.pdf to rounding."""
