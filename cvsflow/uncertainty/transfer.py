@@ -394,7 +394,18 @@ _FLOORS = {"board_noise_pos_m": ("b_pos_m", "b_fill_pos_m"),
 
 
 def board_noise_of(features):
-    """The board body's noise of a set of frames (the median of each column), or None."""
+    """The board body's noise of a set of frames.
+
+    Parameters
+    ----------
+    features : DataFrame
+        :func:`measurement_features` rows (with ``bodies``: the :data:`BOARD_NOISE_COLUMNS`).
+
+    Returns
+    -------
+    dict or None
+        Each of :data:`BOARD_NOISE_COLUMNS` to its median over the rows; None without them.
+    """
     if not all(c in features.columns for c in BOARD_NOISE_COLUMNS):
         return None
     return {c: float(np.median(features[c].to_numpy(float))) for c in BOARD_NOISE_COLUMNS}
