@@ -18,6 +18,7 @@ import numpy as np
 from cvsflow import transforms as tf
 from cvsflow.metrics import ERROR_DIMS, pose_errors
 from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, body_track, smooth_track_local
+from cvsflow.uncertainty.propagation import _numeric_jacobian
 
 #: Median of chi-square with one degree of freedom: a per-axis variance from the median of
 #: squared residuals (robust to a marker swap or a dropout's edge).
@@ -93,13 +94,10 @@ def camera_body_error_cov(rvec_C_B, tvec_C_B, sigma_rot_rad, sigma_pos_m, frame=
     # [rotation, translation] of the left perturbation
     S = np.diag(np.r_[np.full(3, sigma_rot_rad**2), np.full(3, sigma_pos_m**2)])
     cols = [f"err_{d}" for d in ERROR_DIMS]
-    G = np.empty((len(T0), 6, 6))
-    for k in range(6):
-        xi = np.zeros(6)
-        xi[k] = h
-        rows = []
-        for sgn in (1.0, -1.0):
-            dT = tf.make_T(tf.R_from_rvec(sgn * xi[None, :3])[0], sgn * xi[3:])
-            rows.append(pose_errors(dT @ T0, T0, frame=frame)[cols].to_numpy())
-        G[:, :, k] = (rows[0] - rows[1]) / (2.0 * h)
+
+    def err(rot, trans):
+        return pose_errors(tf.make_T(tf.R_from_rvec(rot), trans) @ T0, T0, frame=frame)[cols].to_numpy()
+
+    zero = np.zeros((len(T0), 3))
+    G = _numeric_jacobian(err, zero, zero, h)
     return G @ S @ np.swapaxes(G, 1, 2)
