@@ -75,9 +75,7 @@ def seen_corners(corners, frame_ids, n_corners):
     prev = np.clip(n - 1, 0, None)
     nxt = np.clip(n + 1, None, len(fr) - 1)
     span = np.where(nxt > prev, t[nxt] - t[prev], np.inf)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # frames without shared corners
-        travel = np.nanmean(np.linalg.norm(uv[nxt] - uv[prev], axis=-1), axis=1)
+    travel = _mean_length(uv[nxt] - uv[prev])
     speed = travel / span * period
     near = span < 3.5 * period
     vel = (uv[nxt] - uv[prev]) / np.where(near, span, np.nan)[:, None, None]
@@ -88,15 +86,21 @@ def seen_corners(corners, frame_ids, n_corners):
     fwd = (uv[nxt] - uv) / np.where(gap_next < 2.5 * period, gap_next, np.nan)[:, None, None]
     side = np.where(np.isfinite(back), back, fwd)
     vel = np.where(np.isfinite(vel), vel, side)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        side_speed = np.nanmean(np.linalg.norm(side, axis=-1), axis=1) * period
+    side_speed = _mean_length(side) * period
     # a neighbour without shared corners or far away in time (a gap): the one-sided travel,
     # else no estimate, say 0 px
     speed = np.where(np.isfinite(speed) & near, speed,
                      np.where(np.isfinite(side_speed), side_speed, 0.0))  # fmt: skip
     vel = _fill_velocity_field(uv, vel)
     return uv[idx], speed[idx], vel[idx]
+
+
+def _mean_length(d):
+    """Mean length of each frame's corner displacements (N, P, 2), NaN where it has none (a
+    frame without corners shared with its neighbour: no warning)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(np.linalg.norm(d, axis=-1), axis=1)
 
 
 def _fill_velocity_field(uv, vel):
