@@ -105,3 +105,41 @@ def test_local_spacing_is_the_mean_distance_to_known_neighbours():
             expected[c] = np.mean(d)
     expected[np.isnan(expected)] = np.median(expected[np.isfinite(expected)])
     np.testing.assert_allclose(got, expected, rtol=1e-12)
+
+
+def test_quadratic_deviation_is_exact_on_quadratic_fields_and_sees_a_moved_corner():
+    """A grid whose pixels are quadratic in the grid coordinates (what a lens and perspective
+    do over two squares, to second order) is predicted exactly; a corner moved by d deviates
+    by d; a corner with fewer than eight known neighbours gets no prediction (inf); and the
+    map equals an explicit least-squares quadratic per corner."""
+    from cvsflow.corners_grid import quadratic_deviation
+
+    board = {"squares_x": 9, "squares_y": 7, "square_m": 0.03}
+    nx, ny = 8, 6
+    k = np.arange(nx * ny)
+    x, y = (k % nx).astype(float), (k // nx).astype(float)
+    uv = np.stack([100 + 30 * x + 0.6 * x * x + 0.4 * x * y - 0.2 * y * y + 2 * y,
+                   80 + 28 * y - 0.5 * y * y + 0.3 * x * y + 0.1 * x * x + x], axis=1)
+    assert quadratic_deviation(uv, board).max() < 1e-9
+    moved = uv.copy()
+    moved[19] += (1.5, -2.0)
+    assert quadratic_deviation(moved, board)[19] == pytest.approx(2.5, abs=1e-9)
+    # Hidden corners: a 3x2 block around corner 19 and the whole first row.
+    hidden = uv.copy()
+    hidden[[18, 19, 20, 26, 27, 28]] = np.nan
+    hidden[:nx] = np.nan
+    rng = np.random.default_rng(3)
+    noisy = hidden + rng.normal(0.0, 0.2, hidden.shape)
+    dev = quadratic_deviation(noisy, board)
+    assert np.isinf(dev[np.isnan(hidden[:, 0])]).all()
+    for i in np.flatnonzero(np.isfinite(hidden[:, 0])):
+        nb = [j for j in range(nx * ny) if j != i and abs(x[j] - x[i]) <= 2
+              and abs(y[j] - y[i]) <= 2 and np.isfinite(hidden[j, 0])]
+        dx, dy = x[nb] - x[i], y[nb] - y[i]
+        A = np.stack([np.ones_like(dx), dx, dy, dx * dx, dx * dy, dy * dy], axis=1)
+        if len(nb) < 8 or np.linalg.matrix_rank(A) < 6:
+            assert np.isinf(dev[i])
+            continue
+        coef = np.linalg.lstsq(A, noisy[nb], rcond=None)[0]
+        assert dev[i] == pytest.approx(np.linalg.norm(noisy[i] - coef[0]), abs=1e-9)
+    assert np.isfinite(dev).sum() >= 20
