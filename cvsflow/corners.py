@@ -116,7 +116,8 @@ def extract_corners(
         ``detect_corners``' methods for frames where the full detector ran; without a board:
         ``not_found`` (a detector looked), ``not_searched`` (the search's back-off skipped
         the frame and no board could be tracked into it), ``inconsistent``, ``cv_error``,
-        ``undecodable`` (a frame given as None: the decoder refused it)).
+        ``undecodable`` (a frame given as None: the decoder refused it)), ``n_predicted`` (the
+        frames among them that ``cvsflow.corners_predict.predict_corners`` followed).
 
     Raises
     ------
@@ -169,7 +170,7 @@ def extract_corners(
         raise InputError("video: no frames to extract corners from (expected at least one)")
     corners = rows.table()
     corners.attrs = {"n_frames": n_done, "n_found": n_found, "order_methods": methods,
-                     "n_cv_errors": follower.cv_errors}
+                     "n_cv_errors": follower.cv_errors, "n_predicted": follower.n_predicted}
     if follower.cv_errors:
         log.warning("corners: %d OpenCV calls failed (frames went on without them)",
                     follower.cv_errors)
@@ -221,7 +222,8 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
         ``frames_by_method`` (method -> frames: how each frame was decided; ``not_found``,
         ``not_searched``, ``inconsistent``, ``cv_error``, ``undecodable`` are the reasons a
         frame has no board),
-        ``n_cv_errors``, ``corners_per_found_frame``
+        ``n_cv_errors``, ``n_predicted`` (frames followed by prediction rather than optical
+        flow), ``corners_per_found_frame``
         (min, median, max); with ``timing``: ``n_frames_header``, ``n_frames_demuxed``,
         ``n_dropped``, ``dropped_gaps`` (``[after_frame, missing]``), ``period_s`` (median),
         ``period_min_s``, ``period_max_s``.
@@ -238,6 +240,7 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
         "frames_by_method": {str(k): int(v) for k, v in
                              sorted(attrs.get("order_methods", {}).items())},
         "n_cv_errors": int(attrs.get("n_cv_errors", 0)),
+        "n_predicted": int(attrs.get("n_predicted", 0)),
         "corners_per_found_frame": [int(n_per.min()), float(n_per.median()), int(n_per.max())]
         if len(n_per) else [0, 0.0, 0],
     }
@@ -397,6 +400,7 @@ def merge_corner_chunks(chunks: list[pd.DataFrame]) -> pd.DataFrame:
         "n_found": sum(int(c.attrs.get("n_found", 0)) for c in ordered),
         "order_methods": methods,
         "n_cv_errors": sum(int(c.attrs.get("n_cv_errors", 0)) for c in ordered),
+        "n_predicted": sum(int(c.attrs.get("n_predicted", 0)) for c in ordered),
     }
     return merged
 

@@ -1,7 +1,10 @@
 """Following the chessboard from frame to frame: ``track_corners`` and the per-frame decisions.
 
 ``track_corners`` moves the previous frame's corners by optical flow on a shrunk image, then
-refines them at full size and applies the grid, saddle and square-colour checks. The
+refines them at full size and applies the grid, saddle and square-colour checks. Where the
+board was followed in the two frames before, the ``_CornerFollower`` first tries the cheaper
+:func:`cvsflow.corners_predict.predict_corners` (constant velocity, no flow), which hands any
+frame where something changed to ``track_corners``. The
 ``_CornerFollower`` behind :func:`cvsflow.corners.extract_corners` keeps following a board while
 it is partly out of view or under a hand, looks for a lost board with the quick detector,
 backing off while it stays lost (the frames in between wait, within a memory bound, and are
@@ -34,6 +37,7 @@ from cvsflow.corners_grid import (
     _median_spacing,
     _track_scales,
 )
+from cvsflow.corners_predict import predict_corners
 from cvsflow.corners_refine import (
     MIN_PATTERN_CONTRAST,
     _follow_partial,
@@ -243,6 +247,7 @@ class _CornerFollower:
         self.pending = collections.deque()  # (frame, t_s, gray, searched) waiting for a board
         self.pending_bytes = 0
         self.cv_errors = 0  # OpenCV calls that raised (the frame went on without them)
+        self.n_predicted = 0  # frames followed by ``predict_corners``
         self._reset()
 
     def _guard(self, fn, fail_method, frame, *args):
@@ -262,6 +267,9 @@ class _CornerFollower:
         self.last_found = None  # (corners_px, frame): continuity for detect_corners
         self.lost_for = 0  # frames since the board was last followed (the search's back-off)
         self.spacing = 0.0  # median square size (px) of the board when last followed
+        # (frame, t_s, corners_px) of the last two frames the board was followed in, for
+        # ``predict_corners``.
+        self.history = collections.deque(maxlen=2)
 
     def _search_now(self) -> bool:
         n = self.lost_for
@@ -301,8 +309,8 @@ class _CornerFollower:
         if corners_px is None:
             self._wait(frame, t_s, gray, True, out)
             return out
-        out += self._track_back(gray, corners_px, frame, method)
-        self._keep(gray, corners_px, frame, found=True, method=method)
+        out += self._track_back(gray, corners_px, frame, t_s, method)
+        self._keep(gray, corners_px, frame, found=True, method=method, t_s=t_s)
         out.append((frame, t_s, corners_px, method))
         return out
 
@@ -344,7 +352,7 @@ class _CornerFollower:
                                                  self.flags or VIDEO_SEARCH_FLAGS,
                                                  self.max_dev, False, self.keep_partial)
             if corners_px is not None:
-                return self._track_back(gray, corners_px, frame, method) + [
+                return self._track_back(gray, corners_px, frame, t_s, method) + [
                     (frame, t_s, corners_px, method)]
             self.pending.append((frame, t_s, gray, True))
             self.pending_bytes += gray.nbytes
@@ -353,21 +361,40 @@ class _CornerFollower:
         self.pending_bytes = 0
         return out
 
-    def _keep(self, gray, corners_px, frame, found, method=None):
+    def _keep(self, gray, corners_px, frame, found, method=None, t_s=None):
         self.state = (gray, corners_px, frame, _hand_hidden(corners_px, method))
+        self.history.append((frame, t_s, corners_px))
         self.lost_for = 0
         self.spacing = _median_spacing(corners_px, self.board) or self.spacing
         if found:
             self.last_found = (corners_px, frame)
 
+    def _predicted(self, frame, t_s, gray, history, step):
+        """``predict_corners`` where ``history`` holds the board's corners in the two frames
+        before this one in the direction of travel (``step``: +1 forwards, -1 when tracking
+        backwards), else (None, "changed")."""
+        if len(history) < 2:
+            return None, "changed"
+        (f2, t2, px2), (f1, t1, px1) = history
+        if f1 != frame - step or f2 != frame - 2 * step or t1 == t2:
+            return None, "changed"
+        return self._guard(predict_corners, "changed", frame, gray, px1, px2,
+                           (t_s - t1) / (t1 - t2), self.board, self.subpix, self.max_dev)
+
     def _track(self, frame, t_s, gray, ref):
+        corners_px, method = self._predicted(frame, t_s, gray, self.history, 1)
+        if corners_px is not None:
+            self.n_predicted += 1
+            self._keep(gray, corners_px, frame, found=method == "tracked", method=method,
+                       t_s=t_s)
+            return frame, t_s, self._published(corners_px, method), method
         corners_px, method = self._guard(
             track_corners, "lost", frame, ref[0], gray, ref[1], self.board, self.subpix,
             self.max_dev, ref[3]
         )
         if method == "lost":
             return self._relocate(frame, t_s, gray)
-        self._keep(gray, corners_px, frame, found=method == "tracked", method=method)
+        self._keep(gray, corners_px, frame, found=method == "tracked", method=method, t_s=t_s)
         return frame, t_s, self._published(corners_px, method), method
 
     def _relocate(self, frame, t_s, gray):
@@ -380,7 +407,7 @@ class _CornerFollower:
                                          self._quick_scale())
         if corners_px is None:
             return self._detect(frame, t_s, gray, full_size=False)
-        self._keep(gray, corners_px, frame, found=True)
+        self._keep(gray, corners_px, frame, found=True, t_s=t_s)
         return frame, t_s, corners_px, method
 
     def _published(self, corners_px, method):
@@ -400,25 +427,31 @@ class _CornerFollower:
                                          self.subpix, prev, flags, self.max_dev, full_size,
                                          self.keep_partial)
         if corners_px is not None:
-            self._keep(gray, corners_px, frame, found=True, method=method)
+            self._keep(gray, corners_px, frame, found=True, method=method, t_s=t_s)
         return frame, t_s, corners_px, method
 
-    def _track_back(self, gray, corners_px, frame, found_by=None):
+    def _track_back(self, gray, corners_px, frame, t_s, found_by=None):
         """Results of the waiting frames, tracked backwards from a frame with the board (found
         by the method ``found_by``); where that fails, the detector once (the board may have been whole
         there), then nothing."""
         pending, self.pending = list(self.pending), collections.deque()
         self.pending_bytes = 0
         ref = (gray, corners_px, frame, _hand_hidden(corners_px, found_by))
+        history = collections.deque([(frame, t_s, corners_px)], maxlen=2)
         out = []
         tried_detect = False
         for f, t_s, g, searched in reversed(pending):
             result = None
             if ref[2] - f <= self.max_gap:
-                px, method = self._guard(track_corners, "lost", f, ref[0], g, ref[1],
-                                         self.board, self.subpix, self.max_dev, ref[3])
+                px, method = self._predicted(f, t_s, g, history, -1)
+                if px is not None:
+                    self.n_predicted += 1
+                else:
+                    px, method = self._guard(track_corners, "lost", f, ref[0], g, ref[1],
+                                             self.board, self.subpix, self.max_dev, ref[3])
                 if method != "lost":
                     ref = (g, px, f, _hand_hidden(px, method))
+                    history.append((f, t_s, px))
                     result = (f, t_s, self._published(px, method), method + "_back")
                 elif not tried_detect:
                     tried_detect = True
@@ -428,6 +461,7 @@ class _CornerFollower:
                                              False, self.keep_partial)
                     if px is not None:
                         ref = (g, px, f, _hand_hidden(px, method))
+                        history.append((f, t_s, px))
                     result = (f, t_s, px, method)
             if result is None:
                 result = (f, t_s, None, "not_found" if searched else "not_searched")
