@@ -22,7 +22,6 @@ import numpy as np
 
 from cvsflow.corners_detect import (
     QUICK_MIN_SQUARE_PX,
-    QUICK_SCALE,
     VIDEO_FIND_FLAGS,
     VIDEO_SEARCH_FLAGS,
     detect_corners,
@@ -200,17 +199,22 @@ def _shrunk(gray: np.ndarray, f: int) -> np.ndarray:
 PARTIAL_METHODS = ("partial", "out_of_view")
 
 
-# The search backs off while the board stays lost: it runs on the 1st, 2nd, 4th and 8th frame
-# after the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found within
-# that many frames and the frames before it are tracked backwards).
-SEARCH_EVERY_MAX = 8
-# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) every
-# DEEP_SEARCH_EVERY frames while no board is followed (and on the frames right after the
+# The search backs off while the board stays lost: it runs on the 1st, 2nd, 4th, 8th and 16th
+# frame after the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found
+# within that many frames and the frames before it are tracked backwards). A quick search that
+# finds nothing costs about six frames' decoding (4.5 ms at 640x480, 11 ms at 1280x720 on a
+# partly hidden board), so every 16 frames it costs under 0.4 of the decoding while the board
+# is lost (every 8: 0.75).
+SEARCH_EVERY_MAX = 16
+# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) on the 32nd frame
+# after the loss and every DEEP_SEARCH_EVERY frames after (and on the frames right after the
 # tracker lost one, ``_relocate``). Not on the first frame of a session or restart: there the
 # quick search misses mostly boards that are not there (a hand, the border; ~220 ms per
 # 1280x720 frame for nothing on the realistic renders), and a whole board it misses is found
-# DEEP_SEARCH_EVERY frames later and tracked back.
-DEEP_SEARCH_EVERY = 32
+# later and tracked back. It costs about 44 frames' decoding at 1280x720 (77 ms): every 64
+# frames, 0.7 of the decoding while the board is lost.
+DEEP_SEARCH_FIRST = 32
+DEEP_SEARCH_EVERY = 64
 # Most grey-image bytes kept waiting for a board (memory does not grow with the session:
 # 48 frames at 1920x1080, 340 at 640x480); older waiting frames are decided without it.
 MAX_PENDING_BYTES = 100 * 2**20
@@ -276,10 +280,12 @@ class _CornerFollower:
         return n <= 2 or (n <= SEARCH_EVERY_MAX and n & (n - 1) == 0) or n % SEARCH_EVERY_MAX == 0
 
     def _quick_scale(self):
-        """Shrink factor of the quick search: squares of the last board >= QUICK_MIN_SQUARE_PX."""
+        """Shrink factor of the quick search: squares of the last board >= QUICK_MIN_SQUARE_PX,
+        at full size for boards whose squares are under twice that (a board of 8-15 px
+        squares, which only the full detector found at half size)."""
         if self.spacing <= 0:
             return None
-        return float(np.clip(QUICK_MIN_SQUARE_PX / self.spacing, 0.25, QUICK_SCALE))
+        return float(np.clip(QUICK_MIN_SQUARE_PX / self.spacing, 0.25, 1.0))
 
     def push(self, frame, t_s, gray):
         out = []
@@ -299,7 +305,8 @@ class _CornerFollower:
         corners_px, method = self._guard(quick_detect_corners, "not_found", frame, gray,
                                          self.board, self.subpix, self.max_dev,
                                          self._quick_scale())
-        if corners_px is None and self.lost_for % DEEP_SEARCH_EVERY == 0:
+        if corners_px is None and (self.lost_for == DEEP_SEARCH_FIRST
+                                   or self.lost_for % DEEP_SEARCH_EVERY == 0):
             # Now and then the full detector (on the shrunk image), for the whole boards the
             # quick one misses (low contrast, small squares).
             prev = self.flags if self.flags is not None else VIDEO_SEARCH_FLAGS
