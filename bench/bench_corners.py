@@ -50,14 +50,17 @@ SESSIONS = ("webcam640", "hd720", "fhd1080", "portrait1080")
 PLAIN_SUBPIX_FRAC = 0.15
 
 
-def _session_cfg(name: str) -> dict:
+CONFIG = REPO / "config" / "realistic.yaml"
+
+
+def _session_cfg(name: str, config: Path = CONFIG) -> dict:
     import yaml
 
-    with open(REPO / "config" / "realistic.yaml") as fh:
+    with open(config) as fh:
         return copy.deepcopy(yaml.safe_load(fh)["sessions"][name])
 
 
-def _render(cache: Path, name: str, duration_s: float) -> Path:
+def _render(cache: Path, name: str, duration_s: float, config: Path = CONFIG) -> Path:
     """Render session ``name`` for ``duration_s`` into cache/name unless it is there."""
     import yaml
 
@@ -67,7 +70,7 @@ def _render(cache: Path, name: str, duration_s: float) -> Path:
     stamp = out / "bench_duration.json"
     if stamp.is_file() and json.loads(stamp.read_text()) == duration_s:
         return out
-    cfg = _session_cfg(name)
+    cfg = _session_cfg(name, config)
     cfg["synth"]["duration_s"] = duration_s
     start = time.perf_counter()
     with _lenient_stills():
@@ -212,11 +215,11 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def _spawn(variant: str, video: Path, out: Path, session: str) -> dict:
+def _spawn(variant: str, video: Path, out: Path, session: str, config: Path = CONFIG) -> dict:
     env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1", MKL_NUM_THREADS="1")
     proc = subprocess.run(
         [sys.executable, __file__, "--variant", variant, "--video", str(video), "--out",
-         str(out), "--sessions", session],
+         str(out), "--sessions", session, "--config", str(config)],
         check=True, capture_output=True, text=True, env=env,
     )
     return json.loads(proc.stdout.strip().splitlines()[-1])
@@ -290,6 +293,9 @@ def main():
     )
     parser.add_argument("--duration-s", type=float, default=6.0)
     parser.add_argument("--sessions", default=",".join(SESSIONS))
+    parser.add_argument("--config", type=Path, default=CONFIG,
+                        help="YAML whose sessions: to render (default config/realistic.yaml; "
+                             "e.g. bench/robustness_sessions.yaml)")
     parser.add_argument("--long-repeats", type=int, default=10)
     parser.add_argument("--no-long", action="store_true")
     parser.add_argument("--repeats", type=int, default=1,
@@ -300,7 +306,7 @@ def main():
     parser.add_argument("--out", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.variant:
-        board = _session_cfg(args.sessions)["board"]
+        board = _session_cfg(args.sessions, args.config)["board"]
         print(json.dumps(_run_variant(args.variant, args.video, args.out, board)))
         return
 
@@ -320,18 +326,18 @@ def main():
     print(header, flush=True)
     details = []
     for name in args.sessions.split(","):
-        folder = _render(cache, name, args.duration_s)
+        folder = _render(cache, name, args.duration_s, args.config)
         video = folder / "video.mp4"
-        cfg = _session_cfg(name)
+        cfg = _session_cfg(name, args.config)
         nx, _ = board_pattern(cfg["board"])
         plain_path = folder / "bench_plain.parquet"
         if not plain_path.is_file():
-            _spawn("plain", video, plain_path, name)
+            _spawn("plain", video, plain_path, name, args.config)
         # Alternating runs, the least CPU time of each: the machine's load only adds time.
         dec = stg = None
         for _ in range(max(1, args.repeats)):
-            d = _spawn("decode", video, folder / "bench_decode.parquet", name)
-            s = _spawn("stage", video, folder / "bench_stage.parquet", name)
+            d = _spawn("decode", video, folder / "bench_decode.parquet", name, args.config)
+            s = _spawn("stage", video, folder / "bench_stage.parquet", name, args.config)
             dec = d if dec is None or d["cpu_s"] < dec["cpu_s"] else dec
             stg = s if stg is None or s["cpu_s"] < stg["cpu_s"] else stg
         acc = _accuracy(pd.read_parquet(folder / "bench_stage.parquet"),
