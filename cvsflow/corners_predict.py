@@ -20,9 +20,12 @@ window (at most 0.15 of a square) of where its own track predicts it.
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
+from cvsflow.board import board_pattern
 from cvsflow.corners_grid import (
     MAX_GRID_DEVIATION_FRAC,
     MIN_GRID_DEVIATION_PX,
@@ -31,6 +34,7 @@ from cvsflow.corners_grid import (
     TRACK_BORDER_FRAC,
     TRACK_BORDER_PX,
     _grid_points,
+    _grid_points_cached,
     _inside,
     _median,
     _pair_distances,
@@ -39,9 +43,12 @@ from cvsflow.corners_grid import (
     quadratic_deviation,
 )
 from cvsflow.corners_refine import (
+    MAX_SADDLES_BEYOND,
     MIN_PATTERN_CONTRAST,
     _refine_for_blur,
+    _ring_grid,
     _saddle_ok,
+    _saddles_beyond,
     _subpix,
     board_squares_pattern_ok,
 )
@@ -151,31 +158,64 @@ def predict_corners(
     out = np.full(prev.shape, np.nan)
     out[keep] = refined[:n_keep]
     checked = keep
+    # One saddle check for the corners kept, those that may be back and, for a board not
+    # seen whole, the grid points one square beyond its inner corners (``_saddles_beyond``:
+    # saddles there mean the labels are a square off, a board that jumped a whole square
+    # diagonally from its track; a whole board's square-colour check below catches that).
+    probe = out
     if back is not None and len(back):
         probe = out.copy()
         probe[back] = refined[n_keep:]
-        saddle = _saddle_ok(gray, H, probe, grid, border_ok=True, reference=keep)
+    n = len(out)
+    if whole:
+        saddle = _saddle_ok(gray, H, probe, grid, border_ok=True)
+        beyond = 0
+    else:
+        points, ring, inner_rows = _grid_and_ring(*board_pattern(board))
+        ring_px = cv2.perspectiveTransform(ring.reshape(-1, 1, 2), H).reshape(-1, 2)
+        reference = np.concatenate([keep, np.zeros(len(ring), bool)])
+        # Samples outside the image: a corner passes (as the full tracker's), a ring point
+        # shows no saddle.
+        all_saddle = _saddle_ok(gray, H, np.concatenate([probe, ring_px]), points,
+                                border_ok=inner_rows, reference=reference)
+        saddle, beyond = all_saddle[:n], int(np.count_nonzero(all_saddle[n:]))
+    if beyond >= MAX_SADDLES_BEYOND:
+        return None, "changed"
+    if back is not None and len(back):
         back = back[saddle[back]]
         if len(back):  # they came back: checked against their neighbours below
             out[back] = probe[back]
             checked = keep.copy()
             checked[back] = True
-    else:
-        saddle = _saddle_ok(gray, H, out, grid, border_ok=True)
-    if not saddle[keep].all():
-        return None, "changed"  # a corner went (a hand arrives)
-    deviation = quadratic_deviation(out, board)[checked]
-    if not np.isfinite(deviation).all():
-        # A corner with too few neighbours for the quadratic (next to a hand or the border):
-        # the local homographies of the full check.
-        deviation = grid_deviation(out, board)[1][checked]
+    gone = keep & ~saddle
+    if gone.any():
+        # A corner kept last frame shows no saddle now: a hand arrives over it. It goes, as the
+        # full tracker drops it; the others must still be enough and agree with the grid.
+        if whole and _saddles_beyond(gray, H, out, keep & ~gone, grid, board) >= (
+                MAX_SADDLES_BEYOND):
+            return None, "changed"
+        out[gone] = np.nan
+        keep = keep & ~gone
+        checked = checked & ~gone
+        if np.count_nonzero(keep) < MIN_TRACKED_CORNERS:
+            return None, "changed"
+    deviation = _deviation(out, board, checked)
     limit = None
     # Each corner's limit (deviation_limit_px) is at least that of the shortest grid step.
     if np.maximum.reduce(deviation) > max(MIN_GRID_DEVIATION_PX, max_grid_deviation * d.min()):
         limit = np.maximum(MIN_GRID_DEVIATION_PX,
                            max_grid_deviation * _spacing_from_pairs(pairs, board))
-        if (deviation > limit[checked]).any():
+        off = np.zeros(len(out), bool)
+        off[checked] = deviation > limit[checked]
+        if (off & keep).any():
             return None, "changed"
+        if off.any():
+            # Only corners that came back are off their grid (a window cut by the border, a
+            # hand's edge): they stay unseen, and the kept ones are checked without them.
+            out[off] = np.nan
+            checked = checked & ~off
+            if (_deviation(out, board, checked) > limit[checked]).any():
+                return None, "changed"
     if checked.all():
         if limit is None:
             limit = np.maximum(MIN_GRID_DEVIATION_PX,
@@ -185,8 +225,17 @@ def predict_corners(
         return _refine_for_blur(gray, out, board, win, limit), "tracked"
     # A corner dropped at the margin, or one not seen whose place is beyond it: out of view;
     # else the corners not seen are under a hand.
-    at_border = (seen & ~inner).any() or not _inside(guess, w, h, border).all()
+    at_border = (seen & ~inner).any() or (guess is not None and not _inside(guess, w, h, border).all())
     return out, "out_of_view" if at_border else "partial"
+
+
+def _deviation(corners_px: np.ndarray, board: dict, rows: np.ndarray) -> np.ndarray:
+    """``quadratic_deviation`` of the corners ``rows``, or ``grid_deviation``'s where one of
+    them has too few known neighbours for the quadratic (next to a hand or the border)."""
+    deviation = quadratic_deviation(corners_px, board)[rows]
+    if np.isfinite(deviation).all():
+        return deviation
+    return grid_deviation(corners_px, board)[1][rows]
 
 
 def _four_point_homography(grid: np.ndarray, points_px: np.ndarray, keep: np.ndarray):
@@ -212,3 +261,17 @@ def _four_point_homography(grid: np.ndarray, points_px: np.ndarray, keep: np.nda
         if (bx - ax) * (cy - ay) - (by - ay) * (cx - ax) <= 0.5:
             return None
     return cv2.getPerspectiveTransform(src, np.asarray(points_px[pick], dtype=np.float32))
+
+
+
+@functools.lru_cache(maxsize=16)
+def _grid_and_ring(nx: int, ny: int):
+    """The inner corners' grid points followed by the ring one square beyond them (N + M, 2),
+    the ring alone (M, 2), both float32, and (N + M,) bool, True on the inner corners' rows."""
+    grid = _grid_points_cached(nx, ny)
+    ring = _ring_grid(nx, ny)
+    points = np.concatenate([grid, ring])
+    inner_rows = np.arange(len(points)) < len(grid)
+    for arr in (points, inner_rows):
+        arr.flags.writeable = False  # cached: shared by every call
+    return points, ring, inner_rows

@@ -333,7 +333,8 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid, border_ok=False, reference=No
     ``SADDLE_RADII`` squares from the corner, every sample of a quadrant on its side.
     ``border_ok``: a corner with a sample outside the image passes (a whole board's corner
     near the border, which the other checks passed: its saddle cannot be seen whole; on the
-    realistic 1920x1080 render 4 of 8549 visible corners failed only for that).
+    realistic 1920x1080 render 4 of 8549 visible corners failed only for that); an (N,) bool
+    array says it per row.
     ``reference``: (N,) bool, the rows whose levels set the board's contrast (default: every
     row with a finite corner)."""
     h, w = gray.shape
@@ -374,7 +375,9 @@ def _saddle_ok(gray, H_img_grid, corners_px, grid, border_ok=False, reference=No
         contrast = float(mid[1]) - float(mid[0])  # light minus dark
     need = max(MIN_SADDLE_CONTRAST, SADDLE_CONTRAST_FRAC * contrast)
     saddle = ok & (np.minimum.reduce(light, axis=1) - np.maximum.reduce(dark, axis=1) >= need)
-    return saddle | ~in_image if border_ok else saddle
+    if border_ok is True or border_ok is False:
+        return saddle | ~in_image if border_ok else saddle
+    return saddle | (~in_image & np.asarray(border_ok, bool))
 
 
 @functools.lru_cache(maxsize=16)

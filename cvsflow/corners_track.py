@@ -206,18 +206,22 @@ PARTIAL_METHODS = ("partial", "out_of_view")
 # partly hidden board), so every 16 frames it costs under 0.4 of the decoding while the board
 # is lost (every 8: 0.75).
 SEARCH_EVERY_MAX = 16
-# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) on the 32nd frame
+# ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) on the 64th frame
 # after the loss and every DEEP_SEARCH_EVERY frames after (and on the frames right after the
 # tracker lost one, ``_relocate``). Not on the first frame of a session or restart: there the
 # quick search misses mostly boards that are not there (a hand, the border; ~220 ms per
 # 1280x720 frame for nothing on the realistic renders), and a whole board it misses is found
-# later and tracked back. It costs about 44 frames' decoding at 1280x720 (77 ms): every 64
-# frames, 0.7 of the decoding while the board is lost.
-DEEP_SEARCH_FIRST = 32
-DEEP_SEARCH_EVERY = 64
+# later and tracked back. It costs about 40 to 50 frames' decoding (77 ms at 1280x720, 100 ms
+# at 1080x1920): from the 64th frame and every 128th, at most 0.7 of the decoding while the
+# board is lost. It finds the boards the quick search cannot see: small squares before the
+# first view of the board (after it, the quick search runs at the scale the squares need) and
+# poor contrast.
+DEEP_SEARCH_FIRST = 64
+DEEP_SEARCH_EVERY = 128
 # Most grey-image bytes kept waiting for a board (memory does not grow with the session:
-# 48 frames at 1920x1080, 340 at 640x480); older waiting frames are decided without it.
-MAX_PENDING_BYTES = 100 * 2**20
+# 80 frames at 1920x1080, 540 at 640x480, more than DEEP_SEARCH_FIRST); older waiting frames
+# are decided without it.
+MAX_PENDING_BYTES = 160 * 2**20
 
 
 def _hand_hidden(corners_px, method):
