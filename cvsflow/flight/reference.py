@@ -203,11 +203,8 @@ def _intrinsics_std(calib):
 def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
     """The other solution of each frame's planar PnP and how much worse it fits its corners.
 
-    A planar board seen small or nearly face-on has two poses that fit its corners almost
-    equally (IPPE's two solutions: the board tilted one way or mirrored about the line of
-    sight); noise can make the PnP pick the wrong one, an error of up to twice the tilt that
-    no first-order covariance holds. Each IPPE solution is refined (LM); the alternative is the
-    one farther in rotation from the measured pose.
+    :func:`cvsflow.uncertainty.ambiguity.pnp_alternatives`, with the difference as a
+    translation in C and a rotation vector about C's axes (the flight's error coordinates).
 
     Parameters
     ----------
@@ -228,37 +225,14 @@ def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
         Sum of squared reprojection residuals of the alternative minus the measured pose's,
         px^2 (inf where there is no distinct alternative).
     """
-    obj = np.asarray(p_B, np.float64)
-    K = np.asarray(K, np.float64)
-    dist = np.asarray(dist, np.float64).ravel()
-    rvec, tvec = np.array(rvec, np.float64), np.array(tvec, np.float64)  # writable copies
+    rvec, tvec = np.asarray(rvec, np.float64), np.asarray(tvec, np.float64)
+    r_alt, t_alt, d_ssr = un.pnp_alternatives(uv_px, rvec, tvec, p_B, K, dist)
     delta = np.zeros((len(uv_px), 6))
-    d_ssr = np.full(len(uv_px), np.inf)
-
-    def ssr(o, img, r, t):
-        proj, _ = cv2.projectPoints(o, r, t, K, dist)
-        return float(np.sum((proj.reshape(-1, 2) - img.reshape(-1, 2)) ** 2))
-
-    for i in range(len(uv_px)):
-        seen = np.isfinite(uv_px[i]).all(axis=1)
-        if seen.sum() < 4:
-            continue
-        o = np.ascontiguousarray(obj[seen]).reshape(-1, 1, 3)
-        img = np.ascontiguousarray(uv_px[i, seen], np.float64).reshape(-1, 1, 2)
-        n, rvs, tvs, _ = cv2.solvePnPGeneric(o, img, K, dist, flags=cv2.SOLVEPNP_IPPE)
-        R_m = Rotation.from_rotvec(rvec[i])
-        best = None
-        for r0, t0 in zip(rvs[:n], tvs[:n], strict=True):
-            r1, t1 = cv2.solvePnPRefineLM(o, img, K, dist, r0.copy(), t0.copy())
-            ang = (Rotation.from_rotvec(r1.ravel()) * R_m.inv()).magnitude()
-            if best is None or ang > best[0]:
-                best = (ang, r1.ravel(), t1.ravel())
-        if best is None or best[0] < 1e-6:
-            continue
-        _, r_alt, t_alt = best
-        d_ssr[i] = ssr(o, img, r_alt, t_alt) - ssr(o, img, rvec[i], tvec[i])
-        delta[i, :3] = tvec[i] - t_alt
-        delta[i, 3:] = (R_m * Rotation.from_rotvec(r_alt).inv()).as_rotvec()
+    has = np.isfinite(r_alt).all(axis=1)
+    if has.any():
+        delta[has, :3] = tvec[has] - t_alt[has]
+        delta[has, 3:] = (Rotation.from_rotvec(rvec[has])
+                          * Rotation.from_rotvec(r_alt[has]).inv()).as_rotvec()
     return delta, d_ssr
 
 
@@ -342,7 +316,7 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
          + shear[:, :, None] * shear[:, None, :])  # fmt: skip
     if flips:
         delta, d_ssr = pnp_flip_term(uv, rv, tv, p_B, K, dist)
-        w = 1.0 / (1.0 + np.exp(np.clip(d_ssr / (2.0 * var_px), -50.0, 50.0)))
+        w = un.flip_weight(d_ssr, var_px)
         S = S + w[:, None, None] * delta[:, :, None] * delta[:, None, :]
     Sigma[valid] = S
     return Sigma

@@ -17,11 +17,14 @@
   :func:`nees_values`, :func:`band_multipliers`), and the same with the errors whitened by
   an AR(1) in time (:func:`fit_ar1`, :func:`score_time_correlated`).
 - :mod:`cvsflow.uncertainty.crb`: the Cramer-Rao floor (:func:`cramer_rao_sigma`).
+- :mod:`cvsflow.uncertainty.ambiguity`: the planar PnP's second solution
+  (:func:`pnp_alternatives`) and the chance it is the true pose (:func:`flip_weight`).
 
-The submodules import each other downwards (propagation, scoring < models, features, crb <
+The submodules import each other downwards (ambiguity, propagation, scoring < models, features, crb <
 transfer < transfer_scoring); this package only re-exports their public names.
 """
 
+from cvsflow.uncertainty.ambiguity import flip_weight, pnp_alternatives
 from cvsflow.uncertainty.crb import cramer_rao_sigma
 from cvsflow.uncertainty.features import (
     CORNER_CORRELATION_PX,
@@ -89,8 +92,10 @@ __all__ = [
     "corner_noise_from_reproj", "corner_noise_pool", "correlated_noise_terms",
     "cov_columns",
     "cov_from_columns", "cramer_rao_sigma", "crossfit_transfer", "error_features",
-    "fit_error_model", "fit_transfer_model", "frame_noise_terms", "leave_one_session_out",
-    "measurement_features", "nees_values", "parameter_covariance", "pnp_covariance",
+    "fit_error_model", "fit_transfer_model", "flip_weight", "frame_noise_terms",
+    "leave_one_session_out",
+    "measurement_features", "nees_values", "parameter_covariance", "pnp_alternatives",
+    "pnp_covariance",
     "pose6_covariance", "predict_error_sigma", "predicted_covariance",
     "propagated_pose_covariance", "score_covariance", "score_error_model", "score_time_correlated",
     "score_transfer", "seen_corners", "shrink_corner_noise", "standardised_errors",

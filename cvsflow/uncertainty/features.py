@@ -20,6 +20,7 @@ from cvsflow.calibration import board_object_points
 from cvsflow.errors import OptimiseError
 from cvsflow.metrics import ERROR_DIMS, pose_errors
 from cvsflow.optimise.se3_start import corner_arrays
+from cvsflow.uncertainty.ambiguity import pnp_alternatives
 from cvsflow.uncertainty.propagation import (
     cov_columns,
     parameter_covariance,
@@ -279,8 +280,11 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
         to [x, y, z, roll, pitch, yaw], m^2 / px^2 .. rad^2 / px^2); ``rs_err_{dim}``, the
         CVS pose error that the rolling shutter's shear predicts (the fold's fitted line delay
         times each corner's image velocity and its row after the mean row, through PnP, in
-        the error's units; zero for a global shutter); ``parcov_{a}{b}`` with ``fits``;
-        ``corrcov_{a}{b}`` with ``corr_length_px``.
+        the error's units; zero for a global shutter); ``flip_{dim}``, the error the
+        measured pose has if the planar PnP's other solution is the true pose (zero where
+        there is none), and ``flip_dssr_px2``, how much worse that solution fits the corners
+        (px^2; inf where there is none: :mod:`cvsflow.uncertainty.ambiguity`);
+        ``parcov_{a}{b}`` with ``fits``; ``corrcov_{a}{b}`` with ``corr_length_px``.
     """
     p_B = board_object_points(board)
     need = ["frame", *[f"cvs_rvec_{j}" for j in range(3)], "cvs_x_m", "cvs_y_m", "cvs_z_m",
@@ -353,6 +357,22 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
         ref = camera_body_error_cov(rvec, tvec, *moving_body_noise(bodies), frame=frame)
         for c, name in enumerate(cov_columns("refcov")):
             out[name] = ref[:, iu[0][c], iu[1][c]]
+    # The planar PnP's other solution (a far or face-on board): the error the measured pose
+    # has if the other one is the truth, in the error's own coordinates, and its cost excess.
+    flip = np.zeros((len(frames), 6))
+    d_ssr = np.full(len(frames), np.inf)
+    for k in np.unique(fold):
+        sel = np.flatnonzero(fold == k)
+        r_alt, t_alt, d_ssr[sel] = pnp_alternatives(uv[sel], rvec[sel], tvec[sel], obj,
+                                                    *K_by_fold[int(k)])
+        has = np.isfinite(r_alt).all(axis=1)
+        if has.any():
+            err = pose_errors(tf.T_from_rvec_tvec(r_alt[has], t_alt[has]),
+                              tf.T_from_rvec_tvec(rvec[sel[has]], tvec[sel[has]]), frame=frame)
+            flip[sel[has]] = err[[f"err_{d}" for d in ERROR_DIMS]].to_numpy()
+    for j, d in enumerate(ERROR_DIMS):
+        out[f"flip_{d}"] = flip[:, j]
+    out["flip_dssr_px2"] = d_ssr
     if fits and all("correlation" in f for f in fits):
         cov_par, _ = parameter_covariance(heldout, p_B, fits, frame=frame,
                                           time_offset=time_offset)

@@ -17,6 +17,7 @@ from scipy.special import digamma, gammaln
 
 from cvsflow.errors import OptimiseError
 from cvsflow.metrics import ERROR_DIMS
+from cvsflow.uncertainty.ambiguity import flip_weight
 from cvsflow.uncertainty.features import (
     NOISE_POOL_COLUMN,
     corner_noise_from_reproj,
@@ -37,8 +38,9 @@ TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "
 
 def _transfer_terms(features):
     """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), corner noise (N,), Vicon
-    gap-filled (N,), C per px^2, the moving camera body's reference noise R (N, 6, 6)),
-    working units."""
+    gap-filled (N,), C per px^2, the moving camera body's reference noise R (N, 6, 6), the
+    planar PnP's flip (error if the other solution is true (N, 6), its cost excess px^2
+    (N,))), working units."""
     U = cov_from_columns(features, "unitcov")
 
     def block(name):
@@ -54,8 +56,14 @@ def _transfer_terms(features):
           else np.zeros((len(U), 6)))  # fmt: skip
     filled = (features["vicon_filled"].to_numpy(float) if "vicon_filled" in features
               else np.zeros(len(U)))  # fmt: skip
+    flip_cols = [f"flip_{d}" for d in ERROR_DIMS]
+    if all(c in features for c in flip_cols) and "flip_dssr_px2" in features:
+        flip = features[flip_cols].to_numpy(float) / WORKING_UNITS
+        d_ssr = features["flip_dssr_px2"].to_numpy(float)
+    else:
+        flip, d_ssr = np.zeros((len(U), 6)), np.full(len(U), np.inf)
     return (U * scale, block("parcov") * scale, RS, speed, reproj, filled,
-            block("corrcov") * scale, block("refcov") * scale)
+            block("corrcov") * scale, block("refcov") * scale, (flip, d_ssr))
 
 
 def _has_corr(features):
@@ -81,13 +89,16 @@ def _shrink_terms(features):
     return n_c, pool
 
 
-def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, R=None, shrink=None, s_corr=0.0,
-                  r_rs=0.0, c_ref=0.0):
+def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, R=None, flip=None, shrink=None,
+                  s_corr=0.0, r_rs=0.0, c_ref=0.0):
     """Model (T) mean (N, 6) and covariance (N, 6, 6), working units; ``q`` of 11 entries
     (the last log k) with ``shrink`` = :func:`_shrink_terms` shrinks the corner noise;
     ``s_corr`` is the correlated share of the corner noise (its variance s_corr^2 sigma_px^2
     through ``C``, per px^2); ``r_rs`` the relative error of the shear's prediction (variance
-    r_rs^2 mu mu^T); ``c_ref`` the scale of the moving camera body's reference noise ``R``."""
+    r_rs^2 mu mu^T); ``c_ref`` the scale of the moving camera body's reference noise ``R``;
+    ``flip`` = (delta (N, 6), d_ssr (N,)) adds the planar PnP's two-solution mixture,
+    ``w delta delta^T`` with ``w`` :func:`cvsflow.uncertainty.ambiguity.flip_weight` of the
+    frame's corner variance (physics: no parameter of its own)."""
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, _ = _unpack_transfer(q)
     if len(q) > 10 and shrink is not None:
         reproj = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
@@ -103,6 +114,9 @@ def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, R=None, shrink=Non
         S = S + r_rs**2 * mu[:, :, None] * mu[:, None, :]
     if c_ref and R is not None:
         S = S + c_ref**2 * R
+    if flip is not None and np.isfinite(flip[1]).any():
+        w = flip_weight(flip[1], var_px)
+        S = S + w[:, None, None] * flip[0][:, :, None] * flip[0][:, None, :]
     return mu, S
 
 
@@ -128,7 +142,7 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0):
         Correlated share of the corner noise (0: no ``C`` term).
     E : ndarray, shape (N, 6)
     terms : tuple
-        :func:`_transfer_terms` of the frames.
+        :func:`_transfer_terms` of the frames (the flip term last, or None).
     shrink : tuple, optional
         :func:`_shrink_terms` of the frames.
     r_rs : float
@@ -149,10 +163,11 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0):
     grad_log_c_ref : float
         d nll / d ln c_ref.
     """
-    U, P, RS, speed, reproj, filled, C, R = terms
+    U, P, RS, speed, reproj, filled, C, R, flip = terms
     d = E.shape[1]
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, nu = _unpack_transfer(q)
-    mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, R, shrink, s_corr, r_rs, c_ref)
+    mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, R, flip, shrink, s_corr, r_rs,
+                          c_ref)
     try:
         L = np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
@@ -177,6 +192,13 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0):
         n_px = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
     var_px = s0**2 + (s_speed * speed) ** 2 + (s_reproj * n_px) ** 2
     tr_var = tr_U + s_corr**2 * tr_C  # d ll / d var_px
+    if flip is not None and np.isfinite(flip[1]).any():
+        # the flip weight w = 1 / (1 + exp(d_ssr / (2 var))) moves with the corner variance:
+        # dw / dvar = w (1 - w) d_ssr / (2 var^2)
+        w_flip = flip_weight(flip[1], var_px)
+        dssr = np.where(np.isfinite(flip[1]), flip[1], 0.0)
+        tr_flip = np.einsum("ni,nij,nj->n", flip[0], G, flip[0])
+        tr_var = tr_var + tr_flip * w_flip * (1.0 - w_flip) * dssr / (2.0 * var_px**2)
     g = np.zeros(len(q))  # d mean(ll) / d q
     g[0] = np.mean(tr_var * 2.0 * s0**2)
     g[1] = np.mean(tr_var * 2.0 * (s_speed * speed) ** 2)
@@ -281,7 +303,7 @@ def fit_transfer_model(features, errors, shrink=None):
     if missing:
         raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
     E = errors[cols].to_numpy(float) / WORKING_UNITS
-    U, P, RS, speed, reproj, filled, C, R = _transfer_terms(features)
+    U, P, RS, speed, reproj, filled, C, R, flip = _transfer_terms(features)
     fit_corr = _has_corr(features)
     fit_rrs = bool(np.any(RS != 0.0))
     fit_ref = _has_ref(features)
@@ -318,7 +340,7 @@ def fit_transfer_model(features, errors, shrink=None):
         c_ref = float(tail.pop(0)) if fit_ref else 0.0
         return s_corr, r_rs, c_ref
 
-    terms = (U, P, RS, speed, reproj, filled, C, R)
+    terms = (U, P, RS, speed, reproj, filled, C, R, flip)
     # which entries of the full vector (10 or 11) the optimiser moves, in its order
     free = [i for i in range(10) if fit_rs or i != 4] + ([10] if fit_k else [])
 

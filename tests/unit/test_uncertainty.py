@@ -697,12 +697,13 @@ def test_quantiles_without_scipy_stats_equal_scipy_stats_bit_for_bit():
     np.testing.assert_allclose(chi2_pdf(x, 6), stats.chi2.pdf(x, 6), rtol=1e-12, atol=1e-300)
 
 
-@pytest.mark.parametrize("case", ["plain", "correlated", "shrunk", "shear", "reference"])
+@pytest.mark.parametrize("case", ["plain", "correlated", "shrunk", "shear", "reference", "flip"])
 def test_transfer_likelihood_gradient_matches_central_differences(case):
     """The analytic gradient of model (T)'s likelihood (what L-BFGS-B is given) equals central
     differences of the likelihood in every parameter, with a rolling-shutter mean, gap-filled
-    frames, the correlated corner term, the shrinkage's k, the shear's relative error and a
-    moving camera body's reference noise."""
+    frames, the correlated corner term, the shrinkage's k, the shear's relative error, a
+    moving camera body's reference noise and the planar PnP's flip (whose weight moves with
+    the corner variance)."""
     from cvsflow.uncertainty import transfer as tr
 
     rng = np.random.default_rng(11)
@@ -720,7 +721,16 @@ def test_transfer_likelihood_gradient_matches_central_differences(case):
         iu = np.triu_indices(6)
         for c, col in enumerate(un.cov_columns(name)):
             feats[col] = C[:, iu[0][c], iu[1][c]]
+    if case == "flip":
+        # a fifth of the frames with a second solution that fits about as well as the first
+        has = rng.uniform(size=300) < 0.2
+        for j, d in enumerate(ev.ERROR_DIMS):
+            feats[f"flip_{d}"] = np.where(has, rng.normal(size=300) * 3.0 * un.WORKING_UNITS[j], 0.0)
+        feats["flip_dssr_px2"] = np.where(has, rng.uniform(0.0, 1.0, 300), np.inf)
     terms = tr._transfer_terms(feats)
+    if case == "flip":
+        w = un.flip_weight(feats["flip_dssr_px2"].to_numpy(), 0.3)
+        assert (w[has] > 0.05).mean() > 0.9 and (w[~has] == 0).all()
     e = E.to_numpy(float) / un.WORKING_UNITS
     q = np.log([0.3, 0.05, 0.6, 0.8, 1.3, 3e-4, 6e-4, 1e-3, 3e-3, 4.0])
     shrink, s_corr = None, 0.3 if case == "correlated" else 0.0
