@@ -145,7 +145,7 @@ def extract_corners(
             n_found += corners_px is not None
             rows.add(frame, t_s, corners_px)
 
-    for frame, t_s, gray in frames:
+    for frame, t_s, gray in _read_ahead(frames):
         if gray is None:  # the decoder refused it (iter_video_gray's ``undecodable``)
             record(follower.push_undecodable(int(frame), float(t_s)))
             n_done += 1
@@ -206,6 +206,32 @@ def extract_corners(
             methods["unresolved"],
         )
     return corners
+
+
+# Frames are taken from the source in runs of up to this many (and this many bytes): decoding
+# a run back to back keeps the decoder's working set in the cache, which tracking each frame
+# in between evicts. On the 12 s realistic 640x480 clip the stage took 1.00-1.05 ms a frame
+# against 1.11-1.13 ms frame by frame (runs of 16; runs of 4-8 gained little), at 1080p
+# 5.2 against 5.5 ms.
+READ_AHEAD_FRAMES = 16
+READ_AHEAD_BYTES = 32 * 2**20
+
+
+def _read_ahead(frames: Iterable[tuple[int, float, np.ndarray | None]]) -> Iterator:
+    """``frames`` in order, pulled from the source a run at a time (``READ_AHEAD_FRAMES``,
+    ``READ_AHEAD_BYTES``)."""
+    it = iter(frames)
+    while True:
+        run, size = [], 0
+        for item in it:
+            run.append(item)
+            gray = item[2]
+            size += getattr(gray, "nbytes", 0)
+            if len(run) >= READ_AHEAD_FRAMES or size >= READ_AHEAD_BYTES:
+                break
+        if not run:
+            return
+        yield from run
 
 
 def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict:
