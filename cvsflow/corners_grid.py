@@ -323,7 +323,7 @@ def quadratic_deviation(corners_px: np.ndarray, board: dict) -> np.ndarray:
     -------
     deviation_px : ndarray, shape (nx * ny,)
         Distance between corner and prediction, pixels; inf for corners unknown or with
-        neighbours too few (under 8) or too few rows or columns for a quadratic.
+        neighbours too few (under 6, the quadratic's terms) or not fixing a quadratic (on two lines).
     """
     nx, ny = board_pattern(board)
     uv = np.asarray(corners_px, dtype=np.float64).reshape(-1, 2)
@@ -336,8 +336,10 @@ def quadratic_deviation(corners_px: np.ndarray, board: dict) -> np.ndarray:
     return np.where(ok, np.sqrt(dx * dx + dy * dy), np.inf)
 
 
-# A quadratic prediction needs this many known neighbours within two grid steps.
-MIN_QUADRATIC_NEIGHBOURS = 8
+# A quadratic prediction needs this many known neighbours within two grid steps (its terms;
+# with as few, a corner's prediction interpolates them and is noisier, which costs a fast-path
+# frame now and then, never a wrong corner: the corner's own displacement is its deviation).
+MIN_QUADRATIC_NEIGHBOURS = 6
 
 
 @functools.lru_cache(maxsize=128)

@@ -249,19 +249,29 @@ def _four_point_homography(grid: np.ndarray, points_px: np.ndarray, keep: np.nda
     is about as good (on the realistic renders' partly hidden frames, median 0.7 / 3.6 / 0.5
     px against 1.6 / 3.6 / 0.7 px at 640x480 / 720p / portrait 1080p).
     """
-    idx = np.flatnonzero(keep)
+    pick = _four_corners(grid.tobytes(), len(grid), np.asarray(keep, bool).tobytes())
+    if pick is None:
+        return None
+    return cv2.getPerspectiveTransform(grid[pick], np.asarray(points_px[pick], dtype=np.float32))
+
+
+@functools.lru_cache(maxsize=128)
+def _four_corners(grid_bytes: bytes, n: int, keep_bytes: bytes):
+    """``_four_point_homography``'s corners for a visibility mask (a board keeps its mask for
+    many frames): their indices around the quadrilateral, or None when it is degenerate."""
+    grid = np.frombuffer(grid_bytes, dtype=np.float32).reshape(n, 2)
+    idx = np.flatnonzero(np.frombuffer(keep_bytes, dtype=bool))
     g = grid[idx]
     s, d = g[:, 0] + g[:, 1], g[:, 0] - g[:, 1]
     pick = idx[[s.argmin(), d.argmax(), s.argmax(), d.argmin()]]  # around the quadrilateral
-    src = grid[pick]
     # Every turn around it the same way (twice each triangle's area over half a square).
-    q = src.tolist()
+    q = grid[pick].tolist()
     for k in range(4):
         (ax, ay), (bx, by), (cx, cy) = q[k], q[(k + 1) % 4], q[(k + 2) % 4]
         if (bx - ax) * (cy - ay) - (by - ay) * (cx - ax) <= 0.5:
             return None
-    return cv2.getPerspectiveTransform(src, np.asarray(points_px[pick], dtype=np.float32))
-
+    pick.flags.writeable = False  # cached: shared by every call
+    return pick
 
 
 @functools.lru_cache(maxsize=16)
