@@ -199,10 +199,11 @@ def _shrunk(gray: np.ndarray, f: int) -> np.ndarray:
 PARTIAL_METHODS = ("partial", "out_of_view")
 
 
-# The search backs off while the board stays lost: it runs on the 1st, 4th and 16th frame after
-# the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found within that
-# many frames and the frames before it are tracked backwards, so searching more often buys
-# only an earlier answer; the frames right after the tracker lost a board are searched by
+# The search backs off while the board stays lost: it runs on the 1st, 4th, 8th and 16th frame
+# after the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found within
+# that many frames and the frames before it are tracked backwards, so searching more often buys
+# only an earlier answer; the 8th catches the board as a passing hand leaves it, which the
+# searches from the 16th on can miss for seconds; the frames right after the tracker lost a board are searched by
 # ``_relocate``). A quick search that finds nothing costs about six frames' decoding (4.5 ms
 # at 640x480, 11 ms at 1280x720 on a partly hidden board), so every 16 frames it costs under
 # 0.4 of the decoding while the board is lost (every 8: 0.75).
@@ -282,7 +283,7 @@ class _CornerFollower:
 
     def _search_now(self) -> bool:
         n = self.lost_for
-        return n in (1, 4) or n % SEARCH_EVERY_MAX == 0
+        return n in (1, 4, 8) or n % SEARCH_EVERY_MAX == 0
 
     def _quick_scale(self):
         """Shrink factor of the quick search: squares of the last board >= QUICK_MIN_SQUARE_PX,
