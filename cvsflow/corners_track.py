@@ -203,10 +203,10 @@ PARTIAL_METHODS = ("partial", "out_of_view")
 # after the loss, then every SEARCH_EVERY_MAX frames (a board that comes back is found within
 # that many frames and the frames before it are tracked backwards, so searching more often buys
 # only an earlier answer; the 8th catches the board as a passing hand leaves it, which the
-# searches from the 16th on can miss for seconds; the frames right after the tracker lost a board are searched by
-# ``_relocate``). A quick search that finds nothing costs about six frames' decoding (4.5 ms
-# at 640x480, 11 ms at 1280x720 on a partly hidden board), so every 16 frames it costs under
-# 0.4 of the decoding while the board is lost (every 8: 0.75).
+# searches from the 16th on can miss for seconds; the frames right after the tracker lost a
+# board are searched by ``_relocate``). A quick search that finds nothing costs about six
+# frames' decoding (4.5 ms at 640x480, 11 ms at 1280x720 on a partly hidden board), so every
+# 16 frames it costs under 0.4 of the decoding while the board is lost (every 8: 0.75).
 SEARCH_EVERY_MAX = 16
 # ... and the full detector (on the image shrunk to DETECT_LONG_SIDE_PX) on the 64th frame
 # after the loss and every DEEP_SEARCH_EVERY frames after (and on the frames right after the
