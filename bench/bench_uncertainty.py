@@ -23,6 +23,12 @@ time_correlation=True)``, :func:`cvsflow.uncertainty.score_time_correlated`; the
 met are counted for both; ``_ar1`` in the file name). ``--worst NAME`` instead prints, for session NAME scored by the
 model fitted on the other sessions given, what its worst 5 % of frames (Mahalanobis
 distance) look like and which term of model (T) dominates them (docs/findings.md).
+
+Beside the targets met, the bench prints how many a model exactly right on the same held-out
+frames would meet (``cvsflow.uncertainty.target_pass_rates``: errors drawn from each frame's
+stated covariance, mean and nu, independent, AR(1) with the session's own lag-1
+autocorrelation, or with its autocorrelation at every lag; 400 draws per session, seeded), the yardstick for the count: folds of 60
+time-correlated frames miss some targets whatever the model.
 """
 
 from __future__ import annotations
@@ -40,7 +46,7 @@ from cvsflow.io import read_parquet, read_yaml, write_yaml
 from cvsflow.uncertainty import transfer as un_transfer
 
 ROOT = Path(__file__).resolve().parents[1]
-TARGETS = {"nees": (4.5, 7.5), "inside_95": (0.93, 0.97), "inside_68": (0.64, 0.72)}
+TARGETS = un.TARGETS
 
 
 def boards():
@@ -117,6 +123,7 @@ def main(names, shrink=None, time_offset=False, corr_length_px=None, ar1=False):
     print("axes: " + " ".join(ERROR_DIMS))
     misses, misses_beyond = [], []
     met = {"plain": [0, 0], "ar1": [0, 0]}  # [met, total]
+    met_by_session = {}
     for n, r in loso["sessions"].items():
         sc, m = r["score"], r["model"]
         print(f"{n}: n {sc['n']}, NEES {sc['nees_mean']:.2f}, model s0 {m['s0_px']:.3f} px "
@@ -143,15 +150,26 @@ def main(names, shrink=None, time_offset=False, corr_length_px=None, ar1=False):
                 fa = fs["ar1"]
                 print(f"   AR(1) fold {fs['fold']}: NEES {fa['nees_mean']:6.2f}  in95 "
                       f"{fmt_axes(fa['inside_95'])}  in68 {fmt_axes(fa['inside_68'])}")
+        met_before = met["plain"][0]
         for label, s in [("session", sc)] + [(f"fold {fs['fold']}", fs) for fs in sc["folds"]]:
             check_targets(s, met["plain"], misses, f"{n} {label}", misses_beyond)
             if "ar1" in s:
                 check_targets(s["ar1"], met["ar1"], None, f"{n} {label}")
+        met_by_session[n] = met["plain"][0] - met_before
+    yard = calibrated_yardstick(sessions, loso)
     pm = loso["pooled_model"]
     print("\npooled model (all sessions): " + ", ".join(f"{k} {pm[k]:.4g}" for k in un.TRANSFER_PARAMS))
-    print(f"\ntargets met: {met['plain'][0]} of {met['plain'][1]}")
+    print(f"\ntargets met: {met['plain'][0]} of {met['plain'][1]}; per session "
+          + ", ".join(f"{n} {v}" for n, v in met_by_session.items()))
     if met["ar1"][1]:
         print(f"targets met with AR(1)-whitened scores: {met['ar1'][0]} of {met['ar1'][1]}")
+    for key, label in (("iid", "independent frames"),
+                       ("ar1", "an AR(1) with each held-out session's own lag-1 autocorrelation"),
+                       ("acf", "each held-out session's own autocorrelation at every lag")):
+        y = yard[key]
+        print(f"a model exactly right on these frames ({label}): {y['expected_met']:.0f} "
+              f"+- {y['sd_met']:.0f} of {y['n_targets']} (5-95 %: {y['p05']:.0f}-{y['p95']:.0f}); "
+              "per session " + ", ".join(f"{n} {v:.1f}" for n, v in y["per_session"].items()))
     print(f"\ntargets missed ({len(misses)}):")
     for m in misses:
         print("  " + m)
@@ -170,10 +188,49 @@ def main(names, shrink=None, time_offset=False, corr_length_px=None, ar1=False):
     out = ROOT / "results" / "bench_uncertainty" / f"loso{tag}.yaml"
     write_yaml({"sessions": {n: r for n, r in loso["sessions"].items()},
                 "pooled_model": pm, "targets_met": met["plain"][0],
+                "targets_met_by_session": met_by_session,
                 "targets": met["plain"][1], "targets_missed": misses,
                 **({"targets_met_ar1": met["ar1"][0]} if ar1 else {}),
-                "band_targets_missed_beyond_sampling": misses_beyond}, out)
+                "band_targets_missed_beyond_sampling": misses_beyond,
+                "calibrated_yardstick": yard}, out)
     print(f"\nwritten {out.relative_to(ROOT)}")
+
+
+def calibrated_yardstick(sessions, loso, n_draws=400):
+    """Targets a model exactly right on the held-out frames would meet (its stated covariance,
+    mean and nu for each frame; frames independent, an AR(1) with the session's own measured
+    lag-1 autocorrelation, or the session's autocorrelation at every lag within a run):
+    expected count, sd and 5-95 % range over the Monte Carlo draws, summed over sessions, and
+    the expected count per session."""
+    out = {}
+    for key in ("iid", "ar1", "acf"):
+        total, per_session = 0, {}
+        for i, (n, r) in enumerate(loso["sessions"].items()):
+            f = sessions[n]["features"].reset_index(drop=True)
+            err = sessions[n]["errors"].reset_index(drop=True)
+            model = r["model"]
+            fold = err["fold"].to_numpy().astype(int)
+            frame = err["frame"].to_numpy() if "frame" in err else np.arange(len(err))
+            runs = un.frame_runs(frame, fold)
+            cov = un_transfer.transfer_covariance(model, f)
+            mu = un_transfer.transfer_mean(model, f)
+            if key == "iid":
+                tc = 0.0
+            elif key == "ar1":
+                tc = np.clip([r["score"]["lag1_autocorr"][d] for d in ERROR_DIMS], 0.0, 0.95)
+            else:
+                longest = int(np.max(np.unique(runs, return_counts=True)[1]))
+                tc = un.autocorrelation(un.standardised_errors(cov, err, mu), runs, longest - 1)
+            rates = un.target_pass_rates(cov, mu, model["nu"], tc, runs, fold, n_draws=n_draws,
+                                         seed=i)
+            total = total + rates["met_per_draw"]
+            per_session[n] = round(rates["expected_met"], 2)
+        out[key] = {"expected_met": float(np.mean(total)), "sd_met": float(np.std(total)),
+                    "p05": float(np.percentile(total, 5)), "p95": float(np.percentile(total, 95)),
+                    "n_targets": 13 * sum(1 + len(r["score"]["folds"])
+                                          for r in loso["sessions"].values()),
+                    "per_session": per_session}
+    return out
 
 
 def worst_frames(names, held):

@@ -16,15 +16,18 @@
 - :mod:`cvsflow.uncertainty.scoring`: band coverage and NEES (:func:`score_covariance`,
   :func:`nees_values`, :func:`band_multipliers`), and the same with the errors whitened by
   an AR(1) in time (:func:`fit_ar1`, :func:`score_time_correlated`).
+- :mod:`cvsflow.uncertainty.calibrated_draws`: how many of the coverage targets a model that
+  is exactly right meets on short, time-correlated held-out sets (:func:`target_pass_rates`).
 - :mod:`cvsflow.uncertainty.crb`: the Cramer-Rao floor (:func:`cramer_rao_sigma`).
 - :mod:`cvsflow.uncertainty.ambiguity`: the planar PnP's second solution
   (:func:`pnp_alternatives`) and the chance it is the true pose (:func:`flip_weight`).
 
-The submodules import each other downwards (ambiguity, propagation, scoring < models, features, crb <
-transfer < transfer_scoring); this package only re-exports their public names.
+The submodules import each other downwards (ambiguity, propagation, scoring < calibrated_draws,
+models, features, crb < transfer < transfer_scoring); this package only re-exports their public names.
 """
 
 from cvsflow.uncertainty.ambiguity import flip_weight, pnp_alternatives
+from cvsflow.uncertainty.calibrated_draws import TARGETS, autocorrelation, target_pass_rates
 from cvsflow.uncertainty.crb import cramer_rao_sigma
 from cvsflow.uncertainty.features import (
     CORNER_CORRELATION_PX,
@@ -87,8 +90,8 @@ from cvsflow.uncertainty.transfer_scoring import (
 __all__ = [
     "BANDS", "CORNER_CORRELATION_PX", "FEATURES", "FILL_WINDOW_S", "MEASUREMENT_FEATURES",
     "NOISE_POOL_COLUMN",
-    "PARAM_BLOCKS", "RENDERED_TRANSFER_MODEL", "TRANSFER_PARAMS", "WORKING_UNITS",
-    "ar1_innovations", "band_multipliers", "block_mean_variance", "fit_ar1", "frame_runs",
+    "PARAM_BLOCKS", "RENDERED_TRANSFER_MODEL", "TARGETS", "TRANSFER_PARAMS", "WORKING_UNITS",
+    "ar1_innovations", "autocorrelation", "band_multipliers", "block_mean_variance", "fit_ar1", "frame_runs",
     "corner_noise_from_reproj", "corner_noise_pool", "correlated_noise_terms",
     "cov_columns",
     "cov_from_columns", "cramer_rao_sigma", "crossfit_transfer", "error_features",
@@ -99,6 +102,7 @@ __all__ = [
     "pose6_covariance", "predict_error_sigma", "predicted_covariance",
     "propagated_pose_covariance", "score_covariance", "score_error_model", "score_time_correlated",
     "score_transfer", "seen_corners", "shrink_corner_noise", "standardised_errors",
+    "target_pass_rates",
     "time_correlation_of", "transfer_covariance", "transfer_mean",
     "vicon_filled",
 ]  # fmt: skip
