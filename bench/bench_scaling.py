@@ -228,8 +228,10 @@ def code_version() -> str:
 
 
 def run(workdir: Path, cores: int, *targets: str) -> None:
+    # quiet, but not "all": that also silences the error a failed run should show
     cmd = [sys.executable, "-m", "snakemake", *targets, "-s", str(REPO / "Snakefile"),
-           "--directory", str(workdir), "--cores", str(cores), "--quiet", "all"]
+           "--directory", str(workdir), "--cores", str(cores),
+           "--quiet", "progress", "rules", "host", "reason"]
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         sys.exit(f"snakemake failed in {workdir}:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")

@@ -117,6 +117,21 @@ def test_block_bootstrap_widens_for_autocorrelated_errors():
     assert b["Sigma"].shape == (1, 1)
 
 
+def test_bootstrap_in_chunks_is_the_bootstrap_at_once(monkeypatch):
+    """The resamples taken a few at a time (memory flat in the session's length) give every
+    interval bit for bit as all at once: a chunk of one resample, of 7, and all 250."""
+    rng = np.random.default_rng(11)
+    E = rng.normal(size=(900, 6)) * np.array([1e-3, 2e-3, 5e-3, 1e-3, 1e-3, 4e-4])
+    results = []
+    for resamples_per_chunk in (1, 7, 250):
+        monkeypatch.setattr(ev, "BOOTSTRAP_CHUNK_BYTES", 16 * 900 * 6 * resamples_per_chunk)
+        results.append(ev.bootstrap_error_stats(E, 30, n_boot=250, seed=5))
+    for other in results[:2]:
+        for name in ("mean_lo", "mean_hi", "std_lo", "std_hi", "Sigma_lo", "Sigma_hi"):
+            assert np.array_equal(other[name], results[2][name])
+    assert not np.array_equal(results[2]["std_lo"], results[2]["std_hi"])
+
+
 def test_cross_validation_held_out_errors_match_pnp_noise():
     """Held-out se3 errors on a 20 s session: every frame scored once by a fit that did not
     see it; their spread is below 2 mm in x and y, 15 mm in z and 1.5 deg in angle, and the
