@@ -166,18 +166,21 @@ def parse_numeric_block(
             f"{path}, line {first + i + 1}: {n_cells[i]} cells, expected {n_cols} "
             f"{f'({expected})' if expected else 'as the header says'}; {where}"
         )
-    block = "\n".join(lines)
+    # Bytes, not a StringIO: a StringIO of an ASCII block holds 4 bytes a character (a
+    # 20-minute 300 Hz Vicon export: 87 MB of text took 350 MB more); the parser is the same.
+    block = "\n".join(lines).encode("utf-8")
     na = ["", *na_values]
     try:
         return pd.read_csv(
-            io.StringIO(block), sep=sep, header=None, usecols=range(n_cols), dtype=np.float64,
+            io.BytesIO(block), sep=sep, header=None, usecols=range(n_cols), dtype=np.float64,
             engine="c", skip_blank_lines=False, na_values=na, keep_default_na=pandas_na,
+            encoding="utf-8",
         ).to_numpy()
     except (ValueError, TypeError):
         pass
     cells = pd.read_csv(
-        io.StringIO(block), sep=sep, header=None, usecols=range(n_cols), dtype=str,
-        keep_default_na=pandas_na, skip_blank_lines=False,
+        io.BytesIO(block), sep=sep, header=None, usecols=range(n_cols), dtype=str,
+        keep_default_na=pandas_na, skip_blank_lines=False, encoding="utf-8",
     ).to_numpy()
     for i, row in enumerate(cells):
         for j, cell in enumerate(row):
