@@ -9,6 +9,8 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
+from cvsflow.plots.decimate import min_max_envelope
+
 
 def _marker_names(df):
     if "markers" in df.attrs:
@@ -98,14 +100,16 @@ def plot_fit_residuals(bodies: pd.DataFrame) -> Figure:
     for body, sub in bodies.groupby("body", sort=False):
         t = sub["t_s"].to_numpy(float)
         rms_mm = sub["fit_rms_m"].to_numpy(float) * 1000.0
-        (line,) = ax0.plot(t, rms_mm, lw=0.8, label=f"{body} (median {np.nanmedian(rms_mm):.2f} mm)")
+        (line,) = ax0.plot(*min_max_envelope(t, rms_mm), lw=0.8,
+                           label=f"{body} (median {np.nanmedian(rms_mm):.2f} mm)")
         bad = ~sub["valid"].to_numpy(bool)
         if bad.any():
             ax0.plot(t[bad], np.full(bad.sum(), np.nanmin(rms_mm[~bad]) if (~bad).any() else 1e-3),
                      "|", color=line.get_color(), ms=10, label=f"{body} invalid ({bad.sum()} samples)")
-        ax1.step(t, sub["n_markers"], where="mid", color=line.get_color(), lw=0.8, label=f"{body} used")
-        ax1.step(t, sub["n_filled"], where="mid", color=line.get_color(), lw=0.8, ls="--",
-                 label=f"{body} filled")
+        ax1.step(*min_max_envelope(t, sub["n_markers"]), where="mid", color=line.get_color(), lw=0.8,
+                 label=f"{body} used")
+        ax1.step(*min_max_envelope(t, sub["n_filled"]), where="mid", color=line.get_color(), lw=0.8,
+                 ls="--", label=f"{body} filled")
     ax0.set_yscale("log")
     ax0.set_ylabel("fit RMS residual (mm)")
     ax0.set_title("Rigid-body fit residual of the markers to their layout")
