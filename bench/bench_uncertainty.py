@@ -27,8 +27,9 @@ distance) look like and which term of model (T) dominates them (docs/findings.md
 Beside the targets met, the bench prints how many a model exactly right on the same held-out
 frames would meet (``cvsflow.uncertainty.target_pass_rates``: errors drawn from each frame's
 stated covariance, mean and nu, independent, AR(1) with the session's own lag-1
-autocorrelation, or with its autocorrelation at every lag; 400 draws per session, seeded), the yardstick for the count: folds of 60
-time-correlated frames miss some targets whatever the model.
+autocorrelation, or with its autocorrelation at every lag; 400 draws per session, seeded),
+the yardstick for the count: folds of 60 time-correlated frames miss some targets whatever
+the model.
 """
 
 from __future__ import annotations
@@ -202,34 +203,34 @@ def calibrated_yardstick(sessions, loso, n_draws=400):
     lag-1 autocorrelation, or the session's autocorrelation at every lag within a run):
     expected count, sd and 5-95 % range over the Monte Carlo draws, summed over sessions, and
     the expected count per session."""
+    prepared = []  # each session's statement and time structure, once for the three kinds
+    for n, r in loso["sessions"].items():
+        f = sessions[n]["features"].reset_index(drop=True)
+        err = sessions[n]["errors"].reset_index(drop=True)
+        fold = err["fold"].to_numpy().astype(int)
+        frame = err["frame"].to_numpy() if "frame" in err else np.arange(len(err))
+        runs = un.frame_runs(frame, fold)
+        cov = un_transfer.transfer_covariance(r["model"], f)
+        mu = un_transfer.transfer_mean(r["model"], f)
+        longest = int(np.max(np.unique(runs, return_counts=True)[1]))
+        correlation = {
+            "iid": 0.0,
+            "ar1": np.clip([r["score"]["lag1_autocorr"][d] for d in ERROR_DIMS], 0.0, 0.95),
+            "acf": un.autocorrelation(un.standardised_errors(cov, err, mu), runs, longest - 1),
+        }
+        prepared.append((n, cov, mu, r["model"]["nu"], runs, fold, correlation))
     out = {}
     for key in ("iid", "ar1", "acf"):
-        total, per_session = 0, {}
-        for i, (n, r) in enumerate(loso["sessions"].items()):
-            f = sessions[n]["features"].reset_index(drop=True)
-            err = sessions[n]["errors"].reset_index(drop=True)
-            model = r["model"]
-            fold = err["fold"].to_numpy().astype(int)
-            frame = err["frame"].to_numpy() if "frame" in err else np.arange(len(err))
-            runs = un.frame_runs(frame, fold)
-            cov = un_transfer.transfer_covariance(model, f)
-            mu = un_transfer.transfer_mean(model, f)
-            if key == "iid":
-                tc = 0.0
-            elif key == "ar1":
-                tc = np.clip([r["score"]["lag1_autocorr"][d] for d in ERROR_DIMS], 0.0, 0.95)
-            else:
-                longest = int(np.max(np.unique(runs, return_counts=True)[1]))
-                tc = un.autocorrelation(un.standardised_errors(cov, err, mu), runs, longest - 1)
-            rates = un.target_pass_rates(cov, mu, model["nu"], tc, runs, fold, n_draws=n_draws,
-                                         seed=i)
+        total, per_session, n_targets = 0, {}, 0
+        for i, (n, cov, mu, nu, runs, fold, correlation) in enumerate(prepared):
+            rates = un.target_pass_rates(cov, mu, nu, correlation[key], runs, fold,
+                                         n_draws=n_draws, seed=i)
             total = total + rates["met_per_draw"]
+            n_targets += rates["n_targets"]
             per_session[n] = round(rates["expected_met"], 2)
         out[key] = {"expected_met": float(np.mean(total)), "sd_met": float(np.std(total)),
                     "p05": float(np.percentile(total, 5)), "p95": float(np.percentile(total, 95)),
-                    "n_targets": 13 * sum(1 + len(r["score"]["folds"])
-                                          for r in loso["sessions"].values()),
-                    "per_session": per_session}
+                    "n_targets": n_targets, "per_session": per_session}
     return out
 
 

@@ -43,8 +43,8 @@ def min_max_envelope(t, y, n_bins=2000):
     pos = np.stack([first, second], axis=1)
     keep = np.ones_like(pos, bool)
     keep[:, 1] = (second != first) & ~empty
-    pos = pos[keep]
-    t_out = t[np.minimum(pos, n - 1)]
-    y_out = y[np.minimum(pos, n - 1)].copy()
+    pos = pos[keep]  # every index < n: padding is never a bin's extreme, an empty bin is its start
+    t_out = t[pos]
+    y_out = y[pos]
     y_out[np.repeat(empty, keep.sum(axis=1))] = np.nan
     return t_out, y_out
