@@ -256,7 +256,10 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
         flow), ``corners_per_found_frame``
         (min, median, max); with ``timing``: ``n_frames_header``, ``n_frames_demuxed``,
         ``n_dropped``, ``dropped_gaps`` (``[after_frame, missing]``), ``period_s`` (median),
-        ``period_min_s``, ``period_max_s``.
+        ``period_min_s``, ``period_max_s``, ``codec``, ``key_frame_share`` (key frames over
+        demuxed frames) and ``inter_coded`` (some frame coded from another: a still board
+        then errs by a pose-like motion its corners' residual does not show, which model (T)
+        adds, :data:`cvsflow.uncertainty.transfer.STILL_SPEED_PX`).
     """
     per_frame = corners.groupby("frame")["found"].first()
     n_per = corners[corners["found"]].groupby("frame").size()
@@ -285,6 +288,10 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
             "period_min_s": float(dt.min()) if len(dt) else 0.0,
             "period_max_s": float(dt.max()) if len(dt) else 0.0,
         })
+        if "n_key_frames" in timing:
+            share = timing["n_key_frames"] / max(int(timing["n_frames"]), 1)
+            out.update({"codec": str(timing["codec"]), "key_frame_share": float(share),
+                        "inter_coded": bool(share < 1.0)})
     return out
 
 

@@ -110,7 +110,9 @@ def video_timing(path) -> dict:
         ``t_s`` (ndarray (n_frames,), presentation times in order, s from the stream start),
         ``period_s`` (median frame period, s), ``n_dropped`` (frames missing in PTS gaps
         longer than ``DROP_GAP_PERIODS`` median periods), ``gaps`` (list of
-        ``[after_frame, missing]``).
+        ``[after_frame, missing]``), ``codec`` (FFmpeg's name of the stream's codec),
+        ``n_key_frames`` (packets flagged key frames: all of them in an intra-only video,
+        MJPEG say; few in a motion-compensated one, which codes most frames from the last).
 
     Raises
     ------
@@ -125,12 +127,15 @@ def video_timing(path) -> dict:
         n_header = int(stream.frames or 0)
         tb = float(stream.time_base)
         t0 = stream.start_time
+        codec = str(stream.codec_context.name)
         pts = []
         n_untimed = 0
+        n_key = 0
         try:
             for packet in container.demux(stream):
                 if packet.size and packet.pts is not None:
                     pts.append(packet.pts)
+                    n_key += bool(packet.is_keyframe)
                 n_untimed += bool(packet.size) and packet.pts is None
         except av.error.FFmpegError as exc:  # a truncated file: keep what demuxed
             log.warning("%s: demuxing stopped after %d packets (%s)", path, len(pts), exc)
@@ -163,6 +168,8 @@ def video_timing(path) -> dict:
         "period_s": period,
         "n_dropped": int(sum(g[1] for g in gaps)),
         "gaps": gaps,
+        "codec": codec,
+        "n_key_frames": int(n_key),
     }
 
 
