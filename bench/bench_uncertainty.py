@@ -20,7 +20,9 @@ loso_corr_inf.yaml), ``--corr L`` with corners correlated over L px (loso_corr_L
 ``--ar1`` also fits an AR(1) of the standardised errors on the training sessions and scores
 every session and fold with the errors whitened by it (``leave_one_session_out(
 time_correlation=True)``, :func:`cvsflow.uncertainty.score_time_correlated`; the targets
-met are counted for both; ``_ar1`` in the file name). ``--worst NAME`` instead prints, for session NAME scored by the
+met are counted for both; ``_ar1`` in the file name). ``--nll [session ...]`` prints each
+session's held-out negative log-likelihood per frame, with and without model (T)'s
+still-board codec term (``s_still``). ``--worst NAME`` instead prints, for session NAME scored by the
 model fitted on the other sessions given, what its worst 5 % of frames (Mahalanobis
 distance) look like and which term of model (T) dominates them (docs/findings.md).
 
@@ -44,6 +46,7 @@ import yaml
 from cvsflow import uncertainty as un
 from cvsflow.evaluate import ERROR_DIMS
 from cvsflow.io import read_parquet, read_yaml, write_yaml
+from cvsflow.io.media import video_timing
 from cvsflow.uncertainty import transfer as un_transfer
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,6 +61,15 @@ def boards():
     return out
 
 
+def inter_coded(name):
+    """corners_summary.yaml's ``inter_coded``, or (an older summary) the video's key frames."""
+    summary = read_yaml(ROOT / "results" / name / "corners_summary.yaml")
+    if "inter_coded" in summary:
+        return bool(summary["inter_coded"])
+    timing = video_timing(ROOT / "data" / name / "video.mp4")
+    return timing["n_key_frames"] < timing["n_frames"]
+
+
 def load(name, board, time_offset=False, corr_length_px=None):
     res = ROOT / "results" / name
     heldout = read_parquet(res / "heldout" / "se3.parquet")
@@ -65,7 +77,8 @@ def load(name, board, time_offset=False, corr_length_px=None):
     corners = read_parquet(res / "corners.parquet")
     bodies = read_parquet(res / "bodies.parquet")
     feats = un.measurement_features(heldout, corners, board, fits=fits, bodies=bodies,
-                                    time_offset=time_offset, corr_length_px=corr_length_px)
+                                    time_offset=time_offset, corr_length_px=corr_length_px,
+                                    inter_coded=inter_coded(name))
     # the session's pooled corner noise (what the shrinkage option pulls each frame toward)
     feats[un.NOISE_POOL_COLUMN] = un.corner_noise_pool(feats["reproj_rms_px"].to_numpy(float),
                                                        feats["n_corners"].to_numpy(float))
@@ -234,6 +247,39 @@ def calibrated_yardstick(sessions, loso, n_draws=400):
     return out
 
 
+def heldout_nll(names):
+    """Each session's held-out negative log-likelihood per frame under model (T) fitted on the
+    others, with and without the still board's codec term: a proper score, where the target
+    count is a coarse one."""
+    import pandas as pd
+
+    b = boards()
+    S = {n: load(n, b[n]) for n in names}
+    cols = [f"err_{d}" for d in ERROR_DIMS]
+    total = {False: 0.0, True: 0.0}
+    print("held-out NLL per frame (nats; lower is better), model (T) fitted on the other sessions")
+    for held in names:
+        others = [n for n in names if n != held]
+        f_tr = pd.concat([S[n]["features"] for n in others], ignore_index=True)
+        e_tr = pd.concat([S[n]["errors"] for n in others], ignore_index=True)
+        f, e = S[held]["features"], S[held]["errors"]
+        row = {}
+        for still in (False, True):
+            m = un_transfer._floors_for(un.fit_transfer_model(f_tr, e_tr, still=still), f)
+            E = e[cols].to_numpy(float) / un.WORKING_UNITS
+            row[still] = un_transfer._transfer_nll(
+                un_transfer._q_from_model(m), float(m.get("s_corr") or 0.0), E,
+                un_transfer._transfer_terms(f), None, float(m.get("r_rs") or 0.0), 0.0,
+                float(m.get("s_still") or 0.0))[0]  # fmt: skip
+            total[still] += row[still] * len(e)
+        slow = np.mean(f["speed_px"].to_numpy() < un_transfer.STILL_SPEED_PX)
+        print(f"  {held}: without the still term {row[False]:.4f}, with {row[True]:.4f} "
+              f"(gain {row[False] - row[True]:+.4f}; {slow:.0%} of frames under "
+              f"{un_transfer.STILL_SPEED_PX} px/frame, inter-coded {bool(f['inter_coded'].iloc[0])})")
+    print(f"  all: gain {total[False] - total[True]:.1f} nats over "
+          f"{sum(len(S[n]['errors']) for n in names)} frames")
+
+
 def worst_frames(names, held):
     """The worst held-out frames of ``held`` under the model fitted on the other ``names``."""
     import pandas as pd
@@ -251,7 +297,7 @@ def worst_frames(names, held):
     Sig = un.transfer_covariance(m, f)
     E = e[cols].to_numpy() - un.transfer_mean(m, f)
     m2 = np.einsum("ni,nij,nj->n", E, np.linalg.inv(Sig), E)
-    U, P, _, speed, reproj, _, _, _ = un_transfer._transfer_terms(f)
+    U, P, _, speed, reproj, *_ = un_transfer._transfer_terms(f)
     var_px = m["s0_px"] ** 2 + (m["s_speed"] * speed) ** 2 + (m["s_reproj"] * reproj) ** 2
     t_noise = np.einsum("nii->n", var_px[:, None, None] * U)
     t_cal = np.einsum("nii->n", m["c_cal"] ** 2 * P)
@@ -301,5 +347,7 @@ if __name__ == "__main__":
         args.remove("--ar1")
     if args[:1] == ["--worst"]:
         worst_frames(args[2:] or ["u_demo", "u_wide", "u_tele", "u_rs", "u_far"], args[1])
+    elif args[:1] == ["--nll"]:
+        heldout_nll(args[1:] or ["u_demo", "u_wide", "u_tele", "u_rs", "u_far", "demo"])
     else:
         main(args, shrink, time_offset, corr, ar1)

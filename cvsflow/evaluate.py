@@ -448,7 +448,7 @@ def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, lev
 
 def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, frame="C",
                     boot_block_s=2.0, n_boot=1000, seed=0, corners=None, transfer_model=None,
-                    bodies=None):
+                    bodies=None, inter_coded=False):
     """The comparison stage: both methods' held-out statistics and the error model's calibration.
 
     Parameters
@@ -480,6 +480,9 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
         A model (T) fitted on other sessions (default
         :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`), scored here as
         ``error_model_transfer`` (with ``corners``).
+    inter_coded : bool
+        The video is motion-compensated (corners_summary.yaml ``inter_coded``): model (T)
+        gets its still-board codec term (:func:`cvsflow.uncertainty.measurement_features`).
 
     Returns
     -------
@@ -507,7 +510,7 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
                                  n_boot=n_boot, seed=seed)
     if corners is not None:
         feats = un.measurement_features(se3, corners, board, fits=fold_fits, frame=frame,
-                                        bodies=bodies)
+                                        bodies=bodies, inter_coded=inter_coded)
         score, cov, mu = un.crossfit_transfer(feats, se3)
         comparison["error_model"] = score
         model = un.RENDERED_TRANSFER_MODEL if transfer_model is None else transfer_model

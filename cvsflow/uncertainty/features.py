@@ -236,7 +236,7 @@ def correlated_noise_terms(uv_px, rvec, tvec, p_B, K, dist, length_px, frame="C"
 
 
 def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=None,
-                         time_offset=False, corr_length_px=None):
+                         time_offset=False, corr_length_px=None, inter_coded=False):
     """What is known of each held-out frame when it is measured, and its covariance terms.
 
     Parameters
@@ -267,6 +267,11 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
         Adds ``corrcov_{a}{b}``, the PnP error covariance per px^2 of a corner noise
         correlated over this many px (:func:`correlated_noise_terms`; e.g.
         :data:`CORNER_CORRELATION_PX`). None: not computed.
+    inter_coded : bool
+        The video codes frames from other frames (motion compensation: MPEG-4, H.264, HEVC;
+        not MJPEG or raw; ``corners_summary.yaml: inter_coded``): adds ``inter_coded`` = 1,
+        which lets model (T)'s still-board term act (:func:`cvsflow.uncertainty.transfer.
+        fit_transfer_model`). False: 0.
 
     Returns
     -------
@@ -284,7 +289,8 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
         measured pose has if the planar PnP's other solution is the true pose (zero where
         there is none), and ``flip_dssr_px2``, how much worse that solution fits the corners
         (px^2; inf where there is none: :mod:`cvsflow.uncertainty.ambiguity`);
-        ``parcov_{a}{b}`` with ``fits``; ``corrcov_{a}{b}`` with ``corr_length_px``.
+        ``parcov_{a}{b}`` with ``fits``; ``corrcov_{a}{b}`` with ``corr_length_px``;
+        ``inter_coded`` (1 or 0).
     """
     p_B = board_object_points(board)
     need = ["frame", *[f"cvs_rvec_{j}" for j in range(3)], "cvs_x_m", "cvs_y_m", "cvs_z_m",
@@ -328,6 +334,7 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
         "spread_px": spread,
         "speed_px": speed,
         "reproj_rms_px": heldout["reproj_rms_px"].to_numpy(float),
+        "inter_coded": float(bool(inter_coded)),
     })  # fmt: skip
     iu = np.triu_indices(6)
     for c, name in enumerate(cov_columns("unitcov")):

@@ -31,6 +31,13 @@ from cvsflow.uncertainty.scoring import (
 
 log = logging.getLogger(__name__)
 
+#: Image speed (px per frame period) below which a motion-compensated codec codes a board as
+#: still: its blocks copied from the last frame with their motion vectors rounded to the
+#: codec's precision (half a pixel in MPEG-4 part 2, a quarter in H.264), so the board shows
+#: where it was, not where it is, and every corner errs by the same small motion: an error
+#: that looks like a pose change (model (T)'s ``s_still``; docs/findings.md 2026-12-05).
+STILL_SPEED_PX = 0.5
+
 #: Parameters of model (T), in the order of its vector (logs of positive scales).
 TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "b_rot_rad",
                    "b_fill_pos_m", "b_fill_rot_rad", "nu")
@@ -40,7 +47,8 @@ def _transfer_terms(features):
     """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), corner noise (N,), Vicon
     gap-filled (N,), C per px^2, the moving camera body's reference noise R (N, 6, 6), the
     planar PnP's flip (error if the other solution is true (N, 6), its cost excess px^2
-    (N,))), working units."""
+    (N,)), the weight of U per px^2 of a still board's pose-like codec error (N,)), working
+    units."""
     U = cov_from_columns(features, "unitcov")
 
     def block(name):
@@ -62,8 +70,14 @@ def _transfer_terms(features):
         d_ssr = features["flip_dssr_px2"].to_numpy(float)
     else:
         flip, d_ssr = np.zeros((len(U), 6)), np.full(len(U), np.inf)
+    # a pose-like corner error of s px per coordinate moves the pose as iid noise of
+    # s sqrt(n / 3) px on n corners would (its 2n coordinates all in PnP's 6 dimensions)
+    n_c = features["n_corners"].to_numpy(float)
+    inter = (features["inter_coded"].to_numpy(float) if "inter_coded" in features
+             else np.zeros(len(U)))  # fmt: skip
+    still = inter * (n_c / 3.0) / (1.0 + (speed / STILL_SPEED_PX) ** 2)
     return (U * scale, block("parcov") * scale, RS, speed, reproj, filled,
-            block("corrcov") * scale, block("refcov") * scale, (flip, d_ssr))
+            block("corrcov") * scale, block("refcov") * scale, (flip, d_ssr), still)
 
 
 def _has_corr(features):
@@ -89,8 +103,8 @@ def _shrink_terms(features):
     return n_c, pool
 
 
-def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, R=None, flip=None, shrink=None,
-                  s_corr=0.0, r_rs=0.0, c_ref=0.0):
+def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, R=None, flip=None, still=None,
+                  shrink=None, s_corr=0.0, r_rs=0.0, c_ref=0.0, s_still=0.0):
     """Model (T) mean (N, 6) and covariance (N, 6, 6), working units; ``q`` of 11 entries
     (the last log k) with ``shrink`` = :func:`_shrink_terms` shrinks the corner noise;
     ``s_corr`` is the correlated share of the corner noise (its variance s_corr^2 sigma_px^2
@@ -98,7 +112,9 @@ def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, R=None, flip=None,
     r_rs^2 mu mu^T); ``c_ref`` the scale of the moving camera body's reference noise ``R``;
     ``flip`` = (delta (N, 6), d_ssr (N,)) adds the planar PnP's two-solution mixture,
     ``w delta delta^T`` with ``w`` :func:`cvsflow.uncertainty.ambiguity.flip_weight` of the
-    frame's corner variance (physics: no parameter of its own)."""
+    frame's corner variance (physics: no parameter of its own); ``s_still`` the pose-like
+    error of a board the codec codes as still, as a share of the frame's corner noise
+    sigma_px, through ``still`` (N,) (:func:`_transfer_terms`) times U."""
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, _ = _unpack_transfer(q)
     if len(q) > 10 and shrink is not None:
         reproj = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
@@ -114,13 +130,15 @@ def _transfer_cov(q, U, P, RS, speed, reproj, filled, C=None, R=None, flip=None,
         S = S + r_rs**2 * mu[:, :, None] * mu[:, None, :]
     if c_ref and R is not None:
         S = S + c_ref**2 * R
+    if s_still and still is not None:
+        S = S + (s_still**2 * still * var_px)[:, None, None] * U
     if flip is not None and np.isfinite(flip[1]).any():
         w = flip_weight(flip[1], var_px)
         S = S + w[:, None, None] * flip[0][:, :, None] * flip[0][:, None, :]
     return mu, S
 
 
-def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0):
+def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0, s_still=0.0):
     """Mean negative log-likelihood of model (T) and its analytic gradient.
 
     The frames' errors ``E`` (N, 6, working units) are multivariate Student-t with nu degrees
@@ -149,6 +167,8 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0):
         Relative error of the shear's prediction (0: no such term).
     c_ref : float
         Scale of the moving camera body's reference noise (0: no such term).
+    s_still : float
+        A still board's pose-like codec error over the frame's corner noise (0: no such term).
 
     Returns
     -------
@@ -162,16 +182,18 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0):
         d nll / d ln r_rs.
     grad_log_c_ref : float
         d nll / d ln c_ref.
+    grad_log_s_still : float
+        d nll / d ln s_still.
     """
-    U, P, RS, speed, reproj, filled, C, R, flip = terms
+    U, P, RS, speed, reproj, filled, C, R, flip, still = terms
     d = E.shape[1]
     s0, s_speed, s_reproj, c, s_rs, b_pos, b_rot, f_pos, f_rot, nu = _unpack_transfer(q)
-    mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, R, flip, shrink, s_corr, r_rs,
-                          c_ref)
+    mu, S = _transfer_cov(q, U, P, RS, speed, reproj, filled, C, R, flip, still, shrink, s_corr,
+                          r_rs, c_ref, s_still)
     try:
         L = np.linalg.cholesky(S)
     except np.linalg.LinAlgError:
-        return 1e30, np.zeros(len(q)), 0.0, 0.0, 0.0
+        return 1e30, np.zeros(len(q)), 0.0, 0.0, 0.0, 0.0
     L_inv = np.linalg.inv(L)
     S_inv = np.matmul(np.swapaxes(L_inv, 1, 2), L_inv)
     r = E - mu
@@ -191,7 +213,9 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0):
     if len(q) > 10 and shrink is not None:
         n_px = shrink_corner_noise(reproj, shrink[0], shrink[1], np.exp(q[10]))
     var_px = s0**2 + (s_speed * speed) ** 2 + (s_reproj * n_px) ** 2
-    tr_var = tr_U + s_corr**2 * tr_C  # d ll / d var_px
+    use_still = bool(s_still) and still is not None
+    still_gain = s_still**2 * still if use_still else 0.0
+    tr_var = tr_U * (1.0 + still_gain) + s_corr**2 * tr_C  # d ll / d var_px
     if flip is not None and np.isfinite(flip[1]).any():
         # the flip weight w = 1 / (1 + exp(d_ssr / (2 var))) moves with the corner variance:
         # dw / dvar = w (1 - w) d_ssr / (2 var^2)
@@ -223,10 +247,12 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0):
         g[10] = np.mean(tr_var * s_reproj**2 * dn2_dlogk)
     g_corr = np.mean(tr_C * 2.0 * s_corr**2 * var_px) if use_corr else 0.0
     g_ref = np.mean(2.0 * c_ref**2 * np.einsum("nij,nij->n", G, R)) if c_ref and R is not None else 0.0
-    return -float(np.mean(ll)), -g, -float(g_corr), -float(np.mean(tr_rs)), -float(g_ref)
+    g_still = np.mean(tr_U * 2.0 * still_gain * var_px) if use_still else 0.0
+    return (-float(np.mean(ll)), -g, -float(g_corr), -float(np.mean(tr_rs)), -float(g_ref),
+            -float(g_still))
 
 
-def fit_transfer_model(features, errors, shrink=None):
+def fit_transfer_model(features, errors, shrink=None, still=True):
     """Fit model (T) by maximum likelihood on frames of one or more sessions.
 
     Model (T), per frame i (what is known when it is measured):
@@ -236,6 +262,7 @@ def fit_transfer_model(features, errors, shrink=None):
         Sigma_i = sigma_px,i^2 U_i + c_cal^2 P_i + diag(b_pos^2 I3, b_rot^2 I3)
                   + f_i diag(b_fill_pos^2 I3, b_fill_rot^2 I3) [+ s_corr^2 sigma_px,i^2 C_i]
                   [+ r_rs^2 mu_i mu_i^T] [+ c_ref^2 R_i]
+                  [+ s_still^2 sigma_px,i^2 (n_i / 3) / (1 + (v_i / v_still)^2) U_i]
 
     with U_i the PnP error covariance per px^2 of iid corner noise over the corners the frame
     saw (it carries the distance, the view angles, the corner count and their spread), v_i the
@@ -263,6 +290,14 @@ def fit_transfer_model(features, errors, shrink=None):
     carry ``refcov`` (a moving camera body, :mod:`cvsflow.uncertainty.reference_noise`), R_i
     is the reference noise that body's own pose noise puts into the error (its rotation noise
     times the board's distance) and c_ref its scale (1 in physics; fitted, bounded by 3).
+    When some frame is ``inter_coded`` (a motion-compensated video), s_still is the pose-like
+    error of a board the codec codes as still (v_i well under v_still =
+    :data:`STILL_SPEED_PX`: its blocks copied from the last frame, so every corner errs by
+    the same small motion, which PnP takes for a pose change and n_i does not show), as a
+    share of sigma_px,i: a pose-like error of s px moves the pose as iid noise of
+    s sqrt(n_i / 3) px does (on the rendered sessions' MPEG-4 video a still board's
+    PnP-absorbed corner error is 0.16-0.36 of the total against 0.07-0.15 for iid noise, a
+    moving one's as iid; bounded by 3).
     The errors are multivariate Student-t with nu > 2 degrees of freedom and covariance
     Sigma_i. Every scale is in
     physical units shared by all cameras and boards (px, dimensionless, m, rad), so the model
@@ -279,6 +314,8 @@ def fit_transfer_model(features, errors, shrink=None):
         None: n_i as measured. Otherwise n_i is replaced by :func:`shrink_corner_noise`
         toward the pooled noise (column :data:`NOISE_POOL_COLUMN`, else the median over the
         rows) with prior strength k: fitted (``"fit"``) or the given value.
+    still : bool
+        Fit the still-board codec term s_still where some frame is ``inter_coded``.
 
     Returns
     -------
@@ -287,7 +324,8 @@ def fit_transfer_model(features, errors, shrink=None):
         -),
         ``nll`` (mean per frame), ``n_train``; with ``shrink`` also ``k_shrink``; with
         ``corrcov`` features also ``s_corr`` (-); with a shear in some frame also ``r_rs``
-        (-); with ``refcov`` features also ``c_ref`` (-); with the
+        (-); with ``refcov`` features also ``c_ref`` (-); with inter-coded frames (and
+        ``still``) also ``s_still`` (-); with the
         :data:`BOARD_NOISE_COLUMNS` also ``board_noise`` (their medians: the scale of the
         floors, :func:`_floors_for`).
 
@@ -303,7 +341,9 @@ def fit_transfer_model(features, errors, shrink=None):
     if missing:
         raise OptimiseError(f"fit_transfer_model: missing columns {missing}")
     E = errors[cols].to_numpy(float) / WORKING_UNITS
-    U, P, RS, speed, reproj, filled, C, R, flip = _transfer_terms(features)
+    U, P, RS, speed, reproj, filled, C, R, flip, still_w = _transfer_terms(features)
+    # a still board's codec term where some frame is inter-coded
+    fit_still = bool(still) and bool(np.any(still_w > 0))
     fit_corr = _has_corr(features)
     fit_rrs = bool(np.any(RS != 0.0))
     fit_ref = _has_ref(features)
@@ -325,8 +365,8 @@ def fit_transfer_model(features, errors, shrink=None):
     sh = _shrink_terms(features) if shrink is not None else None
     k_fixed = [] if shrink is None or fit_k else [np.log(max(float(shrink), 1e-12))]
 
-    # log s_corr, log r_rs, log c_ref after the model's entries, those the data have
-    n_extra = int(fit_corr) + int(fit_rrs) + int(fit_ref)
+    # log s_corr, log r_rs, log c_ref, log s_still after the model's entries, those fitted
+    n_extra = int(fit_corr) + int(fit_rrs) + int(fit_ref) + int(fit_still)
 
     def full(q):
         q = q[:len(q) - n_extra]
@@ -338,19 +378,22 @@ def fit_transfer_model(features, errors, shrink=None):
         s_corr = float(tail.pop(0)) if fit_corr else 0.0
         r_rs = float(tail.pop(0)) if fit_rrs else 0.0
         c_ref = float(tail.pop(0)) if fit_ref else 0.0
-        return s_corr, r_rs, c_ref
+        s_still = float(tail.pop(0)) if fit_still else 0.0
+        return s_corr, r_rs, c_ref, s_still
 
-    terms = (U, P, RS, speed, reproj, filled, C, R, flip)
+    terms = (U, P, RS, speed, reproj, filled, C, R, flip, still_w)
     # which entries of the full vector (10 or 11) the optimiser moves, in its order
     free = [i for i in range(10) if fit_rs or i != 4] + ([10] if fit_k else [])
 
     def nll(x):
-        s_corr, r_rs, c_ref = extras(x)
-        f, g_q, g_corr, g_rrs, g_ref = _transfer_nll(full(x), s_corr, E, terms, sh, r_rs, c_ref)
+        s_corr, r_rs, c_ref, s_still = extras(x)
+        f, g_q, g_corr, g_rrs, g_ref, g_still = _transfer_nll(full(x), s_corr, E, terms, sh, r_rs,
+                                                              c_ref, s_still)
         g = g_q[free]
         g = np.r_[g, g_corr] if fit_corr else g
         g = np.r_[g, g_rrs] if fit_rrs else g
-        return f, (np.r_[g, g_ref] if fit_ref else g)
+        g = np.r_[g, g_ref] if fit_ref else g
+        return f, (np.r_[g, g_still] if fit_still else g)
 
     x0 = np.log([0.2, 0.02, 0.3, 1.0, 1.0, 5e-4, 5e-4, 2e-3, 2e-3, 5.0])
     best = None
@@ -375,6 +418,9 @@ def fit_transfer_model(features, errors, shrink=None):
     if fit_ref:
         bounds.append((-25, np.log(3.0)))
         starts = [np.r_[x, 0.0] for x in starts]
+    if fit_still:
+        bounds.append((-25, np.log(3.0)))
+        starts = [np.r_[x, np.log(0.3)] for x in starts]
     for start in starts:
         sol = minimize(nll, start, jac=True, method="L-BFGS-B", bounds=bounds,
                        options={"maxiter": 500, "ftol": 1e-12, "gtol": 1e-9})
@@ -387,7 +433,9 @@ def fit_transfer_model(features, errors, shrink=None):
     model.update({name: float(v) for name, v in zip(TRANSFER_PARAMS, vals, strict=True)})
     if shrink is not None:
         model["k_shrink"] = float(np.exp(q_best[10]))
-    s_corr, r_rs, c_ref = extras(best.x)
+    s_corr, r_rs, c_ref, s_still = extras(best.x)
+    if fit_still:
+        model["s_still"] = s_still
     if fit_corr:
         model["s_corr"] = s_corr
     if fit_rrs:
@@ -464,7 +512,8 @@ def _model_cov(model, features):
     # a model fitted without a moving camera scores one with the physical scale, 1
     c_ref = float(model.get("c_ref", 1.0)) if _has_ref(features) else 0.0
     return _transfer_cov(_q_from_model(model), *_transfer_terms(features), shrink=sh,
-                         s_corr=s_corr, r_rs=float(model.get("r_rs") or 0.0), c_ref=c_ref)
+                         s_corr=s_corr, r_rs=float(model.get("r_rs") or 0.0), c_ref=c_ref,
+                         s_still=float(model.get("s_still") or 0.0))
 
 
 def transfer_covariance(model, features):

@@ -238,8 +238,8 @@ def crossfit_transfer(features, errors, sigma_px=None):
         s["fold"] = int(k)
         s["params"] = {n: model[n] for n in TRANSFER_PARAMS}
         # the optional terms the fit had (the demo's global shutter: none)
-        s["params"].update({n: model[n] for n in ("k_shrink", "s_corr", "r_rs", "c_ref")
-                            if n in model})
+        s["params"].update({n: model[n] for n in ("k_shrink", "s_corr", "r_rs", "c_ref",
+                                                  "s_still") if n in model})
         folds.append(s)
     nu = float(np.median([f["params"]["nu"] for f in folds]))
     out = score_covariance(cov, errors, nu=nu, mean=mu)

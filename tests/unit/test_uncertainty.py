@@ -457,6 +457,49 @@ def test_transfer_model_recovers_its_parameters_and_is_calibrated():
         assert 0.93 < sc["inside_95"][d] < 0.97 and 0.64 < sc["inside_68"][d] < 0.72, d
 
 
+def _draw_still(rng, n, s_still, inter_coded):
+    """Frames of model (T) (no parameter covariance) whose nearly still, inter-coded ones err by
+    the still board's pose-like codec term too: var_px (1 + s_still^2 (n_c / 3) g(v)) U."""
+    from cvsflow.uncertainty import transfer as tr
+
+    feats, _, _ = _draw_transfer(rng, n, TRUTH_T)
+    feats = feats.drop(columns=un.cov_columns("parcov"))
+    feats["n_corners"] = 20
+    feats["speed_px"] = np.where(rng.uniform(size=n) < 0.4, rng.uniform(0, 0.4, n),
+                                 rng.uniform(1, 10, n))
+    feats["inter_coded"] = float(inter_coded)
+    U, _, _, speed, reproj, *_ = tr._transfer_terms(feats)
+    var_px = TRUTH_T["s0_px"] ** 2 + (TRUTH_T["s_speed"] * speed) ** 2 + (TRUTH_T["s_reproj"] * reproj) ** 2
+    still = (20 / 3) / (1.0 + (speed / tr.STILL_SPEED_PX) ** 2)
+    # U is in working units: back to SI
+    cov = (var_px * (1.0 + s_still**2 * still))[:, None, None] * U
+    cov = cov * np.outer(un.WORKING_UNITS, un.WORKING_UNITS)[None]
+    floor = np.r_[[TRUTH_T["b_pos_m"]] * 3, [TRUTH_T["b_rot_rad"]] * 3] ** 2
+    nu = TRUTH_T["nu"]
+    w = np.sqrt((nu - 2) / rng.chisquare(nu, n))
+    e = np.einsum("nij,nj->ni", np.linalg.cholesky(cov + np.diag(floor)), rng.normal(size=(n, 6)))
+    return feats, pd.DataFrame(e * w[:, None], columns=[f"err_{d}" for d in ev.ERROR_DIMS]), speed
+
+
+def test_transfer_model_still_board_codec_term():
+    """Frames whose still board a motion-compensated codec shows with a pose-like error (drawn
+    with s_still = 0.6, as the rendered MPEG-4 video's): the fit recovers s_still, and the still frames' NEES is ~6 with the
+    term and over 7.2 without it; an intra-coded video (inter_coded 0) gets no such term."""
+    feats, E, speed = _draw_still(np.random.default_rng(5), 4000, 0.6, True)
+    m = un.fit_transfer_model(feats, E)
+    assert abs(m["s_still"] - 0.6) < 0.1, m["s_still"]
+    plain = un.fit_transfer_model(feats, E, still=False)
+    assert "s_still" not in plain
+    f2, E2, v2 = _draw_still(np.random.default_rng(6), 3000, 0.6, True)
+    slow = v2 < 0.4
+    with_term = un.score_covariance(un.transfer_covariance(m, f2)[slow], E2[slow], nu=m["nu"])
+    without = un.score_covariance(un.transfer_covariance(plain, f2)[slow], E2[slow],
+                                  nu=plain["nu"])  # fmt: skip
+    assert 5.5 < with_term["nees_mean"] < 6.5 and without["nees_mean"] > 7.2
+    intra, E_intra, _ = _draw_still(np.random.default_rng(7), 2000, 0.0, False)
+    assert "s_still" not in un.fit_transfer_model(intra, E_intra)
+
+
 def test_transfer_model_bad_input():
     """Named errors: missing columns, too few rows."""
     feats, E, _ = _draw_transfer(np.random.default_rng(0), 30, TRUTH_T)
@@ -697,13 +740,14 @@ def test_quantiles_without_scipy_stats_equal_scipy_stats_bit_for_bit():
     np.testing.assert_allclose(chi2_pdf(x, 6), stats.chi2.pdf(x, 6), rtol=1e-12, atol=1e-300)
 
 
-@pytest.mark.parametrize("case", ["plain", "correlated", "shrunk", "shear", "reference", "flip"])
+@pytest.mark.parametrize("case", ["plain", "correlated", "shrunk", "shear", "reference", "flip",
+                                  "still"])
 def test_transfer_likelihood_gradient_matches_central_differences(case):
     """The analytic gradient of model (T)'s likelihood (what L-BFGS-B is given) equals central
     differences of the likelihood in every parameter, with a rolling-shutter mean, gap-filled
     frames, the correlated corner term, the shrinkage's k, the shear's relative error, a
-    moving camera body's reference noise and the planar PnP's flip (whose weight moves with
-    the corner variance)."""
+    moving camera body's reference noise, the planar PnP's flip (whose weight moves with
+    the corner variance) and a still board's codec term (which moves with it too)."""
     from cvsflow.uncertainty import transfer as tr
 
     rng = np.random.default_rng(11)
@@ -727,7 +771,14 @@ def test_transfer_likelihood_gradient_matches_central_differences(case):
         for j, d in enumerate(ev.ERROR_DIMS):
             feats[f"flip_{d}"] = np.where(has, rng.normal(size=300) * 3.0 * un.WORKING_UNITS[j], 0.0)
         feats["flip_dssr_px2"] = np.where(has, rng.uniform(0.0, 1.0, 300), np.inf)
+    if case == "still":
+        # inter-coded frames, a third of them nearly still
+        feats["inter_coded"] = (rng.uniform(size=300) < 0.7).astype(float)
+        feats["speed_px"] = np.where(rng.uniform(size=300) < 0.3, rng.uniform(0, 0.6, 300),
+                                     feats["speed_px"])
     terms = tr._transfer_terms(feats)
+    if case == "still":
+        assert (terms[-1][feats["inter_coded"] == 0] == 0).all() and terms[-1].max() > 1.0
     if case == "flip":
         w = un.flip_weight(feats["flip_dssr_px2"].to_numpy(), 0.3)
         assert (w[has] > 0.05).mean() > 0.9 and (w[~has] == 0).all()
@@ -736,15 +787,20 @@ def test_transfer_likelihood_gradient_matches_central_differences(case):
     shrink, s_corr = None, 0.3 if case == "correlated" else 0.0
     r_rs = 0.4 if case == "shear" else 0.0
     c_ref = 0.8 if case == "reference" else 0.0
+    s_still = 0.6 if case == "still" else 0.0
     if case == "shrunk":
         q, shrink = np.r_[q, np.log(20.0)], tr._shrink_terms(feats)
 
-    def f(q, s, r=r_rs, cr=c_ref):
-        return tr._transfer_nll(q, s, e, terms, shrink, r, cr)[0]
+    def f(q, s, r=r_rs, cr=c_ref, st=s_still):
+        return tr._transfer_nll(q, s, e, terms, shrink, r, cr, st)[0]
 
-    nll, grad, grad_corr, grad_rrs, grad_ref = tr._transfer_nll(q, s_corr, e, terms, shrink, r_rs,
-                                                                c_ref)  # fmt: skip
+    nll, grad, grad_corr, grad_rrs, grad_ref, grad_still = tr._transfer_nll(
+        q, s_corr, e, terms, shrink, r_rs, c_ref, s_still)
     assert nll == pytest.approx(f(q, s_corr))
+    if case == "still":
+        h = 1e-5
+        fd_st = (f(q, s_corr, st=s_still * np.exp(h)) - f(q, s_corr, st=s_still * np.exp(-h))) / (2 * h)
+        assert abs(grad_still) > 1e-6 and grad_still == pytest.approx(fd_st, rel=1e-5)
     if case == "reference":
         h = 1e-5
         fd_ref = (f(q, s_corr, cr=c_ref * np.exp(h)) - f(q, s_corr, cr=c_ref * np.exp(-h))) / (2 * h)

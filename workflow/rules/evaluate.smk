@@ -62,6 +62,7 @@ rule compare:
         se3_folds="results/{session}/heldout/se3_folds.yaml",
         se3_result="results/{session}/se3/calib/result.yaml",
         corners="results/{session}/corners.parquet",
+        corners_summary="results/{session}/corners_summary.yaml",
         bodies="results/{session}/bodies.parquet",
     output:
         comparison="results/{session}/comparison.yaml",

@@ -14,11 +14,17 @@ with stage_logging(snakemake.log[0], "compare") as log:
     # a session that runs se3 alone (methods: [se3]) has no seed table
     inputs = dict(snakemake.input.items())
     seed = read_parquet(inputs["seed"]) if "seed" in inputs else None
+    corners_summary = read_yaml(snakemake.input.corners_summary)
+    if "inter_coded" not in corners_summary:
+        log.warning("%s has no inter_coded (an older corners stage): the error model leaves out "
+                    "the still board's codec term; snakemake --forcerun corners adds it",
+                    snakemake.input.corners_summary)
     comparison, se3, sigma, mu = compare_heldout(
         seed, read_parquet(snakemake.input.se3), result,
         read_yaml(snakemake.input.se3_folds)["folds"], snakemake.params.board, frame=ev["frame"],
         boot_block_s=ev["boot_block_s"], n_boot=ev["n_boot"], seed=ev["seed"],
         corners=read_parquet(snakemake.input.corners), bodies=read_parquet(snakemake.input.bodies),
+        inter_coded=bool(corners_summary.get("inter_coded", False)),
     )
     score = comparison["error_model"]
     if seed is not None:
