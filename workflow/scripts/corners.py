@@ -26,4 +26,11 @@ with stage_logging(snakemake.log[0], "corners") as log:
         restart_every=snakemake.params.corners["restart_every_frames"],
     )
     write_parquet(corners, snakemake.output.corners)
-    write_yaml(summarise_corners(corners, timing), snakemake.output.summary)
+    summary = summarise_corners(corners, timing)
+    if summary["inter_coded"]:
+        # docs/findings.md 2026-12-05: a still board's error there is pose-like
+        log.info("%s is inter-coded (%s, %.0f %% key frames): where the board is held still its "
+                 "pose errs by the codec's motion, which the corners' residual does not show; "
+                 "the error model adds it (s_still). An intra-only recording (MJPEG) avoids it",
+                 video, summary["codec"], 100 * summary["key_frame_share"])
+    write_yaml(summary, snakemake.output.summary)
