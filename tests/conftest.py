@@ -3,7 +3,11 @@
 import os
 from pathlib import Path
 
-import pytest
+# One BLAS thread per test process, as Snakemake gives a job of one thread: pytest -n runs
+# workers side by side, and OpenBLAS's threads spin waiting for the other worker's core.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import pytest  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 
