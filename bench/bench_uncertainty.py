@@ -66,8 +66,7 @@ def inter_coded(name):
     summary = read_yaml(ROOT / "results" / name / "corners_summary.yaml")
     if "inter_coded" in summary:
         return bool(summary["inter_coded"])
-    timing = video_timing(ROOT / "data" / name / "video.mp4")
-    return timing["n_key_frames"] < timing["n_frames"]
+    return video_timing(ROOT / "data" / name / "video.mp4")["inter_coded"]
 
 
 def load(name, board, time_offset=False, corr_length_px=None):
@@ -255,7 +254,6 @@ def heldout_nll(names):
 
     b = boards()
     S = {n: load(n, b[n]) for n in names}
-    cols = [f"err_{d}" for d in ERROR_DIMS]
     total = {False: 0.0, True: 0.0}
     print("held-out NLL per frame (nats; lower is better), model (T) fitted on the other sessions")
     for held in names:
@@ -265,12 +263,7 @@ def heldout_nll(names):
         f, e = S[held]["features"], S[held]["errors"]
         row = {}
         for still in (False, True):
-            m = un_transfer._floors_for(un.fit_transfer_model(f_tr, e_tr, still=still), f)
-            E = e[cols].to_numpy(float) / un.WORKING_UNITS
-            row[still] = un_transfer._transfer_nll(
-                un_transfer._q_from_model(m), float(m.get("s_corr") or 0.0), E,
-                un_transfer._transfer_terms(f), None, float(m.get("r_rs") or 0.0), 0.0,
-                float(m.get("s_still") or 0.0))[0]  # fmt: skip
+            row[still] = un.transfer_nll(un.fit_transfer_model(f_tr, e_tr, still=still), f, e)
             total[still] += row[still] * len(e)
         slow = np.mean(f["speed_px"].to_numpy() < un_transfer.STILL_SPEED_PX)
         print(f"  {held}: without the still term {row[False]:.4f}, with {row[True]:.4f} "

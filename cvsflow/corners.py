@@ -289,9 +289,9 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
             "period_max_s": float(dt.max()) if len(dt) else 0.0,
         })
         if "n_key_frames" in timing:
-            share = timing["n_key_frames"] / max(int(timing["n_frames"]), 1)
-            out.update({"codec": str(timing["codec"]), "key_frame_share": float(share),
-                        "inter_coded": bool(share < 1.0)})
+            out.update({"codec": str(timing["codec"]),
+                        "key_frame_share": timing["n_key_frames"] / max(int(timing["n_frames"]), 1),
+                        "inter_coded": bool(timing["inter_coded"])})
     return out
 
 

@@ -112,7 +112,8 @@ def video_timing(path) -> dict:
         longer than ``DROP_GAP_PERIODS`` median periods), ``gaps`` (list of
         ``[after_frame, missing]``), ``codec`` (FFmpeg's name of the stream's codec),
         ``n_key_frames`` (packets flagged key frames: all of them in an intra-only video,
-        MJPEG say; few in a motion-compensated one, which codes most frames from the last).
+        MJPEG say; few in a motion-compensated one, which codes most frames from the last),
+        ``inter_coded`` (fewer key frames than frames: some frame is coded from another).
 
     Raises
     ------
@@ -170,6 +171,7 @@ def video_timing(path) -> dict:
         "gaps": gaps,
         "codec": codec,
         "n_key_frames": int(n_key),
+        "inter_coded": n_key < len(pts),
     }
 
 

@@ -79,6 +79,7 @@ from cvsflow.uncertainty.transfer import (
     fit_transfer_model,
     transfer_covariance,
     transfer_mean,
+    transfer_nll,
 )
 from cvsflow.uncertainty.transfer_scoring import (
     crossfit_transfer,
@@ -103,6 +104,6 @@ __all__ = [
     "propagated_pose_covariance", "score_covariance", "score_error_model", "score_time_correlated",
     "score_transfer", "seen_corners", "shrink_corner_noise", "standardised_errors",
     "target_pass_rates",
-    "time_correlation_of", "transfer_covariance", "transfer_mean",
+    "time_correlation_of", "transfer_covariance", "transfer_mean", "transfer_nll",
     "vicon_filled",
 ]  # fmt: skip

@@ -502,18 +502,53 @@ def _floors_for(model, features):
     return out
 
 
-def _model_cov(model, features):
+def _model_terms(model, features):
+    """(q, terms, options) of a fitted model on the given frames: what :func:`_transfer_cov`
+    and :func:`_transfer_nll` take, the floors scaled to the frames' board noise."""
     model = _floors_for(model, features)
-    sh = _shrink_terms(features) if model.get("k_shrink") is not None else None
     s_corr = float(model.get("s_corr") or 0.0)
     if s_corr and not _has_corr(features):
         raise OptimiseError("model (T) has s_corr but the features lack corrcov columns "
                             "(measurement_features(corr_length_px=...))")
-    # a model fitted without a moving camera scores one with the physical scale, 1
-    c_ref = float(model.get("c_ref", 1.0)) if _has_ref(features) else 0.0
-    return _transfer_cov(_q_from_model(model), *_transfer_terms(features), shrink=sh,
-                         s_corr=s_corr, r_rs=float(model.get("r_rs") or 0.0), c_ref=c_ref,
-                         s_still=float(model.get("s_still") or 0.0))
+    options = {
+        "shrink": _shrink_terms(features) if model.get("k_shrink") is not None else None,
+        "s_corr": s_corr,
+        "r_rs": float(model.get("r_rs") or 0.0),
+        # a model fitted without a moving camera scores one with the physical scale, 1
+        "c_ref": float(model.get("c_ref", 1.0)) if _has_ref(features) else 0.0,
+        "s_still": float(model.get("s_still") or 0.0),
+    }
+    return _q_from_model(model), _transfer_terms(features), options
+
+
+def _model_cov(model, features):
+    q, terms, options = _model_terms(model, features)
+    return _transfer_cov(q, *terms, **options)
+
+
+def transfer_nll(model, features, errors):
+    """Mean negative log-likelihood per frame of frames' errors under a fitted model (T).
+
+    The proper score of the model on frames it did not see (lower is better), in nats: the
+    likelihood :func:`fit_transfer_model` maximises, Student-t with the model's nu.
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output.
+    features : DataFrame
+        :func:`measurement_features` of the frames, as for :func:`transfer_covariance`.
+    errors : DataFrame
+        The same frames' ``err_{dim}`` (m, rad).
+
+    Returns
+    -------
+    float
+    """
+    q, terms, o = _model_terms(model, features)
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float) / WORKING_UNITS
+    return _transfer_nll(q, o["s_corr"], E, terms, o["shrink"], o["r_rs"], o["c_ref"],
+                         o["s_still"])[0]
 
 
 def transfer_covariance(model, features):

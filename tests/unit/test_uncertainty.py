@@ -500,6 +500,18 @@ def test_transfer_model_still_board_codec_term():
     assert "s_still" not in un.fit_transfer_model(intra, E_intra)
 
 
+def test_transfer_nll_is_the_fitted_likelihood_and_scores_new_frames():
+    """transfer_nll of a model on its own training frames is the mean NLL the fit reached; on
+    new still-board frames of an inter-coded video the model with s_still scores better."""
+    feats, E, _ = _draw_still(np.random.default_rng(8), 2000, 0.6, True)
+    with_term = un.fit_transfer_model(feats, E)
+    without = un.fit_transfer_model(feats, E, still=False)
+    assert un.transfer_nll(with_term, feats, E) == pytest.approx(with_term["nll"], rel=1e-12)
+    assert un.transfer_nll(without, feats, E) == pytest.approx(without["nll"], rel=1e-12)
+    f2, E2, _ = _draw_still(np.random.default_rng(9), 2000, 0.6, True)
+    assert un.transfer_nll(with_term, f2, E2) < un.transfer_nll(without, f2, E2) - 0.02
+
+
 def test_transfer_model_bad_input():
     """Named errors: missing columns, too few rows."""
     feats, E, _ = _draw_transfer(np.random.default_rng(0), 30, TRUTH_T)
