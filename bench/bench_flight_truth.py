@@ -9,9 +9,12 @@ exact; then estimates the clock and prints its offset error against the injected
 units of its stated standard deviation (at the reference's centre, and of ``dt_offset_s``) and
 the skew's. ~13 s CPU per flight. ``--s-reproj X`` states the reference's covariance with
 model (T)'s s_reproj set to X (1 is right for these flights' iid corners; the fitted 1.127
-comes from rendered images), ``--no-flips`` without the PnP ambiguity term. Usage:
+comes from rendered images), ``--no-flips`` without the PnP ambiguity term, ``--validation``
+with the model (T) the compare stage fits on a simulated validation session of the flights'
+corner noise (validate, then fly: :func:`validation_model`). Usage:
 
-    PYTHONPATH=. .venv/bin/python bench/bench_flight_truth.py [--s-reproj X] [--no-flips] [seed ...]
+    PYTHONPATH=. .venv/bin/python bench/bench_flight_truth.py [--s-reproj X] [--no-flips] \
+        [--validation] [seed ...]
 """
 
 from __future__ import annotations
@@ -38,14 +41,35 @@ CAMERAS = {
 NO_PP = {k: v for k, v in CALIB_STD_DEFAULT.items() if k not in ("cx", "cy")}
 
 
-def main(seeds):
+def validation_model(seed=5, duration_s=12.0):
+    """Model (T) as the compare stage fits it (comparison.yaml ``error_model_fit``) on a
+    simulated validation session: iid 0.3 px corners, as the flights', the demo's lens, a
+    Vicon reference, 1-3 m."""
+    from cvsflow import evaluate as ev
+    from cvsflow.flight import session_error_model
+    from cvsflow.optimise import se3
+    from cvsflow.optimise.se3_sim import simulate_session
+
+    v = simulate_session(seed, duration_s=duration_s)
+    held, fits = ev.cross_validate_se3(
+        v["corners"], v["bodies"], v["camera"], v["board"], v["truth"]["dt_offset_s"],
+        n_folds=4, block_s=1.5, seed=0, free=["fx", "fy", "k1", "k2", "p1", "p2"],
+    )  # fmt: skip
+    full = se3.optimise_se3(v["corners"], v["bodies"], v["camera"], v["board"],
+                            v["truth"]["dt_offset_s"]).result  # fmt: skip
+    comparison, *_ = ev.compare_heldout(None, held, full, fits, v["board"], n_boot=20,
+                                        corners=v["corners"])  # fmt: skip
+    return session_error_model(comparison)
+
+
+def main(seeds, model=None):
     print("z RMS per axis: x y z roll pitch yaw")
     for name, camera in CAMERAS.items():
         for pp, calib_std in (("principal point exact", NO_PP), ("principal point drawn", None)):
             for seed in seeds:
                 t0 = time.process_time()
                 d = render_flight(seed=seed, duration_s=60.0, reference="pnp", camera=camera,
-                                  calib_std=calib_std)  # fmt: skip
+                                  calib_std=calib_std, reference_model=model)  # fmt: skip
                 line = f"{name:5s} {pp:22s} seed {seed}:"
                 for weighted in (False, True):
                     r = evaluate_flight(d.reference, d.onboard, d.T_Q_B, d.Sigma_ref,
@@ -80,10 +104,16 @@ if __name__ == "__main__":
     parser.add_argument("seeds", nargs="*", type=int, default=[1, 2, 3])
     parser.add_argument("--s-reproj", type=float, default=None)
     parser.add_argument("--no-flips", action="store_true")
+    parser.add_argument("--validation", action="store_true")
     args = parser.parse_args()
     if args.s_reproj is not None:
         un.RENDERED_TRANSFER_MODEL["s_reproj"] = args.s_reproj  # read at each flight's call
     if args.no_flips:
         reference_synth.reference_covariance_transfer = functools.partial(
             reference_synth.reference_covariance_transfer, flips=False)
-    main(args.seeds)
+    model = None
+    if args.validation:
+        model = validation_model()
+        print("model (T) of the validation session:",
+              {k: round(v, 4) for k, v in model.items() if isinstance(v, float)})
+    main(args.seeds, model)

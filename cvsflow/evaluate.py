@@ -489,9 +489,12 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     comparison : dict
         :func:`compare_methods` output plus ``error_model`` (the within-session cross-fit
         score, per fold in ``folds[]``: ``nees_mean``, ``inside_68``, ``inside_95`` per axis,
-        ...), ``error_frame``; with ``corners`` also ``error_model_transfer`` (the model
-        fitted on other sessions, same keys) and ``cramer_rao`` (``error_over_crb``: RMS of
-        held-out error / CRB per axis; ``crb_median`` per axis, SI; ``sigma_px``).
+        ...), ``error_frame``; with ``corners`` also ``error_model_fit`` (model (T) fitted on
+        all the session's frames, :func:`cvsflow.uncertainty.fit_transfer_model`'s dict: the
+        model a flight measured with this camera states its reference with),
+        ``error_model_transfer`` (the model fitted on other sessions, same keys as
+        ``error_model``) and ``cramer_rao`` (``error_over_crb``: RMS of held-out error / CRB
+        per axis; ``crb_median`` per axis, SI; ``sigma_px``).
     se3_errors : DataFrame
         The se3 held-out table with ``eps_*`` equal to its composed errors; with ``corners``
         also ``sigma_{dim}`` (predicted), ``mu_{dim}`` (predicted error), ``crb_{dim}``
@@ -513,6 +516,9 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
                                         bodies=bodies, inter_coded=inter_coded)
         score, cov, mu = un.crossfit_transfer(feats, se3)
         comparison["error_model"] = score
+        # the session's own model (T) on all its frames: what its flights state their
+        # reference's uncertainty with (the camera-side terms; the floors are its Vicon's)
+        comparison["error_model_fit"] = un.fit_transfer_model(feats, se3)
         model = un.RENDERED_TRANSFER_MODEL if transfer_model is None else transfer_model
         sig_px = se3["sigma_px"].to_numpy(float)
         tr = un.score_transfer(model, feats, se3, se3["fold"].to_numpy(), sig_px)

@@ -88,7 +88,7 @@ def corner_noise(rng, n_frames, board, sigma_px, shared_px=0.0, shared_squares=1
 
 
 def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0.3,
-                      shared_px=0.0, shared_squares=1.0, calib_std=None):
+                      shared_px=0.0, shared_squares=1.0, calib_std=None, model=None):
     """The camera reference of a flight as the CVS measures it, at corner level.
 
     The board's corners are projected with the true camera (``camera``), those inside the
@@ -114,6 +114,9 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
         Corner noise (:func:`corner_noise`).
     calib_std : dict, optional
         1-sigma of fx, fy, cx, cy, k1, k2, p1, p2, k3; default ``CALIB_STD_DEFAULT``.
+    model : dict, optional
+        The model (T) the reference states its covariance with (a validation session's,
+        :func:`cvsflow.flight.session_error_model`); default the rendered sessions'.
 
     Returns
     -------
@@ -159,7 +162,7 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
                            poses.loc[valid, ["x_m", "y_m", "z_m"]].to_numpy(float))
     calib = {"K": K_cal.tolist(), "dist": dist_cal.tolist(),
              "std": {n: float(v) for n, v in zip(INTRINSIC_NAMES, sd, strict=True)}}
-    Sigma = reference_covariance_transfer(poses, corners, p_B, calib)
+    Sigma = reference_covariance_transfer(poses, corners, p_B, calib, model=model)
     return T_meas, valid, Sigma, poses, corners
 
 

@@ -193,6 +193,7 @@ def render_flight(
     corner_shared_squares: float = 1.0,
     calib_std=None,
     rig=None,
+    reference_model=None,
 ) -> FlightDemo:
     """Render a flight: truth, on-board estimate on its own clock, camera reference.
 
@@ -237,6 +238,9 @@ def render_flight(
         The part of the corner noise shared by neighbouring corners (:func:`corner_noise`).
     calib_std : dict, optional
         The calibration's 1-sigma (``CALIB_STD_DEFAULT``), ``"pnp"`` and ``"stereo"`` only.
+    reference_model : dict, optional
+        ``"pnp"`` only: the model (T) the reference states its covariance with (default the
+        rendered sessions', :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`).
     rig : dict, optional
         ``"stereo"`` only: ``baseline_m`` (default 1.0), ``cross_m`` (10.0) of
         :func:`stereo_rig`; ``n_views`` (20) and ``view_sigma_px`` (0.1) of the rig's
@@ -266,6 +270,9 @@ def render_flight(
         raise ConfigError(f"flight demo: reference={reference!r}; expected 'pnp', 'stereo' or 'model'")
     if rig is not None and reference != "stereo":
         raise ConfigError(f"flight demo: a rig is given with reference={reference!r}; it needs 'stereo'")
+    if reference_model is not None and reference != "pnp":
+        raise ConfigError(f"flight demo: a reference_model is given with reference={reference!r}; "
+                          "it needs 'pnp'")  # fmt: skip
     rig = {} if rig is None else dict(rig)
     unknown = set(rig) - {"baseline_m", "cross_m", "n_views", "view_sigma_px"}
     if unknown:
@@ -287,7 +294,7 @@ def render_flight(
         seen = rng.random(n_fr) >= missed_frame_rate
         T_meas, seen, Sigma_ref, _, _ = measure_reference(
             T_C_B, t_cam, seen, rng, camera, board, sigma_px, corner_shared_px,
-            corner_shared_squares, calib_std)  # fmt: skip
+            corner_shared_squares, calib_std, reference_model)  # fmt: skip
     elif Sigma_ref is None and reference == "stereo":
         seen = rng.random(n_fr) >= missed_frame_rate
         T_Ci_C0 = stereo_rig(float(rig.get("baseline_m", 1.0)), float(rig.get("cross_m", 10.0)))

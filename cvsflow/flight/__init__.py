@@ -61,6 +61,7 @@ from cvsflow.flight.reference import (
     reference_covariance_from_pnp,
     reference_covariance_model,
     reference_covariance_transfer,
+    session_error_model,
     sigma_columns,
     sigma_from_columns,
 )
@@ -83,5 +84,6 @@ __all__ = [
     "estimate_clock", "evaluate_flight", "interpolate_trajectory", "pnp_flip_term",
     "propagate_reference_sigma", "reference_covariance_from_pnp", "reference_covariance_model",
     "reference_covariance_transfer", "reference_from_poses", "rotation_alignment", "rpe",
-    "sigma_columns", "sigma_from_columns", "traj_from_T", "trajectory_frame", "umeyama",
+    "session_error_model", "sigma_columns", "sigma_from_columns", "traj_from_T",
+    "trajectory_frame", "umeyama",
 ]  # fmt: skip

@@ -236,7 +236,8 @@ def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
     return delta, d_ssr
 
 
-def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, flips=True):
+def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, flips=True,
+                                  inter_coded=False):
     """Reference covariance per frame of a flight from the error model (T) of the se3 stage.
 
     The camera reference of a flight is the PnP pose of the board: its error is what model (T)
@@ -250,7 +251,10 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     ambiguity: ``w delta delta^T`` with ``delta`` the measured pose minus the other IPPE
     solution (:func:`pnp_flip_term`) and ``w = 1 / (1 + exp(d_ssr / (2 sigma_px^2)))`` the
     chance that the other one is the true pose given how much worse it fits the corners (the
-    covariance of the two-solution mixture about the measured pose).
+    covariance of the two-solution mixture about the measured pose); from a motion-compensated
+    video (``inter_coded``) also the still board's codec term of a model with ``s_still`` (a
+    hovering body's board is coded as a copy of the last frame's,
+    :func:`cvsflow.uncertainty.still_board_weight`).
 
     Parameters
     ----------
@@ -266,9 +270,13 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
         ``line_delay_s``) or a camera.yaml (``K``, ``dist``, ``std``); intrinsics without a
         standard deviation take ``DEFAULT_INTRINSIC_STD``; their correlations are left out.
     model : dict, optional
-        Model (T); default :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`.
+        Model (T) (:func:`cvsflow.uncertainty.fit_transfer_model`'s dict, e.g. the validation
+        session's, :func:`session_error_model`); default
+        :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`.
     flips : bool
         Add the PnP ambiguity term.
+    inter_coded : bool
+        The flight's video is motion-compensated (its corners_summary.yaml ``inter_coded``).
 
     Returns
     -------
@@ -314,9 +322,47 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     cal = propagated_pose_covariance(rv, tv, cov_rt, frame="C")
     S = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
          + shear[:, :, None] * shear[:, None, :])  # fmt: skip
+    s_still = float(model.get("s_still") or 0.0)
+    if s_still and inter_coded:
+        still = un.still_board_weight(n_seen, speed, 1.0)
+        S = S + (s_still**2 * var_px * still)[:, None, None] * unit
     if flips:
         delta, d_ssr = pnp_flip_term(uv, rv, tv, p_B, K, dist)
         w = un.flip_weight(d_ssr, var_px)
         S = S + w[:, None, None] * delta[:, :, None] * delta[:, None, :]
     Sigma[valid] = S
     return Sigma
+
+
+def session_error_model(comparison, path="comparison.yaml"):
+    """The model (T) a validation session fitted on all its frames, for its flights.
+
+    Parameters
+    ----------
+    comparison : dict
+        The session's comparison.yaml.
+    path : str
+        Its file name, for the error message.
+
+    Returns
+    -------
+    dict
+        Its ``error_model_fit`` (:func:`cvsflow.uncertainty.fit_transfer_model`'s dict).
+
+    Raises
+    ------
+    InputError
+        The comparison has no fitted model (written by an older cvsflow), or it is not a
+        model (T).
+    """
+
+    model = comparison.get("error_model_fit")
+    if not isinstance(model, dict):
+        raise InputError(f"{path}: no error_model_fit (a comparison from an older cvsflow); rerun "
+                         "its compare stage (snakemake --forcerun compare) or set the flight's "
+                         "error_model: rendered")  # fmt: skip
+    missing = [k for k in ("s0_px", "s_speed", "s_reproj", "c_cal", "nu") if k not in model]
+    if missing or model.get("kind") != "T":
+        raise InputError(f"{path}: error_model_fit is not a model (T) (kind {model.get('kind')!r}, "
+                         f"missing {missing})")  # fmt: skip
+    return model

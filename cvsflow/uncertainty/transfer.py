@@ -43,6 +43,35 @@ TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "
                    "b_fill_pos_m", "b_fill_rot_rad", "nu")
 
 
+def still_board_weight(n_corners, speed_px, inter_coded):
+    """Weight of U per px^2 of a still board's pose-like codec error, per frame.
+
+    A motion-compensated codec copies a nearly still board's blocks from the last frame, so
+    every corner errs by the same small motion; model (T) states it as
+    ``s_still^2 sigma_px^2 still_board_weight(...) U``.
+
+    Parameters
+    ----------
+    n_corners : array_like
+        Corners the frame's PnP used.
+    speed_px : array_like
+        Image speed, px per frame period.
+    inter_coded : array_like or bool
+        1 (True) where the frame comes from a motion-compensated video, else 0.
+
+    Returns
+    -------
+    ndarray
+        ``inter_coded (n / 3) / (1 + (v / STILL_SPEED_PX)^2)``.
+    """
+
+    # a pose-like corner error of s px per coordinate moves the pose as iid noise of
+    # s sqrt(n / 3) px on n corners would (its 2n coordinates all in PnP's 6 dimensions)
+    n_c = np.asarray(n_corners, float)
+    speed = np.asarray(speed_px, float)
+    return np.asarray(inter_coded, float) * (n_c / 3.0) / (1.0 + (speed / STILL_SPEED_PX) ** 2)
+
+
 def _transfer_terms(features):
     """(U per px^2, P (N, 6, 6), RS shear error (N, 6), speed (N,), corner noise (N,), Vicon
     gap-filled (N,), C per px^2, the moving camera body's reference noise R (N, 6, 6), the
@@ -70,12 +99,9 @@ def _transfer_terms(features):
         d_ssr = features["flip_dssr_px2"].to_numpy(float)
     else:
         flip, d_ssr = np.zeros((len(U), 6)), np.full(len(U), np.inf)
-    # a pose-like corner error of s px per coordinate moves the pose as iid noise of
-    # s sqrt(n / 3) px on n corners would (its 2n coordinates all in PnP's 6 dimensions)
-    n_c = features["n_corners"].to_numpy(float)
     inter = (features["inter_coded"].to_numpy(float) if "inter_coded" in features
              else np.zeros(len(U)))  # fmt: skip
-    still = inter * (n_c / 3.0) / (1.0 + (speed / STILL_SPEED_PX) ** 2)
+    still = still_board_weight(features["n_corners"].to_numpy(float), speed, inter)
     return (U * scale, block("parcov") * scale, RS, speed, reproj, filled,
             block("corrcov") * scale, block("refcov") * scale, (flip, d_ssr), still)
 

@@ -254,3 +254,30 @@ def test_compare_heldout_with_corners_scores_model_T_per_fold(session):
     assert "seed" in comp and "seed" not in alone and "rms_ratio_se3_to_seed" not in alone
     assert alone["se3"] == comp["se3"] and alone["error_model"] == comp["error_model"]
     pd.testing.assert_frame_equal(scored_alone, scored)
+
+
+def test_compare_heldout_fits_the_sessions_own_model_T(session):
+    """compare_heldout also fits model (T) on all the session's frames (error_model_fit, what
+    its flights state their reference with): a maximum of the likelihood, so it explains the
+    session's errors at least as well as the model fitted on the rendered sessions, and on
+    iid 0.3 px corners its predicted corner noise is the generator's."""
+    from cvsflow import uncertainty as un
+
+    s = session
+    held, fits = ev.cross_validate_se3(
+        s["corners"], s["bodies"], s["camera"], s["board"], s["truth"]["dt_offset_s"],
+        n_folds=4, block_s=1.5, seed=0, free=["fx", "fy", "k1", "k2", "p1", "p2"],
+    )  # fmt: skip
+    full = se3.optimise_se3(s["corners"], s["bodies"], s["camera"], s["board"],
+                            s["truth"]["dt_offset_s"]).result  # fmt: skip
+    comp, *_ = ev.compare_heldout(None, held, full, fits, s["board"], n_boot=20,
+                                  corners=s["corners"])  # fmt: skip
+    model = comp["error_model_fit"]
+    assert model["kind"] == "T" and model["n_train"] == len(held)
+    feats = un.measurement_features(held, s["corners"], s["board"], fits=fits, frame="C")
+    nll_fit = un.transfer_nll(model, feats, held)
+    assert nll_fit <= un.transfer_nll(un.RENDERED_TRANSFER_MODEL, feats, held) + 1e-9
+    reproj = un.corner_noise_from_reproj(feats["reproj_rms_px"].to_numpy(float),
+                                         feats["n_corners"].to_numpy(float))  # fmt: skip
+    sigma_px = np.sqrt(model["s0_px"] ** 2 + (model["s_reproj"] * reproj) ** 2)
+    assert 0.24 < np.median(sigma_px) < 0.36, np.median(sigma_px)

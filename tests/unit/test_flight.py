@@ -599,3 +599,74 @@ def test_reference_covariance_transfer_against_truth_on_two_cameras(focal_px, bo
     z_rms = np.sqrt(np.mean(np.concatenate(Z) ** 2, axis=0))
     expected = 1.0 / un.RENDERED_TRANSFER_MODEL["s_reproj"]  # 0.86 on iid corner noise
     assert np.all(z_rms > expected - 0.1) and np.all(z_rms < 1.1), z_rms
+
+
+def test_flight_reference_states_its_error_with_the_validation_sessions_model():
+    """Validate, then fly: model (T) fitted by the compare stage on a simulated validation
+    session (iid 0.3 px corners, a Vicon reference; comparison.yaml error_model_fit) states
+    the PnP reference of corner-level flights of the same camera right, z RMS per axis within
+    0.88-1.12, where the model fitted on the rendered sessions is ~14 % cautious (above)."""
+    from cvsflow import evaluate as ev
+    from cvsflow.evaluate import ERROR_DIMS, pose_errors
+    from cvsflow.optimise import se3
+    from cvsflow.optimise.se3_sim import simulate_session
+
+    v = simulate_session(5, duration_s=12.0)
+    held, fits = ev.cross_validate_se3(
+        v["corners"], v["bodies"], v["camera"], v["board"], v["truth"]["dt_offset_s"],
+        n_folds=4, block_s=1.5, seed=0, free=["fx", "fy", "k1", "k2", "p1", "p2"],
+    )  # fmt: skip
+    full = se3.optimise_se3(v["corners"], v["bodies"], v["camera"], v["board"],
+                            v["truth"]["dt_offset_s"]).result  # fmt: skip
+    comparison, *_ = ev.compare_heldout(None, held, full, fits, v["board"], n_boot=20,
+                                        corners=v["corners"])  # fmt: skip
+    model = F.session_error_model(comparison)
+    sd = {"fx": 0.5, "fy": 0.5, "cx": 0.0, "cy": 0.0, "k1": 0.002, "k2": 0.01, "p1": 1e-4,
+          "p2": 1e-4, "k3": 0.02}  # fmt: skip
+    rng = np.random.default_rng(700)
+    Z = []
+    for k in range(4):
+        s, poses, p_B, K, dist, T_true, T_est = _pnp_flight(300 + k, 700.0, None,
+                                                            0.2 * np.array(list(sd.values())), rng)
+        Sig = F.reference_covariance_transfer(
+            poses, s["corners"], p_B, {"K": K.tolist(), "dist": dist.tolist(),
+                                       "std": {n: 0.2 * x for n, x in sd.items()}}, model=model)
+        e = pose_errors(T_true, T_est)[[f"err_{d}" for d in ERROR_DIMS]].to_numpy()
+        Z.append(e / np.sqrt(np.einsum("nii->ni", Sig)))
+    z_rms = np.sqrt(np.mean(np.concatenate(Z) ** 2, axis=0))
+    print(z_rms)
+    assert np.all(z_rms > 0.88) and np.all(z_rms < 1.12), z_rms
+
+
+def test_session_error_model_names_the_file_when_missing():
+    """A comparison without a fitted model (an older cvsflow) is a clear error naming the file."""
+    with pytest.raises(InputError, match="results/v/comparison.yaml: no error_model_fit"):
+        F.session_error_model({"error_model": {}}, "results/v/comparison.yaml")
+    with pytest.raises(InputError, match="not a model"):
+        F.session_error_model({"error_model_fit": {"kind": "P"}}, "c.yaml")
+
+
+def test_reference_covariance_transfer_still_board_codec_term():
+    """From a motion-compensated video the reference gets the model's still-board codec term:
+    nothing for an intra-coded video or a model without s_still; with both, it grows the
+    slowest frames' covariance and leaves the fast ones' (well over 0.5 px/frame) nearly as
+    they were."""
+    from cvsflow import uncertainty as un
+
+    rng = np.random.default_rng(3)
+    s, poses, p_B, K, dist, _, _ = _pnp_flight(310, 700.0, None, np.zeros(9), rng)
+    calib = {"K": K.tolist(), "dist": dist.tolist(), "std": {}}
+    base = dict(un.RENDERED_TRANSFER_MODEL)
+    S0 = F.reference_covariance_transfer(poses, s["corners"], p_B, calib, model=base,
+                                         inter_coded=True)  # fmt: skip
+    model = dict(base, s_still=0.5)
+    S_intra = F.reference_covariance_transfer(poses, s["corners"], p_B, calib, model=model)
+    S1 = F.reference_covariance_transfer(poses, s["corners"], p_B, calib, model=model,
+                                         inter_coded=True)  # fmt: skip
+    np.testing.assert_array_equal(S_intra, S0)
+    grow = np.trace(S1 - S0, axis1=1, axis2=2) / np.trace(S0, axis1=1, axis2=2)
+    assert np.all(np.linalg.eigvalsh(S1 - S0) > -1e-18)
+    _, speed, _ = un.seen_corners(s["corners"], poses["frame"].to_numpy(), len(p_B))
+    slow, fast = speed < np.quantile(speed, 0.1), speed > max(np.quantile(speed, 0.9), 2.0)
+    assert slow.any() and fast.any()
+    assert np.median(grow[slow]) > 10 * np.median(grow[fast]), (grow[slow], grow[fast])

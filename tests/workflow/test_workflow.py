@@ -437,3 +437,40 @@ def test_a_session_with_se3_alone_still_gets_its_comparison(tmp_path):
     jobs = dry_run_jobs(tmp_path)
     assert {"optimise_se3", "heldout_se3", "compare", "headline"} <= jobs
     assert not {"optimise_seed", "heldout_seed"} & jobs
+
+
+def test_real_flight_states_its_reference_with_the_validation_sessions_model(demo_run):
+    """A flight from recorded files (camera session + log), here the demo's own video with its
+    Vicon board track as the 'on-board' log: the flight stage finds the clock (the rendered
+    offset within 3 ms), recovers the board's track within the camera's error, and states the
+    reference with the model (T) the calibration session fitted (comparison.yaml
+    error_model_fit), or with the rendered sessions' when asked. The config is restored."""
+    from cvsflow.io.flightlog import write_tum
+    from cvsflow.transforms import pose6_from_T
+
+    bodies = pd.read_parquet(demo_run / "results/demo/bodies.parquet")
+    board = bodies[(bodies["body"] == "board") & bodies["valid"]]
+    write_tum(board.assign(pos_valid=True, rot_valid=True), demo_run / "board_track.tum")
+    truth = yaml.safe_load((demo_run / "data/demo/truth.yaml").read_text())
+    config = yaml.safe_load((demo_run / "config/config.yaml").read_text())
+    flight = {"session": "demo", "calibration": "demo", "log": "board_track.tum", "format": "tum",
+              "T_Q_B_pose6": [float(v) for v in pose6_from_T(np.array(truth["T_Bm_B"]))],
+              "weighted_alignment": True}
+    changed = copy.deepcopy(config)
+    changed["flights"] = {"vicon_log": flight, "vicon_log_r": dict(flight, error_model="rendered")}
+    write_config(demo_run, changed)
+    try:
+        snakemake(demo_run, "results/flights/vicon_log/stats.yaml",
+                  "results/flights/vicon_log_r/stats.yaml")
+    finally:
+        write_config(demo_run, config)
+    log = (demo_run / "logs/flights/vicon_log/flight.log").read_text()
+    assert "model (T) fitted by results/demo/comparison.yaml" in log
+    log_r = (demo_run / "logs/flights/vicon_log_r/flight.log").read_text()
+    assert "fitted on the rendered sessions" in log_r
+    stats = yaml.safe_load((demo_run / "results/flights/vicon_log/stats.yaml").read_text())
+    assert abs(stats["clock"]["dt_offset_s"] + truth["dt_offset_s"]) < 0.003
+    assert all(stats["axes"][a]["rmse"] < 0.005 for a in ("x", "y", "z"))
+    err = pd.read_parquet(demo_run / "results/flights/vicon_log/errors.parquet")
+    err_r = pd.read_parquet(demo_run / "results/flights/vicon_log_r/errors.parquet")
+    assert np.isfinite(err["sx_m"]).all() and not np.allclose(err["sx_m"], err_r["sx_m"])

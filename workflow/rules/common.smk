@@ -223,8 +223,12 @@ def flight_inputs(wildcards):
         "camera": f"results/{s}/camera.yaml",
         "corners": f"results/{s}/corners.parquet",  # the reference's error model (T)
     }
+    files["corners_summary"] = f"results/{s}/corners_summary.yaml"  # inter-coded video
     if "calibration" in f:
         files["se3_result"] = f"results/{f['calibration']}/se3/calib/result.yaml"
+        if f.get("error_model", "session") == "session":
+            # model (T) as the validation session fitted it on its held-out frames
+            files["error_model"] = f"results/{f['calibration']}/comparison.yaml"
     return files
 
 

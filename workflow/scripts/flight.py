@@ -9,6 +9,7 @@ from cvsflow.flight.reference import (
     corner_noise_per_axis,
     reference_covariance_from_pnp,
     reference_covariance_transfer,
+    session_error_model,
     sigma_from_columns,
 )
 from cvsflow.flight.trajectory import reference_from_poses
@@ -35,7 +36,13 @@ with stage_logging(snakemake.log[0], "flight") as log:
             np.nanmedian(poses["reproj_rms_px"]), len(p_B))
         reference = reference_from_poses(poses)
         if hasattr(inp, "corners"):  # model (T): seen corners, speed, residual, calibration
-            Sigma_ref = reference_covariance_transfer(poses, read_parquet(inp.corners), p_B, calib)
+            model = (session_error_model(read_yaml(inp.error_model), inp.error_model)
+                     if hasattr(inp, "error_model") else None)  # fmt: skip
+            log.info("reference uncertainty: model (T) %s",
+                     f"fitted by {inp.error_model}" if model else "fitted on the rendered sessions")
+            inter_coded = bool(read_yaml(inp.corners_summary).get("inter_coded", False))
+            Sigma_ref = reference_covariance_transfer(poses, read_parquet(inp.corners), p_B, calib,
+                                                      model=model, inter_coded=inter_coded)
         else:
             Sigma_ref = reference_covariance_from_pnp(
                 poses, p_B, calib["K"], calib["dist"], sigma_px)
