@@ -73,7 +73,8 @@ def main(seeds, model=None):
                 line = f"{name:5s} {pp:22s} seed {seed}:"
                 for weighted in (False, True):
                     r = evaluate_flight(d.reference, d.onboard, d.T_Q_B, d.Sigma_ref,
-                                        clock=d.clock, weighted_alignment=weighted)  # fmt: skip
+                                        clock=d.clock, weighted_alignment=weighted,
+                                        flip_ref=d.flip_ref)  # fmt: skip
                     c = check_against_truth(r, d.onboard, d.truth, d.T_L_C, d.clock)
                     z = " ".join(f"{v:.2f}" for v in c["z_rms"].values())
                     zt = " ".join(f"{v:.2f}" for v in c["z_rms_truth_alignment"].values())

@@ -88,7 +88,8 @@ def corner_noise(rng, n_frames, board, sigma_px, shared_px=0.0, shared_squares=1
 
 
 def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0.3,
-                      shared_px=0.0, shared_squares=1.0, calib_std=None, model=None):
+                      shared_px=0.0, shared_squares=1.0, calib_std=None, model=None,
+                      calibration=None, return_flip=False):
     """The camera reference of a flight as the CVS measures it, at corner level.
 
     The board's corners are projected with the true camera (``camera``), those inside the
@@ -117,6 +118,12 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
     model : dict, optional
         The model (T) the reference states its covariance with (a validation session's,
         :func:`cvsflow.flight.session_error_model`); default the rendered sessions'.
+    calibration : dict, optional
+        The calibration the CVS uses, as a validation session's se3 result (``K``, ``dist``,
+        ``std_errors``, ``fixed_intrinsics``), instead of the true lens off by a draw of
+        ``calib_std`` (still drawn, so the noise stays the same).
+    return_flip : bool
+        Also return the flip term's parts (``flip``, :func:`reference_covariance_transfer`).
 
     Returns
     -------
@@ -127,6 +134,8 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
         Stated covariance ([dt m, dtheta rad] in C), NaN where not valid.
     poses, corners : DataFrame
         The poses_raw and corners tables of the measurement.
+    flip : ndarray, shape (N, 7)
+        With ``return_flip``.
     """
 
     camera = CAMERA_DEMO if camera is None else camera
@@ -146,6 +155,8 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
     sd = np.array([float(calib_std.get(n, 0.0)) for n in INTRINSIC_NAMES])
     intr = true_intr + sd * rng.standard_normal(len(sd))
     K_cal, dist_cal = K_from_intrinsics(*intr[:4]), intr[4:]
+    if calibration is not None:
+        K_cal, dist_cal = np.asarray(calibration["K"], float), np.asarray(calibration["dist"], float)
     fr, ci = np.nonzero(found[:, None] & inside)
     rows = [pd.DataFrame({"frame": fr, "t_s": np.asarray(t_s, float)[fr], "found": True,
                           "corner": ci, "u_px": uv[fr, ci, 0], "v_px": uv[fr, ci, 1]})]
@@ -162,7 +173,12 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
                            poses.loc[valid, ["x_m", "y_m", "z_m"]].to_numpy(float))
     calib = {"K": K_cal.tolist(), "dist": dist_cal.tolist(),
              "std": {n: float(v) for n, v in zip(INTRINSIC_NAMES, sd, strict=True)}}
-    Sigma = reference_covariance_transfer(poses, corners, p_B, calib, model=model)
+    if calibration is not None:
+        calib = calibration
+    Sigma, flip = reference_covariance_transfer(poses, corners, p_B, calib, model=model,
+                                                return_flip=True)  # fmt: skip
+    if return_flip:
+        return T_meas, valid, Sigma, poses, corners, flip
     return T_meas, valid, Sigma, poses, corners
 
 

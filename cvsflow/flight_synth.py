@@ -69,6 +69,9 @@ class FlightDemo:
         Camera in L; board mounting on the body.
     clock : Clock
         The true log clock.
+    flip_ref : ndarray, shape (N_frames, 7) or None
+        ``reference="pnp"``: the planar PnP's flip term per frame (``[delta, w]``,
+        :func:`cvsflow.flight.reference_covariance_transfer`), else None.
     """
 
     reference: pd.DataFrame
@@ -79,6 +82,7 @@ class FlightDemo:
     T_L_C: np.ndarray
     T_Q_B: np.ndarray
     clock: Clock
+    flip_ref: np.ndarray | None = None
 
 
 def _sines(rng, n_terms, f_lo, f_hi, amp):
@@ -194,6 +198,7 @@ def render_flight(
     calib_std=None,
     rig=None,
     reference_model=None,
+    calibration=None,
 ) -> FlightDemo:
     """Render a flight: truth, on-board estimate on its own clock, camera reference.
 
@@ -241,6 +246,9 @@ def render_flight(
     reference_model : dict, optional
         ``"pnp"`` only: the model (T) the reference states its covariance with (default the
         rendered sessions', :data:`cvsflow.uncertainty.RENDERED_TRANSFER_MODEL`).
+    calibration : dict, optional
+        ``"pnp"`` only: the calibration the reference uses (a validation session's se3 result)
+        instead of the true lens off by a draw of ``calib_std``.
     rig : dict, optional
         ``"stereo"`` only: ``baseline_m`` (default 1.0), ``cross_m`` (10.0) of
         :func:`stereo_rig`; ``n_views`` (20) and ``view_sigma_px`` (0.1) of the rig's
@@ -270,9 +278,9 @@ def render_flight(
         raise ConfigError(f"flight demo: reference={reference!r}; expected 'pnp', 'stereo' or 'model'")
     if rig is not None and reference != "stereo":
         raise ConfigError(f"flight demo: a rig is given with reference={reference!r}; it needs 'stereo'")
-    if reference_model is not None and reference != "pnp":
-        raise ConfigError(f"flight demo: a reference_model is given with reference={reference!r}; "
-                          "it needs 'pnp'")  # fmt: skip
+    if (reference_model is not None or calibration is not None) and reference != "pnp":
+        raise ConfigError(f"flight demo: a reference_model or calibration is given with "
+                          f"reference={reference!r}; they need 'pnp'")  # fmt: skip
     rig = {} if rig is None else dict(rig)
     unknown = set(rig) - {"baseline_m", "cross_m", "n_views", "view_sigma_px"}
     if unknown:
@@ -290,11 +298,13 @@ def render_flight(
     t_cam = frame / fps
     T_L_Q_cam = f(t_cam)
     T_C_B = invert_T(T_L_C) @ T_L_Q_cam @ T_Q_B
+    flip_ref = None
     if Sigma_ref is None and reference == "pnp":
         seen = rng.random(n_fr) >= missed_frame_rate
-        T_meas, seen, Sigma_ref, _, _ = measure_reference(
+        T_meas, seen, Sigma_ref, _, _, flip_ref = measure_reference(
             T_C_B, t_cam, seen, rng, camera, board, sigma_px, corner_shared_px,
-            corner_shared_squares, calib_std, reference_model)  # fmt: skip
+            corner_shared_squares, calib_std, reference_model, calibration,
+            return_flip=True)  # fmt: skip
     elif Sigma_ref is None and reference == "stereo":
         seen = rng.random(n_fr) >= missed_frame_rate
         T_Ci_C0 = stereo_rig(float(rig.get("baseline_m", 1.0)), float(rig.get("cross_m", 10.0)))
@@ -355,4 +365,5 @@ def render_flight(
     injected.insert(0, "t_s", t_cam)
     injected.insert(0, "frame", frame)
     truth = traj_from_T(t_cam, T_L_Q_cam, attrs={"frames": "T_L_Q (true)"})
-    return FlightDemo(reference_df, Sigma_ref, onboard, truth, injected, T_L_C, T_Q_B, clock)
+    return FlightDemo(reference_df, Sigma_ref, onboard, truth, injected, T_L_C, T_Q_B, clock,
+                      flip_ref)

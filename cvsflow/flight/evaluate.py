@@ -100,6 +100,7 @@ def evaluate_flight(
     rpe_delta: int = 1,
     k_sigma: float = 1.0,
     weighted_alignment: bool = False,
+    flip_ref=None,
 ) -> FlightResult:
     """On-board pose error of a flight against the camera reference.
 
@@ -135,6 +136,10 @@ def evaluate_flight(
         reference's noise puts into the alignment drops from 2-3 sigma to below the stated one
         (docs/findings.md). Off by default: the unweighted fit is evo's Umeyama, so evo
         (``-a``) reproduces the stage's APE from its files.
+    flip_ref : ndarray, shape (N_ref, 7), optional
+        The planar PnP's flip term in ``Sigma_ref`` per row (``[delta, w]``,
+        :func:`reference_covariance_transfer` with ``return_flip``): the stated sigma then
+        carries it exactly, not linearised (:func:`propagate_reference_sigma`).
 
     Returns
     -------
@@ -156,6 +161,8 @@ def evaluate_flight(
             raise InputError(
                 f"Sigma_ref: shape {Sigma_ref.shape}; expected ({len(reference)}, 6, 6)"
             )
+    if flip_ref is not None and np.shape(flip_ref) != (len(reference), 7):
+        raise InputError(f"flip_ref: shape {np.shape(flip_ref)}; expected ({len(reference)}, 7)")
         sigma_rot = np.sqrt(np.trace(Sigma_ref[:, 3:, 3:], axis1=1, axis2=2) / 3.0)
     if clock is None:
         clock = estimate_clock(
@@ -208,7 +215,8 @@ def evaluate_flight(
     T_est_C = al.apply_T(T_L_Q)
     e = axis_errors(T_C_Q, T_L_Q, al)
     sigma = (
-        propagate_reference_sigma(Sigma_ref[use], T_C_B, T_Q_B, al.T_ref_est[:3, :3])
+        propagate_reference_sigma(Sigma_ref[use], T_C_B, T_Q_B, al.T_ref_est[:3, :3],
+                                  None if flip_ref is None else np.asarray(flip_ref, float)[use])
         if Sigma_ref is not None
         else np.full_like(e, np.nan)
     )

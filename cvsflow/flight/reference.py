@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from cvsflow import uncertainty as un
 from cvsflow.errors import InputError
-from cvsflow.geometry import euler_jacobian, invert_T
+from cvsflow.geometry import euler_from_R, euler_jacobian, invert_T, wrap_angle
 from cvsflow.geometry import skew as skew_matrix
 from cvsflow.geometry.camera import INTRINSIC_NAMES
 from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD
@@ -62,8 +62,14 @@ def reference_covariance_model(
     return Sigma
 
 
-def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L) -> np.ndarray:
+def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L, flip=None) -> np.ndarray:
     """Per-axis standard deviations of the reference body pose in the error axes of L.
+
+    Linear in the pose error, except for the planar PnP's flip (``flip``): its 10-40 deg
+    jumps are far outside the Euler angles' linear range (on the rendered PnP flights the
+    linearised share overstated roll's spread by ~10 %), so its share ``w delta delta^T``
+    of ``Sigma_C_B`` is replaced by ``w D D^T`` with ``D`` the exact difference, in the error
+    axes, between the measured pose and the other solution.
 
     Parameters
     ----------
@@ -75,6 +81,10 @@ def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L) -> np.ndarray:
         Board mounting on the body.
     R_C_L : ndarray, shape (3, 3)
         Rotation of the alignment.
+    flip : ndarray, shape (N, 7), optional
+        ``[delta, w]`` per frame (:func:`reference_covariance_transfer` with
+        ``return_flip=True``): measured minus the other solution ``[dt, dtheta]`` in C and
+        its weight in ``Sigma_C_B``; NaN or w = 0 where there is none.
 
     Returns
     -------
@@ -90,8 +100,33 @@ def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L) -> np.ndarray:
     J[:, :3, 3:] = -R_L_C @ skew_matrix(lever)  # dp = dt - [lever]x dtheta
     # a left perturbation in C is one in L by R_L_C; the Euler angles are of R_L_Q
     J[:, 3:, 3:] = euler_jacobian(R_L_C @ T_C_Q[:, :3, :3], side="left") @ R_L_C
-    S = J @ np.asarray(Sigma_C_B, float) @ np.swapaxes(J, -1, -2)
+    Sigma_C_B = np.asarray(Sigma_C_B, float)
+    if flip is not None:
+        flip = np.asarray(flip, float)
+        delta, w = flip[:, :6], flip[:, 6]
+        has = np.isfinite(flip).all(axis=1) & (w > 0)
+        if has.any():
+            Sigma_C_B = Sigma_C_B.copy()
+            Sigma_C_B[has] -= w[has, None, None] * delta[has, :, None] * delta[has, None, :]
+    S = J @ Sigma_C_B @ np.swapaxes(J, -1, -2)
+    if flip is not None and has.any():
+        D = _flip_axis_difference(T_C_B[has], T_B_Q, R_L_C, delta[has])
+        S[has] += w[has, None, None] * D[:, :, None] * D[:, None, :]
     return np.sqrt(np.clip(np.diagonal(S, axis1=1, axis2=2), 0, None))
+
+
+def _flip_axis_difference(T_C_B, T_B_Q, R_L_C, delta):
+    """Measured minus the other PnP solution in the error axes of L: body position (m) and
+    the wrapped Euler angles of R_L_Q (rad), exact."""
+    R_meas = T_C_B[:, :3, :3]
+    # delta = [t_meas - t_alt, rotvec(R_meas R_alt^T)]
+    R_alt = np.swapaxes(Rotation.from_rotvec(delta[:, 3:]).as_matrix(), -1, -2) @ R_meas
+    t_alt = T_C_B[:, :3, 3] - delta[:, :3]
+    p_meas = T_C_B[:, :3, 3] + R_meas @ T_B_Q[:3, 3]
+    p_alt = t_alt + R_alt @ T_B_Q[:3, 3]
+    rpy_meas = euler_from_R(R_L_C @ R_meas @ T_B_Q[:3, :3])
+    rpy_alt = euler_from_R(R_L_C @ R_alt @ T_B_Q[:3, :3])
+    return np.column_stack([(p_meas - p_alt) @ R_L_C.T, wrap_angle(rpy_meas - rpy_alt)])
 
 
 def sigma_columns(Sigma):
@@ -237,7 +272,7 @@ def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
 
 
 def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, flips=True,
-                                  inter_coded=False):
+                                  inter_coded=False, return_flip=False):
     """Reference covariance per frame of a flight from the error model (T) of the se3 stage.
 
     The camera reference of a flight is the PnP pose of the board: its error is what model (T)
@@ -277,18 +312,24 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
         Add the PnP ambiguity term.
     inter_coded : bool
         The flight's video is motion-compensated (its corners_summary.yaml ``inter_coded``).
+    return_flip : bool
+        Also return the flip term's parts, for :func:`propagate_reference_sigma`.
 
     Returns
     -------
     Sigma_ref : ndarray, shape (N, 6, 6)
         ``[dt, dtheta]`` in C per row of ``poses_raw``; NaN where not valid.
+    flip : ndarray, shape (N, 7)
+        With ``return_flip``: ``[delta, w]`` per row (measured minus the other solution, its
+        weight in ``Sigma_ref``); NaN where not valid, w = 0 without ``flips``.
     """
 
     model = un.RENDERED_TRANSFER_MODEL if model is None else model
     valid = poses_raw["valid"].to_numpy(bool)
     Sigma = np.full((len(poses_raw), 6, 6), np.nan)
+    flip = np.full((len(poses_raw), 7), np.nan)
     if not valid.any():
-        return Sigma
+        return (Sigma, flip) if return_flip else Sigma
     rows = poses_raw[valid]
     rv = rows[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
     tv = rows[["x_m", "y_m", "z_m"]].to_numpy(float)
@@ -326,12 +367,47 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     if s_still and inter_coded:
         still = un.still_board_weight(n_seen, speed, 1.0)
         S = S + (s_still**2 * var_px * still)[:, None, None] * unit
+    delta, w = np.zeros((len(rows), 6)), np.zeros(len(rows))
     if flips:
         delta, d_ssr = pnp_flip_term(uv, rv, tv, p_B, K, dist)
         w = un.flip_weight(d_ssr, var_px)
         S = S + w[:, None, None] * delta[:, :, None] * delta[:, None, :]
     Sigma[valid] = S
-    return Sigma
+    flip[valid] = np.column_stack([delta, w])
+    return (Sigma, flip) if return_flip else Sigma
+
+
+def flip_columns(flip):
+    """The flip term's parts as columns ``flip_{dim}`` (m, rad) and ``flip_w``.
+
+    Parameters
+    ----------
+    flip : array_like, shape (N, 7)
+        :func:`reference_covariance_transfer`'s ``flip``.
+
+    Returns
+    -------
+    DataFrame
+    """
+    cols = [f"flip_{d}" for d in ("dx_m", "dy_m", "dz_m", "drx_rad", "dry_rad", "drz_rad")]
+    return pd.DataFrame(np.asarray(flip, float).reshape(-1, 7), columns=cols + ["flip_w"])
+
+
+def flip_from_columns(df):
+    """Inverse of :func:`flip_columns`; None when the table has no flip columns.
+
+    Parameters
+    ----------
+    df : DataFrame
+
+    Returns
+    -------
+    ndarray, shape (N, 7), or None
+    """
+    cols = list(flip_columns(np.zeros((0, 7))).columns)
+    if not set(cols) <= set(df.columns):
+        return None
+    return df[cols].to_numpy(float)
 
 
 def session_error_model(comparison, path="comparison.yaml"):

@@ -7,6 +7,7 @@ from cvsflow.flight.clock import Clock
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
 from cvsflow.flight.reference import (
     corner_noise_per_axis,
+    flip_from_columns,
     reference_covariance_from_pnp,
     reference_covariance_transfer,
     session_error_model,
@@ -24,7 +25,7 @@ with stage_logging(snakemake.log[0], "flight") as log:
     inp = snakemake.input
     if "synth" in cfg:
         table = read_parquet(inp.reference)
-        reference, Sigma_ref = table, sigma_from_columns(table)
+        reference, Sigma_ref, flip_ref = table, sigma_from_columns(table), flip_from_columns(table)
         onboard = read_tum(inp.onboard)
         truth_cfg = read_yaml(inp.truth_yaml)
         T_Q_B = np.array(truth_cfg["T_Q_B"]) if cfg.get("mounting_known", True) else None
@@ -41,17 +42,19 @@ with stage_logging(snakemake.log[0], "flight") as log:
             log.info("reference uncertainty: model (T) %s",
                      f"fitted by {inp.error_model}" if model else "fitted on the rendered sessions")
             inter_coded = bool(read_yaml(inp.corners_summary).get("inter_coded", False))
-            Sigma_ref = reference_covariance_transfer(poses, read_parquet(inp.corners), p_B, calib,
-                                                      model=model, inter_coded=inter_coded)
+            Sigma_ref, flip_ref = reference_covariance_transfer(
+                poses, read_parquet(inp.corners), p_B, calib, model=model, inter_coded=inter_coded,
+                return_flip=True)  # fmt: skip
         else:
-            Sigma_ref = reference_covariance_from_pnp(
-                poses, p_B, calib["K"], calib["dist"], sigma_px)
+            Sigma_ref, flip_ref = reference_covariance_from_pnp(
+                poses, p_B, calib["K"], calib["dist"], sigma_px), None
         onboard = read_flight_log(inp.onboard, cfg["format"], cfg.get("ulog_source", "local_position"),
                                   cfg.get("csv"))
         T_Q_B = T_from_pose6(cfg["T_Q_B_pose6"]) if "T_Q_B_pose6" in cfg else None
     result = evaluate_flight(reference, onboard, T_Q_B, Sigma_ref,
                                 alignment=cfg.get("alignment", "se3"), k_sigma=cfg.get("k_sigma", 1.0),
-                             weighted_alignment=cfg.get("weighted_alignment", False))
+                             weighted_alignment=cfg.get("weighted_alignment", False),
+                             flip_ref=flip_ref)
     stats = dict(result.stats)
     if "synth" in cfg:
         truth = read_parquet(inp.truth)
