@@ -161,9 +161,9 @@ def evaluate_flight(
             raise InputError(
                 f"Sigma_ref: shape {Sigma_ref.shape}; expected ({len(reference)}, 6, 6)"
             )
+        sigma_rot = np.sqrt(np.trace(Sigma_ref[:, 3:, 3:], axis1=1, axis2=2) / 3.0)
     if flip_ref is not None and np.shape(flip_ref) != (len(reference), 7):
         raise InputError(f"flip_ref: shape {np.shape(flip_ref)}; expected ({len(reference)}, 7)")
-        sigma_rot = np.sqrt(np.trace(Sigma_ref[:, 3:, 3:], axis1=1, axis2=2) / 3.0)
     if clock is None:
         clock = estimate_clock(
             reference,

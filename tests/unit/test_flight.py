@@ -450,6 +450,18 @@ def test_recovered_error_matches_injected_within_reference_uncertainty_known_fra
     assert np.mean(np.abs(z) < 3.0) > 0.99
 
 
+def test_evaluate_flight_weights_its_clock_by_the_reference_sigma(demo):
+    """The clock evaluate_flight estimates is estimate_clock's weighted by the reference's stated
+    rotation sigma (the RMS of Sigma_ref's rotation diagonal), not an unweighted one."""
+    r = F.evaluate_flight(demo.reference, demo.onboard, demo.T_Q_B, demo.Sigma_ref)
+    sigma_rot = np.sqrt(np.trace(demo.Sigma_ref[:, 3:, 3:], axis1=1, axis2=2) / 3.0)
+    k = F.estimate_clock(demo.reference, demo.onboard, R_Q_B=demo.T_Q_B[:3, :3],
+                         sigma_rot_rad=sigma_rot)  # fmt: skip
+    k0 = F.estimate_clock(demo.reference, demo.onboard, R_Q_B=demo.T_Q_B[:3, :3])
+    assert r.clock.dt_offset_s == k.dt_offset_s and r.clock.skew == k.skew
+    assert k0.dt_offset_s != k.dt_offset_s
+
+
 def test_recovered_error_matches_injected_full_pipeline(demo):
     """Estimated clock and SE(3) fit: recovered error = injected error seen through the fitted
     alignment, within the reference's stated uncertainty (z-RMS within 0.85..1.2 per axis)."""
