@@ -74,7 +74,7 @@ def main(seeds, model=None):
                 for weighted in (False, True):
                     r = evaluate_flight(d.reference, d.onboard, d.T_Q_B, d.Sigma_ref,
                                         clock=d.clock, weighted_alignment=weighted,
-                                        flip_ref=d.flip_ref)  # fmt: skip
+                                        flip_ref=d.flip_ref, cal_factor=d.cal_factor)  # fmt: skip
                     c = check_against_truth(r, d.onboard, d.truth, d.T_L_C, d.clock)
                     z = " ".join(f"{v:.2f}" for v in c["z_rms"].values())
                     zt = " ".join(f"{v:.2f}" for v in c["z_rms_truth_alignment"].values())

@@ -74,7 +74,8 @@ def main(focals, seeds):
                 d = render_flight(seed=seed, duration_s=60.0, reference="pnp", camera=camera,
                                   calibration=full, reference_model=m)  # fmt: skip
                 r = evaluate_flight(d.reference, d.onboard, d.T_Q_B, d.Sigma_ref, clock=d.clock,
-                                    weighted_alignment=True, flip_ref=d.flip_ref)  # fmt: skip
+                                    weighted_alignment=True, flip_ref=d.flip_ref,
+                                    cal_factor=d.cal_factor)  # fmt: skip
                 c = check_against_truth(r, d.onboard, d.truth, d.T_L_C, d.clock)
                 z = " ".join(f"{x:.2f}" for x in c["z_rms"].values())
                 zt = " ".join(f"{x:.2f}" for x in c["z_rms_truth_alignment"].values())

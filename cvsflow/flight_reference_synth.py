@@ -89,7 +89,7 @@ def corner_noise(rng, n_frames, board, sigma_px, shared_px=0.0, shared_squares=1
 
 def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0.3,
                       shared_px=0.0, shared_squares=1.0, calib_std=None, model=None,
-                      calibration=None, return_flip=False):
+                      calibration=None, return_terms=False):
     """The camera reference of a flight as the CVS measures it, at corner level.
 
     The board's corners are projected with the true camera (``camera``), those inside the
@@ -122,8 +122,9 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
         The calibration the CVS uses, as a validation session's se3 result (``K``, ``dist``,
         ``std_errors``, ``fixed_intrinsics``), instead of the true lens off by a draw of
         ``calib_std`` (still drawn, so the noise stays the same).
-    return_flip : bool
-        Also return the flip term's parts (``flip``, :func:`reference_covariance_transfer`).
+    return_terms : bool
+        Also return the flip term's parts and the calibration's factor (``flip``,
+        ``cal_factor``, :func:`reference_covariance_transfer`).
 
     Returns
     -------
@@ -134,8 +135,8 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
         Stated covariance ([dt m, dtheta rad] in C), NaN where not valid.
     poses, corners : DataFrame
         The poses_raw and corners tables of the measurement.
-    flip : ndarray, shape (N, 7)
-        With ``return_flip``.
+    flip, cal_factor : ndarray, shape (N, 7) and (N, 6, 9)
+        With ``return_terms``.
     """
 
     camera = CAMERA_DEMO if camera is None else camera
@@ -175,10 +176,10 @@ def measure_reference(T_C_B, t_s, seen, rng, camera=None, board=None, sigma_px=0
              "std": {n: float(v) for n, v in zip(INTRINSIC_NAMES, sd, strict=True)}}
     if calibration is not None:
         calib = calibration
-    Sigma, flip = reference_covariance_transfer(poses, corners, p_B, calib, model=model,
-                                                return_flip=True)  # fmt: skip
-    if return_flip:
-        return T_meas, valid, Sigma, poses, corners, flip
+    Sigma, flip, cal_factor = reference_covariance_transfer(poses, corners, p_B, calib, model=model,
+                                                            return_terms=True)  # fmt: skip
+    if return_terms:
+        return T_meas, valid, Sigma, poses, corners, flip, cal_factor
     return T_meas, valid, Sigma, poses, corners
 
 
@@ -297,7 +298,8 @@ def calibrate_rig_views(rng, T_Ci_C0, cameras, cameras_cal, calib_std, board, n_
 
 
 def measure_reference_rig(T_C0_B, seen, rng, T_Ci_C0, cameras=None, board=None, sigma_px=0.3,
-                          shared_px=0.0, shared_squares=1.0, calib_std=None, n_views=20, view_sigma_px=0.1):
+                          shared_px=0.0, shared_squares=1.0, calib_std=None, n_views=20, view_sigma_px=0.1,
+                          return_factor=False):
     """The camera reference of a flight measured by a rig of cameras exposed together.
 
     Every camera detects the board's corners (:func:`observe_rig`, :func:`corner_noise`). The
@@ -328,6 +330,9 @@ def measure_reference_rig(T_C0_B, seen, rng, T_Ci_C0, cameras=None, board=None, 
         Each camera's calibration 1-sigma; default ``CALIB_STD_DEFAULT``.
     n_views, view_sigma_px : int, float
         The rig calibration's shared views and their corner noise (:func:`calibrate_rig_views`).
+    return_factor : bool
+        Also return the calibration's share of ``Sigma_ref`` as its factor ``G`` (N, 6, k),
+        one draw common to every frame (:func:`rig_calibration_covariance`).
 
     Returns
     -------
@@ -339,6 +344,8 @@ def measure_reference_rig(T_C0_B, seen, rng, T_Ci_C0, cameras=None, board=None, 
         where not valid.
     rig : dict
         The rig calibration (:func:`cvsflow.stereo.stereo_extrinsics`).
+    G : ndarray, shape (N, 6, k)
+        With ``return_factor``; NaN where not valid.
 
     Notes
     -----
@@ -374,7 +381,13 @@ def measure_reference_rig(T_C0_B, seen, rng, T_Ci_C0, cameras=None, board=None, 
     valid = np.isfinite(T_meas[:, 0, 0]) & (n_det.max(axis=1) >= 6)
     ext_cov = [c["covariance"] for c in rig["cameras"]]
     ext_sens = [c["intrinsics_sensitivity"] for c in rig["cameras"]]
-    Sigma[valid] += rig_calibration_covariance(uv[valid], det[valid], p_B, cams_cal, T_cal, T_meas[valid],
-                                               sigma_eff, [calib_std] * n_cam, ext_cov, ext_sens)  # fmt: skip
+    S_cal, G_cal = rig_calibration_covariance(uv[valid], det[valid], p_B, cams_cal, T_cal,
+                                              T_meas[valid], sigma_eff, [calib_std] * n_cam, ext_cov,
+                                              ext_sens, return_factor=True)  # fmt: skip
+    Sigma[valid] += S_cal
     T_meas[~valid], Sigma[~valid] = np.nan, np.nan
+    if return_factor:
+        G = np.full((len(T_meas), 6, G_cal.shape[2]), np.nan)
+        G[valid] = G_cal
+        return T_meas, valid, Sigma, rig, G
     return T_meas, valid, Sigma, rig

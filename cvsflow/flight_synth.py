@@ -72,6 +72,9 @@ class FlightDemo:
     flip_ref : ndarray, shape (N_frames, 7) or None
         ``reference="pnp"``: the planar PnP's flip term per frame (``[delta, w]``,
         :func:`cvsflow.flight.reference_covariance_transfer`), else None.
+    cal_factor : ndarray, shape (N_frames, 6, k) or None
+        ``reference="pnp"`` or ``"stereo"``: the calibration's share of ``Sigma_ref`` as the
+        error per standard deviation of each calibration cause, one draw for the flight.
     """
 
     reference: pd.DataFrame
@@ -83,6 +86,7 @@ class FlightDemo:
     T_Q_B: np.ndarray
     clock: Clock
     flip_ref: np.ndarray | None = None
+    cal_factor: np.ndarray | None = None
 
 
 def _sines(rng, n_terms, f_lo, f_hi, amp):
@@ -298,20 +302,20 @@ def render_flight(
     t_cam = frame / fps
     T_L_Q_cam = f(t_cam)
     T_C_B = invert_T(T_L_C) @ T_L_Q_cam @ T_Q_B
-    flip_ref = None
+    flip_ref = cal_factor = None
     if Sigma_ref is None and reference == "pnp":
         seen = rng.random(n_fr) >= missed_frame_rate
-        T_meas, seen, Sigma_ref, _, _, flip_ref = measure_reference(
+        T_meas, seen, Sigma_ref, _, _, flip_ref, cal_factor = measure_reference(
             T_C_B, t_cam, seen, rng, camera, board, sigma_px, corner_shared_px,
             corner_shared_squares, calib_std, reference_model, calibration,
-            return_flip=True)  # fmt: skip
+            return_terms=True)  # fmt: skip
     elif Sigma_ref is None and reference == "stereo":
         seen = rng.random(n_fr) >= missed_frame_rate
         T_Ci_C0 = stereo_rig(float(rig.get("baseline_m", 1.0)), float(rig.get("cross_m", 10.0)))
-        T_meas, seen, Sigma_ref, _ = measure_reference_rig(
+        T_meas, seen, Sigma_ref, _, cal_factor = measure_reference_rig(
             T_C_B, seen, rng, T_Ci_C0, None if camera is None else [camera] * len(T_Ci_C0), board,
             sigma_px, corner_shared_px, corner_shared_squares, calib_std, int(rig.get("n_views", 20)),
-            float(rig.get("view_sigma_px", 0.1)))  # fmt: skip
+            float(rig.get("view_sigma_px", 0.1)), return_factor=True)  # fmt: skip
     else:
         if Sigma_ref is None:
             Sigma_ref = reference_covariance_model(T_C_B, f_px, board_m, sigma_px, n_corners)
@@ -366,4 +370,4 @@ def render_flight(
     injected.insert(0, "frame", frame)
     truth = traj_from_T(t_cam, T_L_Q_cam, attrs={"frames": "T_L_Q (true)"})
     return FlightDemo(reference_df, Sigma_ref, onboard, truth, injected, T_L_C, T_Q_B, clock,
-                      flip_ref)
+                      flip_ref, cal_factor)

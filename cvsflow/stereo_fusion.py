@@ -190,7 +190,8 @@ def fused_pose_jacobian(uv_px, seen, p_B, T_C0_B, sigma_px, geometry_at, steps, 
 
 
 def rig_calibration_covariance(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma_px, intrinsics_std,
-                               extrinsics_cov, extrinsics_sensitivity=None, rel_step=0.01):
+                               extrinsics_cov, extrinsics_sensitivity=None, rel_step=0.01,
+                               return_factor=False):
     """Covariance of fused board poses from a rig calibration's uncertainty, first order.
 
     ``D Sigma_theta D^T`` (:func:`fused_pose_jacobian`) over every camera's intrinsics (their
@@ -227,11 +228,17 @@ def rig_calibration_covariance(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma
         ``intrinsics_sensitivity``).
     rel_step : float
         Difference step, in standard deviations of each parameter.
+    return_factor : bool
+        Also return a factor ``G`` with ``Sigma = G G^T`` frame by frame: the pose error is
+        ``G xi`` with one ``xi ~ N(0, I)`` for every frame (one calibration, shared), which a
+        flight's alignment partly absorbs (:func:`cvsflow.flight.evaluate_flight`).
 
     Returns
     -------
     Sigma : ndarray, shape (F, 6, 6)
         ``[dt (m), dtheta (rad)]`` in C0, rotation perturbed on the left.
+    G : ndarray, shape (F, 6, k)
+        With ``return_factor``.
     """
     n_cam = len(cameras)
     n_sens = n_cam - 1 if extrinsics_sensitivity is None else len(extrinsics_sensitivity)
@@ -278,7 +285,11 @@ def rig_calibration_covariance(uv_px, seen, p_B, cameras, T_Ci_C0, T_C0_B, sigma
 
     D = fused_pose_jacobian(uv_px, seen, p_B, T_C0_B, sigma_px, geometry_at,
                             rel_step * np.sqrt(np.diag(cov)))  # fmt: skip
-    return np.einsum("fip,pq,fjq->fij", D, cov, D)
+    Sigma = np.einsum("fip,pq,fjq->fij", D, cov, D)
+    if not return_factor:
+        return Sigma
+    lam, V = np.linalg.eigh(cov)
+    return Sigma, D @ (V * np.sqrt(np.clip(lam, 0.0, None)))
 
 
 def board_pose_starts(uv_px, seen, p_B, cameras, T_Ci_C0):

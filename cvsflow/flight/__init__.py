@@ -56,6 +56,8 @@ from cvsflow.flight.metrics import (
 )
 from cvsflow.flight.reference import (
     corner_noise_per_axis,
+    factor_columns,
+    factor_from_columns,
     flip_columns,
     flip_from_columns,
     pnp_flip_term,
@@ -83,7 +85,7 @@ __all__ = [
     "T_from_traj", "align_trajectories", "align_weighted", "align_yaw", "angular_speed",
     "ape_rotation", "ape_translation", "associate", "axis_errors", "axis_stats",
     "check_against_truth", "check_trajectory", "corner_noise_per_axis", "error_stats",
-    "flip_columns", "flip_from_columns",
+    "factor_columns", "factor_from_columns", "flip_columns", "flip_from_columns",
     "estimate_clock", "evaluate_flight", "interpolate_trajectory", "pnp_flip_term",
     "propagate_reference_sigma", "reference_covariance_from_pnp", "reference_covariance_model",
     "reference_covariance_transfer", "reference_from_poses", "rotation_alignment", "rpe",

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.spatial.transform import Rotation
 
 from cvsflow.errors import InputError, SyncError
 from cvsflow.flight.alignment import (
@@ -35,7 +36,7 @@ from cvsflow.flight.trajectory import (
     interpolate_trajectory,
     traj_from_T,
 )
-from cvsflow.geometry import invert_T, make_T, skew
+from cvsflow.geometry import invert_T, make_T, skew, wrap_angle
 
 log = logging.getLogger(__name__)
 
@@ -101,6 +102,7 @@ def evaluate_flight(
     k_sigma: float = 1.0,
     weighted_alignment: bool = False,
     flip_ref=None,
+    cal_factor=None,
 ) -> FlightResult:
     """On-board pose error of a flight against the camera reference.
 
@@ -138,8 +140,16 @@ def evaluate_flight(
         (``-a``) reproduces the stage's APE from its files.
     flip_ref : ndarray, shape (N_ref, 7), optional
         The planar PnP's flip term in ``Sigma_ref`` per row (``[delta, w]``,
-        :func:`reference_covariance_transfer` with ``return_flip``): the stated sigma then
+        :func:`reference_covariance_transfer` with ``return_terms``): the stated sigma then
         carries it exactly, not linearised (:func:`propagate_reference_sigma`).
+    cal_factor : ndarray, shape (N_ref, 6, k), optional
+        The calibration's share of ``Sigma_ref`` as ``G G^T`` per row, one draw for the whole
+        flight (:func:`reference_covariance_transfer`, a rig's
+        :func:`cvsflow.stereo_fusion.rig_calibration_covariance`). A fitted alignment absorbs
+        part of such a common error and is moved by the rest, so the stated sigma of the
+        recovered error carries it as it comes out of the alignment: each column of G is
+        applied to the reference, the alignment refitted and the error's change taken
+        (:func:`_calibration_through_alignment`).
 
     Returns
     -------
@@ -164,6 +174,10 @@ def evaluate_flight(
         sigma_rot = np.sqrt(np.trace(Sigma_ref[:, 3:, 3:], axis1=1, axis2=2) / 3.0)
     if flip_ref is not None and np.shape(flip_ref) != (len(reference), 7):
         raise InputError(f"flip_ref: shape {np.shape(flip_ref)}; expected ({len(reference)}, 7)")
+    if cal_factor is not None and (np.ndim(cal_factor) != 3
+                                   or np.shape(cal_factor)[:2] != (len(reference), 6)):
+        raise InputError(f"cal_factor: shape {np.shape(cal_factor)}; expected "
+                         f"({len(reference)}, 6, k)")  # fmt: skip
     if clock is None:
         clock = estimate_clock(
             reference,
@@ -200,26 +214,39 @@ def evaluate_flight(
         )
     T_C_Q = T_C_B @ invert_T(T_Q_B)
     Sigma_p = None
-    if T_C_L is not None:
-        al = Alignment(np.asarray(T_C_L, float), 1.0, "given")
-    elif weighted_alignment and alignment == "se3" and Sigma_ref is not None:
+    if weighted_alignment and alignment == "se3" and Sigma_ref is not None and T_C_L is None:
         # p_C_Q = t_C_B + R_C_B t_B_Q: dp = dt - [R_C_B t_B_Q]x dtheta
         J = np.concatenate(
             [np.broadcast_to(np.eye(3), (n, 3, 3)),
              -skew(T_C_B[:, :3, :3] @ invert_T(T_Q_B)[:3, 3])], axis=2
         )  # fmt: skip
         Sigma_p = J @ Sigma_ref[use] @ np.swapaxes(J, -1, -2)
-        al = align_weighted(T_C_Q[:, :3, 3], T_L_Q[:, :3, 3], Sigma_p)
-    else:
-        al = align_trajectories(T_C_Q[:, :3, 3], T_L_Q[:, :3, 3], alignment, z_est_in_ref)
+
+    def fit_alignment(p_ref_C, floor_m2=None):
+        if T_C_L is not None:
+            return Alignment(np.asarray(T_C_L, float), 1.0, "given")
+        if Sigma_p is not None:
+            return align_weighted(p_ref_C, T_L_Q[:, :3, 3], Sigma_p, floor_m2=floor_m2)
+        return align_trajectories(p_ref_C, T_L_Q[:, :3, 3], alignment, z_est_in_ref)
+
+    al = fit_alignment(T_C_Q[:, :3, 3])
     T_est_C = al.apply_T(T_L_Q)
     e = axis_errors(T_C_Q, T_L_Q, al)
-    sigma = (
-        propagate_reference_sigma(Sigma_ref[use], T_C_B, T_Q_B, al.T_ref_est[:3, :3],
-                                  None if flip_ref is None else np.asarray(flip_ref, float)[use])
-        if Sigma_ref is not None
-        else np.full_like(e, np.nan)
-    )
+    flip_use = None if flip_ref is None else np.asarray(flip_ref, float)[use]
+    if Sigma_ref is None:
+        sigma = np.full_like(e, np.nan)
+    elif cal_factor is None:
+        sigma = propagate_reference_sigma(Sigma_ref[use], T_C_B, T_Q_B, al.T_ref_est[:3, :3],
+                                          flip_use)  # fmt: skip
+    else:
+        G = np.asarray(cal_factor, float)[use]
+        sigma_rest = propagate_reference_sigma(Sigma_ref[use] - G @ np.swapaxes(G, -1, -2), T_C_B,
+                                               T_Q_B, al.T_ref_est[:3, :3], flip_use)  # fmt: skip
+        # the weighted fit's floor held: its response to the calibration at these weights
+        d = _calibration_through_alignment(
+            G, T_C_B, T_Q_B, T_L_Q, e,
+            lambda p: fit_alignment(p, getattr(al, "floor_m2", None)))  # fmt: skip
+        sigma = np.sqrt(sigma_rest**2 + np.sum(d**2, axis=2))
     ape_t = ape_translation(T_C_Q[:, :3, 3], T_est_C[:, :3, 3])
     ape_r = ape_rotation(T_C_Q[:, :3, :3], T_est_C[:, :3, :3])
     errors = pd.DataFrame(np.column_stack([e, sigma]), columns=ERR_COLS + SIG_COLS)
@@ -258,6 +285,24 @@ def evaluate_flight(
     return FlightResult(
         errors, stats, clock, al, ref_aligned, est_aligned, est_unaligned, Sigma_p
     )
+
+
+def _calibration_through_alignment(G, T_C_B, T_Q_B, T_L_Q, e, fit_alignment):
+    """The recovered error's change per standard deviation of each calibration cause (n, 6, k):
+    the reference moved by column c of G (``[dt, dtheta]`` in C, rotation on the left), the
+    alignment refitted, the axis errors taken again. Linear in G over its 1-sigma range."""
+    T_B_Q = invert_T(T_Q_B)
+    d = np.empty(G.shape)
+    for c in range(G.shape[2]):
+        T = T_C_B.copy()
+        T[:, :3, 3] += G[:, :3, c]
+        T[:, :3, :3] = Rotation.from_rotvec(G[:, 3:, c]).as_matrix() @ T[:, :3, :3]
+        T_C_Q_c = T @ T_B_Q
+        e_c = axis_errors(T_C_Q_c, T_L_Q, fit_alignment(T_C_Q_c[:, :3, 3]))
+        diff = e_c - e
+        diff[:, 3:] = wrap_angle(diff[:, 3:])
+        d[:, :, c] = diff
+    return d
 
 
 def check_against_truth(result, onboard, truth, T_L_C, clock, max_gap_s=0.05):

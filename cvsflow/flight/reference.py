@@ -21,7 +21,11 @@ from cvsflow.geometry import euler_from_R, euler_jacobian, invert_T, wrap_angle
 from cvsflow.geometry import skew as skew_matrix
 from cvsflow.geometry.camera import INTRINSIC_NAMES
 from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD
-from cvsflow.uncertainty.propagation import pnp_covariance, propagated_pose_covariance
+from cvsflow.uncertainty.propagation import (
+    pnp_covariance,
+    propagated_pose_covariance,
+    propagated_pose_factor,
+)
 
 # --------------------------------------------------------------------------------------------
 # Reference uncertainty
@@ -83,7 +87,7 @@ def propagate_reference_sigma(Sigma_C_B, T_C_B, T_Q_B, R_C_L, flip=None) -> np.n
         Rotation of the alignment.
     flip : ndarray, shape (N, 7), optional
         ``[delta, w]`` per frame (:func:`reference_covariance_transfer` with
-        ``return_flip=True``): measured minus the other solution ``[dt, dtheta]`` in C and
+        ``return_terms=True``): measured minus the other solution ``[dt, dtheta]`` in C and
         its weight in ``Sigma_C_B``; NaN or w = 0 where there is none.
 
     Returns
@@ -272,7 +276,7 @@ def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
 
 
 def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, flips=True,
-                                  inter_coded=False, return_flip=False):
+                                  inter_coded=False, return_terms=False):
     """Reference covariance per frame of a flight from the error model (T) of the se3 stage.
 
     The camera reference of a flight is the PnP pose of the board: its error is what model (T)
@@ -312,24 +316,30 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
         Add the PnP ambiguity term.
     inter_coded : bool
         The flight's video is motion-compensated (its corners_summary.yaml ``inter_coded``).
-    return_flip : bool
-        Also return the flip term's parts, for :func:`propagate_reference_sigma`.
+    return_terms : bool
+        Also return the flip term's parts and the calibration's factor, for
+        :func:`cvsflow.flight.evaluate_flight`.
 
     Returns
     -------
     Sigma_ref : ndarray, shape (N, 6, 6)
         ``[dt, dtheta]`` in C per row of ``poses_raw``; NaN where not valid.
     flip : ndarray, shape (N, 7)
-        With ``return_flip``: ``[delta, w]`` per row (measured minus the other solution, its
+        With ``return_terms``: ``[delta, w]`` per row (measured minus the other solution, its
         weight in ``Sigma_ref``); NaN where not valid, w = 0 without ``flips``.
+    cal_factor : ndarray, shape (N, 6, 9)
+        With ``return_terms``: the calibration's share of ``Sigma_ref`` is
+        ``cal_factor cal_factor^T``, the error per standard deviation of each intrinsic, one
+        draw common to every frame; NaN where not valid.
     """
 
     model = un.RENDERED_TRANSFER_MODEL if model is None else model
     valid = poses_raw["valid"].to_numpy(bool)
     Sigma = np.full((len(poses_raw), 6, 6), np.nan)
     flip = np.full((len(poses_raw), 7), np.nan)
+    cal_factor = np.full((len(poses_raw), 6, len(INTRINSIC_NAMES)), np.nan)
     if not valid.any():
-        return (Sigma, flip) if return_flip else Sigma
+        return (Sigma, flip, cal_factor) if return_terms else Sigma
     rows = poses_raw[valid]
     rv = rows[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float)
     tv = rows[["x_m", "y_m", "z_m"]].to_numpy(float)
@@ -353,12 +363,14 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     sd[2:4] = 0.0
     seen = np.isfinite(uv).all(axis=-1)
     cov_rt = np.empty((len(rows), 6, 6))
+    fac_rt = np.empty((len(rows), 6, len(sd)))
     obj = np.asarray(p_B, np.float64)
     for i in range(len(rows)):
         _, jac = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rv[i], tv[i], K, dist)
         Jp, JK = jac[:, :6], jac[:, 6:15]
         A = -np.linalg.lstsq(Jp.T @ Jp, Jp.T @ JK, rcond=None)[0]
         cov_rt[i] = (A * sd**2) @ A.T
+        fac_rt[i] = A * sd
 
     cal = propagated_pose_covariance(rv, tv, cov_rt, frame="C")
     S = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
@@ -373,8 +385,11 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
         w = un.flip_weight(d_ssr, var_px)
         S = S + w[:, None, None] * delta[:, :, None] * delta[:, None, :]
     Sigma[valid] = S
+    if not return_terms:
+        return Sigma
     flip[valid] = np.column_stack([delta, w])
-    return (Sigma, flip) if return_flip else Sigma
+    cal_factor[valid] = model["c_cal"] * propagated_pose_factor(rv, tv, fac_rt, frame="C")
+    return Sigma, flip, cal_factor
 
 
 def flip_columns(flip):
@@ -391,6 +406,43 @@ def flip_columns(flip):
     """
     cols = [f"flip_{d}" for d in ("dx_m", "dy_m", "dz_m", "drx_rad", "dry_rad", "drz_rad")]
     return pd.DataFrame(np.asarray(flip, float).reshape(-1, 7), columns=cols + ["flip_w"])
+
+
+def factor_columns(G):
+    """A per-frame factor (N, 6, k) as columns ``G{i}_{c}`` (row i of the error, cause c).
+
+    Parameters
+    ----------
+    G : array_like, shape (N, 6, k)
+
+    Returns
+    -------
+    DataFrame
+    """
+    G = np.asarray(G, float)
+    cols = [f"G{i}_{c}" for i in range(6) for c in range(G.shape[2])]
+    return pd.DataFrame(G.reshape(len(G), -1), columns=cols)
+
+
+def factor_from_columns(df):
+    """Inverse of :func:`factor_columns`; None when the table has no ``G0_0`` column.
+
+    Parameters
+    ----------
+    df : DataFrame
+
+    Returns
+    -------
+    ndarray, shape (N, 6, k), or None
+    """
+    k = sum(1 for c in df.columns if c.startswith("G0_"))
+    if k == 0:
+        return None
+    cols = [f"G{i}_{c}" for i in range(6) for c in range(k)]
+    missing = [c for c in cols if c not in df.columns]
+    if missing:
+        raise InputError(f"reference table: calibration factor columns {missing[:3]} missing")
+    return df[cols].to_numpy(float).reshape(len(df), 6, k)
 
 
 def flip_from_columns(df):

@@ -516,7 +516,8 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
 def write_flight_demo(demo, out_dir) -> None:
     """Write a rendered flight (:class:`cvsflow.flight_synth.FlightDemo`) as the files a real
     flight session has, plus its truth: ``reference.parquet`` (T_C_B per video frame with its
-    covariance columns S00..S55 and, from a PnP reference, the flip term's ``flip_*``),
+    covariance columns S00..S55; from a PnP reference the flip term's ``flip_*``, from a PnP or
+    rig reference the calibration's factor ``G{i}_{c}``),
     ``onboard.tum`` (the log), ``truth.parquet`` (true T_L_Q at the frames),
     ``injected.parquet`` and ``truth.yaml`` (T_L_C, T_Q_B, clock).
 
@@ -531,13 +532,15 @@ def write_flight_demo(demo, out_dir) -> None:
     -------
     None
     """
-    from cvsflow.flight import flip_columns, sigma_columns
+    from cvsflow.flight import factor_columns, flip_columns, sigma_columns
     from cvsflow.io.files import write_parquet, write_yaml
 
     out_dir = Path(out_dir)
     parts = [demo.reference.reset_index(drop=True), sigma_columns(demo.Sigma_ref)]
     if demo.flip_ref is not None:
         parts.append(flip_columns(demo.flip_ref))
+    if demo.cal_factor is not None:
+        parts.append(factor_columns(demo.cal_factor))
     ref = pd.concat(parts, axis=1)
     write_parquet(ref, out_dir / "reference.parquet")
     write_tum(demo.onboard, out_dir / "onboard.tum")
