@@ -26,9 +26,10 @@ import time
 import cvsflow.flight_reference_synth as reference_synth
 from cvsflow import uncertainty as un
 from cvsflow.errors import SyncError
+from cvsflow.flight import session_error_model
 from cvsflow.flight.clock import estimate_clock
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
-from cvsflow.flight_reference_synth import CALIB_STD_DEFAULT
+from cvsflow.flight_reference_synth import CALIB_STD_DEFAULT, validate_simulated_session
 from cvsflow.flight_synth import render_flight
 
 CAMERAS = {
@@ -41,25 +42,10 @@ CAMERAS = {
 NO_PP = {k: v for k, v in CALIB_STD_DEFAULT.items() if k not in ("cx", "cy")}
 
 
-def validation_model(seed=5, duration_s=12.0):
+def validation_model():
     """Model (T) as the compare stage fits it (comparison.yaml ``error_model_fit``) on a
-    simulated validation session: iid 0.3 px corners, as the flights', the demo's lens, a
-    Vicon reference, 1-3 m."""
-    from cvsflow import evaluate as ev
-    from cvsflow.flight import session_error_model
-    from cvsflow.optimise import se3
-    from cvsflow.optimise.se3_sim import simulate_session
-
-    v = simulate_session(seed, duration_s=duration_s)
-    held, fits = ev.cross_validate_se3(
-        v["corners"], v["bodies"], v["camera"], v["board"], v["truth"]["dt_offset_s"],
-        n_folds=4, block_s=1.5, seed=0, free=["fx", "fy", "k1", "k2", "p1", "p2"],
-    )  # fmt: skip
-    full = se3.optimise_se3(v["corners"], v["bodies"], v["camera"], v["board"],
-                            v["truth"]["dt_offset_s"]).result  # fmt: skip
-    comparison, *_ = ev.compare_heldout(None, held, full, fits, v["board"], n_boot=20,
-                                        corners=v["corners"])  # fmt: skip
-    return session_error_model(comparison)
+    simulated validation session of the demo's lens (:func:`validate_simulated_session`)."""
+    return session_error_model(validate_simulated_session(5)[1])
 
 
 def main(seeds, model=None):

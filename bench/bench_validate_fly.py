@@ -24,38 +24,15 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
-from cvsflow import evaluate as ev
 from cvsflow.flight import session_error_model
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
-from cvsflow.flight_reference_synth import CALIB_STD_DEFAULT
+from cvsflow.flight_reference_synth import validate_simulated_session
 from cvsflow.flight_synth import render_flight
-from cvsflow.geometry.camera import INTRINSIC_NAMES
-from cvsflow.optimise import se3
-from cvsflow.optimise.se3_model import K_from_intrinsics
-from cvsflow.optimise.se3_sim import simulate_session
-
-FREE = ["fx", "fy", "k1", "k2", "p1", "p2"]  # config/config.yaml optimise.se3.free
 
 
 def validate(seed, focal_px):
-    """The validation session's se3 result and fitted model (T), and its true camera."""
-    v = simulate_session(seed, duration_s=20.0, focal_px=focal_px)
-    K, dist = np.asarray(v["camera"]["K"], float), np.asarray(v["camera"]["dist"], float)
-    rng = np.random.default_rng(1000 + seed)
-    sd = np.array([CALIB_STD_DEFAULT[n] for n in INTRINSIC_NAMES])
-    intr = np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist] + sd * rng.standard_normal(len(sd))
-    start = {"K": K_from_intrinsics(*intr[:4]).tolist(), "dist": intr[4:].tolist(),
-             "std": dict(CALIB_STD_DEFAULT)}  # fmt: skip
-    dt = v["truth"]["dt_offset_s"]
-    held, fits = ev.cross_validate_se3(v["corners"], v["bodies"], start, v["board"], dt,
-                                       n_folds=5, block_s=2.0, seed=0, free=FREE)  # fmt: skip
-    full = se3.optimise_se3(v["corners"], v["bodies"], start, v["board"], dt, free=FREE).result
-    comparison, *_ = ev.compare_heldout(None, held, full, fits, v["board"], n_boot=20,
-                                        corners=v["corners"])  # fmt: skip
-    camera = {"fx_px": K[0, 0], "fy_px": K[1, 1], "cx_px": K[0, 2], "cy_px": K[1, 2],
-              "dist": dist.tolist(), "width_px": 640, "height_px": 480}  # fmt: skip
+    """The validation session's se3 result, fitted model (T), true camera and NEES."""
+    full, comparison, camera = validate_simulated_session(seed, focal_px)
     return full, session_error_model(comparison), camera, comparison["error_model"]["nees_mean"]
 
 

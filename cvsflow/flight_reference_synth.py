@@ -391,3 +391,63 @@ def measure_reference_rig(T_C0_B, seen, rng, T_Ci_C0, cameras=None, board=None, 
         G[valid] = G_cal
         return T_meas, valid, Sigma, rig, G
     return T_meas, valid, Sigma, rig
+
+
+#: The se3 intrinsics the workflow frees by default (config/config.yaml optimise.se3.free).
+SE3_FREE_DEFAULT = ("fx", "fy", "k1", "k2", "p1", "p2")
+
+
+def validate_simulated_session(seed, focal_px=700.0, duration_s=20.0, calib_std=None, n_folds=5,
+                               block_s=2.0):
+    """Validate as the workflow does, on a simulated session: what a flight then uses.
+
+    A corner-level session (:func:`cvsflow.optimise.se3_sim.simulate_session`: iid 0.3 px
+    corners, a Vicon reference, 1-3 m) starts from a calibration off the true lens by one draw
+    of ``calib_std`` (which se3 is told), runs se3's held-out folds and full fit
+    (:data:`SE3_FREE_DEFAULT` free) and the compare stage (:func:`cvsflow.evaluate.compare_heldout`).
+
+    Parameters
+    ----------
+    seed : int
+        The session's seed; the calibration draw's is ``1000 + seed``.
+    focal_px : float
+        Nominal focal length of the 640 x 480 camera.
+    duration_s : float
+        Session length.
+    calib_std : dict, optional
+        1-sigma of the starting calibration; default ``CALIB_STD_DEFAULT``; ``{}`` starts from
+        the true lens.
+    n_folds, block_s : int, float
+        se3's held-out folds.
+
+    Returns
+    -------
+    se3_result : dict
+        The full se3 fit (``K``, ``dist``, ``std_errors``, ``fixed_intrinsics``, ...).
+    comparison : dict
+        The compare stage's output (``error_model_fit``: the session's model (T)).
+    camera : dict
+        The true lens, as :func:`measure_reference`'s ``camera`` (640 x 480).
+    """
+    from cvsflow import evaluate as ev
+    from cvsflow.optimise import se3
+    from cvsflow.optimise.se3_sim import simulate_session
+
+    calib_std = CALIB_STD_DEFAULT if calib_std is None else calib_std
+    v = simulate_session(seed, duration_s=duration_s, focal_px=focal_px)
+    K, dist = np.asarray(v["camera"]["K"], float), np.asarray(v["camera"]["dist"], float)
+    sd = np.array([float(calib_std.get(n, 0.0)) for n in INTRINSIC_NAMES])
+    intr = np.r_[K[0, 0], K[1, 1], K[0, 2], K[1, 2], dist]
+    intr = intr + sd * np.random.default_rng(1000 + seed).standard_normal(len(sd))
+    start = {"K": K_from_intrinsics(*intr[:4]).tolist(), "dist": intr[4:].tolist(),
+             "std": dict(calib_std)}  # fmt: skip
+    dt = v["truth"]["dt_offset_s"]
+    free = list(SE3_FREE_DEFAULT)
+    held, fits = ev.cross_validate_se3(v["corners"], v["bodies"], start, v["board"], dt,
+                                       n_folds=n_folds, block_s=block_s, seed=0, free=free)  # fmt: skip
+    full = se3.optimise_se3(v["corners"], v["bodies"], start, v["board"], dt, free=free).result
+    comparison, *_ = ev.compare_heldout(None, held, full, fits, v["board"], n_boot=20,
+                                        corners=v["corners"])  # fmt: skip
+    camera = {"fx_px": K[0, 0], "fy_px": K[1, 1], "cx_px": K[0, 2], "cy_px": K[1, 2],
+              "dist": dist.tolist(), "width_px": 640, "height_px": 480}  # fmt: skip
+    return full, comparison, camera

@@ -657,20 +657,11 @@ def test_flight_reference_states_its_error_with_the_validation_sessions_model():
     session (iid 0.3 px corners, a Vicon reference; comparison.yaml error_model_fit) states
     the PnP reference of corner-level flights of the same camera right, z RMS per axis within
     0.88-1.12, where the model fitted on the rendered sessions is ~14 % cautious (above)."""
-    from cvsflow import evaluate as ev
     from cvsflow.evaluate import ERROR_DIMS, pose_errors
-    from cvsflow.optimise import se3
-    from cvsflow.optimise.se3_sim import simulate_session
+    from cvsflow.flight_reference_synth import validate_simulated_session
 
-    v = simulate_session(5, duration_s=12.0)
-    held, fits = ev.cross_validate_se3(
-        v["corners"], v["bodies"], v["camera"], v["board"], v["truth"]["dt_offset_s"],
-        n_folds=4, block_s=1.5, seed=0, free=["fx", "fy", "k1", "k2", "p1", "p2"],
-    )  # fmt: skip
-    full = se3.optimise_se3(v["corners"], v["bodies"], v["camera"], v["board"],
-                            v["truth"]["dt_offset_s"]).result  # fmt: skip
-    comparison, *_ = ev.compare_heldout(None, held, full, fits, v["board"], n_boot=20,
-                                        corners=v["corners"])  # fmt: skip
+    _, comparison, _ = validate_simulated_session(5, duration_s=12.0, calib_std={}, n_folds=4,
+                                                  block_s=1.5)  # fmt: skip
     model = F.session_error_model(comparison)
     sd = {"fx": 0.5, "fy": 0.5, "cx": 0.0, "cy": 0.0, "k1": 0.002, "k2": 0.01, "p1": 1e-4,
           "p2": 1e-4, "k3": 0.02}  # fmt: skip
