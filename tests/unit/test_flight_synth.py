@@ -295,3 +295,30 @@ def test_render_flight_stereo_reference():
         render_flight(seed=4, duration_s=2.0, reference="stereo", rig={"base_m": 1.0})
     with pytest.raises(ConfigError, match="baseline_m"):
         render_flight(seed=4, duration_s=2.0, reference="stereo", rig={"baseline_m": 0.0})
+
+
+def test_pnp_flight_files_keep_the_flip_and_calibration_terms(tmp_path):
+    """A rendered PnP flight written as files (write_flight_demo) and read back as the flight
+    stage reads it: the covariance, the flip term and the calibration factor come back equal,
+    and the evaluation from the files states the same sigma as from memory."""
+    from cvsflow.io import read_parquet
+    from cvsflow.io.flightlog import write_flight_demo
+
+    d = render_flight(seed=3, duration_s=6.0, reference="pnp")
+    write_flight_demo(d, tmp_path)
+    table = read_parquet(tmp_path / "reference.parquet")
+    np.testing.assert_array_equal(F.sigma_from_columns(table), d.Sigma_ref)
+    np.testing.assert_array_equal(F.flip_from_columns(table), d.flip_ref)
+    G = F.factor_from_columns(table)
+    assert G.shape == d.cal_factor.shape == (len(table), 6, 9)
+    np.testing.assert_array_equal(G, d.cal_factor)
+    kw = {"clock": d.clock}
+    a = F.evaluate_flight(table, d.onboard, d.T_Q_B, F.sigma_from_columns(table),
+                          flip_ref=F.flip_from_columns(table), cal_factor=G, **kw)  # fmt: skip
+    b = F.evaluate_flight(d.reference, d.onboard, d.T_Q_B, d.Sigma_ref, flip_ref=d.flip_ref,
+                          cal_factor=d.cal_factor, **kw)  # fmt: skip
+    np.testing.assert_allclose(a.errors[F.SIG_COLS], b.errors[F.SIG_COLS], rtol=1e-12)
+    # a model-reference flight has neither
+    m = render_flight(seed=3, duration_s=6.0)
+    assert m.flip_ref is None and m.cal_factor is None
+    assert F.factor_from_columns(m.reference) is None and F.flip_from_columns(m.reference) is None
