@@ -14,11 +14,14 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
+from cvsflow import evaluate as ev
 from cvsflow.calibration import board_object_points, board_pattern
 from cvsflow.errors import ConfigError
 from cvsflow.flight.reference import reference_covariance_transfer
 from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points
+from cvsflow.optimise import se3
 from cvsflow.optimise.se3_model import K_from_intrinsics
+from cvsflow.optimise.se3_sim import simulate_session
 from cvsflow.pose import estimate_poses
 from cvsflow.stereo import stereo_extrinsics
 from cvsflow.stereo_fusion import board_pose_starts, fused_board_pose_best, rig_calibration_covariance
@@ -429,10 +432,6 @@ def validate_simulated_session(seed, focal_px=700.0, duration_s=20.0, calib_std=
     camera : dict
         The true lens, as :func:`measure_reference`'s ``camera`` (640 x 480).
     """
-    from cvsflow import evaluate as ev
-    from cvsflow.optimise import se3
-    from cvsflow.optimise.se3_sim import simulate_session
-
     calib_std = CALIB_STD_DEFAULT if calib_std is None else calib_std
     v = simulate_session(seed, duration_s=duration_s, focal_px=focal_px)
     K, dist = np.asarray(v["camera"]["K"], float), np.asarray(v["camera"]["dist"], float)
