@@ -47,6 +47,7 @@ from cvsflow import uncertainty as un
 from cvsflow.evaluate import ERROR_DIMS
 from cvsflow.io import read_parquet, read_yaml, write_yaml
 from cvsflow.io.media import video_timing
+from cvsflow.uncertainty import features as un_features
 from cvsflow.uncertainty import transfer as un_transfer
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -265,10 +266,10 @@ def heldout_nll(names):
         for still in (False, True):
             row[still] = un.transfer_nll(un.fit_transfer_model(f_tr, e_tr, still=still), f, e)
             total[still] += row[still] * len(e)
-        slow = np.mean(f["speed_px"].to_numpy() < un_transfer.STILL_SPEED_PX)
+        slow = np.mean(f["speed_px"].to_numpy() < un_features.STILL_SPEED_PX)
         print(f"  {held}: without the still term {row[False]:.4f}, with {row[True]:.4f} "
               f"(gain {row[False] - row[True]:+.4f}; {slow:.0%} of frames under "
-              f"{un_transfer.STILL_SPEED_PX} px/frame, inter-coded {bool(f['inter_coded'].iloc[0])})")
+              f"{un_features.STILL_SPEED_PX} px/frame, inter-coded {bool(f['inter_coded'].iloc[0])})")
     print(f"  all: gain {total[False] - total[True]:.1f} nats over "
           f"{sum(len(S[n]['errors']) for n in names)} frames")
 

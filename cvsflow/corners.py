@@ -259,7 +259,7 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
         ``period_min_s``, ``period_max_s``, ``codec``, ``key_frame_share`` (key frames over
         demuxed frames) and ``inter_coded`` (some frame coded from another: a still board
         then errs by a pose-like motion its corners' residual does not show, which model (T)
-        adds, :data:`cvsflow.uncertainty.transfer.STILL_SPEED_PX`).
+        adds, :data:`cvsflow.uncertainty.features.STILL_SPEED_PX`).
     """
     per_frame = corners.groupby("frame")["found"].first()
     n_per = corners[corners["found"]].groupby("frame").size()

@@ -22,9 +22,9 @@ from cvsflow.geometry import skew as skew_matrix
 from cvsflow.geometry.camera import INTRINSIC_NAMES
 from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD
 from cvsflow.uncertainty.propagation import (
+    composed_error_jacobian,
     pnp_covariance,
     propagated_pose_covariance,
-    propagated_pose_factor,
 )
 
 # --------------------------------------------------------------------------------------------
@@ -372,7 +372,8 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
         cov_rt[i] = (A * sd**2) @ A.T
         fac_rt[i] = A * sd
 
-    cal = propagated_pose_covariance(rv, tv, cov_rt, frame="C")
+    G_err = composed_error_jacobian(rv, tv, frame="C")
+    cal = G_err @ cov_rt @ np.swapaxes(G_err, 1, 2)  # propagated_pose_covariance, G_err kept
     S = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
          + shear[:, :, None] * shear[:, None, :])  # fmt: skip
     s_still = float(model.get("s_still") or 0.0)
@@ -388,7 +389,7 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     if not return_terms:
         return Sigma
     flip[valid] = np.column_stack([delta, w])
-    cal_factor[valid] = model["c_cal"] * propagated_pose_factor(rv, tv, fac_rt, frame="C")
+    cal_factor[valid] = model["c_cal"] * (G_err @ fac_rt)
     return Sigma, flip, cal_factor
 
 

@@ -12,7 +12,7 @@
   another or a flight (:func:`fit_transfer_model`, :func:`transfer_covariance`,
   :data:`RENDERED_TRANSFER_MODEL`); :mod:`cvsflow.uncertainty.transfer_scoring` scores it on
   frames it did not see (:func:`score_transfer`, :func:`leave_one_session_out`,
-  :func:`crossfit_transfer`).
+  :func:`crossfit_transfer`, :func:`transfer_nll`).
 - :mod:`cvsflow.uncertainty.scoring`: band coverage and NEES (:func:`score_covariance`,
   :func:`nees_values`, :func:`band_multipliers`), and the same with the errors whitened by
   an AR(1) in time (:func:`fit_ar1`, :func:`score_time_correlated`).
@@ -41,6 +41,7 @@ from cvsflow.uncertainty.features import (
     measurement_features,
     seen_corners,
     shrink_corner_noise,
+    still_board_weight,
     vicon_filled,
 )
 from cvsflow.uncertainty.models import (
@@ -77,16 +78,15 @@ from cvsflow.uncertainty.transfer import (
     RENDERED_TRANSFER_MODEL,
     TRANSFER_PARAMS,
     fit_transfer_model,
-    still_board_weight,
     transfer_covariance,
     transfer_mean,
-    transfer_nll,
 )
 from cvsflow.uncertainty.transfer_scoring import (
     crossfit_transfer,
     leave_one_session_out,
     score_transfer,
     time_correlation_of,
+    transfer_nll,
 )
 
 __all__ = [

@@ -29,6 +29,13 @@ from cvsflow.uncertainty.propagation import (
 from cvsflow.uncertainty.reference_noise import camera_body_error_cov, moving_body_noise
 
 #: Per-frame quantities known when a frame is measured (:func:`measurement_features`).
+#: Image speed (px per frame period) below which a motion-compensated codec codes a board as
+#: still: its blocks copied from the last frame with their motion vectors rounded to the
+#: codec's precision (half a pixel in MPEG-4 part 2, a quarter in H.264), so the board shows
+#: where it was, not where it is, and every corner errs by the same small motion: an error
+#: that looks like a pose change (model (T)'s ``s_still``; docs/findings.md 2026-12-05).
+STILL_SPEED_PX = 0.5
+
 MEASUREMENT_FEATURES = ("distance_m", "tilt_rad", "radius_norm", "n_corners", "spread_px",
                         "speed_px", "reproj_rms_px")
 
@@ -503,3 +510,32 @@ def vicon_filled(bodies, t_vicon_s, body="board"):
     lo = np.searchsorted(t, np.asarray(t_vicon_s) - FILL_WINDOW_S, side="left")
     hi = np.searchsorted(t, np.asarray(t_vicon_s) + FILL_WINDOW_S, side="right")
     return (c[hi] - c[lo] > 0).astype(float)
+
+
+def still_board_weight(n_corners, speed_px, inter_coded):
+    """Weight of U per px^2 of a still board's pose-like codec error, per frame.
+
+    A motion-compensated codec copies a nearly still board's blocks from the last frame, so
+    every corner errs by the same small motion; model (T) states it as
+    ``s_still^2 sigma_px^2 still_board_weight(...) U``.
+
+    Parameters
+    ----------
+    n_corners : array_like
+        Corners the frame's PnP used.
+    speed_px : array_like
+        Image speed, px per frame period.
+    inter_coded : array_like or bool
+        1 (True) where the frame comes from a motion-compensated video, else 0.
+
+    Returns
+    -------
+    ndarray
+        ``inter_coded (n / 3) / (1 + (v / STILL_SPEED_PX)^2)``.
+    """
+
+    # a pose-like corner error of s px per coordinate moves the pose as iid noise of
+    # s sqrt(n / 3) px on n corners would (its 2n coordinates all in PnP's 6 dimensions)
+    n_c = np.asarray(n_corners, float)
+    speed = np.asarray(speed_px, float)
+    return np.asarray(inter_coded, float) * (n_c / 3.0) / (1.0 + (speed / STILL_SPEED_PX) ** 2)

@@ -101,33 +101,27 @@ def propagated_pose_covariance(rvec_C_B, tvec_C_B, cov_rt, frame="C"):
     cov_err : ndarray, shape (N, 6, 6)
         Covariance of [err_x_m, err_y_m, err_z_m, err_roll_rad, err_pitch_rad, err_yaw_rad].
     """
-    G = _composed_error_jacobian(rvec_C_B, tvec_C_B, frame)
+    G = composed_error_jacobian(rvec_C_B, tvec_C_B, frame)
     return G @ cov_rt @ np.swapaxes(G, 1, 2)
 
 
-def propagated_pose_factor(rvec_C_B, tvec_C_B, factor_rt, frame="C"):
-    """:func:`propagated_pose_covariance` for a factor: ``F`` with ``cov_rt = F F^T`` gives
-    ``G F`` with the composed error's covariance ``(G F)(G F)^T``, per frame.
+def composed_error_jacobian(rvec_C_B, tvec_C_B, frame="C"):
+    """d[err_x .. err_yaw] / d[rvec, tvec] at each PnP pose, (N, 6, 6).
+
+    What :func:`propagated_pose_covariance` pushes ``cov_rt`` through; a factor ``F`` of it
+    (``cov_rt = F F^T``) goes through as ``G F``.
 
     Parameters
     ----------
     rvec_C_B, tvec_C_B : ndarray, shape (N, 3)
-        The PnP pose (rad, m).
-    factor_rt : ndarray, shape (N, 6, k)
-        Error of [rvec, tvec] per unit of k independent standard normal causes.
+        The PnP pose (rad, m), the linearisation point.
     frame : {"C", "B"}
-        Error frame.
+        Error frame (:func:`cvsflow.evaluate.pose_errors`).
 
     Returns
     -------
-    ndarray, shape (N, 6, k)
-        The composed error per unit of each cause.
+    ndarray, shape (N, 6, 6)
     """
-    return _composed_error_jacobian(rvec_C_B, tvec_C_B, frame) @ np.asarray(factor_rt, float)
-
-
-def _composed_error_jacobian(rvec_C_B, tvec_C_B, frame):
-    """d[err_x .. err_yaw] / d[rvec, tvec] at each pose (N, 6, 6)."""
     rvec = np.atleast_2d(np.asarray(rvec_C_B, float))
     tvec = np.atleast_2d(np.asarray(tvec_C_B, float))
     T0 = tf.T_from_rvec_tvec(rvec, tvec)

@@ -23,6 +23,7 @@ from cvsflow.uncertainty.features import (
     corner_noise_from_reproj,
     corner_noise_pool,
     shrink_corner_noise,
+    still_board_weight,
 )
 from cvsflow.uncertainty.propagation import cov_columns, cov_from_columns
 from cvsflow.uncertainty.scoring import (
@@ -31,45 +32,9 @@ from cvsflow.uncertainty.scoring import (
 
 log = logging.getLogger(__name__)
 
-#: Image speed (px per frame period) below which a motion-compensated codec codes a board as
-#: still: its blocks copied from the last frame with their motion vectors rounded to the
-#: codec's precision (half a pixel in MPEG-4 part 2, a quarter in H.264), so the board shows
-#: where it was, not where it is, and every corner errs by the same small motion: an error
-#: that looks like a pose change (model (T)'s ``s_still``; docs/findings.md 2026-12-05).
-STILL_SPEED_PX = 0.5
-
 #: Parameters of model (T), in the order of its vector (logs of positive scales).
 TRANSFER_PARAMS = ("s0_px", "s_speed", "s_reproj", "c_cal", "s_rs", "b_pos_m", "b_rot_rad",
                    "b_fill_pos_m", "b_fill_rot_rad", "nu")
-
-
-def still_board_weight(n_corners, speed_px, inter_coded):
-    """Weight of U per px^2 of a still board's pose-like codec error, per frame.
-
-    A motion-compensated codec copies a nearly still board's blocks from the last frame, so
-    every corner errs by the same small motion; model (T) states it as
-    ``s_still^2 sigma_px^2 still_board_weight(...) U``.
-
-    Parameters
-    ----------
-    n_corners : array_like
-        Corners the frame's PnP used.
-    speed_px : array_like
-        Image speed, px per frame period.
-    inter_coded : array_like or bool
-        1 (True) where the frame comes from a motion-compensated video, else 0.
-
-    Returns
-    -------
-    ndarray
-        ``inter_coded (n / 3) / (1 + (v / STILL_SPEED_PX)^2)``.
-    """
-
-    # a pose-like corner error of s px per coordinate moves the pose as iid noise of
-    # s sqrt(n / 3) px on n corners would (its 2n coordinates all in PnP's 6 dimensions)
-    n_c = np.asarray(n_corners, float)
-    speed = np.asarray(speed_px, float)
-    return np.asarray(inter_coded, float) * (n_c / 3.0) / (1.0 + (speed / STILL_SPEED_PX) ** 2)
 
 
 def _transfer_terms(features):
@@ -318,7 +283,8 @@ def fit_transfer_model(features, errors, shrink=None, still=True):
     times the board's distance) and c_ref its scale (1 in physics; fitted, bounded by 3).
     When some frame is ``inter_coded`` (a motion-compensated video), s_still is the pose-like
     error of a board the codec codes as still (v_i well under v_still =
-    :data:`STILL_SPEED_PX`: its blocks copied from the last frame, so every corner errs by
+    :data:`cvsflow.uncertainty.features.STILL_SPEED_PX`: its blocks copied from the last
+    frame, so every corner errs by
     the same small motion, which PnP takes for a pose change and n_i does not show), as a
     share of sigma_px,i: a pose-like error of s px moves the pose as iid noise of
     s sqrt(n_i / 3) px does (on the rendered sessions' MPEG-4 video a still board's
@@ -550,31 +516,6 @@ def _model_terms(model, features):
 def _model_cov(model, features):
     q, terms, options = _model_terms(model, features)
     return _transfer_cov(q, *terms, **options)
-
-
-def transfer_nll(model, features, errors):
-    """Mean negative log-likelihood per frame of frames' errors under a fitted model (T).
-
-    The proper score of the model on frames it did not see (lower is better), in nats: the
-    likelihood :func:`fit_transfer_model` maximises, Student-t with the model's nu.
-
-    Parameters
-    ----------
-    model : dict
-        :func:`fit_transfer_model` output.
-    features : DataFrame
-        :func:`measurement_features` of the frames, as for :func:`transfer_covariance`.
-    errors : DataFrame
-        The same frames' ``err_{dim}`` (m, rad).
-
-    Returns
-    -------
-    float
-    """
-    q, terms, o = _model_terms(model, features)
-    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float) / WORKING_UNITS
-    return _transfer_nll(q, o["s_corr"], E, terms, o["shrink"], o["r_rs"], o["c_ref"],
-                         o["s_still"])[0]
 
 
 def transfer_covariance(model, features):

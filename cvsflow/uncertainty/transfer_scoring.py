@@ -15,6 +15,7 @@ from cvsflow.errors import OptimiseError
 from cvsflow.metrics import ERROR_DIMS
 from cvsflow.uncertainty.crb import cramer_rao_sigma
 from cvsflow.uncertainty.scoring import (
+    WORKING_UNITS,
     fit_ar1,
     frame_runs,
     score_covariance,
@@ -23,6 +24,8 @@ from cvsflow.uncertainty.scoring import (
 )
 from cvsflow.uncertainty.transfer import (
     TRANSFER_PARAMS,
+    _model_terms,
+    _transfer_nll,
     fit_transfer_model,
     transfer_covariance,
     transfer_mean,
@@ -197,6 +200,31 @@ def leave_one_session_out(sessions, shrink=None, time_correlation=False):
                  {d: round(v, 3) for d, v in score["inside_95"].items()})
     out["pooled_model"] = fit(names)
     return out
+
+
+def transfer_nll(model, features, errors):
+    """Mean negative log-likelihood per frame of frames' errors under a fitted model (T).
+
+    The proper score of the model on frames it did not see (lower is better), in nats: the
+    likelihood :func:`fit_transfer_model` maximises, Student-t with the model's nu.
+
+    Parameters
+    ----------
+    model : dict
+        :func:`fit_transfer_model` output.
+    features : DataFrame
+        :func:`measurement_features` of the frames, as for :func:`transfer_covariance`.
+    errors : DataFrame
+        The same frames' ``err_{dim}`` (m, rad).
+
+    Returns
+    -------
+    float
+    """
+    q, terms, o = _model_terms(model, features)
+    E = errors[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float) / WORKING_UNITS
+    return _transfer_nll(q, o["s_corr"], E, terms, o["shrink"], o["r_rs"], o["c_ref"],
+                         o["s_still"])[0]
 
 
 def crossfit_transfer(features, errors, sigma_px=None):

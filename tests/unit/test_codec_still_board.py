@@ -7,7 +7,7 @@ frames whose corners move under 0.5 px a frame, the share of the corner error's 
 PnP's six pose directions (the part a pose absorbs, which the reprojection residual cannot
 show) is about what independent noise gives (6 / 2n) through MJPEG, and more than 1.6 times
 that through MPEG-4: the reason model (T) has a still-board term for inter-coded video
-(``inter_coded``, :data:`cvsflow.uncertainty.transfer.STILL_SPEED_PX`). The container's key
+(``inter_coded``, :data:`cvsflow.uncertainty.features.STILL_SPEED_PX`). The container's key
 frames say which video is which (``video_timing``, corners_summary.yaml ``inter_coded``).
 """
 

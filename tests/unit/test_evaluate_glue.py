@@ -208,7 +208,20 @@ def test_diverged_seed_statistics_are_moved_and_marked():
     assert out["seed"]["diverged"] is True and "std" in out["seed"]["diverged_reason"]
 
 
-def test_compare_heldout_with_corners_scores_model_T_per_fold(session):
+@pytest.fixture(scope="module")
+def se3_heldout(session):
+    """se3's 4 held-out folds and its full fit on the session (the compare stage's inputs)."""
+    s = session
+    held, fits = ev.cross_validate_se3(
+        s["corners"], s["bodies"], s["camera"], s["board"], s["truth"]["dt_offset_s"],
+        n_folds=4, block_s=1.5, seed=0, free=["fx", "fy", "k1", "k2", "p1", "p2"],
+    )  # fmt: skip
+    full = se3.optimise_se3(s["corners"], s["bodies"], s["camera"], s["board"],
+                            s["truth"]["dt_offset_s"]).result  # fmt: skip
+    return held, fits, full
+
+
+def test_compare_heldout_with_corners_scores_model_T_per_fold(session, se3_heldout):
     """With the corners, compare_heldout scores model (T) per held-out fold (the keys
     downstream tools read: error_model.folds[].nees_mean and inside_95 per axis), the model
     fitted on other sessions and the Cramer-Rao ratio; on a session of iid 0.3 px corner noise
@@ -220,15 +233,10 @@ def test_compare_heldout_with_corners_scores_model_T_per_fold(session):
     from cvsflow.plots import uncertainty as uplots
 
     s = session
-    held, fits = ev.cross_validate_se3(
-        s["corners"], s["bodies"], s["camera"], s["board"], s["truth"]["dt_offset_s"],
-        n_folds=4, block_s=1.5, seed=0, free=["fx", "fy", "k1", "k2", "p1", "p2"],
-    )  # fmt: skip
+    held, fits, full = se3_heldout
     seed_held = held[["frame", "t_s"]].copy()
     for d in DIMS:
         seed_held[f"eps_{d}"] = held[f"err_{d}"] * 3.0
-    full = se3.optimise_se3(s["corners"], s["bodies"], s["camera"], s["board"],
-                            s["truth"]["dt_offset_s"]).result  # fmt: skip
     comp, scored, sigma, mu = ev.compare_heldout(
         seed_held, held, full, fits, s["board"], n_boot=50, corners=s["corners"]
     )
@@ -256,7 +264,7 @@ def test_compare_heldout_with_corners_scores_model_T_per_fold(session):
     pd.testing.assert_frame_equal(scored_alone, scored)
 
 
-def test_compare_heldout_fits_the_sessions_own_model_T(session):
+def test_compare_heldout_fits_the_sessions_own_model_T(session, se3_heldout):
     """compare_heldout also fits model (T) on all the session's frames (error_model_fit, what
     its flights state their reference with): a maximum of the likelihood, so it explains the
     session's errors at least as well as the model fitted on the rendered sessions, and on
@@ -264,12 +272,7 @@ def test_compare_heldout_fits_the_sessions_own_model_T(session):
     from cvsflow import uncertainty as un
 
     s = session
-    held, fits = ev.cross_validate_se3(
-        s["corners"], s["bodies"], s["camera"], s["board"], s["truth"]["dt_offset_s"],
-        n_folds=4, block_s=1.5, seed=0, free=["fx", "fy", "k1", "k2", "p1", "p2"],
-    )  # fmt: skip
-    full = se3.optimise_se3(s["corners"], s["bodies"], s["camera"], s["board"],
-                            s["truth"]["dt_offset_s"]).result  # fmt: skip
+    held, fits, full = se3_heldout
     comp, *_ = ev.compare_heldout(None, held, full, fits, s["board"], n_boot=20,
                                   corners=s["corners"])  # fmt: skip
     model = comp["error_model_fit"]

@@ -461,6 +461,7 @@ def _draw_still(rng, n, s_still, inter_coded):
     """Frames of model (T) (no parameter covariance) whose nearly still, inter-coded ones err by
     the still board's pose-like codec term too: var_px (1 + s_still^2 (n_c / 3) g(v)) U."""
     from cvsflow.uncertainty import transfer as tr
+    from cvsflow.uncertainty.features import STILL_SPEED_PX
 
     feats, _, _ = _draw_transfer(rng, n, TRUTH_T)
     feats = feats.drop(columns=un.cov_columns("parcov"))
@@ -470,7 +471,7 @@ def _draw_still(rng, n, s_still, inter_coded):
     feats["inter_coded"] = float(inter_coded)
     U, _, _, speed, reproj, *_ = tr._transfer_terms(feats)
     var_px = TRUTH_T["s0_px"] ** 2 + (TRUTH_T["s_speed"] * speed) ** 2 + (TRUTH_T["s_reproj"] * reproj) ** 2
-    still = (20 / 3) / (1.0 + (speed / tr.STILL_SPEED_PX) ** 2)
+    still = (20 / 3) / (1.0 + (speed / STILL_SPEED_PX) ** 2)
     # U is in working units: back to SI
     cov = (var_px * (1.0 + s_still**2 * still))[:, None, None] * U
     cov = cov * np.outer(un.WORKING_UNITS, un.WORKING_UNITS)[None]
