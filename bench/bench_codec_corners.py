@@ -27,6 +27,7 @@ Usage::
 
     PYTHONPATH=. nice -n 10 .venv/bin/python bench/bench_codec_corners.py u_far \
         [--duration-s 4] [--distance-m 1.5,4.5] [--raster] [--windows 2,3,4,5] [--cache DIR]
+        [--from-s 2]
 
 Writes the per-variant table to DIR/<session>_<tag>.yaml (default DIR /tmp/bench_codec_corners).
 """
@@ -155,17 +156,20 @@ def modes(uv_true, J6):
     return M, Q
 
 
-def analyse(detected, spec, truth, window_px, from_truth=False):
+def analyse(detected, spec, truth, window_px, from_truth=False, from_s=0.0):
     """Per-frame corner errors of ``detected`` images against ``truth``: summary dict.
 
     ``from_truth``: plain ``cv2.cornerSubPix`` with half window ``window_px`` started at the
-    true corners rounded to the pixel grid, instead of the detector."""
+    true corners rounded to the pixel grid, instead of the detector. Frames captured before
+    ``from_s`` are left out."""
     board = {"squares_x": spec.board.squares_x, "squares_y": spec.board.squares_y,
              "square_m": spec.board.square_m}
     p_B = spec.board.corners_B()
     rows, used_w, shift = [], [], []
     frame_idx = []
     for k, gray in enumerate(detected):
+        if truth.t_s[k] < from_s:
+            continue
         true = truth.corners_px[k]
         if from_truth:
             uv = None
@@ -244,6 +248,9 @@ def main():
                     help="render at this many times the size and area-average down")
     ap.add_argument("--sharp", action="store_true", help="no motion blur (exposure 1 us)")
     ap.add_argument("--no-noise", action="store_true", help="no read or shot noise")
+    ap.add_argument("--from-s", type=float, default=0.0,
+                    help="score only frames from this time on (the u_* renders hold the board "
+                         "still for their first 2 s)")
     ap.add_argument("--from-truth", action="store_true",
                     help="plain cornerSubPix from the rounded true corners, not the detector")
     a = ap.parse_args()
@@ -280,7 +287,7 @@ def main():
                     print(f"  {writer}: pixel RMS change {np.sqrt(d):.3f} grey levels", flush=True)
                 for w in windows if writer in ("raw", "mpeg4") else windows[-1:]:
                     name = f"{raster}/{writer}/w{w}"
-                    results[name] = analyse(imgs, spec, truth, w, a.from_truth)
+                    results[name] = analyse(imgs, spec, truth, w, a.from_truth, a.from_s)
                     print(fmt(name, results[name]), flush=True)
     out = Path(a.cache) / f"{a.session}{a.tag}.yaml"
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -27,7 +27,12 @@ models, features, crb < transfer < transfer_scoring); this package only re-expor
 """
 
 from cvsflow.uncertainty.ambiguity import flip_weight, pnp_alternatives
-from cvsflow.uncertainty.calibrated_draws import TARGETS, autocorrelation, target_pass_rates
+from cvsflow.uncertainty.calibrated_draws import (
+    TARGETS,
+    autocorrelation,
+    session_scale_sd,
+    target_pass_rates,
+)
 from cvsflow.uncertainty.crb import cramer_rao_sigma
 from cvsflow.uncertainty.features import (
     CORNER_CORRELATION_PX,
@@ -105,6 +110,7 @@ __all__ = [
     "propagated_pose_covariance", "score_covariance", "score_error_model", "score_time_correlated",
     "score_transfer", "seen_corners", "shrink_corner_noise", "standardised_errors",
     "still_board_weight",
+    "session_scale_sd",
     "target_pass_rates",
     "time_correlation_of", "transfer_covariance", "transfer_mean", "transfer_nll",
     "vicon_filled",

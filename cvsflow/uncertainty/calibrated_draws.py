@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammaln
 
+from cvsflow.errors import OptimiseError
 from cvsflow.metrics import ERROR_DIMS
 from cvsflow.uncertainty.scoring import WORKING_UNITS, band_multipliers
 
@@ -173,7 +174,7 @@ def _met(nees, in95, in68, targets):
 
 
 def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws=400, seed=0,
-                      targets=None):
+                      targets=None, scale_sd=0.0):
     """How often a model that is exactly right meets the targets on these frames.
 
     Parameters
@@ -190,12 +191,18 @@ def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws
         Of the draws' generator.
     targets : dict, optional
         Default :data:`TARGETS`.
+    scale_sd : float
+        A model right only up to one unknown scale of the whole set: each draw's errors about
+        the stated mean are multiplied by ``exp(scale_sd z / 2)``, z standard normal, i.e. the
+        variance by a log-normal factor of log-sd ``scale_sd`` (what a model fitted on other
+        sessions has, :func:`session_scale_sd`). 0: exactly right.
 
     Returns
     -------
     rates : dict
         ``n_targets``; ``met_per_draw`` (ndarray (n_draws,): targets met by each draw, for
-        summing over sessions); ``expected_met`` and ``sd_met``; ``groups``: per group
+        summing over sessions); ``nees_per_draw`` (ndarray (n_draws,): the whole set's NEES
+        mean in each draw); ``expected_met`` and ``sd_met``; ``groups``: per group
         (``"all"``, then each fold) ``n`` and the probability of meeting each target,
         ``nees`` and ``inside_95`` / ``inside_68`` per axis.
     """
@@ -204,6 +211,9 @@ def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws
     mean = None if mean is None else np.asarray(mean, float)
     rng = np.random.default_rng(seed)
     E = draw_calibrated_errors(cov, mean, nu, time_correlation, runs, n_draws, rng)
+    if scale_sd:
+        k = np.exp(0.5 * float(scale_sd) * rng.standard_normal(int(n_draws)))[:, None, None]
+        E = E * k if mean is None else (E - mean) * k + mean
     groups = [("all", np.ones(len(cov), bool))]
     if folds is not None:
         folds = np.asarray(folds)
@@ -212,6 +222,8 @@ def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws
     out_groups = []
     for name, rows in groups:
         nees, in95, in68 = _group_scores(E, cov, mean, nu, rows)
+        if name == "all":
+            nees_all = nees
         met += _met(nees, in95, in68, targets)
         lo, hi = targets["nees"]
         out_groups.append({
@@ -222,6 +234,38 @@ def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws
                                for j, d in enumerate(ERROR_DIMS)}
                for b, v in (("95", in95), ("68", in68))},
         })
-    return {"n_targets": len(groups) * 13, "met_per_draw": met,
+    return {"n_targets": len(groups) * 13, "met_per_draw": met, "nees_per_draw": nees_all,
             "expected_met": float(met.mean()), "sd_met": float(met.std()),
             "groups": out_groups}
+
+
+def session_scale_sd(nees_mean, nees_draws, dim=6):
+    """Spread between sessions of the scale a model misstates them by, net of sampling.
+
+    A model fitted on some sessions and scored on another may be right about each frame's
+    covariance only up to a factor common to the session (a camera and codec whose corner
+    error has more or less pose-like structure than the training sessions'). The log of
+    NEES / dim estimates that factor's log; its spread over sessions is the factor's spread
+    plus the sampling spread each session's NEES has under a right model (the draws of
+    :func:`target_pass_rates`, ``nees_per_draw``), which is taken off.
+
+    Parameters
+    ----------
+    nees_mean : array_like, shape (S,)
+        Each held-out session's NEES mean under the model fitted without it.
+    nees_draws : sequence of array_like
+        For each session, NEES means of draws from the model's own statement (a right model).
+    dim : int
+        Error dimensions.
+
+    Returns
+    -------
+    tau : float
+        Log-sd of the session factor on the variance (0 when the sessions scatter no more than
+        sampling explains).
+    """
+    observed = np.log(np.asarray(nees_mean, float) / dim)
+    if observed.size < 2:
+        raise OptimiseError(f"session_scale_sd: needs two or more sessions, got {observed.size}")
+    sampling = np.mean([np.var(np.log(np.asarray(d, float) / dim), ddof=1) for d in nees_draws])
+    return float(np.sqrt(max(np.var(observed, ddof=1) - sampling, 0.0)))

@@ -7,6 +7,7 @@ from cvsflow.uncertainty.calibrated_draws import (
     TARGETS,
     autocorrelation,
     draw_calibrated_errors,
+    session_scale_sd,
     target_pass_rates,
 )
 from cvsflow.uncertainty.scoring import frame_runs
@@ -106,3 +107,35 @@ def test_draws_with_a_measured_autocorrelation_have_it_and_a_slow_part_costs_tar
     slow = target_pass_rates(cov, None, None, acf, runs, fold, n_draws=1500, seed=9)
     ar1 = target_pass_rates(cov, None, None, acf_true[0], runs, fold, n_draws=1500, seed=9)
     assert slow["expected_met"] < ar1["expected_met"] - 8
+
+
+def test_a_session_scale_spreads_the_nees_as_stated_and_costs_targets():
+    """With scale_sd 0.3 each draw's NEES mean is its right-model value times a log-normal
+    factor of log-sd 0.3 (the log NEES spread grows by that variance), the stated mean stays
+    the centre, and fewer targets are met; scale_sd 0 reproduces the right model's draws."""
+    rng = np.random.default_rng(7)
+    n = 120
+    cov = _covariances(n, rng)
+    mean = rng.normal(size=(n, 6)) * 1e-4
+    runs = frame_runs(np.arange(n))
+    right = target_pass_rates(cov, mean, None, 0.0, runs, n_draws=3000, seed=8)
+    again = target_pass_rates(cov, mean, None, 0.0, runs, n_draws=3000, seed=8, scale_sd=0.0)
+    scaled = target_pass_rates(cov, mean, None, 0.0, runs, n_draws=3000, seed=8, scale_sd=0.3)
+    assert np.array_equal(right["met_per_draw"], again["met_per_draw"])
+    v_right = np.var(np.log(right["nees_per_draw"]))
+    v_scaled = np.var(np.log(scaled["nees_per_draw"]))
+    assert abs(v_scaled - v_right - 0.09) < 0.012
+    assert abs(np.mean(np.log(scaled["nees_per_draw"] / 6))) < 0.02
+    assert scaled["expected_met"] < right["expected_met"] - 2
+
+
+def test_session_scale_sd_recovers_the_spread_net_of_sampling():
+    """Sessions whose NEES is a right model's sampling draw times a log-normal factor of log-sd
+    tau: the estimate is near tau, and near 0 when tau is 0 (the sampling spread is taken
+    off, not mistaken for a scale)."""
+    rng = np.random.default_rng(9)
+    draws = [6.0 * np.exp(0.06 * rng.standard_normal(400)) for _ in range(200)]
+    for tau in (0.0, 0.25):
+        nees = [6.0 * np.exp(0.06 * rng.standard_normal() + tau * rng.standard_normal())
+                for _ in range(200)]
+        assert abs(session_scale_sd(nees, draws) - tau) < 0.05
