@@ -75,6 +75,9 @@ class FlightDemo:
     cal_factor : ndarray, shape (N_frames, 6, k) or None
         ``reference="pnp"`` or ``"stereo"``: the calibration's share of ``Sigma_ref`` as the
         error per standard deviation of each calibration cause, one draw for the flight.
+    body_track : callable or None
+        The true trajectory, ``f(t_s) -> T_L_Q`` (N, 4, 4) at any true times
+        (:func:`true_flight`), for rendering the flight's video.
     """
 
     reference: pd.DataFrame
@@ -87,6 +90,7 @@ class FlightDemo:
     clock: Clock
     flip_ref: np.ndarray | None = None
     cal_factor: np.ndarray | None = None
+    body_track: object = None
 
 
 def _sines(rng, n_terms, f_lo, f_hi, amp):
@@ -370,4 +374,4 @@ def render_flight(
     injected.insert(0, "frame", frame)
     truth = traj_from_T(t_cam, T_L_Q_cam, attrs={"frames": "T_L_Q (true)"})
     return FlightDemo(reference_df, Sigma_ref, onboard, truth, injected, T_L_C, T_Q_B, clock,
-                      flip_ref, cal_factor)
+                      flip_ref, cal_factor, f)

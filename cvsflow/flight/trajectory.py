@@ -158,18 +158,31 @@ def traj_from_T(t_s, T, pos_valid=None, rot_valid=None, attrs=None) -> pd.DataFr
     return df
 
 
-def reference_from_poses(poses_raw: pd.DataFrame) -> pd.DataFrame:
+def reference_from_poses(poses_raw: pd.DataFrame, corners: pd.DataFrame | None = None,
+                         line_delay_s: float = 0.0) -> pd.DataFrame:
     """Camera reference T_C_B in the common form from poses_raw.parquet (rvec_C_B, tvec_C_B).
 
     Parameters
     ----------
     poses_raw : DataFrame
         ``frame, t_s, valid, rvec_0..2, x_m, y_m, z_m`` (contracts.md).
+    corners : DataFrame, optional
+        corners.parquet of the same video; needed with ``line_delay_s``.
+    line_delay_s : float
+        A rolling shutter's line delay, s per row (the se3 result's ``line_delay_s``). A frame's
+        rows are exposed one after another, so its PnP pose is the board's at the time of the
+        rows it covers: each frame's time becomes ``t_s + line_delay_s * (mean image row of its
+        found corners)``, as se3 times it (``se3_apply``). 0: a global shutter, ``t_s`` as is.
 
     Returns
     -------
     DataFrame
         Common form plus ``frame``; rows not ``valid`` have ``pos_valid = rot_valid = False``.
+
+    Raises
+    ------
+    InputError
+        A line delay without the corners table.
     """
     rv = poses_raw[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(dtype=float)
     valid = poses_raw["valid"].to_numpy(dtype=bool) & np.isfinite(rv).all(1)
@@ -177,7 +190,19 @@ def reference_from_poses(poses_raw: pd.DataFrame) -> pd.DataFrame:
     if valid.any():
         R[valid] = Rotation.from_rotvec(rv[valid]).as_matrix()
     T = make_T(R, poses_raw[["x_m", "y_m", "z_m"]].to_numpy(dtype=float))
-    df = traj_from_T(poses_raw["t_s"], T, valid, valid, {"source": "poses_raw"})
+    t_s = poses_raw["t_s"].to_numpy(dtype=float)
+    if line_delay_s:
+        if corners is None:
+            raise InputError("reference_from_poses: a line delay needs the corners table "
+                             "(the rows each frame's board covers)")
+        found = corners[corners["found"]]
+        row = found.groupby("frame")["v_px"].mean()
+        mean_row = row.reindex(poses_raw["frame"].to_numpy()).to_numpy(dtype=float)
+        t_s = t_s + float(line_delay_s) * np.nan_to_num(mean_row, nan=0.0)
+    attrs = {"source": "poses_raw"}
+    if line_delay_s:
+        attrs["line_delay_s"] = float(line_delay_s)
+    df = traj_from_T(t_s, T, valid, valid, attrs)
     df.insert(0, "frame", poses_raw["frame"].to_numpy())
     return df
 

@@ -197,13 +197,26 @@ class CameraView:
     t_shift_s: float
 
 
-def board_poses(motion: HandMotion | CameraView, t_s):
+@dataclass(frozen=True)
+class PoseTrack:
+    """A board motion given as a function of time: ``T_C_B(t_s)`` (N,) s -> (N, 4, 4), m.
+
+    What a trajectory made elsewhere (a rendered flight's body carrying the board,
+    :func:`cvsflow.synth.flight_video.render_flight_video`) gives the renderer, whose motion
+    blur, rolling shutter and exposure sample it at any time.
+    """
+
+    T_C_B: object
+
+
+def board_poses(motion: HandMotion | CameraView | PoseTrack, t_s):
     """True board poses T_C_B at video times ``t_s``.
 
     Parameters
     ----------
-    motion : HandMotion or CameraView
-        The board's motion in the camera (a :class:`CameraView`: in another camera of a rig).
+    motion : HandMotion, CameraView or PoseTrack
+        The board's motion in the camera (a :class:`CameraView`: in another camera of a rig;
+        a :class:`PoseTrack`: any function of time).
     t_s : ndarray, shape (N,)
         Video time, seconds (t = 0 at the first video frame; negative times are allowed).
 
@@ -214,6 +227,8 @@ def board_poses(motion: HandMotion | CameraView, t_s):
     """
     if isinstance(motion, CameraView):
         return motion.T_C_C0 @ board_poses(motion.motion, np.asarray(t_s, dtype=float) + motion.t_shift_s)
+    if isinstance(motion, PoseTrack):
+        return np.asarray(motion.T_C_B(np.atleast_1d(np.asarray(t_s, dtype=float))), dtype=float)
     ch = motion_channels(motion, t_s)
     tremor = motion.tremor(t_s)
     z_m = motion.depth_center_m * np.exp(ch[:, 2])

@@ -549,6 +549,14 @@ def test_reference_from_poses_raw():
     T = F.T_from_traj(ref)
     np.testing.assert_allclose(T[0, :3, :3], Rotation.from_rotvec(rv[0]).as_matrix(), atol=1e-12)
     assert list(ref["pos_valid"]) == [True, False] and list(ref["frame"]) == [0, 1]
+    # a rolling shutter: a frame is timed at the mean row of its found corners; a frame with
+    # none keeps its own time
+    corners = pd.DataFrame({"frame": [0, 0, 0, 1], "found": [True, True, False, False],
+                            "v_px": [100.0, 300.0, 479.0, 50.0]})
+    ref_rs = F.reference_from_poses(df, corners, 5e-5)
+    np.testing.assert_allclose(ref_rs["t_s"], [200.0 * 5e-5, 1 / 30], atol=1e-15)
+    with pytest.raises(InputError, match="corners"):
+        F.reference_from_poses(df, None, 5e-5)
 
 
 def test_tum_export_reproduces_ape_without_alignment(demo, tmp_path):

@@ -33,11 +33,17 @@ with stage_logging(snakemake.log[0], "flight") as log:
         T_Q_B = np.array(truth_cfg["T_Q_B"]) if cfg.get("mounting_known", True) else None
     else:
         poses = read_parquet(inp.poses)
-        calib = read_yaml(inp.se3_result) if hasattr(inp, "se3_result") else read_yaml(inp.camera)
+        calib_path = inp.se3_result if hasattr(inp, "se3_result") else inp.camera
+        calib = read_yaml(calib_path)
         p_B = board_object_points(snakemake.params.board)
         sigma_px = float(calib["sigma_px"]) if "sigma_px" in calib else corner_noise_per_axis(
             np.nanmedian(poses["reproj_rms_px"]), len(p_B))
-        reference = reference_from_poses(poses)
+        line_delay_s = float(calib.get("line_delay_s") or 0.0)
+        if line_delay_s:
+            log.info("rolling shutter: line delay %.3g s/row (%s); each frame's time is that of the "
+                     "rows its board covers", line_delay_s, calib_path)
+        reference = reference_from_poses(poses, read_parquet(inp.corners) if line_delay_s else None,
+                                         line_delay_s)  # fmt: skip
         if hasattr(inp, "corners"):  # model (T): seen corners, speed, residual, calibration
             model = (session_error_model(read_yaml(inp.error_model), inp.error_model)
                      if hasattr(inp, "error_model") else None)  # fmt: skip
