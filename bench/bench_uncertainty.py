@@ -185,7 +185,10 @@ def main(names, shrink=None, time_offset=False, corr_length_px=None, ar1=False):
                        ("acf", "each held-out session's own autocorrelation at every lag"),
                        ("session", "as acf, and off by one variance factor per session, log-sd "
                                    f"{yard['session']['scale_sd']:.3f}: the sessions' NEES "
-                                   "spread net of sampling")):
+                                   "spread net of sampling"),
+                       ("session_fold", "as session, and by one more per fold, log-sd "
+                                        f"{yard['session_fold']['fold_scale_sd']:.3f}: the folds' "
+                                        "NEES spread about their session's net of sampling")):
         y = yard[key]
         print(f"a model exactly right on these frames ({label}): {y['expected_met']:.0f} "
               f"+- {y['sd_met']:.0f} of {y['n_targets']} (5-95 %: {y['p05']:.0f}-{y['p95']:.0f}); "
@@ -243,27 +246,39 @@ def calibrated_yardstick(sessions, loso, n_draws=400):
         prepared.append((n, cov, mu, r["model"]["nu"], runs, fold, correlation))
     out = {}
     nees_draws = {}
-    for key in ("iid", "ar1", "acf", "session"):
+    tau, tau_fold = 0.0, 0.0
+    for key in ("iid", "ar1", "acf", "session", "session_fold"):
         if key == "session":
             # right up to one factor per session, of the spread the sessions' own NEES shows
-            # beyond a right model's sampling
+            # beyond a right model's sampling; then one per fold on top, of the spread the
+            # folds' NEES shows about their session's beyond sampling
             tau = un.session_scale_sd([loso["sessions"][n]["score"]["nees_mean"] for n in nees_draws],
-                                      list(nees_draws.values()))
+                                      [d[0] for d in nees_draws.values()])
+            observed, sampled = [], []
+            for n, d in nees_draws.items():
+                sc = loso["sessions"][n]["score"]
+                for j, fs in enumerate(sc["folds"], start=1):
+                    observed.append(np.log(fs["nees_mean"] / sc["nees_mean"]))
+                    sampled.append(np.log(d[j] / d[0]))
+            tau_fold = un.excess_spread(observed, sampled)
         total, per_session, n_targets = 0, {}, 0
         for i, (n, cov, mu, nu, runs, fold, correlation) in enumerate(prepared):
-            rates = un.target_pass_rates(cov, mu, nu, correlation["acf" if key == "session" else key],
+            rates = un.target_pass_rates(cov, mu, nu, correlation["acf" if key.startswith("session") else key],
                                          runs, fold, n_draws=n_draws, seed=i,
-                                         scale_sd=tau if key == "session" else 0.0)
+                                         scale_sd=tau if key.startswith("session") else 0.0,
+                                         fold_scale_sd=tau_fold if key == "session_fold" else 0.0)
             if key == "acf":
-                nees_draws[n] = rates["nees_per_draw"]
+                nees_draws[n] = rates["group_nees_per_draw"]
             total = total + rates["met_per_draw"]
             n_targets += rates["n_targets"]
             per_session[n] = round(rates["expected_met"], 2)
         out[key] = {"expected_met": float(np.mean(total)), "sd_met": float(np.std(total)),
                     "p05": float(np.percentile(total, 5)), "p95": float(np.percentile(total, 95)),
                     "n_targets": n_targets, "per_session": per_session}
-        if key == "session":
+        if key.startswith("session"):
             out[key]["scale_sd"] = tau
+        if key == "session_fold":
+            out[key]["fold_scale_sd"] = tau_fold
     return out
 
 

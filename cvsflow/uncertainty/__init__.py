@@ -30,6 +30,7 @@ from cvsflow.uncertainty.ambiguity import flip_weight, pnp_alternatives
 from cvsflow.uncertainty.calibrated_draws import (
     TARGETS,
     autocorrelation,
+    excess_spread,
     session_scale_sd,
     target_pass_rates,
 )
@@ -110,6 +111,7 @@ __all__ = [
     "propagated_pose_covariance", "score_covariance", "score_error_model", "score_time_correlated",
     "score_transfer", "seen_corners", "shrink_corner_noise", "standardised_errors",
     "still_board_weight",
+    "excess_spread",
     "session_scale_sd",
     "target_pass_rates",
     "time_correlation_of", "transfer_covariance", "transfer_mean", "transfer_nll",

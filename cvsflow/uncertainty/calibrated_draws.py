@@ -174,7 +174,7 @@ def _met(nees, in95, in68, targets):
 
 
 def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws=400, seed=0,
-                      targets=None, scale_sd=0.0):
+                      targets=None, scale_sd=0.0, fold_scale_sd=0.0):
     """How often a model that is exactly right meets the targets on these frames.
 
     Parameters
@@ -196,6 +196,10 @@ def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws
         the stated mean are multiplied by ``exp(scale_sd z / 2)``, z standard normal, i.e. the
         variance by a log-normal factor of log-sd ``scale_sd`` (what a model fitted on other
         sessions has, :func:`session_scale_sd`). 0: exactly right.
+    fold_scale_sd : float
+        The same for each fold on its own, on top (a model right about a session on average
+        but not about each stretch of it: a board held still, the farthest views). Needs
+        ``folds``.
 
     Returns
     -------
@@ -218,12 +222,18 @@ def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws
     if folds is not None:
         folds = np.asarray(folds)
         groups += [(int(k), folds == k) for k in np.unique(folds)]
+    if fold_scale_sd:
+        if folds is None:
+            raise OptimiseError("target_pass_rates: fold_scale_sd needs the frames' folds")
+        k = np.ones((int(n_draws), len(cov), 1))
+        for _, rows in groups[1:]:
+            k[:, rows] = np.exp(0.5 * float(fold_scale_sd) * rng.standard_normal(int(n_draws)))[:, None, None]
+        E = E * k if mean is None else (E - mean) * k + mean
     met = np.zeros(int(n_draws), int)
-    out_groups = []
+    out_groups, group_nees = [], []
     for name, rows in groups:
         nees, in95, in68 = _group_scores(E, cov, mean, nu, rows)
-        if name == "all":
-            nees_all = nees
+        group_nees.append(nees)
         met += _met(nees, in95, in68, targets)
         lo, hi = targets["nees"]
         out_groups.append({
@@ -234,9 +244,38 @@ def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws
                                for j, d in enumerate(ERROR_DIMS)}
                for b, v in (("95", in95), ("68", in68))},
         })
-    return {"n_targets": len(groups) * 13, "met_per_draw": met, "nees_per_draw": nees_all,
+    return {"n_targets": len(groups) * 13, "met_per_draw": met, "nees_per_draw": group_nees[0],
+            "group_nees_per_draw": np.array(group_nees),
             "expected_met": float(met.mean()), "sd_met": float(met.std()),
             "groups": out_groups}
+
+
+def excess_spread(observed, sampled):
+    """Spread of some statistic beyond what sampling alone gives it.
+
+    Parameters
+    ----------
+    observed : array_like, shape (S,)
+        The statistic on S units (sessions, folds), e.g. a log NEES ratio.
+    sampled : sequence of array_like
+        For each unit, the statistic over draws of a model that is right (its sampling
+        distribution there).
+
+    Returns
+    -------
+    tau : float
+        sqrt(max(var(observed) - mean of the draws' variances, 0)).
+
+    Raises
+    ------
+    OptimiseError
+        Fewer than two units.
+    """
+    observed = np.asarray(observed, float)
+    if observed.size < 2:
+        raise OptimiseError(f"excess_spread: needs two or more units, got {observed.size}")
+    sampling = np.mean([np.var(np.asarray(d, float), ddof=1) for d in sampled])
+    return float(np.sqrt(max(np.var(observed, ddof=1) - sampling, 0.0)))
 
 
 def session_scale_sd(nees_mean, nees_draws, dim=6):
@@ -247,7 +286,7 @@ def session_scale_sd(nees_mean, nees_draws, dim=6):
     error has more or less pose-like structure than the training sessions'). The log of
     NEES / dim estimates that factor's log; its spread over sessions is the factor's spread
     plus the sampling spread each session's NEES has under a right model (the draws of
-    :func:`target_pass_rates`, ``nees_per_draw``), which is taken off.
+    :func:`target_pass_rates`, ``nees_per_draw``), which is taken off (:func:`excess_spread`).
 
     Parameters
     ----------
@@ -264,8 +303,5 @@ def session_scale_sd(nees_mean, nees_draws, dim=6):
         Log-sd of the session factor on the variance (0 when the sessions scatter no more than
         sampling explains).
     """
-    observed = np.log(np.asarray(nees_mean, float) / dim)
-    if observed.size < 2:
-        raise OptimiseError(f"session_scale_sd: needs two or more sessions, got {observed.size}")
-    sampling = np.mean([np.var(np.log(np.asarray(d, float) / dim), ddof=1) for d in nees_draws])
-    return float(np.sqrt(max(np.var(observed, ddof=1) - sampling, 0.0)))
+    return excess_spread(np.log(np.asarray(nees_mean, float) / dim),
+                         [np.log(np.asarray(d, float) / dim) for d in nees_draws])

@@ -1,12 +1,15 @@
 """The yardstick for the uncertainty targets: what an exactly right model scores."""
 
 import numpy as np
+import pytest
 from scipy import stats
 
+from cvsflow.errors import OptimiseError
 from cvsflow.uncertainty.calibrated_draws import (
     TARGETS,
     autocorrelation,
     draw_calibrated_errors,
+    excess_spread,
     session_scale_sd,
     target_pass_rates,
 )
@@ -139,3 +142,25 @@ def test_session_scale_sd_recovers_the_spread_net_of_sampling():
         nees = [6.0 * np.exp(0.06 * rng.standard_normal() + tau * rng.standard_normal())
                 for _ in range(200)]
         assert abs(session_scale_sd(nees, draws) - tau) < 0.05
+
+
+def test_a_fold_scale_spreads_each_folds_nees_about_its_session():
+    """fold_scale_sd 0.4: each fold's log NEES about the whole set's spreads by about that
+    variance more than a right model's (the folds' factors are independent), and it needs folds."""
+    rng = np.random.default_rng(10)
+    n = 300
+    cov = _covariances(n, rng)
+    fold = np.repeat(np.arange(5), 60)
+    runs = frame_runs(np.arange(n), fold)
+    right = target_pass_rates(cov, None, None, 0.0, runs, fold, n_draws=2000, seed=11)
+    scaled = target_pass_rates(cov, None, None, 0.0, runs, fold, n_draws=2000, seed=11,
+                               fold_scale_sd=0.4)
+    def spread(r):
+        g = r["group_nees_per_draw"]
+        return np.var(np.log(g[1:] / g[0]))
+    # the whole set's NEES averages the five factors, so a fold's about it spreads by 0.16 * 4/5
+    assert abs(spread(scaled) - spread(right) - 0.16 * 0.8) < 0.02
+    with pytest.raises(OptimiseError, match="folds"):
+        target_pass_rates(cov, None, None, 0.0, runs, None, n_draws=10, fold_scale_sd=0.4)
+    with pytest.raises(OptimiseError, match="two or more"):
+        excess_spread([0.1], [[0.0, 1.0]])
