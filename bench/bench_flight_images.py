@@ -43,7 +43,11 @@ from cvsflow.calibration import board_object_points
 from cvsflow.corners import extract_corners_parallel, summarise_corners
 from cvsflow.flight.clock import Clock
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
-from cvsflow.flight.reference import reference_covariance_transfer, session_error_model
+from cvsflow.flight.reference import (
+    correct_rolling_shutter,
+    reference_covariance_transfer,
+    session_error_model,
+)
 from cvsflow.flight.trajectory import T_from_traj, reference_from_poses
 from cvsflow.io import read_parquet, read_yaml
 from cvsflow.io.flightlog import read_tum
@@ -120,19 +124,26 @@ def run(name, seed, main_cfg, sessions, duration_s, range_m, cache):
           f"range {truth_doc['range_m']} m, codec {summary.get('codec')} "
           f"(inter-coded {summary.get('inter_coded')}), corners' kappa {kappa:.2f}; "
           f"render {t_render:.0f} s, measure {t_measure:.0f} s", flush=True)
-    reference = reference_from_poses(poses, corners, float(calib.get("line_delay_s") or 0.0))
+    ld = float(calib.get("line_delay_s") or 0.0)
+
+    def reference_of(p, cal):
+        """The flight stage's reference: a rolling shutter's shear taken out, timed at the rows."""
+        if ld:
+            p, _ = correct_rolling_shutter(p, corners, p_B, cal)
+        return p, reference_from_poses(p, corners, ld)
+
     # the per-frame part alone: PnP with the true lens, the calibration's share stated as none
     true_lens = {**calib, "K": true_cam["K"], "dist": true_cam["dist"]}
     poses_true = estimate_poses(corners, np.array(true_cam["K"], float),
                                 np.array(true_cam["dist"], float), board, **main_cfg["pnp"])
-    variants = (("validation session's model", model, poses, calib, reference),
-                ("rendered sessions' model", None, poses, calib, reference),
-                ("validation's, true lens", {**model, "c_cal": 0.0}, poses_true, true_lens,
-                 reference_from_poses(poses_true, corners, float(calib.get("line_delay_s") or 0.0))))
-    for label, m, p, cal, ref in variants:
+    variants = (("validation session's model", model, *reference_of(poses, calib), calib),
+                ("rendered sessions' model", None, *reference_of(poses, calib), calib),
+                ("validation's, true lens", {**model, "c_cal": 0.0},
+                 *reference_of(poses_true, true_lens), true_lens))
+    for label, m, p, ref, cal in variants:
         Sigma, flip, G = reference_covariance_transfer(
             p, corners, p_B, cal, model=m, inter_coded=bool(summary.get("inter_coded")),
-            return_terms=True)  # fmt: skip
+            return_terms=True, shear_corrected=bool(ld))  # fmt: skip
         r = evaluate_flight(ref, onboard, T_Q_B, Sigma, clock=clock, weighted_alignment=True,
                             flip_ref=flip, cal_factor=G)  # fmt: skip
         chk = check_against_truth(r, onboard, truth, T_L_C, clock)

@@ -56,6 +56,7 @@ from cvsflow.flight.metrics import (
 )
 from cvsflow.flight.reference import (
     corner_noise_per_axis,
+    correct_rolling_shutter,
     factor_columns,
     factor_from_columns,
     flip_columns,
@@ -84,11 +85,13 @@ __all__ = [
     "AXES", "Alignment", "Clock", "ERR_COLS", "FlightResult", "SIG_COLS", "TRAJ_COLS",
     "T_from_traj", "align_trajectories", "align_weighted", "align_yaw", "angular_speed",
     "ape_rotation", "ape_translation", "associate", "axis_errors", "axis_stats",
-    "check_against_truth", "check_trajectory", "corner_noise_per_axis", "error_stats",
+    "check_against_truth", "check_trajectory", "corner_noise_per_axis",
+    "correct_rolling_shutter", "error_stats",
     "factor_columns", "factor_from_columns", "flip_columns", "flip_from_columns",
     "estimate_clock", "evaluate_flight", "interpolate_trajectory", "pnp_flip_term",
     "propagate_reference_sigma", "reference_covariance_from_pnp", "reference_covariance_model",
-    "reference_covariance_transfer", "reference_from_poses", "rotation_alignment", "rpe",
+    "reference_covariance_transfer", "reference_from_poses",
+    "rotation_alignment", "rpe",
     "session_error_model", "sigma_columns", "sigma_from_columns", "traj_from_T",
     "trajectory_frame", "umeyama",
 ]  # fmt: skip

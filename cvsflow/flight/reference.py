@@ -275,8 +275,75 @@ def pnp_flip_term(uv_px, rvec, tvec, p_B, K, dist):
     return delta, d_ssr
 
 
+def correct_rolling_shutter(poses_raw, corners, p_B, calib):
+    """Poses with a rolling shutter's shear taken out, and the shear that was taken out.
+
+    Under a rolling shutter each corner is seen at its own row's time, so a moving board's
+    corners are displaced from one instant's by their image velocity times the line delay
+    times their row after the frame's mean row (:func:`cvsflow.uncertainty.shear_displacement`;
+    the frame is timed at that row, :func:`cvsflow.flight.trajectory.reference_from_poses`), and
+    PnP turns the displacement into a pose error (:func:`cvsflow.uncertainty.frame_noise_terms`).
+    It is a bias the corners' velocities predict, shared by neighbouring frames: on a rendered
+    rolling-shutter flight (480 rows in 24 ms) 9-10 mrad about C's x and y axes, followed by the
+    measured error with slope -0.99 and a residual at the corner-noise level; stated as a
+    variance instead, it moved the flight's alignment and left roll at 3.4 times its sigma
+    (docs/findings.md, 2026-12-05). The reprojection RMS is recomputed from the corners with
+    their displacement taken out, so the corner noise is not read from the shear.
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet of the video (``frame``, ``valid``, ``rvec_0..2``, ``x_m..z_m``,
+        ``reproj_rms_px``).
+    corners : DataFrame
+        corners.parquet of the same video (the corners' rows and velocities).
+    p_B : ndarray, shape (P, 3)
+        Board corners in B, m.
+    calib : dict
+        ``K``, ``dist`` and ``line_delay_s`` (s per row; an se3 result's).
+
+    Returns
+    -------
+    poses : DataFrame
+        A copy of ``poses_raw``: t <- t - dt, R <- exp(-dtheta) R (the exact inverse of the
+        shear's ``[dt, dtheta]`` in C) and ``reproj_rms_px`` of the unsheared corners; as given
+        with no line delay.
+    shear : ndarray, shape (N, 6)
+        Measured minus unsheared pose, ``[dt, dtheta]`` in C, per row; 0 where a corner
+        velocity is unknown or with no line delay, NaN where not valid.
+    """
+    out = poses_raw.copy()
+    valid = out["valid"].to_numpy(bool)
+    shear = np.full((len(out), 6), np.nan)
+    shear[valid] = 0.0
+    ld = float(calib.get("line_delay_s") or 0.0)
+    if not ld or not valid.any():
+        return out, shear
+    K = np.asarray(calib["K"], float)
+    dist = np.asarray(calib["dist"], float).ravel()
+    rcols, tcols = ["rvec_0", "rvec_1", "rvec_2"], ["x_m", "y_m", "z_m"]
+    rows = out[valid]
+    rv = np.array(rows[rcols], dtype=float)
+    tv = np.array(rows[tcols], dtype=float)
+    uv, _, vel = un.seen_corners(corners, rows["frame"].to_numpy(), len(p_B))
+    _, shear[valid] = un.frame_noise_terms(uv, vel, rv, tv, p_B, K, dist, ld, frame="C")
+    rv_c = (Rotation.from_rotvec(-shear[valid, 3:]) * Rotation.from_rotvec(rv)).as_rotvec()
+    tv_c = tv - shear[valid, :3]
+    seen = np.isfinite(uv).all(axis=-1)
+    obj = np.asarray(p_B, np.float64)
+    reproj = np.empty(len(rows))
+    for i in range(len(rows)):
+        uv_c = uv[i, seen[i]] - un.shear_displacement(uv[i, seen[i]], vel[i, seen[i]], ld)
+        proj, _ = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rv_c[i], tv_c[i], K, dist)
+        reproj[i] = np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - uv_c) ** 2, axis=1)))
+    out.loc[valid, rcols] = rv_c
+    out.loc[valid, tcols] = tv_c
+    out.loc[valid, "reproj_rms_px"] = reproj
+    return out, shear
+
+
 def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, flips=True,
-                                  inter_coded=False, return_terms=False):
+                                  inter_coded=False, return_terms=False, shear_corrected=False):
     """Reference covariance per frame of a flight from the error model (T) of the se3 stage.
 
     The camera reference of a flight is the PnP pose of the board: its error is what model (T)
@@ -286,7 +353,9 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     intrinsics uncertainty through PnP (one draw for the whole flight: correlated; the principal
     point's is left out, the alignment absorbs it), and, with a
     rolling shutter (``calib["line_delay_s"]``), the outer product of the pose error its shear
-    predicts (the reference does not correct it), and (``flips``) the planar PnP's two-fold
+    predicts (where the reference does not correct it; with ``shear_corrected``, poses from
+    :func:`correct_rolling_shutter`, only the prediction's own error, the model's ``r_rs``
+    times it), and (``flips``) the planar PnP's two-fold
     ambiguity: ``w delta delta^T`` with ``delta`` the measured pose minus the other IPPE
     solution (:func:`pnp_flip_term`) and ``w = 1 / (1 + exp(d_ssr / (2 sigma_px^2)))`` the
     chance that the other one is the true pose given how much worse it fits the corners (the
@@ -319,6 +388,9 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
     return_terms : bool
         Also return the flip term's parts and the calibration's factor, for
         :func:`cvsflow.flight.evaluate_flight`.
+    shear_corrected : bool
+        ``poses_raw`` are already corrected for the rolling shutter's shear
+        (:func:`correct_rolling_shutter`).
 
     Returns
     -------
@@ -374,8 +446,11 @@ def reference_covariance_transfer(poses_raw, corners, p_B, calib, model=None, fl
 
     G_err = composed_error_jacobian(rv, tv, frame="C")
     cal = G_err @ cov_rt @ np.swapaxes(G_err, 1, 2)  # propagated_pose_covariance, G_err kept
+    # the shear is a predicted bias: stated whole where it stays in the pose, and by the
+    # prediction's relative error r_rs where it was taken out
+    shear_share = float(model.get("r_rs") or 0.0) ** 2 if shear_corrected else 1.0
     S = (var_px[:, None, None] * unit + model["c_cal"] ** 2 * cal
-         + shear[:, :, None] * shear[:, None, :])  # fmt: skip
+         + shear_share * shear[:, :, None] * shear[:, None, :])  # fmt: skip
     s_still = float(model.get("s_still") or 0.0)
     if s_still and inter_coded:
         still = un.still_board_weight(n_seen, speed, 1.0)

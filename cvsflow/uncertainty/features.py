@@ -128,6 +128,31 @@ def _fill_velocity_field(uv, vel):
     return out
 
 
+def shear_displacement(uv_px, vel_px_s, line_delay_s):
+    """A rolling shutter's displacement of one frame's corners from its mean row's instant.
+
+    Corner k is seen at its own row's time, so it sits its image velocity times the line delay
+    times its row after the frame's mean row (the frame's time) away from where the board was
+    at that time.
+
+    Parameters
+    ----------
+    uv_px : ndarray, shape (n, 2)
+        The frame's seen corners.
+    vel_px_s : ndarray, shape (n, 2)
+        Their image velocities, px/s (NaN: taken as 0).
+    line_delay_s : float
+        s per row.
+
+    Returns
+    -------
+    d_uv : ndarray, shape (n, 2)
+        px.
+    """
+    rows = uv_px[:, 1]
+    return np.nan_to_num(vel_px_s) * (line_delay_s * (rows - rows.mean()))[:, None]
+
+
 def frame_noise_terms(uv_px, vel_px_s, rvec, tvec, p_B, K, dist, line_delay_s=0.0, frame="C"):
     """Per frame: the PnP error covariance per px^2 of corner noise over the corners it saw,
     and the pose error its rolling shutter's shear predicts.
@@ -167,10 +192,8 @@ def frame_noise_terms(uv_px, vel_px_s, rvec, tvec, p_B, K, dist, line_delay_s=0.
         JtJ_inv = np.linalg.pinv(np.einsum("mi,mj->ij", J, J, optimize=False))
         cov_rt[i] = JtJ_inv
         if line_delay_s != 0.0:
-            # corner k is displaced by its image velocity times its row's delay after the mean
-            # row (the reference's time); PnP turns the shear into a pose error
-            rows = uv_px[i, seen[i], 1]
-            d_uv = np.nan_to_num(vel_px_s[i, seen[i]]) * (line_delay_s * (rows - rows.mean()))[:, None]
+            # PnP turns the shear into a pose error
+            d_uv = shear_displacement(uv_px[i, seen[i]], vel_px_s[i, seen[i]], line_delay_s)
             d_rt[i] = JtJ_inv @ (J.T @ d_uv.reshape(-1))
     unit = propagated_pose_covariance(rvec, tvec, cov_rt, frame=frame)
     cols = [f"err_{d}" for d in ERROR_DIMS]

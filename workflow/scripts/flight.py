@@ -7,6 +7,7 @@ from cvsflow.flight.clock import Clock
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
 from cvsflow.flight.reference import (
     corner_noise_per_axis,
+    correct_rolling_shutter,
     factor_from_columns,
     flip_from_columns,
     reference_covariance_from_pnp,
@@ -39,11 +40,15 @@ with stage_logging(snakemake.log[0], "flight") as log:
         sigma_px = float(calib["sigma_px"]) if "sigma_px" in calib else corner_noise_per_axis(
             np.nanmedian(poses["reproj_rms_px"]), len(p_B))
         line_delay_s = float(calib.get("line_delay_s") or 0.0)
-        if line_delay_s:
-            log.info("rolling shutter: line delay %.3g s/row (%s); each frame's time is that of the "
-                     "rows its board covers", line_delay_s, calib_path)
-        reference = reference_from_poses(poses, read_parquet(inp.corners) if line_delay_s else None,
-                                         line_delay_s)  # fmt: skip
+        if line_delay_s:  # docs/findings.md 2026-12-05: timed at the board's rows, shear out
+            corners = read_parquet(inp.corners)
+            poses, shear = correct_rolling_shutter(poses, corners, p_B, calib)
+            log.info("rolling shutter: line delay %.3g s/row (%s); each frame is timed at the rows "
+                     "its board covers and its predicted shear (median %.2f mrad, %.2f mm) is taken "
+                     "out", line_delay_s, calib_path,
+                     1e3 * np.nanmedian(np.linalg.norm(shear[:, 3:], axis=1)),
+                     1e3 * np.nanmedian(np.linalg.norm(shear[:, :3], axis=1)))  # fmt: skip
+        reference = reference_from_poses(poses, corners if line_delay_s else None, line_delay_s)
         if hasattr(inp, "corners"):  # model (T): seen corners, speed, residual, calibration
             model = (session_error_model(read_yaml(inp.error_model), inp.error_model)
                      if hasattr(inp, "error_model") else None)  # fmt: skip
@@ -52,7 +57,7 @@ with stage_logging(snakemake.log[0], "flight") as log:
             inter_coded = bool(read_yaml(inp.corners_summary).get("inter_coded", False))
             Sigma_ref, flip_ref, cal_factor = reference_covariance_transfer(
                 poses, read_parquet(inp.corners), p_B, calib, model=model, inter_coded=inter_coded,
-                return_terms=True)  # fmt: skip
+                return_terms=True, shear_corrected=bool(line_delay_s))  # fmt: skip
         else:
             Sigma_ref, flip_ref, cal_factor = reference_covariance_from_pnp(
                 poses, p_B, calib["K"], calib["dist"], sigma_px), None, None
