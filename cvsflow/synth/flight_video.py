@@ -12,7 +12,6 @@ flight.
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 
@@ -21,7 +20,7 @@ from cvsflow.flight.trajectory import traj_from_T
 from cvsflow.flight_synth import render_flight
 from cvsflow.io import write_parquet, write_yaml
 from cvsflow.io.flightlog import write_tum
-from cvsflow.io.synth_out import PyAvVideoSink, VideoSink
+from cvsflow.io.synth_out import PyAvVideoSink, VideoSink, staged_session_dir
 from cvsflow.synth.effects import PTS_RATE_HZ
 from cvsflow.synth.frames import FrameEffects, Lighting
 from cvsflow.synth.motion import PoseTrack, random_sine_sum
@@ -47,8 +46,8 @@ def render_flight_video(session_cfg: dict, out_dir, seed: int = 1, duration_s: f
         board (the board the body carries). A hand occluding the board is switched off (nothing
         holds a flying board).
     out_dir : str or Path
-        Folder for :data:`FLIGHT_VIDEO_FILES`; created. Existing files there of those names are
-        replaced; nothing else is touched.
+        Folder for :data:`FLIGHT_VIDEO_FILES`, written whole or not at all; an existing one
+        may hold only those (a previous render's), which are replaced.
     seed : int
         The flight's seed (:func:`cvsflow.flight_synth.render_flight`: trajectory, on-board
         error and clock).
@@ -66,7 +65,8 @@ def render_flight_video(session_cfg: dict, out_dir, seed: int = 1, duration_s: f
     Raises
     ------
     ConfigError
-        A range outside (0, inf); the session config's own errors.
+        A range outside (0, inf); ``out_dir`` holds files this renderer did not write; the
+        session config's own errors.
 
     Notes
     -----
@@ -93,8 +93,22 @@ def render_flight_video(session_cfg: dict, out_dir, seed: int = 1, duration_s: f
     T_C_L = invert_T(demo.T_L_C)
     track = PoseTrack(lambda t: T_C_L @ demo.body_track(t) @ demo.T_Q_B)
     rngs, _, renderer, _ = _session_setup(spec)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with staged_session_dir(out_dir, allowed=FLIGHT_VIDEO_FILES) as tmp:
+        truth = _write_flight(spec, rngs, renderer, track, demo, tmp, duration_s, session_cfg, seed,
+                              range_m)  # fmt: skip
+    summary = {"n_frames": len(truth.t_s), "in_view_fraction": float(np.mean(truth.in_view)),
+               "median_blur_px": float(np.median(truth.blur_px)), "range_m": list(range_m),
+               "codec": e.codec if spec.realistic else "mp4v (legacy writer)"}
+    log.info("rendered flight seed %d: %d frames, %.0f %% in view, blur %.1f px, %s", seed,
+             summary["n_frames"], 100 * summary["in_view_fraction"], summary["median_blur_px"],
+             summary["codec"])
+    return summary
+
+
+def _write_flight(spec, rngs, renderer, track, demo, out_dir, duration_s, session_cfg, seed,
+                  range_m):
+    """Render the video and write the flight's files into ``out_dir``; the video's truth."""
+    e = spec.effects
     if spec.realistic:
         truth, timeline, lighting, _ = realistic_truth(spec, rngs, track)
         with PyAvVideoSink(out_dir / "video.mp4", e.codec, e.image_size, e.fps, crf=e.crf,
@@ -130,10 +144,4 @@ def render_flight_video(session_cfg: dict, out_dir, seed: int = 1, duration_s: f
                 "clock": {"dt_offset_s": float(demo.clock.dt_offset_s), "skew": float(demo.clock.skew)},
                 "board": dict(session_cfg["board"]), "seed": int(seed), "range_m": list(range_m),
                 "duration_s": float(duration_s)}, out_dir / "truth.yaml")  # fmt: skip
-    summary = {"n_frames": len(t_s), "in_view_fraction": float(np.mean(truth.in_view)),
-               "median_blur_px": float(np.median(truth.blur_px)), "range_m": list(range_m),
-               "codec": e.codec if spec.realistic else "mp4v (legacy writer)"}
-    log.info("rendered flight seed %d: %d frames, %.0f %% in view, blur %.1f px, %s", seed,
-             summary["n_frames"], 100 * summary["in_view_fraction"], summary["median_blur_px"],
-             summary["codec"])
-    return summary
+    return truth

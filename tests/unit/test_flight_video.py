@@ -69,10 +69,18 @@ def test_the_flight_video_shows_the_true_board(tmp_path, synth):
     assert doc["clock"]["dt_offset_s"] == pytest.approx(demo.clock.dt_offset_s)
 
 
-def test_a_range_that_is_not_one_is_refused(tmp_path):
+def test_a_range_that_is_not_one_and_a_folder_of_other_files_are_refused(tmp_path):
     with pytest.raises(ConfigError, match="range_m"):
         render_flight_video(_session(), tmp_path / "x", range_m=(3.0, 2.0))
     assert not (tmp_path / "x").exists()
+    mine = tmp_path / "recordings"
+    mine.mkdir()
+    (mine / "video.mp4").write_bytes(b"a user's own video")
+    (mine / "notes.txt").write_text("field day")
+    with pytest.raises(ConfigError, match="did not write"):
+        render_flight_video(_session(), mine, duration_s=1.0)
+    assert (mine / "video.mp4").read_bytes() == b"a user's own video"
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt", "video.mp4"]
 
 
 def test_a_rolling_shutter_flight_filmed_as_video_states_its_error(tmp_path):
