@@ -305,12 +305,13 @@ def correct_rolling_shutter(poses_raw, corners, p_B, calib):
     Returns
     -------
     poses : DataFrame
-        A copy of ``poses_raw``: t <- t - dt, R <- exp(-dtheta) R (the exact inverse of the
-        shear's ``[dt, dtheta]`` in C) and ``reproj_rms_px`` of the unsheared corners; as given
-        with no line delay.
+        A copy of ``poses_raw``: the poses PnP gives the unsheared corners and their
+        ``reproj_rms_px`` (:func:`cvsflow.uncertainty.unsheared_reproj_rms`); as given with no
+        line delay.
     shear : ndarray, shape (N, 6)
-        Measured minus unsheared pose, ``[dt, dtheta]`` in C, per row; 0 where a corner
-        velocity is unknown or with no line delay, NaN where not valid.
+        The shear's pose error as first order predicts it (measured minus unsheared,
+        ``[dt, dtheta]`` in C) per row; 0 where a corner velocity is unknown or with no line
+        delay, NaN where not valid.
     """
     out = poses_raw.copy()
     valid = out["valid"].to_numpy(bool)
@@ -327,15 +328,7 @@ def correct_rolling_shutter(poses_raw, corners, p_B, calib):
     tv = np.array(rows[tcols], dtype=float)
     uv, _, vel = un.seen_corners(corners, rows["frame"].to_numpy(), len(p_B))
     _, shear[valid] = un.frame_noise_terms(uv, vel, rv, tv, p_B, K, dist, ld, frame="C")
-    rv_c = (Rotation.from_rotvec(-shear[valid, 3:]) * Rotation.from_rotvec(rv)).as_rotvec()
-    tv_c = tv - shear[valid, :3]
-    seen = np.isfinite(uv).all(axis=-1)
-    obj = np.asarray(p_B, np.float64)
-    reproj = np.empty(len(rows))
-    for i in range(len(rows)):
-        uv_c = uv[i, seen[i]] - un.shear_displacement(uv[i, seen[i]], vel[i, seen[i]], ld)
-        proj, _ = cv2.projectPoints(obj[seen[i]].reshape(-1, 1, 3), rv_c[i], tv_c[i], K, dist)
-        reproj[i] = np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - uv_c) ** 2, axis=1)))
+    reproj, rv_c, tv_c = un.unsheared_reproj_rms(uv, vel, rv, tv, p_B, K, dist, ld)
     out.loc[valid, rcols] = rv_c
     out.loc[valid, tcols] = tv_c
     out.loc[valid, "reproj_rms_px"] = reproj

@@ -49,6 +49,7 @@ from cvsflow.uncertainty.features import (
     shear_displacement,
     shrink_corner_noise,
     still_board_weight,
+    unsheared_reproj_rms,
     vicon_filled,
 )
 from cvsflow.uncertainty.models import (
@@ -110,7 +111,8 @@ __all__ = [
     "pnp_covariance",
     "pose6_covariance", "predict_error_sigma", "predicted_covariance",
     "propagated_pose_covariance", "score_covariance", "score_error_model", "score_time_correlated",
-    "score_transfer", "seen_corners", "shear_displacement", "shrink_corner_noise", "standardised_errors",
+    "score_transfer", "seen_corners", "shear_displacement", "shrink_corner_noise",
+    "standardised_errors", "unsheared_reproj_rms",
     "still_board_weight",
     "excess_spread",
     "session_scale_sd",
