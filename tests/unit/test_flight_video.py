@@ -30,9 +30,15 @@ def _session(**synth):
 
 
 def test_a_pose_track_is_what_the_renderer_samples():
-    T = np.eye(4)
-    track = PoseTrack(lambda t: np.repeat(T[None], len(t), axis=0) + t[:, None, None] * 0.0)
-    assert board_poses(track, np.array([0.0, 0.5])).shape == (2, 4, 4)
+    """board_poses of a PoseTrack is its function's value at those times (a scalar time too)."""
+    def T_C_B(t):
+        T = np.repeat(np.eye(4)[None], len(t), axis=0)
+        T[:, 2, 3] = 2.0 + 0.5 * t
+        return T
+
+    T = board_poses(PoseTrack(T_C_B), np.array([0.0, 0.5, 1.0]))
+    np.testing.assert_allclose(T[:, 2, 3], [2.0, 2.25, 2.5])
+    assert board_poses(PoseTrack(T_C_B), 0.2).shape == (1, 4, 4)
 
 
 @pytest.mark.parametrize("synth", [{}, {"distance_m": [1.2, 2.5], "codec": {"name": "mjpeg"}}],
