@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import copy
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -474,3 +475,24 @@ def test_real_flight_states_its_reference_with_the_validation_sessions_model(dem
     err = pd.read_parquet(demo_run / "results/flights/vicon_log/errors.parquet")
     err_r = pd.read_parquet(demo_run / "results/flights/vicon_log_r/errors.parquet")
     assert np.isfinite(err["sx_m"]).all() and not np.allclose(err["sx_m"], err_r["sx_m"])
+    # A calibration with a line delay (written into a copy of the se3 result, then put back
+    # with its time stamp): the stage times the frames at the board's rows, takes the predicted
+    # shear out, and says so in its log and stats.yaml. The demo's camera has a global
+    # shutter, so 1 us per row moves the frames by at most 0.5 ms and the result stays put.
+    result = demo_run / "results/demo/se3/calib/result.yaml"
+    kept = demo_run / "result.yaml.kept"
+    shutil.copy2(result, kept)
+    se3 = yaml.safe_load(result.read_text())
+    result.write_text(yaml.safe_dump(dict(se3, line_delay_s=1e-6), sort_keys=False))
+    write_config(demo_run, dict(changed, flights={"vicon_log": flight}))
+    try:
+        snakemake(demo_run, "--forcerun", "flight", "--", "results/flights/vicon_log/stats.yaml")
+    finally:
+        write_config(demo_run, config)
+        shutil.copy2(kept, result)
+    rs = yaml.safe_load((demo_run / "results/flights/vicon_log/stats.yaml").read_text())
+    assert rs["rolling_shutter"]["line_delay_s"] == 1e-6
+    assert 0 < rs["rolling_shutter"]["shear_median_rad"] < 1e-3
+    assert "rolling shutter: line delay" in (demo_run / "logs/flights/vicon_log/flight.log").read_text()
+    assert abs(rs["clock"]["dt_offset_s"] - stats["clock"]["dt_offset_s"]) < 1e-3
+    assert all(abs(rs["axes"][a]["rmse"] - stats["axes"][a]["rmse"]) < 5e-4 for a in ("x", "y", "z"))

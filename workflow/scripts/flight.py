@@ -25,6 +25,7 @@ from cvsflow.transforms import T_from_pose6
 with stage_logging(snakemake.log[0], "flight") as log:
     cfg = snakemake.params.flight
     inp = snakemake.input
+    rolling_shutter = None  # a real flight's correction, when its calibration has a line delay
     if "synth" in cfg:
         table = read_parquet(inp.reference)
         reference, Sigma_ref, flip_ref = table, sigma_from_columns(table), flip_from_columns(table)
@@ -43,11 +44,15 @@ with stage_logging(snakemake.log[0], "flight") as log:
         if line_delay_s:  # docs/findings.md 2026-12-05: timed at the board's rows, shear out
             corners = read_parquet(inp.corners)
             poses, shear = correct_rolling_shutter(poses, corners, p_B, calib)
+            rolling_shutter = {
+                "line_delay_s": line_delay_s, "from": str(calib_path),
+                "shear_median_rad": float(np.nanmedian(np.linalg.norm(shear[:, 3:], axis=1))),
+                "shear_median_m": float(np.nanmedian(np.linalg.norm(shear[:, :3], axis=1))),
+            }  # fmt: skip
             log.info("rolling shutter: line delay %.3g s/row (%s); each frame is timed at the rows "
                      "its board covers and its predicted shear (median %.2f mrad, %.2f mm) is taken "
-                     "out", line_delay_s, calib_path,
-                     1e3 * np.nanmedian(np.linalg.norm(shear[:, 3:], axis=1)),
-                     1e3 * np.nanmedian(np.linalg.norm(shear[:, :3], axis=1)))  # fmt: skip
+                     "out", line_delay_s, calib_path, 1e3 * rolling_shutter["shear_median_rad"],
+                     1e3 * rolling_shutter["shear_median_m"])  # fmt: skip
         reference = reference_from_poses(poses, corners if line_delay_s else None, line_delay_s)
         if hasattr(inp, "corners"):  # model (T): seen corners, speed, residual, calibration
             model = (session_error_model(read_yaml(inp.error_model), inp.error_model)
@@ -69,6 +74,8 @@ with stage_logging(snakemake.log[0], "flight") as log:
                              weighted_alignment=cfg.get("weighted_alignment", False),
                              flip_ref=flip_ref, cal_factor=cal_factor)
     stats = dict(result.stats)
+    if rolling_shutter is not None:
+        stats["rolling_shutter"] = rolling_shutter  # the correction the reference had
     if "synth" in cfg:
         truth = read_parquet(inp.truth)
         clock = Clock(**truth_cfg["clock"])
