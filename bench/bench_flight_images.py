@@ -38,6 +38,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import yaml
+from bench_corner_pose_share import frame_shares
 
 from cvsflow.calibration import board_object_points
 from cvsflow.corners import extract_corners_parallel, summarise_corners
@@ -66,24 +67,22 @@ def configs():
 
 
 def pose_share(corners, truth_T_C_B, p_B, K, dist):
-    """kappa of the flight's detected corners against the true ones (true lens)."""
-    pose, resid, dof, n = 0.0, 0.0, 0, 0
+    """kappa of the flight's detected corners against the true ones (true lens), as
+    bench_corner_pose_share.py measures it on a session."""
+    rows = []
     for k, g in corners[corners["found"]].groupby("frame"):
         if len(g) < 8 or k >= len(truth_T_C_B):
             continue
         obj = p_B[g["corner"].to_numpy()]
         T = truth_T_C_B[k]
-        true, jac = cv2.projectPoints(obj, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], K, dist)
-        e = (g[["u_px", "v_px"]].to_numpy() - true.reshape(-1, 2))
-        if np.abs(e).max() > 3.0:
-            continue
-        Q, _ = np.linalg.qr(jac[:, :6])
-        a = Q.T @ e.ravel()
-        pose += a @ a
-        resid += e.ravel() @ e.ravel() - a @ a
-        dof += 2 * len(g) - 6
-        n += 1
-    return (pose / n) / (6.0 * resid / dof) if n else float("nan")
+        true = cv2.projectPoints(obj, cv2.Rodrigues(T[:3, :3])[0], T[:3, 3], K, dist)[0].reshape(-1, 2)
+        err = g[["u_px", "v_px"]].to_numpy() - true
+        if np.abs(err).max() <= 3.0:  # a wrong grid or a flip: not corner noise
+            rows.append(frame_shares(err, true, obj, K, dist))
+    if not rows:
+        return float("nan")
+    s2 = sum(r["resid"] for r in rows) / sum(r["dof"] for r in rows)
+    return float(np.mean([r["pose"] for r in rows]) / (6.0 * s2))
 
 
 def run(name, seed, main_cfg, sessions, duration_s, range_m, cache):

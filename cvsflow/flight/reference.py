@@ -280,9 +280,10 @@ def correct_rolling_shutter(poses_raw, corners, p_B, calib):
 
     Under a rolling shutter each corner is seen at its own row's time, so a moving board's
     corners are displaced from one instant's by their image velocity times the line delay
-    times their row after the frame's mean row (:func:`cvsflow.uncertainty.shear_displacement`;
-    the frame is timed at that row, :func:`cvsflow.flight.trajectory.reference_from_poses`), and
-    PnP turns the displacement into a pose error (:func:`cvsflow.uncertainty.frame_noise_terms`).
+    times their row after the frame's mean row
+    (:func:`cvsflow.uncertainty.rolling_shutter.shear_displacement`; the frame is timed at that
+    row, :func:`cvsflow.flight.trajectory.reference_from_poses`), and PnP turns the
+    displacement into a pose error (:func:`cvsflow.uncertainty.frame_noise_terms`).
     It is a bias the corners' velocities predict, shared by neighbouring frames: on a rendered
     rolling-shutter flight (480 rows in 24 ms) 9-10 mrad about C's x and y axes, followed by the
     measured error with slope -0.99 and a residual at the corner-noise level; stated as a
@@ -306,7 +307,7 @@ def correct_rolling_shutter(poses_raw, corners, p_B, calib):
     -------
     poses : DataFrame
         A copy of ``poses_raw``: the poses PnP gives the unsheared corners and their
-        ``reproj_rms_px`` (:func:`cvsflow.uncertainty.unsheared_reproj_rms`); as given with no
+        ``reproj_rms_px`` (:func:`cvsflow.uncertainty.rolling_shutter.unsheared_pnp`); as given with no
         line delay.
     shear : ndarray, shape (N, 6)
         The shear's pose error as first order predicts it (measured minus unsheared,
@@ -328,7 +329,7 @@ def correct_rolling_shutter(poses_raw, corners, p_B, calib):
     tv = np.array(rows[tcols], dtype=float)
     uv, _, vel = un.seen_corners(corners, rows["frame"].to_numpy(), len(p_B))
     _, shear[valid] = un.frame_noise_terms(uv, vel, rv, tv, p_B, K, dist, ld, frame="C")
-    reproj, rv_c, tv_c = un.unsheared_reproj_rms(uv, vel, rv, tv, p_B, K, dist, ld)
+    rv_c, tv_c, reproj = un.unsheared_pnp(uv, vel, rv, tv, p_B, K, dist, ld)
     out.loc[valid, rcols] = rv_c
     out.loc[valid, tcols] = tv_c
     out.loc[valid, "reproj_rms_px"] = reproj

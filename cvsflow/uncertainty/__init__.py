@@ -19,11 +19,14 @@
 - :mod:`cvsflow.uncertainty.calibrated_draws`: how many of the coverage targets a model that
   is exactly right meets on short, time-correlated held-out sets (:func:`target_pass_rates`).
 - :mod:`cvsflow.uncertainty.crb`: the Cramer-Rao floor (:func:`cramer_rao_sigma`).
+- :mod:`cvsflow.uncertainty.rolling_shutter`: a rolling shutter's shear of the corners and
+  the pose without it (:func:`shear_displacement`, :func:`unsheared_pnp`).
 - :mod:`cvsflow.uncertainty.ambiguity`: the planar PnP's second solution
   (:func:`pnp_alternatives`) and the chance it is the true pose (:func:`flip_weight`).
 
-The submodules import each other downwards (ambiguity, propagation, scoring < calibrated_draws,
-models, features, crb < transfer < transfer_scoring); this package only re-exports their public names.
+The submodules import each other downwards (ambiguity, propagation, scoring, rolling_shutter <
+calibrated_draws, models, features, crb < transfer < transfer_scoring); this package only
+re-exports their public names.
 """
 
 from cvsflow.uncertainty.ambiguity import flip_weight, pnp_alternatives
@@ -46,10 +49,8 @@ from cvsflow.uncertainty.features import (
     frame_noise_terms,
     measurement_features,
     seen_corners,
-    shear_displacement,
     shrink_corner_noise,
     still_board_weight,
-    unsheared_reproj_rms,
     vicon_filled,
 )
 from cvsflow.uncertainty.models import (
@@ -69,6 +70,7 @@ from cvsflow.uncertainty.propagation import (
     pose6_covariance,
     propagated_pose_covariance,
 )
+from cvsflow.uncertainty.rolling_shutter import shear_displacement, unsheared_pnp
 from cvsflow.uncertainty.scoring import (
     BANDS,
     WORKING_UNITS,
@@ -112,7 +114,7 @@ __all__ = [
     "pose6_covariance", "predict_error_sigma", "predicted_covariance",
     "propagated_pose_covariance", "score_covariance", "score_error_model", "score_time_correlated",
     "score_transfer", "seen_corners", "shear_displacement", "shrink_corner_noise",
-    "standardised_errors", "unsheared_reproj_rms",
+    "standardised_errors", "unsheared_pnp",
     "still_board_weight",
     "excess_spread",
     "session_scale_sd",

@@ -173,6 +173,11 @@ def _met(nees, in95, in68, targets):
             + inside(in68, targets["inside_68"]).sum(axis=1))
 
 
+def _scaled(E, mean, k):
+    """Draws ``E`` with their spread about the stated ``mean`` (None: zero) times ``k``."""
+    return E * k if mean is None else (E - mean) * k + mean
+
+
 def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws=400, seed=0,
                       targets=None, scale_sd=0.0, fold_scale_sd=0.0):
     """How often a model that is exactly right meets the targets on these frames.
@@ -216,8 +221,7 @@ def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws
     rng = np.random.default_rng(seed)
     E = draw_calibrated_errors(cov, mean, nu, time_correlation, runs, n_draws, rng)
     if scale_sd:
-        k = np.exp(0.5 * float(scale_sd) * rng.standard_normal(int(n_draws)))[:, None, None]
-        E = E * k if mean is None else (E - mean) * k + mean
+        E = _scaled(E, mean, np.exp(0.5 * float(scale_sd) * rng.standard_normal(int(n_draws)))[:, None, None])
     groups = [("all", np.ones(len(cov), bool))]
     if folds is not None:
         folds = np.asarray(folds)
@@ -228,7 +232,7 @@ def target_pass_rates(cov, mean, nu, time_correlation, runs, folds=None, n_draws
         k = np.ones((int(n_draws), len(cov), 1))
         for _, rows in groups[1:]:
             k[:, rows] = np.exp(0.5 * float(fold_scale_sd) * rng.standard_normal(int(n_draws)))[:, None, None]
-        E = E * k if mean is None else (E - mean) * k + mean
+        E = _scaled(E, mean, k)
     met = np.zeros(int(n_draws), int)
     out_groups, group_nees = [], []
     for name, rows in groups:

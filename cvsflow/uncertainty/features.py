@@ -27,6 +27,7 @@ from cvsflow.uncertainty.propagation import (
     propagated_pose_covariance,
 )
 from cvsflow.uncertainty.reference_noise import camera_body_error_cov, moving_body_noise
+from cvsflow.uncertainty.rolling_shutter import shear_displacement, unsheared_pnp
 
 #: Per-frame quantities known when a frame is measured (:func:`measurement_features`).
 #: Image speed (px per frame period) below which a motion-compensated codec codes a board as
@@ -126,82 +127,6 @@ def _fill_velocity_field(uv, vel):
         else:
             out[i, fill] = vel[i, src].mean(axis=0)
     return out
-
-
-def shear_displacement(uv_px, vel_px_s, line_delay_s):
-    """A rolling shutter's displacement of one frame's corners from its mean row's instant.
-
-    Corner k is seen at its own row's time, so it sits its image velocity times the line delay
-    times its row after the frame's mean row (the frame's time) away from where the board was
-    at that time.
-
-    Parameters
-    ----------
-    uv_px : ndarray, shape (n, 2)
-        The frame's seen corners.
-    vel_px_s : ndarray, shape (n, 2)
-        Their image velocities, px/s (NaN: taken as 0).
-    line_delay_s : float
-        s per row.
-
-    Returns
-    -------
-    d_uv : ndarray, shape (n, 2)
-        px.
-    """
-    rows = uv_px[:, 1]
-    return np.nan_to_num(vel_px_s) * (line_delay_s * (rows - rows.mean()))[:, None]
-
-
-def unsheared_reproj_rms(uv_px, vel_px_s, rvec, tvec, p_B, K, dist, line_delay_s):
-    """Per frame: the reprojection RMS of its corners with a rolling shutter's shear taken out.
-
-    The PnP residual of sheared corners holds the part of the shear a pose cannot take up, so
-    read as corner noise it overstates it under fast motion. Here each frame's corners are
-    moved back by :func:`shear_displacement` and compared with the board at the pose PnP
-    gives them (Levenberg-Marquardt from the measured pose less the shear's pose error to
-    first order, as :func:`frame_noise_terms` predicts it).
-
-    Parameters
-    ----------
-    uv_px, vel_px_s : ndarray, shape (N, P, 2)
-        Observed corners (NaN where unseen) and their image velocities, px/s.
-    rvec, tvec : ndarray, shape (N, 3)
-        The measured PnP poses T_C_B (rad, m).
-    p_B : ndarray, shape (P, 3)
-        Board corners in B, m.
-    K, dist : ndarray
-        Intrinsics.
-    line_delay_s : float
-        s per row.
-
-    Returns
-    -------
-    reproj_rms_px : ndarray, shape (N,)
-        RMS over each frame's corners of the residual length, px (as poses_raw's).
-    rvec_c, tvec_c : ndarray, shape (N, 3)
-        The unsheared poses.
-    """
-    obj = np.asarray(p_B, np.float64)
-    seen = np.isfinite(uv_px).all(axis=-1)
-    rms = np.empty(len(uv_px))
-    rvec_c = np.array(rvec, dtype=float)
-    tvec_c = np.array(tvec, dtype=float)
-    for i in range(len(uv_px)):
-        o = obj[seen[i]].reshape(-1, 1, 3)
-        uv_c = uv_px[i, seen[i]] - shear_displacement(uv_px[i, seen[i]], vel_px_s[i, seen[i]],
-                                                      line_delay_s)  # fmt: skip
-        _, jac = cv2.projectPoints(o, rvec_c[i], tvec_c[i], K, dist)
-        J = jac[:, :6]
-        # first order from the measured pose, then Levenberg-Marquardt on the unsheared corners
-        # (a fast sweep's shear turns the pose by tens of mrad, beyond first order)
-        d_rt = np.linalg.pinv(J.T @ J) @ (J.T @ (uv_px[i, seen[i]] - uv_c).reshape(-1))
-        _, r, t = cv2.solvePnP(o, uv_c.reshape(-1, 1, 2), K, dist, (rvec_c[i] - d_rt[:3]).copy(),
-                               (tvec_c[i] - d_rt[3:]).copy(), True, cv2.SOLVEPNP_ITERATIVE)
-        rvec_c[i], tvec_c[i] = r.ravel(), t.ravel()
-        proj, _ = cv2.projectPoints(o, rvec_c[i], tvec_c[i], K, dist)
-        rms[i] = np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - uv_c) ** 2, axis=1)))
-    return rms, rvec_c, tvec_c
 
 
 def frame_noise_terms(uv_px, vel_px_s, rvec, tvec, p_B, K, dist, line_delay_s=0.0, frame="C"):
@@ -362,9 +287,10 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
         in normalised units, corners seen, their RMS spread about their centroid px, image
         speed px per frame period (the blur proxy: blur = speed x exposure / period),
         reprojection RMS of the PnP px, of the unsheared corners under a rolling shutter,
-        :func:`unsheared_reproj_rms`); ``unitcov_{a}{b}``, the error covariance of the PnP
-        pose per px^2 of iid corner noise over the corners this frame saw ((J^T J)^-1 pushed
-        to [x, y, z, roll, pitch, yaw], m^2 / px^2 .. rad^2 / px^2); ``rs_err_{dim}``, the
+        :func:`cvsflow.uncertainty.rolling_shutter.unsheared_pnp`); ``unitcov_{a}{b}``, the
+        error covariance of the PnP pose per px^2 of iid corner noise over the corners this
+        frame saw ((J^T J)^-1 pushed to [x, y, z, roll, pitch, yaw], m^2 / px^2 .. rad^2 /
+        px^2); ``rs_err_{dim}``, the
         CVS pose error that the rolling shutter's shear predicts (the fold's fitted line delay
         times each corner's image velocity and its row after the mean row, through PnP, in
         the error's units; zero for a global shutter); ``flip_{dim}``, the error the
@@ -407,8 +333,8 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
     for k in np.unique(fold):
         sel = (fold == k) & np.isfinite(reproj)
         if ld_by_fold[int(k)] and sel.any():
-            reproj[sel] = unsheared_reproj_rms(uv[sel], vel[sel], rvec[sel], tvec[sel], obj,
-                                               *K_by_fold[int(k)], ld_by_fold[int(k)])[0]
+            reproj[sel] = unsheared_pnp(uv[sel], vel[sel], rvec[sel], tvec[sel], obj,
+                                        *K_by_fold[int(k)], ld_by_fold[int(k)])[2]
     R = tf.R_from_rvec(rvec).reshape(-1, 3, 3)
     centre_C = np.einsum("nij,j->ni", R, obj.mean(axis=0)) + tvec
     dist_m = np.linalg.norm(centre_C, axis=1)

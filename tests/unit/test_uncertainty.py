@@ -856,7 +856,7 @@ def test_unsheared_reproj_reads_the_corner_noise_not_the_shear():
     raw = np.array([np.sqrt(np.mean(np.sum((cv2.projectPoints(p_B, rv[i], tv[i], K, dist)[0]
                                             .reshape(-1, 2) - uv[i]) ** 2, axis=1)))
                     for i in range(n_fr)])  # fmt: skip
-    rms, rv_c, tv_c = un.unsheared_reproj_rms(uv, vel, rv, tv, p_B, K, dist, 5e-5)
+    rv_c, tv_c, rms = un.unsheared_pnp(uv, vel, rv, tv, p_B, K, dist, 5e-5)
     expected = 0.1 * np.sqrt(2.0) * np.sqrt((2 * n - 6) / (2 * n))
     assert abs(np.sqrt(np.mean(rms**2)) / expected - 1.0) < 0.1
     assert np.sqrt(np.mean(raw**2)) > 1.5 * expected

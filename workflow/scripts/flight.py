@@ -40,9 +40,9 @@ with stage_logging(snakemake.log[0], "flight") as log:
         p_B = board_object_points(snakemake.params.board)
         sigma_px = float(calib["sigma_px"]) if "sigma_px" in calib else corner_noise_per_axis(
             np.nanmedian(poses["reproj_rms_px"]), len(p_B))
+        corners = read_parquet(inp.corners) if hasattr(inp, "corners") else None
         line_delay_s = float(calib.get("line_delay_s") or 0.0)
         if line_delay_s:  # docs/findings.md 2026-12-05: timed at the board's rows, shear out
-            corners = read_parquet(inp.corners)
             poses, shear = correct_rolling_shutter(poses, corners, p_B, calib)
             rolling_shutter = {
                 "line_delay_s": line_delay_s, "from": str(calib_path),
@@ -53,15 +53,15 @@ with stage_logging(snakemake.log[0], "flight") as log:
                      "its board covers and its predicted shear (median %.2f mrad, %.2f mm) is taken "
                      "out", line_delay_s, calib_path, 1e3 * rolling_shutter["shear_median_rad"],
                      1e3 * rolling_shutter["shear_median_m"])  # fmt: skip
-        reference = reference_from_poses(poses, corners if line_delay_s else None, line_delay_s)
-        if hasattr(inp, "corners"):  # model (T): seen corners, speed, residual, calibration
+        reference = reference_from_poses(poses, corners, line_delay_s)
+        if corners is not None:  # model (T): seen corners, speed, residual, calibration
             model = (session_error_model(read_yaml(inp.error_model), inp.error_model)
                      if hasattr(inp, "error_model") else None)  # fmt: skip
             log.info("reference uncertainty: model (T) %s",
                      f"fitted by {inp.error_model}" if model else "fitted on the rendered sessions")
             inter_coded = bool(read_yaml(inp.corners_summary).get("inter_coded", False))
             Sigma_ref, flip_ref, cal_factor = reference_covariance_transfer(
-                poses, read_parquet(inp.corners), p_B, calib, model=model, inter_coded=inter_coded,
+                poses, corners, p_B, calib, model=model, inter_coded=inter_coded,
                 return_terms=True, shear_corrected=bool(line_delay_s))  # fmt: skip
         else:
             Sigma_ref, flip_ref, cal_factor = reference_covariance_from_pnp(
