@@ -1,32 +1,13 @@
-# cvsflow: the accuracy of a webcam + chessboard pose system, measured against Vicon.
-from snakemake.utils import min_version, validate
-
-min_version("9.0")
-
-
+# The repository's entry: the demo config, then the workflow that ships in the package
+# (`cvsflow run CONFIG` runs that workflow on a config of yours, from any folder).
 configfile: "config/config.yaml"
 
 
-validate(config, "workflow/schemas/config.schema.yaml")
+include: "cvsflow/workflow/Snakefile"
 
 
-include: "workflow/rules/common.smk"
-include: "workflow/rules/synth.smk"
-include: "workflow/rules/camera.smk"
-include: "workflow/rules/vicon.smk"
-include: "workflow/rules/align.smk"
-include: "workflow/rules/optimise.smk"
-include: "workflow/rules/analyse.smk"
-include: "workflow/rules/evaluate.smk"
-include: "workflow/rules/summary.smk"
-include: "workflow/rules/flight.smk"
-include: "workflow/rules/rig.smk"
-
-
-report: "workflow/report/workflow.rst"
-
-
-rule all:
+# An included file's default target does not carry over: name it here.
+rule default:
     default_target: True
     input:
-        all_targets(),
+        rules.all.input,

@@ -32,8 +32,8 @@ import cv2
 import numpy as np
 import yaml
 
-from cvsflow.calibration import board_object_points
-from cvsflow.evaluate import ERROR_DIMS
+from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.evaluate.heldout import ERROR_DIMS
 from cvsflow.io import read_parquet
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -34,8 +34,8 @@ import argparse
 import numpy as np
 
 from cvsflow.flight.clock import estimate_clock
-from cvsflow.flight_reference_synth import CALIB_STD_DEFAULT
-from cvsflow.flight_synth import render_flight
+from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_reference import CALIB_STD_DEFAULT
 
 NO_PP = {k: v for k, v in CALIB_STD_DEFAULT.items() if k not in ("cx", "cy")}
 VARIANTS = {

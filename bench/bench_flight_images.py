@@ -40,8 +40,9 @@ import numpy as np
 import yaml
 from bench_corner_pose_share import frame_shares
 
-from cvsflow.calibration import board_object_points
-from cvsflow.corners import extract_corners_parallel, summarise_corners
+from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.calibration.pnp import estimate_poses
+from cvsflow.corners.extract import extract_corners_parallel, summarise_corners
 from cvsflow.flight.clock import Clock
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
 from cvsflow.flight.reference import (
@@ -50,12 +51,11 @@ from cvsflow.flight.reference import (
     session_error_model,
 )
 from cvsflow.flight.trajectory import T_from_traj, reference_from_poses
+from cvsflow.geometry.transforms import invert_T
 from cvsflow.io import read_parquet, read_yaml
 from cvsflow.io.flightlog import read_tum
 from cvsflow.io.media import iter_video_gray, video_info, video_timing
-from cvsflow.pose import estimate_poses
 from cvsflow.synth.flight_video import render_flight_video
-from cvsflow.transforms import invert_T
 
 ROOT = Path(__file__).resolve().parents[1]
 

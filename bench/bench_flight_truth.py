@@ -23,14 +23,14 @@ import argparse
 import functools
 import time
 
-import cvsflow.flight_reference_synth as reference_synth
+import cvsflow.synth.flight_reference as reference_synth
 from cvsflow import uncertainty as un
-from cvsflow.errors import SyncError
+from cvsflow.exceptions import SyncError
 from cvsflow.flight import session_error_model
 from cvsflow.flight.clock import estimate_clock
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
-from cvsflow.flight_reference_synth import CALIB_STD_DEFAULT, validate_simulated_session
-from cvsflow.flight_synth import render_flight
+from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_reference import CALIB_STD_DEFAULT, validate_simulated_session
 
 CAMERAS = {
     "demo": None,

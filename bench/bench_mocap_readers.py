@@ -15,7 +15,7 @@ import argparse
 import time
 from pathlib import Path
 
-from cvsflow.io.mocap_formats import read_mocap
+from cvsflow.io.mocap.formats import read_mocap
 
 FILES = [
     ("vicon/markers.csv", "Nexus CSV"),

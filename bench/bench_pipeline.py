@@ -12,7 +12,7 @@ are printed beside wall seconds: on a shared machine they are the steadier numbe
     .venv/bin/python bench/bench_pipeline.py --imports      # start-up cost of each workflow script
 
 ``--imports`` times, in fresh interpreters (best of 3), the import lines of every script in
-workflow/scripts/ and of the heavy libraries they pull in: the fixed cost each job pays
+cvsflow/workflow/scripts/ and of the heavy libraries they pull in: the fixed cost each job pays
 before it reads its first input (bench/bench_startup.py, which also runs on its own).
 """
 

@@ -13,10 +13,10 @@ import time
 
 import numpy as np
 
-from cvsflow import evaluate as ev
-from cvsflow import transforms as tf
 from cvsflow import uncertainty as un
-from cvsflow.board import board_object_points
+from cvsflow.board.model import board_object_points
+from cvsflow.evaluate import heldout as ev
+from cvsflow.geometry import transforms as tf
 from cvsflow.optimise import se3
 from cvsflow.optimise.se3_sim import simulate_session
 

@@ -1,4 +1,4 @@
-"""Benchmark of the N-camera se3 fit (cvsflow.optimise.se3_rig) for 1, 2 and 3 cameras.
+"""Benchmark of the N-camera se3 fit (cvsflow.rig.fit) for 1, 2 and 3 cameras.
 
 One simulated rig session (corner level, 0.3 px, 0.3 mm markers, 15 % of each take hidden
 from each camera; cameras 0 and 1 at 30 fps genlocked with their own clocks, camera 2 at
@@ -7,7 +7,7 @@ from each camera; cameras 0 and 1 at 30 fps genlocked with their own clocks, cam
 error and standard error, each camera's dt error, and the rig frames by number of cameras;
 then, per N, the fused poses' NEES against the true pose (6 expected) on rig frames seen by
 1, 2, 3 cameras, with the calibration's uncertainty in their covariance and without it, and
-the CPU time of :func:`~cvsflow.optimise.se3_rig_poses.fused_rig_poses` each way (frames of
+the CPU time of :func:`~cvsflow.rig.poses.fused_rig_poses` each way (frames of
 cameras not triggered together moved to one instant, its default).
 Usage: ``.venv/bin/python bench/bench_se3_rig.py [seed] [duration_s]``.
 """
@@ -19,11 +19,11 @@ import time
 
 import numpy as np
 
-from cvsflow import transforms as tf
+from cvsflow.geometry import transforms as tf
 from cvsflow.geometry.camera import INTRINSIC_NAMES
-from cvsflow.optimise.se3_rig import optimise_se3_rig
-from cvsflow.optimise.se3_rig_poses import fused_rig_poses
 from cvsflow.optimise.se3_sim import simulate_rig_session
+from cvsflow.rig.fit import optimise_se3_rig
+from cvsflow.rig.poses import fused_rig_poses
 
 FREE = ("fx", "fy", "k1", "k2")
 

@@ -35,7 +35,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from cvsflow import transforms as tf
+from cvsflow.geometry import transforms as tf
 from cvsflow.io import read_parquet, read_yaml
 from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
 

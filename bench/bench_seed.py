@@ -49,10 +49,10 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from cvsflow.evaluate_seed import cross_validate_seed
+from cvsflow.evaluate.seed import cross_validate_seed
+from cvsflow.geometry.transforms import T_from_pose6, rvec_tvec_from_T
 from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.optimise.seed import POSE_DIMS, board_object_points, optimise_seed
-from cvsflow.transforms import T_from_pose6, rvec_tvec_from_T
 
 REPO = Path(__file__).resolve().parents[1]
 #: The package before the Jacobian planes and the folds' shared PnP rows (issue 20, third round;

@@ -2,7 +2,7 @@
 
 Every job is a fresh interpreter that imports its script's modules before it reads its first
 input; with ~20 jobs per session that fixed cost adds up. Times, in fresh interpreters (best
-of ``--repeat``), the import lines of every script in workflow/scripts/ and of the heavy
+of ``--repeat``), the import lines of every script in cvsflow/workflow/scripts/ and of the heavy
 libraries they pull in, prints CPU and wall seconds and whether ``scipy.stats`` got loaded
 (about 0.3 s of its own), and the sum over the scripts.
 
@@ -32,7 +32,7 @@ PROBE = "\nimport sys, time\nprint(int('scipy.stats' in sys.modules), time.proce
 def script_imports(repo: Path) -> list[tuple[str, str]]:
     """(name, import lines) of every workflow script of ``repo``."""
     cases = []
-    for script in sorted((repo / "workflow" / "scripts").glob("*.py")):
+    for script in sorted((repo / "cvsflow" / "workflow" / "scripts").glob("*.py")):
         source = script.read_text()
         lines = [ast.get_source_segment(source, node) for node in ast.parse(source).body
                  if isinstance(node, (ast.Import, ast.ImportFrom))]

@@ -32,8 +32,8 @@ import numpy as np
 
 from cvsflow.flight import session_error_model
 from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
-from cvsflow.flight_reference_synth import validate_simulated_session
-from cvsflow.flight_synth import render_flight
+from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_reference import validate_simulated_session
 
 
 def validate(seed, focal_px):

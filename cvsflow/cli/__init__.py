@@ -22,7 +22,7 @@ from cvsflow.cli.init import cmd_init
 from cvsflow.cli.remux import cmd_remux
 from cvsflow.cli.rig import cmd_calibrate_rig
 from cvsflow.cli.run import cmd_run
-from cvsflow.errors import CvsflowError
+from cvsflow.exceptions import CvsflowError
 
 
 def build_parser() -> argparse.ArgumentParser:

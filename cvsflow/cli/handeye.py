@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from cvsflow.cli.args import EPILOG, _parse_inner
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 
 log = logging.getLogger(__name__)
 
@@ -17,7 +17,7 @@ log = logging.getLogger(__name__)
 def cmd_handeye(args) -> int:
     """``cvsflow handeye``: hand-eye calibration from stills with one carrier pose each.
 
-    Writes ``OUT/handeye.yaml`` (the result of :func:`cvsflow.handeye.calibrate_hand_eye`
+    Writes ``OUT/handeye.yaml`` (the result of :func:`cvsflow.handeye.stills.calibrate_hand_eye`
     plus the command's inputs and the pairing rule) and prints ``T_Cm_C`` (eye-in-hand) or
     ``T_W_C`` (eye-to-hand) with its standard errors (mm, deg).
 
@@ -43,7 +43,7 @@ def cmd_handeye(args) -> int:
     """
     import cv2
 
-    from cvsflow.handeye import calibrate_hand_eye, pair_stills_with_poses
+    from cvsflow.handeye.stills import calibrate_hand_eye, pair_stills_with_poses
     from cvsflow.io import read_yaml, write_yaml
     from cvsflow.io.media import list_stills, read_gray
     from cvsflow.io.poses import natural_key, pose_table_T, read_pose_list

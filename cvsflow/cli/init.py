@@ -2,7 +2,7 @@
 
 One camera (stills, a video, a motion-capture export anywhere in the folder) gives a plain
 session; two or more camera folders (each with its stills and its video) give a rig session
-(a ``cameras:`` list, :func:`cvsflow.sessions.expand_rig_sessions`).
+(a ``cameras:`` list, :func:`cvsflow.workflow.sessions.expand_rig_sessions`).
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from cvsflow.errors import CvsflowError, InputError
+from cvsflow.exceptions import CvsflowError, InputError
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v")
 # bare H.264 / HEVC streams (Raspberry Pi cameras): no frame times until remuxed
@@ -90,8 +90,8 @@ def _videos(folder: Path) -> list[Path]:
 
 def _add_mocap(session: dict, notes: list, candidates) -> tuple[list[str], list[str]]:
     """Set ``vicon`` (and ``mocap.format``) from the first readable export; its marker and body names."""
-    from cvsflow.io.markers import marker_names
-    from cvsflow.io.mocap_formats import read_mocap
+    from cvsflow.io.mocap.formats import read_mocap
+    from cvsflow.io.mocap.markers import marker_names
 
     names: list[str] = []
     system_bodies: list[str] = []
@@ -133,7 +133,7 @@ def _add_board(session: dict, notes: list, inner, stills_dir=None) -> None:
 def _add_charuco(session: dict, notes: list, stills_dir, inner=None) -> bool:
     """A ``type: charuco`` board from what the first stills show (False: no ChArUco markers,
     or a row length other than the chessboard ``inner`` found)."""
-    from cvsflow.charuco_guess import guess_charuco_board
+    from cvsflow.board.charuco_guess import guess_charuco_board
     from cvsflow.io.media import list_stills, read_gray
 
     guess = guess_charuco_board(read_gray(p) for p in list_stills(stills_dir)[:5])
@@ -483,7 +483,7 @@ def cmd_init(args) -> int:
     if out.exists():
         raise InputError(f"{out}: exists; cvsflow init never overwrites a file (give --out)")
     session, notes = build_session_config(folder, getattr(args, "layout", "auto"))
-    # A session name is a wildcard value: letters, digits, _ and - only (workflow/rules/common.smk).
+    # A session name is a wildcard value: letters, digits, _ and - only (cvsflow/workflow/rules/common.smk).
     name = re.sub(r"[^A-Za-z0-9_-]", "_", args.name or folder.resolve().name)
     text = "# Session config written by `cvsflow init`: check every line, fill every TODO.\n"
     text += "# Use: cvsflow run --configfile " + str(out) + "\n"

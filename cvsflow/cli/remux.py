@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 
 
 def cmd_remux(args) -> int:

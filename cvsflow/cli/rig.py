@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 
 
 def cmd_calibrate_rig(args) -> int:
@@ -43,7 +43,7 @@ def cmd_calibrate_rig(args) -> int:
     from cvsflow.io import write_parquet, write_yaml
     from cvsflow.io.camera_formats import write_all_formats, write_kalibr_rig_camchain
     from cvsflow.io.media import list_stills, read_gray
-    from cvsflow.stereo import calibrate_rig
+    from cvsflow.rig.extrinsics import calibrate_rig
 
     if len(args.dirs) < 2:
         raise InputError("calibrate-rig: give one stills folder per camera, two or more")

@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 
 log = logging.getLogger(__name__)
 

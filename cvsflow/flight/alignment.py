@@ -10,7 +10,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
-from cvsflow.errors import InputError, OptimiseError
+from cvsflow.exceptions import InputError, OptimiseError
 from cvsflow.geometry import make_T, mean_rotation, rotation_angle
 
 # --------------------------------------------------------------------------------------------

@@ -15,10 +15,10 @@ from scipy.optimize import least_squares
 from scipy.signal import correlate, correlation_lags
 from scipy.spatial.transform import Rotation, Slerp
 
-from cvsflow.errors import SyncError
+from cvsflow.exceptions import SyncError
 from cvsflow.flight.alignment import rotation_alignment
 from cvsflow.geometry import R_from_quat, rotation_angle
-from cvsflow.sandwich import leverage_corrected_scores
+from cvsflow.metrics.sandwich import leverage_corrected_scores
 
 log = logging.getLogger(__name__)
 
@@ -444,7 +444,7 @@ def _block_sandwich(residual, x, t_s, block_s, f_scale, steps=(1e-4, 1e-2)):
     S, H_b = S[used], H_b[used]
     n_b = len(S)
     # a block that carries much of H pulls the fit to its own residuals, which then understate
-    # its error: its leverage undone (CR3, cvsflow.sandwich)
+    # its error: its leverage undone (CR3, cvsflow.metrics.sandwich)
     S, lam, V = leverage_corrected_scores(S, H_b)
     H_inv = (V / lam) @ V.T
     return H_inv @ (S.T @ S) @ H_inv * n_b / max(n_b - 1, 1)

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from cvsflow.errors import InputError, SyncError
+from cvsflow.exceptions import InputError, SyncError
 from cvsflow.flight.alignment import (
     Alignment,
     align_trajectories,
@@ -145,7 +145,7 @@ def evaluate_flight(
     cal_factor : ndarray, shape (N_ref, 6, k), optional
         The calibration's share of ``Sigma_ref`` as ``G G^T`` per row, one draw for the whole
         flight (:func:`reference_covariance_transfer`, a rig's
-        :func:`cvsflow.stereo_fusion.rig_calibration_covariance`). A fitted alignment absorbs
+        :func:`cvsflow.rig.fusion.rig_calibration_covariance`). A fitted alignment absorbs
         part of such a common error and is moved by the rest, so the stated sigma of the
         recovered error carries it as it comes out of the alignment: each column of G is
         applied to the reference, the alignment refitted and the error's change taken

@@ -16,7 +16,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from cvsflow import uncertainty as un
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 from cvsflow.geometry import euler_from_R, euler_jacobian, invert_T, wrap_angle
 from cvsflow.geometry import skew as skew_matrix
 from cvsflow.geometry.camera import INTRINSIC_NAMES

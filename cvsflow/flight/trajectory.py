@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation, Slerp
 
-from cvsflow.errors import InputError, SyncError
+from cvsflow.exceptions import InputError, SyncError
 from cvsflow.geometry import R_from_quat, make_T, quat_from_R
 
 TRAJ_COLS = ["t_s", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from cvsflow.errors import MocapError
+from cvsflow.exceptions import MocapError
 from cvsflow.geometry.transforms import make_T
 
 

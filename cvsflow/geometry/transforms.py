@@ -460,7 +460,7 @@ def pose_error_left(T_est, T_ref):
     """Error of poses as ``[dt, dtheta]`` with the rotation perturbed on the left.
 
     ``T_est = (exp([dtheta]x) R_ref, t_ref + dt)``: the convention of the fused board pose's
-    and the flight reference's covariances (``cvsflow.stereo_fusion.fused_board_pose``), in the
+    and the flight reference's covariances (``cvsflow.rig.fusion.fused_board_pose``), in the
     poses' own frame A of ``T_A_B``.
 
     Parameters

@@ -18,7 +18,7 @@ import cv2
 import numpy as np
 import yaml
 
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 from cvsflow.geometry.transforms import invert_T
 from cvsflow.io.files import atomic_output
 
@@ -200,7 +200,7 @@ def write_kalibr_rig_camchain(cameras: list[dict], T_Ci_C0: list, path, topics=N
     cameras : list of dict
         Each camera's ``camera.yaml`` mapping (``K``, ``dist``, ``width``, ``height``, px).
     T_Ci_C0 : list of array_like, shape (4, 4)
-        Each camera's pose from camera 0 (``cvsflow.stereo.stereo_extrinsics``; identity or
+        Each camera's pose from camera 0 (``cvsflow.rig.extrinsics.stereo_extrinsics``; identity or
         omitted for camera 0 itself), metres: a point in C0 maps to Ci.
     path : str or Path
         Output file.
@@ -239,7 +239,8 @@ def write_kalibr_rig_camchain(cameras: list[dict], T_Ci_C0: list, path, topics=N
             block["T_cn_cnm1"] = (T @ invert_T(np.asarray(T_Ci_C0[i - 1], float))).tolist()
         data[f"cam{i}"] = block
         shifts.append(k3_drop_shift_px(camera))
-    header = ("Kalibr camchain of a camera rig written by cvsflow (cvsflow.stereo.stereo_extrinsics).\n"
+    header = ("Kalibr camchain of a camera rig written by cvsflow\n"
+              "(cvsflow.rig.extrinsics.stereo_extrinsics).\n"
               "T_cn_cnm1 takes points from camera n-1 to camera n, metres.\n"
               + "k3 dropped (Kalibr radtan); largest pixel shift per camera: "
               + ", ".join(f"{v:.3f} px" for v in shifts) + "\n" + _board_comment(cameras[0]))

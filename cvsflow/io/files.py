@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 
 
 @contextlib.contextmanager

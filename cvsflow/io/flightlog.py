@@ -28,10 +28,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 from cvsflow.flight import trajectory_frame
+from cvsflow.geometry.transforms import R_from_euler, quat_from_R
 from cvsflow.io.files import atomic_output
-from cvsflow.transforms import R_from_euler, quat_from_R
 
 log = logging.getLogger(__name__)
 
@@ -514,7 +514,7 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
 
 
 def write_flight_demo(demo, out_dir) -> None:
-    """Write a rendered flight (:class:`cvsflow.flight_synth.FlightDemo`) as the files a real
+    """Write a rendered flight (:class:`cvsflow.synth.flight.FlightDemo`) as the files a real
     flight session has, plus its truth: ``reference.parquet`` (T_C_B per video frame with its
     covariance columns S00..S55; from a PnP reference the flip term's ``flip_*``, from a PnP or
     rig reference the calibration's factor ``G{i}_{c}``),

@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from cvsflow.errors import CvsflowError
+from cvsflow.exceptions import CvsflowError
 
 
 @contextlib.contextmanager

@@ -9,7 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 
 log = logging.getLogger(__name__)
 

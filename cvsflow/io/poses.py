@@ -38,8 +38,8 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from cvsflow import transforms as tf
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
+from cvsflow.geometry import transforms as tf
 
 log = logging.getLogger(__name__)
 

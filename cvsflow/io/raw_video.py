@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 
 log = logging.getLogger(__name__)
 

@@ -14,9 +14,9 @@ from pathlib import Path
 
 import cv2
 
-from cvsflow.errors import ConfigError, InputError
+from cvsflow.exceptions import ConfigError, InputError
 from cvsflow.io.files import write_parquet, write_yaml
-from cvsflow.io.vicon import write_nexus_csv
+from cvsflow.io.mocap.vicon import write_nexus_csv
 
 SESSION_FILES = (
     "calib",

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvsflow import transforms as tf
-from cvsflow.errors import OptimiseError
+from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import transforms as tf
 
 #: Share of a take's smoothed camera samples that must lie within the static tolerance
 #: (:func:`is_static`): robust to the short bumps a bridged marker dropout leaves.

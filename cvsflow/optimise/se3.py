@@ -41,7 +41,7 @@ Uncertainty: the Gauss-Newton covariance of an M-estimator (Huber 1981, sec. 7.6
 ``sum r^2 / (m - n)`` for a quadratic loss), and a cluster-robust sandwich
 ``H^-1 (sum_c g_c g_c^T) H^-1`` over contiguous time blocks (residuals of one frame share the
 Vicon pose noise and are not independent), each block's score corrected for its leverage
-(CR2, :mod:`cvsflow.sandwich`: a 12 s session has only 12 blocks). The data-only standard
+(CR2, :mod:`cvsflow.metrics.sandwich`: a 12 s session has only 12 blocks). The data-only standard
 errors are the larger of the two per parameter; correlations (identifiability) come from
 ``(J^T J)^-1``. The intrinsics
 held fixed are not exact: their calibration uncertainty (camera.yaml ``std``) is carried into
@@ -65,9 +65,9 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from cvsflow import transforms as tf
-from cvsflow.board import board_object_points
-from cvsflow.errors import OptimiseError
+from cvsflow.board.model import board_object_points
+from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import transforms as tf
 from cvsflow.geometry.camera import INTRINSIC_NAMES
 from cvsflow.optimise import OptimiseResult
 from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
@@ -265,7 +265,7 @@ def optimise_se3(
     video's, add ``S Sigma_theta S^T`` to the covariance: ``cov_total = cov_data + S
     Sigma_theta S^T`` with ``cov_data`` the data-only standard errors and ``(J^T J)^-1``
     correlations, and ``Sigma_theta`` diagonal from ``camera["std"]`` (OpenCV's
-    ``stdDeviationsIntrinsics``, :func:`cvsflow.calibration.calibrate_camera`), or
+    ``stdDeviationsIntrinsics``, :func:`cvsflow.calibration.intrinsics.calibrate_camera`), or
     ``DEFAULT_INTRINSIC_STD`` for a name it lacks (with a warning). A fit that frees every
     intrinsic has ``std_errors == std_errors_data``.
     """

@@ -12,8 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from cvsflow.metrics.sandwich import leverage_corrected_scores
 from cvsflow.optimise.se3_lm import gram, loss_weights
-from cvsflow.sandwich import leverage_corrected_scores
 
 #: 1-sigma of each intrinsic held fixed when camera.yaml has no ``std`` (px for fx..cy, then
 #: unitless): a 15-still 640 x 480 calibration at 0.1-0.4 px RMS, rounded up (the demo's stills
@@ -45,7 +45,7 @@ def covariances(J, r, loss, f_scale, clusters):
     cov_cl : ndarray, shape (n, n)
         Cluster-robust sandwich ``H^-1 (sum_c g_c g_c^T) H^-1`` with each cluster's score
         g_c corrected for its leverage (CR2,
-        :func:`cvsflow.sandwich.leverage_corrected_scores` with power 1/2).
+        :func:`cvsflow.metrics.sandwich.leverage_corrected_scores` with power 1/2).
     JtJ_inv : ndarray, shape (n, n)
         Pseudo-inverse of J^T J.
     sigma2 : float

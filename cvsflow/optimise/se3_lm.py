@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.errors import OptimiseError
+from cvsflow.exceptions import OptimiseError
 
 #: Robust losses (scipy's names).
 LOSSES = ("linear", "soft_l1", "huber")
@@ -184,7 +184,7 @@ IMPLAUSIBLE_MEDIAN_PX = 10.0
 def refuse_implausible_fit(f_px, r_px, who="se3"):
     """OptimiseError when a fit's focal lengths or residuals say it explains nothing.
 
-    The stage's range checks (:func:`cvsflow.plausibility_results.check_se3_result`: focal lengths
+    The stage's range checks (:func:`cvsflow.plausibility.results.check_se3_result`: focal lengths
     near the calibration, mountings, time offset) come after; this one sees the residuals,
     and also guards the held-out folds' and the rig's fits.
 

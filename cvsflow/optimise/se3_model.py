@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvsflow import transforms as tf
+from cvsflow.geometry import transforms as tf
 from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points, project_points_jac
 from cvsflow.geometry.transforms import right_jacobian_SO3, skew
 

@@ -14,8 +14,8 @@ import logging
 import cv2
 import numpy as np
 
-from cvsflow import transforms as tf
-from cvsflow.errors import OptimiseError
+from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import transforms as tf
 from cvsflow.geometry.transforms import project_SO3
 
 log = logging.getLogger(__name__)

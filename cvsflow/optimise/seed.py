@@ -39,7 +39,7 @@ the poses at the current focal lengths moved by their first-order sensitivity to
 Every row's arithmetic is independent of the others, so neither the stacking, the chunking
 nor the ``n_workers`` threads change a single bit of the result; nor does a
 :class:`cvsflow.optimise.seed_cache.SeedPoseCache` (``pose_cache``), through which the folds
-of :func:`cvsflow.evaluate_seed.cross_validate_seed` share the rows they have in common.
+of :func:`cvsflow.evaluate.seed.cross_validate_seed` share the rows they have in common.
 """
 
 from __future__ import annotations
@@ -51,8 +51,8 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pandas as pd
 
-from cvsflow.calibration import board_object_points
-from cvsflow.errors import OptimiseError, WholeBoardError
+from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.exceptions import OptimiseError, WholeBoardError
 from cvsflow.geometry.transforms import R_from_rvec, euler_from_R, wrap_angle
 from cvsflow.optimise import OptimiseResult
 from cvsflow.optimise.seed_pnp import dist5, focal_sensitivity, solve_rows

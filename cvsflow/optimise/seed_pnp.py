@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.errors import OptimiseError
+from cvsflow.exceptions import OptimiseError
 from cvsflow.geometry.transforms import R_from_rvec, rvec_from_R
 
 #: Rows (candidate x frame) per stack of :func:`solve_rows`: bounds the memory of one

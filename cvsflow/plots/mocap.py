@@ -26,7 +26,7 @@ def plot_marker_gaps(markers_filled: pd.DataFrame, summary: dict | None = None) 
     markers_filled : DataFrame
         ``markers_filled`` table (``t_s``, ``{marker}_{x,y,z}_m``, ``{marker}_filled``).
     summary : dict, optional
-        The summary of :func:`cvsflow.mocap_repair.fill_marker_gaps`; its per-marker counts are shown
+        The summary of :func:`cvsflow.mocap.repair.fill_marker_gaps`; its per-marker counts are shown
         beside each marker's name (rigid / interpolated / missing samples).
 
     Returns
@@ -139,7 +139,7 @@ def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict) -> Figu
         Top: |omega| in deg/s of the video (shifted by the offset) and of the Vicon over the
         video's span. Bottom: their difference in deg/s at the video samples.
     """
-    from cvsflow.sync_streams import angular_speed_streams
+    from cvsflow.sync.streams import angular_speed_streams
 
     return plot_sync_streams(
         angular_speed_streams(poses_raw, bodies), sync["dt_offset_s"], sync.get("quality"), sync.get("method")
@@ -148,7 +148,7 @@ def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict) -> Figu
 
 def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None = None,
                       method: str | None = None) -> Figure:
-    """:func:`plot_sync` from precomputed streams (:func:`cvsflow.sync_streams.angular_speed_streams`).
+    """:func:`plot_sync` from precomputed streams (:func:`cvsflow.sync.streams.angular_speed_streams`).
 
     Parameters
     ----------

@@ -1,6 +1,6 @@
 """Figures of the error analysis (seed section 1.4): figures 1.6 to 1.9, Q-Q plots, Sigma.
 
-Each function takes the data returned by :mod:`cvsflow.analyse` (SI units) and returns a
+Each function takes the data returned by :mod:`cvsflow.evaluate.analyse` (SI units) and returns a
 :class:`matplotlib.figure.Figure` in millimetres and degrees, axes labelled with units.
 Figures are built without pyplot, so nothing stays registered in a global figure list.
 """
@@ -33,7 +33,7 @@ def plot_convergence(conv, f_bounds_px=None, diverged_reason=None):
     Parameters
     ----------
     conv : pandas.DataFrame
-        :func:`cvsflow.analyse.convergence` output (SI).
+        :func:`cvsflow.evaluate.analyse.convergence` output (SI).
     f_bounds_px : (float, float), optional
         The grid search's bounds (px, result.yaml ``f_bounds_px``): drawn on the focal-length
         panel when the focal lengths come within 10 % of the range of one of them; the
@@ -84,7 +84,7 @@ def plot_error_histograms(errors, tests, prefix="eps", bins=60):
     errors : pandas.DataFrame
         Per-frame errors (SI).
     tests : pandas.DataFrame
-        :func:`cvsflow.analyse.normality_tests` output; p-values go in the titles.
+        :func:`cvsflow.evaluate.analyse.normality_tests` output; p-values go in the titles.
     prefix : str
         ``eps`` or ``eps_orig``.
     bins : int
@@ -120,7 +120,7 @@ def plot_qq(qq):
     Parameters
     ----------
     qq : dict
-        :func:`cvsflow.analyse.qq_data` output (SI).
+        :func:`cvsflow.evaluate.analyse.qq_data` output (SI).
 
     Returns
     -------
@@ -209,7 +209,7 @@ def plot_vicon_vs_cvs(tracks, labels=SEED_LABELS, diverged_reason=None):
     Parameters
     ----------
     tracks : pandas.DataFrame
-        :func:`cvsflow.analyse.vicon_vs_cvs` output (SI).
+        :func:`cvsflow.evaluate.analyse.vicon_vs_cvs` output (SI).
     labels : tuple of str
         Legend of the Vicon, original and improved tracks (``SEED_LABELS``, ``SE3_LABELS``).
     diverged_reason : str, optional
@@ -269,7 +269,7 @@ def plot_covariance(Sigma, corr):
     Parameters
     ----------
     Sigma : ndarray, shape (6, 6)
-        Covariance in SI (:func:`cvsflow.analyse.sample_error_covariance`).
+        Covariance in SI (:func:`cvsflow.evaluate.analyse.sample_error_covariance`).
     corr : ndarray, shape (6, 6)
         Correlation matrix.
 
@@ -311,7 +311,7 @@ def plot_error_maps(maps):
     Parameters
     ----------
     maps : list of dict
-        :func:`cvsflow.analyse.error_maps` output (SI), pair-major, 6 error dims per pair.
+        :func:`cvsflow.evaluate.analyse.error_maps` output (SI), pair-major, 6 error dims per pair.
 
     Returns
     -------

@@ -22,7 +22,7 @@ def plot_heldout_errors(errors: pd.DataFrame) -> Figure:
     Parameters
     ----------
     errors : DataFrame
-        ``err_{dim}`` (composed, :func:`cvsflow.evaluate.pose_errors`) and optionally
+        ``err_{dim}`` (composed, :func:`cvsflow.evaluate.heldout.pose_errors`) and optionally
         ``d6_{dim}`` (chapter-style 6-vector differences) per frame; SI units.
 
     Returns

@@ -1,6 +1,6 @@
 """Figures across runs: the focal-initialisation sweep and the comparison of sessions.
 
-Both take the summary table of :func:`cvsflow.summary.summary_row` rows (px, mm, deg).
+Both take the summary table of :func:`cvsflow.evaluate.summary.summary_row` rows (px, mm, deg).
 """
 
 from __future__ import annotations

@@ -83,7 +83,7 @@ def plot_nees_histogram(errors: pd.DataFrame) -> Figure:
     Parameters
     ----------
     errors : DataFrame
-        Held-out rows with ``nees`` and ``fold`` (:func:`cvsflow.evaluate.compare_heldout`
+        Held-out rows with ``nees`` and ``fold`` (:func:`cvsflow.evaluate.heldout.compare_heldout`
         with corners).
 
     Returns

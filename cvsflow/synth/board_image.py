@@ -17,9 +17,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from cvsflow.charuco import charuco_board
+from cvsflow.board.charuco import charuco_board
+from cvsflow.geometry.transforms import invert_T
 from cvsflow.synth.camera import Board, project_points, rectangle_outline_B
-from cvsflow.transforms import invert_T
 
 INK_REFLECTANCE = 0.06
 MARKER_RADIUS_M = 0.007  # 14 mm Vicon marker

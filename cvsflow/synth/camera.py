@@ -24,7 +24,7 @@ class Board:
 
     Attributes are metres; ``nx``, ``ny`` count inner corners along x and y. ``kind``
     ``"charuco"`` adds ArUco markers of side ``marker_m`` from ``dictionary`` to the white
-    squares (``cvsflow.charuco``); the squares and corners are the chessboard's.
+    squares (``cvsflow.board.charuco``); the squares and corners are the chessboard's.
     """
 
     squares_x: int

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from cvsflow.errors import ConfigError
+from cvsflow.exceptions import ConfigError
 from cvsflow.synth.board_image import BoardTexture, texture_pyramid
 from cvsflow.synth.camera import Board
 from cvsflow.synth.motion import random_sine_sum

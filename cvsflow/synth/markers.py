@@ -72,7 +72,7 @@ def add_dropouts(xyz, rng, rate_hz, max_s, sample_rate_hz):
 
 
 def marker_table(xyz_W, names, rate_hz):
-    """Wide marker table as ``cvsflow.io.vicon`` expects (frame, t_s, {name}_x_m ...).
+    """Wide marker table as ``cvsflow.io.mocap.vicon`` expects (frame, t_s, {name}_x_m ...).
 
     Parameters
     ----------

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cvsflow.geometry.transforms import R_from_euler, R_from_rvec, invert_T, make_T
 from cvsflow.synth.camera import project_points
-from cvsflow.transforms import R_from_euler, R_from_rvec, invert_T, make_T
 
 # The chapter's session: board held still, then tilted forward (the sync gesture), then free.
 HOLD_S = 1.5

@@ -14,8 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cvsflow.errors import ConfigError
+from cvsflow.exceptions import ConfigError
+from cvsflow.geometry.transforms import invert_T, pose6_from_T, transform_points
 from cvsflow.io.files import write_parquet, write_yaml
+from cvsflow.io.mocap.vicon import write_nexus_csv
 from cvsflow.io.synth_out import (
     RIG_CAMERA_FILES,
     PyAvVideoSink,
@@ -24,7 +26,6 @@ from cvsflow.io.synth_out import (
     write_session_tables,
     write_still,
 )
-from cvsflow.io.vicon import write_nexus_csv
 from cvsflow.synth.effects import (
     PTS_RATE_HZ,
     auto_exposure,
@@ -54,7 +55,6 @@ from cvsflow.synth.session import (
     video_truth,
 )
 from cvsflow.synth.spec import FPS, VICON_RATE_HZ, parse_session_config, random_streams
-from cvsflow.transforms import invert_T, pose6_from_T, transform_points
 
 __all__ = ["render_rig_camera", "render_rig_mocap", "render_session", "render_stills"]
 

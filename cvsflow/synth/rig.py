@@ -23,12 +23,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cvsflow.errors import ConfigError
+from cvsflow.exceptions import ConfigError
+from cvsflow.geometry.transforms import invert_T
 from cvsflow.synth.motion import CameraView, HandMotion, board_poses, make_hand_motion
 from cvsflow.synth.session import Rig, make_rig, vicon_recording
 from cvsflow.synth.spec import VICON_RATE_HZ, SynthSpec, parse_session_config, random_streams
 from cvsflow.synth.stereo import shared_view_poses
-from cvsflow.transforms import invert_T
 
 #: Keys of a rig camera's ``synth`` block (the others are the rig's ``synth`` keys).
 RIG_CAMERA_SYNTH_KEYS = (
@@ -192,7 +192,7 @@ def rig_vicon_recording(truth: RigTruth):
     Returns
     -------
     markers : DataFrame
-        Wide marker table (``cvsflow.io.vicon`` form), metres, NaN in dropouts.
+        Wide marker table (``cvsflow.io.mocap.vicon`` form), metres, NaN in dropouts.
     T_W_Bm : ndarray, shape (N, 4, 4)
         True board-marker body poses at the Vicon samples.
     n_dropouts : int

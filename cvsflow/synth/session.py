@@ -12,11 +12,11 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from cvsflow.geometry.transforms import euler_from_R, invert_T, quat_from_R, transform_points
 from cvsflow.synth.camera import Board, project_points, rectangle_outline_B
 from cvsflow.synth.markers import add_dropouts, marker_table, true_mounting
 from cvsflow.synth.motion import HandMotion, board_poses, camera_poses, random_sine_sum
 from cvsflow.synth.spec import FPS, IN_VIEW_MARGIN_PX, VICON_RATE_HZ, VICON_TAIL_S, SynthSpec
-from cvsflow.transforms import euler_from_R, invert_T, quat_from_R, transform_points
 
 
 @dataclass(frozen=True)
@@ -269,7 +269,7 @@ def vicon_recording(spec: SynthSpec, rig: Rig, motion: HandMotion, rng):
     Returns
     -------
     markers : pandas.DataFrame
-        Wide marker table (``cvsflow.io.vicon`` form), metres, NaN in dropouts.
+        Wide marker table (``cvsflow.io.mocap.vicon`` form), metres, NaN in dropouts.
     T_W_Bm : ndarray, shape (N, 4, 4)
         True board-marker body poses at the Vicon samples.
     n_dropouts : int

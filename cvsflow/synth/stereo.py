@@ -3,14 +3,14 @@
 The rig's cameras each have their own session block (intrinsics, image size, noise); camera i
 sits at ``T_Ci_C0`` from camera 0. A shared view is a board pose that every camera sees whole,
 with squares large enough for exact corners, each camera rendering it with its own renderer
-(``synth.session.Renderer``): the stills ``cvsflow.stereo.stereo_extrinsics`` is tested on.
+(``synth.session.Renderer``): the stills ``cvsflow.rig.extrinsics.stereo_extrinsics`` is tested on.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.errors import ConfigError
+from cvsflow.exceptions import ConfigError
 from cvsflow.geometry.transforms import R_from_euler, R_from_rvec, make_T
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.frames import Renderer

@@ -15,10 +15,10 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow import transforms as tf
-from cvsflow.calibration import board_object_points
-from cvsflow.errors import OptimiseError
-from cvsflow.metrics import ERROR_DIMS, pose_errors
+from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import transforms as tf
+from cvsflow.metrics.pose_errors import ERROR_DIMS, pose_errors
 from cvsflow.optimise.se3_start import corner_arrays
 from cvsflow.uncertainty.ambiguity import pnp_alternatives
 from cvsflow.uncertainty.propagation import (
@@ -248,7 +248,7 @@ def measurement_features(heldout, corners, board, fits=None, frame="C", bodies=N
     Parameters
     ----------
     heldout : DataFrame
-        :func:`cvsflow.evaluate.cross_validate_se3` rows (``frame``, ``fold``, the CVS pose
+        :func:`cvsflow.evaluate.heldout.cross_validate_se3` rows (``frame``, ``fold``, the CVS pose
         ``cvs_rvec_0..2``, ``cvs_x_m..z_m``, the reference ``ref_*``, ``reproj_rms_px``).
     corners : DataFrame
         corners.parquet of the session (which corners each frame saw, the image speed).

@@ -32,9 +32,9 @@ import pandas as pd
 from scipy.optimize import minimize
 from scipy.special import gammaln
 
-from cvsflow import transforms as tf
-from cvsflow.errors import OptimiseError
-from cvsflow.metrics import ERROR_DIMS
+from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import transforms as tf
+from cvsflow.metrics.pose_errors import ERROR_DIMS
 from cvsflow.uncertainty.propagation import (
     PARAM_BLOCKS,
     cov_columns,
@@ -131,7 +131,7 @@ def fit_error_model(features, errors, use_features=True):
     features : DataFrame
         :func:`error_features` output (training frames).
     errors : DataFrame
-        The same frames' ``err_{dim}`` columns (:func:`cvsflow.evaluate.pose_errors`), SI.
+        The same frames' ``err_{dim}`` columns (:func:`cvsflow.evaluate.heldout.pose_errors`), SI.
     use_features : bool
         Include the pose features z (else sigma = sqrt(a^2 v + b^2) only).
 

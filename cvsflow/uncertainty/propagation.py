@@ -6,7 +6,7 @@
    sec. 5.2.3).
 2. :func:`propagated_pose_covariance` / :func:`pose6_covariance`: the same covariance pushed
    through the linearised map to the composed error [x, y, z, roll, pitch, yaw] in C
-   (:func:`cvsflow.metrics.pose_errors`) or to the 6-vector of T_C_B.
+   (:func:`cvsflow.metrics.pose_errors.pose_errors`) or to the 6-vector of T_C_B.
 3. :func:`parameter_covariance`: the error covariance of each held-out frame that comes from
    the uncertainty of the se3 fit that scored it (intrinsics fx, fy, k1, k2, p1, p2 through
    the PnP pose; the mountings T_Cm_C, T_Bm_B through the Vicon reference), from that fit's
@@ -23,9 +23,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from cvsflow import transforms as tf
-from cvsflow.errors import OptimiseError
-from cvsflow.metrics import ERROR_DIMS, pose_errors
+from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import transforms as tf
+from cvsflow.metrics.pose_errors import ERROR_DIMS, pose_errors
 
 
 def pnp_covariance(rvec_C_B, tvec_C_B, p_B, K, dist, sigma_px):
@@ -94,7 +94,7 @@ def propagated_pose_covariance(rvec_C_B, tvec_C_B, cov_rt, frame="C"):
     cov_rt : ndarray, shape (N, 6, 6)
         Covariance of [rvec, tvec] (:func:`pnp_covariance`).
     frame : {"C", "B"}
-        Error frame (:func:`cvsflow.evaluate.pose_errors`).
+        Error frame (:func:`cvsflow.evaluate.heldout.pose_errors`).
 
     Returns
     -------
@@ -116,7 +116,7 @@ def composed_error_jacobian(rvec_C_B, tvec_C_B, frame="C"):
     rvec_C_B, tvec_C_B : ndarray, shape (N, 3)
         The PnP pose (rad, m), the linearisation point.
     frame : {"C", "B"}
-        Error frame (:func:`cvsflow.evaluate.pose_errors`).
+        Error frame (:func:`cvsflow.evaluate.heldout.pose_errors`).
 
     Returns
     -------
@@ -214,7 +214,7 @@ def parameter_covariance(frames, p_B, fits, frame="C", h=1e-6, time_offset=False
     Parameters
     ----------
     frames : DataFrame
-        Held-out rows (:func:`cvsflow.evaluate.cross_validate_se3`): ``fold``, the CVS pose
+        Held-out rows (:func:`cvsflow.evaluate.heldout.cross_validate_se3`): ``fold``, the CVS pose
         ``cvs_rvec_0..2``, ``cvs_x_m..cvs_z_m`` and the reference ``ref_qx..ref_qw``,
         ``ref_x_m..ref_z_m`` (T_C_B).
     p_B : ndarray, shape (P, 3)

@@ -15,8 +15,8 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import digamma, gammaln
 
-from cvsflow.errors import OptimiseError
-from cvsflow.metrics import ERROR_DIMS
+from cvsflow.exceptions import OptimiseError
+from cvsflow.metrics.pose_errors import ERROR_DIMS
 from cvsflow.uncertainty.ambiguity import flip_weight
 from cvsflow.uncertainty.features import (
     NOISE_POOL_COLUMN,
@@ -301,7 +301,7 @@ def fit_transfer_model(features, errors, shrink=None, still=True):
     features : DataFrame
         :func:`measurement_features` of the training frames (``unitcov``, optional ``parcov``).
     errors : DataFrame
-        The same frames' ``err_{dim}`` (CVS - reference, :func:`cvsflow.evaluate.pose_errors`).
+        The same frames' ``err_{dim}`` (CVS - reference, :func:`cvsflow.evaluate.heldout.pose_errors`).
     shrink : None, "fit" or float
         None: n_i as measured. Otherwise n_i is replaced by :func:`shrink_corner_noise`
         toward the pooled noise (column :data:`NOISE_POOL_COLUMN`, else the median over the

@@ -5,7 +5,7 @@ import time
 
 import pytest
 
-from cvsflow.errors import InputError
+from cvsflow.exceptions import InputError
 from cvsflow.io.logs import stage_logging
 
 

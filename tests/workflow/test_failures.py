@@ -159,7 +159,7 @@ def test_five_copies_of_one_still_stop_the_calibration(tmp_path):
 def test_every_schema_description_is_text():
     """Every `description` in the config schema parses as a string (the calib_dir one used to be
     a broken YAML flow mapping), and calib_dir's names the image types."""
-    schema = yaml.safe_load((REPO / "workflow/schemas/config.schema.yaml").read_text())
+    schema = yaml.safe_load((REPO / "cvsflow/workflow/schemas/config.schema.yaml").read_text())
     bad = []
 
     def walk(node, where):

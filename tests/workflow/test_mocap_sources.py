@@ -15,10 +15,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsflow.io.mocap_formats import read_markers
-from cvsflow.io.optitrack import write_motive_csv
-from cvsflow.io.qualisys import write_qtm_tsv
-from cvsflow.mocap import body_poses
+from cvsflow.io.mocap.formats import read_markers
+from cvsflow.io.mocap.optitrack import write_motive_csv
+from cvsflow.io.mocap.qualisys import write_qtm_tsv
+from cvsflow.mocap.bodies import body_poses
 
 from .test_workflow import demo_config, dry_run_jobs, snakemake, write_config
 

@@ -16,8 +16,8 @@ import pandas as pd
 import pytest
 import yaml
 
-from cvsflow import transforms as tf
-from cvsflow.optimise.se3_rig_run import fused_pose_nees
+from cvsflow.geometry import transforms as tf
+from cvsflow.rig.run import fused_pose_nees
 from cvsflow.synth.rig import make_rig_truth, true_board_poses_C0
 
 from .test_workflow import REPO, dry_run_jobs, snakemake, write_config
@@ -133,7 +133,7 @@ def test_rig_fused_poses_at_the_default_tolerance(rig_run):
     the left one's instants; with the interpolation term (the track's third difference) the
     two-camera NEES is near 6, without it the interpolation error is in no covariance (seed 19,
     10 s: 4.7 with the term, 7.4 without)."""
-    from cvsflow.optimise.se3_rig_poses import fused_rig_poses
+    from cvsflow.rig.poses import fused_rig_poses
 
     workdir, truth = rig_run
     res = yaml.safe_load((workdir / "results/stereo/rig/result.yaml").read_text())

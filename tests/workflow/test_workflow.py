@@ -1,8 +1,9 @@
 """End-to-end runs of the Snakemake workflow in a scratch directory.
 
 Each test writes its own `config/config.yaml` into a temporary working directory and runs the
-repository's Snakefile there (`snakemake -s <repo>/Snakefile --directory <tmp>`), as the
-snakemake-workflows `.test/` convention does.
+workflow that ships in the package there (`snakemake -s cvsflow/workflow/Snakefile --configfile
+config/config.yaml --directory <tmp>`, as `cvsflow run` does), as the snakemake-workflows `.test/`
+convention does. The repository's own Snakefile runs in test_golden.py.
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ def write_config(workdir: Path, config: dict) -> None:
 
 
 def snakemake(workdir: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory",
-           str(workdir), "--cores", "2", *args]
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "cvsflow" / "workflow" / "Snakefile"),
+           "--configfile", str(workdir / "config" / "config.yaml"), "--directory", str(workdir),
+           "--cores", "2", *args]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=1200)
     if check and proc.returncode != 0:
         raise AssertionError(f"snakemake {' '.join(args)} failed:\n{proc.stdout}\n{proc.stderr}")
@@ -309,7 +311,7 @@ def test_changed_session_path_reruns_only_that_session(demo_run):
 def test_demo_pnp_with_calibrated_intrinsics_against_truth(demo_run):
     """The pipeline's poses (calibrated K, not the true one): median position error under 1 %
     of the distance and median angle error under 0.5 degrees against the rendered truth."""
-    from cvsflow.transforms import R_from_quat, R_from_rvec, rotation_angle
+    from cvsflow.geometry.transforms import R_from_quat, R_from_rvec, rotation_angle
 
     poses = pd.read_parquet(demo_run / "results/demo/poses_raw.parquet")
     truth = pd.read_parquet(demo_run / "data/demo/truth_frames.parquet").set_index("frame")
@@ -327,9 +329,9 @@ def test_demo_pnp_with_calibrated_intrinsics_against_truth(demo_run):
 
 def test_ruff_finds_nothing():
     """ruff (E, F, B, UP, SIM, I; configured in pyproject.toml) passes on the package, tests,
-    benches and workflow scripts."""
-    proc = subprocess.run([sys.executable, "-m", "ruff", "check", "cvsflow", "tests", "bench",
-                           "workflow/scripts"], cwd=REPO, capture_output=True, text=True)
+    benches and workflow scripts (cvsflow/workflow/scripts)."""
+    proc = subprocess.run([sys.executable, "-m", "ruff", "check", "cvsflow", "tests", "bench"], cwd=REPO,
+                          capture_output=True, text=True)
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
@@ -446,8 +448,8 @@ def test_real_flight_states_its_reference_with_the_validation_sessions_model(dem
     offset within 3 ms), recovers the board's track within the camera's error, and states the
     reference with the model (T) the calibration session fitted (comparison.yaml
     error_model_fit), or with the rendered sessions' when asked. The config is restored."""
+    from cvsflow.geometry.transforms import pose6_from_T
     from cvsflow.io.flightlog import write_tum
-    from cvsflow.transforms import pose6_from_T
 
     bodies = pd.read_parquet(demo_run / "results/demo/bodies.parquet")
     board = bodies[(bodies["body"] == "board") & bodies["valid"]]

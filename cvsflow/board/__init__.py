@@ -1,0 +1,1 @@
+"""Calibration targets: the board model (chessboard), ChArUco boards and what stills show of one."""

@@ -1,0 +1,192 @@
+"""The in-memory tables every motion-capture reader produces, whatever the make.
+
+The *marker table* is a wide DataFrame at the export's native rate: columns ``frame`` (int,
+0-based), ``t_s`` (float, frame / rate), then for every marker ``{name}_x_m``, ``{name}_y_m``,
+``{name}_z_m`` in metres in the system's world frame W, NaN where the marker was not seen.
+``df.attrs["rate_hz"]`` carries the rate and ``df.attrs["markers"]`` the marker names in file
+order. The *system bodies table* (an export's own rigid-body solution) has the
+``bodies.parquet`` columns of :data:`cvsflow.mocap.bodies.BODY_COLUMNS`. :class:`MocapExport` holds one
+export read into these.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from cvsflow.exceptions import InputError
+from cvsflow.geometry.transforms import make_T
+from cvsflow.mocap.bodies import bodies_from_poses
+
+AXES = ("x", "y", "z")
+
+
+def marker_columns(name: str) -> list[str]:
+    """The three column names of one marker in a marker table.
+
+    Parameters
+    ----------
+    name : str
+        Marker name.
+
+    Returns
+    -------
+    list of str
+        ``[name_x_m, name_y_m, name_z_m]``.
+    """
+    return [f"{name}_{a}_m" for a in AXES]
+
+
+def marker_names(df: pd.DataFrame) -> list[str]:
+    """Marker names of a wide marker table, in column order.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Wide marker table.
+
+    Returns
+    -------
+    list of str
+        ``df.attrs["markers"]`` when set, else the prefixes of the ``*_x_m`` columns.
+    """
+    if "markers" in df.attrs:
+        return list(df.attrs["markers"])
+    return [c[: -len("_x_m")] for c in df.columns if c.endswith("_x_m")]
+
+
+def marker_table(frame0, xyz_m, names, rate_hz) -> pd.DataFrame:
+    """Assemble the wide marker table from 0-based frames and (n_frames, n_markers, 3) metres.
+
+    Parameters
+    ----------
+    frame0 : array_like of int, shape (N,)
+        0-based frame numbers.
+    xyz_m : ndarray, shape (N, M, 3)
+        Marker positions in the system's world W, metres; NaN where not seen.
+    names : sequence of str, length M
+        Marker names, in file order.
+    rate_hz : float
+        Native frame rate, Hz.
+
+    Returns
+    -------
+    markers : DataFrame
+        ``frame``, ``t_s`` = frame / rate_hz (s), ``{name}_{x,y,z}_m``; ``attrs["rate_hz"]``
+        and ``attrs["markers"]`` set.
+    """
+    frame0 = np.asarray(frame0, dtype=np.int64)
+    data = {"frame": frame0, "t_s": frame0 / float(rate_hz)}
+    for k, name in enumerate(names):
+        for a, axis in enumerate(AXES):
+            data[f"{name}_{axis}_m"] = xyz_m[:, k, a]
+    df = pd.DataFrame(data)
+    df.attrs["rate_hz"] = float(rate_hz)
+    df.attrs["markers"] = list(names)
+    return df
+
+
+def select_markers(df: pd.DataFrame, names, source="marker table") -> pd.DataFrame:
+    """Keep only the named markers; each must exist and be seen at least once.
+
+    Parameters
+    ----------
+    df : DataFrame
+        Wide marker table.
+    names : sequence of str
+        Markers to keep, in the order wanted.
+    source : str, default "marker table"
+        What the table was read from (file name), for the error messages.
+
+    Returns
+    -------
+    markers : DataFrame
+        A copy with ``frame``, ``t_s`` and the named markers' columns; ``attrs`` copied with
+        ``attrs["markers"]`` = ``names``.
+
+    Raises
+    ------
+    InputError
+        A name absent from the table (lists what it has) or a marker empty for the whole take.
+    """
+    have = marker_names(df)
+    missing = [n for n in names if n not in have]
+    if missing:
+        raise InputError(
+            f"{source}: marker(s) {missing} not in the file (it has {len(have)} markers: "
+            f"{', '.join(have)})"
+        )
+    for n in names:
+        if not np.isfinite(df[marker_columns(n)].to_numpy()).any():
+            raise InputError(
+                f"{source}: marker {n!r} is absent for the whole take "
+                f"({len(df)} frames, every cell empty); expected it seen in at least one frame"
+            )
+    out = df[["frame", "t_s"] + [c for n in names for c in marker_columns(n)]].copy()
+    out.attrs = dict(df.attrs)
+    out.attrs["markers"] = list(names)
+    return out
+
+
+@dataclass
+class MocapExport:
+    """One motion-capture export, read.
+
+    Attributes
+    ----------
+    path : Path
+    format : str
+        A key of :data:`FORMATS`.
+    rate_hz : float
+        Frame rate of the export, Hz.
+    markers : DataFrame
+        Wide marker table (module docstring); may have no marker columns (a 6DOF-only export).
+    bodies : DataFrame or None
+        System bodies table (module docstring), or None when the export holds no bodies.
+    meta : dict
+        Header values of the export (plain str/int/float), e.g. units, take name.
+    """
+
+    path: Path
+    format: str
+    rate_hz: float
+    markers: pd.DataFrame
+    bodies: pd.DataFrame | None = None
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def body_names(self) -> list[str]:
+        """Names of the system's bodies, in file order (empty without bodies)."""
+        if self.bodies is None:
+            return []
+        return list(pd.unique(self.bodies["body"]))
+
+
+def system_bodies_table(frame, t_s, body, R_W_body, t_W_body_m, residual_m, n_markers) -> pd.DataFrame:
+    """A system bodies table for one body (``bodies.parquet`` columns) from rotations and positions.
+
+    Parameters
+    ----------
+    frame : ndarray of int, shape (N,)
+    t_s : ndarray, shape (N,)
+    body : str
+    R_W_body : ndarray, shape (N, 3, 3)
+        Rotation of the body in W; NaN rows where the system lost the body.
+    t_W_body_m : ndarray, shape (N, 3)
+        Body origin in W, metres; NaN where lost.
+    residual_m : ndarray, shape (N,)
+        The system's residual, metres.
+    n_markers : ndarray of int, shape (N,)
+        Markers used per frame, -1 when unknown.
+
+    Returns
+    -------
+    bodies : DataFrame
+        The ``bodies.parquet`` columns (T_W_body as ``x_m .. qw``), ``valid`` False on the
+        NaN rows; see :func:`cvsflow.mocap.bodies.bodies_from_poses`.
+    """
+    T = make_T(np.asarray(R_W_body, float), np.asarray(t_W_body_m, float))
+    return bodies_from_poses(frame, t_s, body, T, residual_m, n_markers)

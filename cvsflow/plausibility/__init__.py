@@ -1,0 +1,1 @@
+"""Checks at the stage boundaries (units, overlap, fit quality) and of the optimisers' results."""

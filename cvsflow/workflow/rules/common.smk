@@ -1,0 +1,248 @@
+# Paths, targets and input functions only: nothing numeric lives here.
+import os
+
+from cvsflow.io.mocap.formats import mocap_settings
+from cvsflow.workflow.sessions import camera_session, check_sessions, expand_rig_sessions, session_methods
+
+
+wildcard_constraints:
+    session="[A-Za-z0-9_-]+",
+
+
+# A rig session (a `cameras:` list) runs as plain sessions: its mocap (`<rig>`) and one per
+# camera (`<rig>-<camera>`); RIGS holds what the rig rules (cvsflow/workflow/rules/rig.smk) need.
+# Without rig sessions SESSIONS is config["sessions"] itself and RIGS is empty.
+SESSIONS, RIGS = expand_rig_sessions(config["sessions"])
+# The rig's name in the rig rules' wildcards (rendered rigs: the synth rules'); both match
+# nothing without rig sessions.
+RIG_PATTERN = "|".join(RIGS) if RIGS else "(?!x)x"
+SYNTH_RIG_PATTERN = "|".join(r for r in RIGS if RIGS[r]["synth"]) or "(?!x)x"
+# The sessions the synth rule renders: a real session's files under data/<name>/ are read where
+# they are, whatever <name> is.
+SYNTH_PATTERN = "|".join(s for s in SESSIONS if "synth" in SESSIONS[s]) or "(?!x)x"
+# camera session -> its rig
+RIG_OF_CAMERA = {cam: rig for rig, r in RIGS.items() for cam in r["sessions"]}
+# What each session runs; a session naming an input it cannot use stops here, before any job.
+SESSION_STAGES = check_sessions(SESSIONS)
+# The optimisers each session runs: its own methods, else optimise.methods.
+METHODS = {s: session_methods(s, SESSIONS, config["optimise"]["methods"]) for s in SESSIONS}
+
+
+# How each session's motion-capture export is read (format, bodies_from); checked here, at parse time.
+MOCAP = {
+    s: mocap_settings(s, SESSIONS[s]) for s in SESSIONS if "vicon" in SESSION_STAGES[s]
+}
+
+
+def session_cfg(session):
+    return SESSIONS[session]
+
+
+def mocap_cfg(session):
+    return MOCAP[session]
+
+
+def bodies_path(wildcards):
+    """bodies.parquet of the session, or of its rig for a rig camera's session."""
+    return f"results/{RIG_OF_CAMERA.get(wildcards.session, wildcards.session)}/bodies.parquet"
+
+
+def vicon_bodies_input(wildcards):
+    """The repaired markers, or the export itself when the system's own body poses are used."""
+    if MOCAP[wildcards.session]["bodies_from"] == "system":
+        return {"export": vicon_path(wildcards)}
+    return {"markers": f"results/{wildcards.session}/markers_filled.parquet"}
+
+
+def is_synth(session):
+    return "synth" in SESSIONS[session]
+
+
+def _session_path(session, key, synth_name):
+    """The user's path, or where the synth rule renders it for a rendered session."""
+    s = SESSIONS[session]
+    if "synth" in s:
+        return f"data/{session}/{synth_name}"
+    if key not in s:
+        raise ValueError(
+            f"config: sessions.{session}.{key} is missing (a path is needed unless the "
+            f"session has a synth block)"
+        )
+    return s[key]
+
+
+def calib_dir(wildcards):
+    return _session_path(wildcards.session, "calib_dir", "calib")
+
+
+def video_path(wildcards):
+    return _session_path(wildcards.session, "video", "video.mp4")
+
+
+def vicon_path(wildcards):
+    return _session_path(wildcards.session, "vicon", "vicon.csv")
+
+
+def camera_yaml(wildcards):
+    """The session's own camera.yaml, or that of the session its `camera` key names."""
+    return f"results/{camera_session(wildcards.session, SESSIONS)}/camera.yaml"
+
+
+def runs_stage(session, stage):
+    return stage in SESSION_STAGES[session]
+
+
+def session_targets(session):
+    out = []
+    if runs_stage(session, "calibrate"):
+        out += [
+            f"results/{session}/camera.yaml",
+            f"results/{session}/figures/calibration_errors.png",
+            f"results/{session}/figures/calibration_coverage.png",
+        ]
+    if runs_stage(session, "poses"):
+        out += [
+            f"results/{session}/poses_raw.parquet",
+            f"results/{session}/figures/poses_raw.png",
+        ]
+    if runs_stage(session, "vicon"):
+        # A rig's mocap session has no video of its own to resample at.
+        out.append(
+            f"results/{session}/bodies_30hz.parquet"
+            if runs_stage(session, "poses")
+            else f"results/{session}/bodies.parquet"
+        )
+        if MOCAP[session]["bodies_from"] == "markers":
+            out.append(f"results/{session}/figures/vicon_markers.png")
+    if runs_stage(session, "pairs"):
+        out += [
+            f"results/{session}/sync.yaml",
+            f"results/{session}/pairs.parquet",
+            f"results/{session}/figures/sync.png",
+        ]
+        out += optimiser_targets(session)
+        if "se3" in METHODS[session]:
+            out.append(f"results/{session}/comparison.yaml")
+    return out
+
+
+def all_targets():
+    targets = [t for s in SESSIONS for t in session_targets(s)]
+    if optimiser_runs():
+        targets.append("results/summary.csv")
+    # The report's landing page shows this table (cvsflow/workflow/report/workflow.rst).
+    targets.append("results/headline.csv")
+    # bench/bench_scaling.py's table, drawn when the config names one that exists
+    scaling = config["analyse"].get("scaling_benchmark")
+    if scaling and os.path.isfile(scaling):
+        targets.append("results/figures/stage_scaling.png")
+    return targets + flight_targets() + rig_targets()
+
+
+wildcard_constraints:
+    method="seed|se3",
+    finit="calib|[0-9]+(\.[0-9]+)?",
+
+
+def finit_label(value):
+    """Wildcard value of a focal initialisation: 'calib' or the px value without trailing zeros."""
+    return "calib" if value == "calib" else f"{float(value):g}"
+
+
+def f_init_px(finit):
+    return None if finit == "calib" else float(finit)
+
+
+def analysis_figure(name):
+    return report(
+        f"results/{{session}}/{{method}}/{{finit}}/figures/{name}.png",
+        caption=f"../report/{name}.rst",
+        category="{session}",
+        subcategory="errors: {method}, f_init {finit}",
+        labels={
+            "session": "{session}",
+            "method": "{method}",
+            "f_init": "{finit}",
+            "figure": name,
+        },
+    )
+
+
+def optimiser_targets(session):
+    out = []
+    for method in METHODS[session]:
+        for value in config["optimise"]["f_init"]:
+            base = f"results/{session}/{method}/{finit_label(value)}"
+            out += [f"{base}/result.yaml", f"{base}/stats.json"]
+    return out
+
+
+def optimiser_runs():
+    """(session, method, finit) of every optimiser run the config asks for."""
+    runs = []
+    for session in SESSIONS:
+        if runs_stage(session, "pairs"):
+            for method in METHODS[session]:
+                for value in config["optimise"]["f_init"]:
+                    runs.append((session, method, finit_label(value)))
+    return runs
+
+
+def summary_inputs(wildcards):
+    files = {}
+    for session, method, finit in optimiser_runs():
+        base = f"results/{session}/{method}/{finit}"
+        files[f"{session}/{method}/{finit}/result"] = f"{base}/result.yaml"
+        files[f"{session}/{method}/{finit}/stats"] = f"{base}/stats.json"
+        files[f"{session}/pairs"] = f"results/{session}/pairs.parquet"
+        if is_synth(session):
+            files[f"{session}/truth"] = f"data/{session}/truth.yaml"
+            files[f"{session}/truth_frames"] = f"data/{session}/truth_frames.parquet"
+    return files
+
+
+FLIGHTS = config.get("flights", {})
+
+
+wildcard_constraints:
+    flight="[A-Za-z0-9_-]+",
+
+
+def flight_inputs(wildcards):
+    """A rendered flight's files, or a real flight's log and its camera session's tables."""
+    f = FLIGHTS[wildcards.flight]
+    if "synth" in f:
+        base = f"data/flights/{wildcards.flight}"
+        return {
+            "reference": f"{base}/reference.parquet",
+            "onboard": f"{base}/onboard.tum",
+            "truth": f"{base}/truth.parquet",
+            "truth_yaml": f"{base}/truth.yaml",
+        }
+    s = f["session"]
+    files = {
+        "onboard": f["log"],
+        "poses": f"results/{s}/poses_raw.parquet",
+        "camera": f"results/{s}/camera.yaml",
+        "corners": f"results/{s}/corners.parquet",  # the reference's error model (T)
+    }
+    files["corners_summary"] = f"results/{s}/corners_summary.yaml"  # inter-coded video
+    if "calibration" in f:
+        files["se3_result"] = f"results/{f['calibration']}/se3/calib/result.yaml"
+        if f.get("error_model", "session") == "session":
+            # model (T) as the validation session fitted it on its held-out frames
+            files["error_model"] = f"results/{f['calibration']}/comparison.yaml"
+    return files
+
+
+def flight_board(flight):
+    f = FLIGHTS[flight]
+    return None if "synth" in f else SESSIONS[f["session"]]["board"]
+
+
+def flight_targets():
+    return [
+        f"results/flights/{name}/{leaf}"
+        for name in FLIGHTS
+        for leaf in ("stats.yaml", "figures/errors.png", "onboard_aligned.tum")
+    ]

@@ -1,0 +1,26 @@
+"""Calibrate the camera from the stills (rule calibrate)."""
+
+import cv2
+
+from cvsflow.calibration.intrinsics import calibrate_camera
+from cvsflow.io import save_figure, write_parquet, write_yaml
+from cvsflow.io.camera_formats import write_camera_format
+from cvsflow.io.logs import stage_logging
+from cvsflow.io.media import list_stills, read_gray
+from cvsflow.plots import camera as plots
+
+# OpenCV's own thread pool would take every core and make results differ in the last bits.
+cv2.setNumThreads(snakemake.threads)
+
+with stage_logging(snakemake.log[0], "calibrate") as log:
+    paths = list_stills(snakemake.input[0])
+    images = [(p.name, read_gray(p)) for p in paths]
+    camera, calib_corners = calibrate_camera(images, snakemake.params.board, **snakemake.params.calibrate)
+    log.info("calibrated on %d of %d stills, RMS %.3f px", camera["n_used"], len(paths), camera["rms_px"])
+    write_yaml(camera, snakemake.output.camera)
+    write_parquet(calib_corners, snakemake.output.corners)
+    # Interchange copies beside camera.yaml (OpenCV FileStorage, Kalibr camchain, ROS camera_info).
+    for fmt in ("opencv", "kalibr", "ros"):
+        write_camera_format(camera, fmt, snakemake.output[fmt])
+    save_figure(plots.plot_calibration_errors(camera), snakemake.output.fig_errors)
+    save_figure(plots.plot_calibration_coverage(calib_corners, camera), snakemake.output.fig_coverage)

@@ -1,0 +1,36 @@
+"""Chessboard corners of every video frame (rule corners)."""
+
+from functools import partial
+
+import cv2
+
+from cvsflow.corners.extract import extract_corners_parallel, summarise_corners
+from cvsflow.io import write_parquet, write_yaml
+from cvsflow.io.logs import stage_logging
+from cvsflow.io.media import iter_video_gray, video_info, video_timing
+
+# One OpenCV thread per worker process: the workers are the parallelism.
+cv2.setNumThreads(1)
+
+with stage_logging(snakemake.log[0], "corners") as log:
+    video = snakemake.input[0]
+    info, timing = video_info(video), video_timing(video)
+    log.info("video %s: %s; %d processes", video, info, snakemake.threads)
+    corners = extract_corners_parallel(
+        partial(iter_video_gray, video, undecodable=True),
+        info["n_frames"],
+        snakemake.params.board,
+        n_workers=snakemake.threads,
+        subpix_window_px=snakemake.params.corners["subpix_window_px"],
+        max_grid_deviation=snakemake.params.corners["max_grid_deviation"],
+        restart_every=snakemake.params.corners["restart_every_frames"],
+    )
+    write_parquet(corners, snakemake.output.corners)
+    summary = summarise_corners(corners, timing)
+    if summary["inter_coded"]:
+        # docs/findings.md 2026-12-05: a still board's error there is pose-like
+        log.info("%s is inter-coded (%s, %.0f %% key frames): where the board is held still its "
+                 "pose errs by the codec's motion, which the corners' residual does not show; "
+                 "the error model adds it (s_still). An intra-only recording (MJPEG) avoids it",
+                 video, summary["codec"], 100 * summary["key_frame_share"])
+    write_yaml(summary, snakemake.output.summary)

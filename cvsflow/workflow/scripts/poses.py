@@ -1,0 +1,33 @@
+"""Board pose per video frame by RANSAC PnP + LM (rule poses)."""
+
+import cv2
+import numpy as np
+
+from cvsflow.calibration.pnp import estimate_poses
+from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet
+from cvsflow.io.logs import stage_logging
+from cvsflow.io.media import video_size
+from cvsflow.plausibility.checks import check_image_size, check_poses_found
+from cvsflow.plots import camera as plots
+
+# OpenCV's own thread pool would take every core and make results differ in the last bits.
+cv2.setNumThreads(snakemake.threads)
+
+with stage_logging(snakemake.log[0], "poses") as log:
+    camera = read_yaml(snakemake.input.camera)
+    size = video_size(snakemake.input.video)
+    check_image_size(camera, size["width"], size["height"], snakemake.input.camera, snakemake.params.video,
+                     size["rotation_deg"])
+    corners = read_parquet(snakemake.input.corners)
+    poses = estimate_poses(
+        corners,
+        np.array(camera["K"]),
+        np.array(camera["dist"]),
+        snakemake.params.board,
+        **snakemake.params.pnp,
+    )
+    log.info("valid poses: %d of %d frames", int(poses["valid"].sum()), len(poses))
+    for warning in check_poses_found(poses, corners, snakemake.params.video, snakemake.input.corners):
+        log.warning(warning)
+    write_parquet(poses, snakemake.output.poses)
+    save_figure(plots.plot_pose_timeseries(poses), snakemake.output.fig)

@@ -1,0 +1,18 @@
+"""Time offset between the video and the Vicon take (rule sync)."""
+
+from cvsflow.io import read_parquet, save_figure, write_yaml
+from cvsflow.io.logs import stage_logging
+from cvsflow.plausibility.checks import check_sync_inputs
+from cvsflow.plots import mocap as plots
+from cvsflow.sync.offset import synchronise
+
+with stage_logging(snakemake.log[0], "sync") as log:
+    poses = read_parquet(snakemake.input.poses)
+    bodies = read_parquet(snakemake.input.bodies)
+    check_sync_inputs(poses, bodies, snakemake.params.sync.get("method", "angular_speed"),
+                      snakemake.input.poses, snakemake.input.bodies)
+    result = synchronise(poses, bodies, **snakemake.params.sync)
+    log.info("dt_offset_s = %.4f (%s, quality %.2f, overlap %.1f %%)", result["dt_offset_s"],
+             result["method"], result["quality"], 100 * result["overlap_share"])
+    write_yaml(result, snakemake.output.sync)
+    save_figure(plots.plot_sync(poses, bodies, result), snakemake.output.fig)

@@ -1,0 +1,31 @@
+"""Camera and board poses: fitted to their markers, or as the mocap system solved them (rule vicon_bodies)."""
+
+from cvsflow.io import read_parquet, save_figure, write_parquet
+from cvsflow.io.logs import stage_logging
+from cvsflow.io.mocap.formats import read_system_bodies
+from cvsflow.mocap.bodies import fit_bodies
+from cvsflow.mocap.layout import resolve_layouts
+from cvsflow.plausibility.checks import check_body_fits
+from cvsflow.plots import mocap as plots
+
+with stage_logging(snakemake.log[0], "vicon_bodies") as log:
+    specs = snakemake.params.markers
+    if hasattr(snakemake.input, "export"):  # mocap.bodies_from: system
+        source = snakemake.input.export
+        bodies = read_system_bodies(source, {b: s["system_body"] for b, s in specs.items()},
+                                    snakemake.params.mocap["format"])
+        log.info("bodies from the system (%s as fit_rms_m)", bodies.attrs.get("residual"))
+        specs = {}
+    else:
+        source = snakemake.input[0]  # the repaired markers
+        markers = read_parquet(source)
+        # layouts resolved (learned / refined) once, for the fit and for its checks
+        specs = resolve_layouts(markers, specs, refine=getattr(snakemake.params, "refine_layout", True))
+        bodies = fit_bodies(markers, specs, refine_layout=False)
+    log.info("valid samples: %s", bodies.groupby("body")["valid"].sum().to_dict())
+    if bodies["fit_rms_m"].notna().any():  # an export may carry no residual at all
+        for warning in check_body_fits(bodies, specs, source, snakemake.params.max_fit_rms_m,
+                                       snakemake.params.max_fit_rms_share):
+            log.warning(warning)
+    write_parquet(bodies, snakemake.output.bodies)
+    save_figure(plots.plot_fit_residuals(bodies), snakemake.output.fig)

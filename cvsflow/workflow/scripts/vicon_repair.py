@@ -1,0 +1,14 @@
+"""Fill short marker gaps, optionally low-pass, flag every repaired sample (rule vicon_repair)."""
+
+from cvsflow.io import read_parquet, save_figure, write_parquet, write_yaml
+from cvsflow.io.logs import stage_logging
+from cvsflow.mocap.repair import repair_markers
+from cvsflow.plots import mocap as plots
+
+with stage_logging(snakemake.log[0], "vicon_repair") as log:
+    markers = read_parquet(snakemake.input[0])
+    filled, summary = repair_markers(markers, snakemake.params.markers, snakemake.params.vicon)
+    log.info("repair: %s", summary)
+    write_parquet(filled, snakemake.output.markers)
+    write_yaml(summary, snakemake.output.summary)
+    save_figure(plots.plot_marker_gaps(filled), snakemake.output.fig)

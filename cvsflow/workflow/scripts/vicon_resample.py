@@ -1,0 +1,14 @@
+"""Vicon body poses at the video rate: the chapter's block mean or interpolation (rule vicon_resample)."""
+
+from cvsflow.io import read_parquet, write_parquet
+from cvsflow.io.logs import stage_logging
+from cvsflow.io.media import video_info
+from cvsflow.mocap.bodies import downsample_bodies
+
+with stage_logging(snakemake.log[0], "vicon_resample") as log:
+    fps = video_info(snakemake.input.video)["fps"]
+    bodies_30hz = downsample_bodies(
+        read_parquet(snakemake.input.bodies), fps, mode=snakemake.params.resample
+    )
+    log.info("%d samples at %.3f Hz (%s)", len(bodies_30hz), fps, snakemake.params.resample)
+    write_parquet(bodies_30hz, snakemake.output[0])

@@ -1,0 +1,268 @@
+"""Which stages each configured session can run, or why it cannot run what it asks for.
+
+A session names its inputs (``calib_dir``, ``video``, ``vicon``, or a ``synth`` block that
+renders all three). Every input it names must be used: a video is turned into poses, which need
+the camera's intrinsics, from the session's own stills or, with ``camera: <other session>``,
+from another session's calibration. A session that names something it cannot use stops the
+run before any job starts, with a message that says what to add.
+"""
+
+from __future__ import annotations
+
+import logging
+
+from cvsflow.board.charuco import charuco_board
+from cvsflow.exceptions import ConfigError
+
+logger = logging.getLogger(__name__)
+
+#: Stages a session can run, in DAG order.
+STAGES = ("calibrate", "poses", "vicon", "pairs")
+
+
+def camera_session(name: str, sessions: dict) -> str | None:
+    """The session whose ``camera.yaml`` gives ``name`` its intrinsics.
+
+    Parameters
+    ----------
+    name : str
+        Session key in ``config["sessions"]``.
+    sessions : dict
+        ``config["sessions"]``, validated against the schema.
+
+    Returns
+    -------
+    str or None
+        ``name`` itself when it has stills (``calib_dir`` or ``synth``), the session named by
+        its ``camera`` key, or None when it has no camera.
+
+    Raises
+    ------
+    ConfigError
+        ``camera`` names an unknown session, itself, or a session without stills, or the
+        session has both stills and ``camera``.
+    """
+    s = sessions[name]
+    own = "calib_dir" in s or "synth" in s
+    if "camera" not in s:
+        return name if own else None
+    other = s["camera"]
+    where = f"config: sessions.{name}.camera"
+    if own:
+        raise ConfigError(
+            f"{where}: the session has its own stills (calib_dir or synth) and also names "
+            f"camera: {other}; expected one of the two"
+        )
+    if other not in sessions:
+        raise ConfigError(
+            f"{where}: names session {other!r}, which is not in sessions "
+            f"(expected one of {sorted(sessions)})"
+        )
+    if other == name or not ("calib_dir" in sessions[other] or "synth" in sessions[other]):
+        raise ConfigError(
+            f"{where}: session {other!r} has no stills of its own (expected a session with "
+            f"calib_dir or synth, whose results/{other}/camera.yaml is reused)"
+        )
+    return other
+
+
+def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
+    """The stages session ``name`` runs; every input it names is used by one of them.
+
+    Parameters
+    ----------
+    name : str
+        Session key in ``config["sessions"]``.
+    sessions : dict
+        ``config["sessions"]``, validated against the schema.
+
+    Returns
+    -------
+    tuple of str
+        A subset of `STAGES`, in DAG order: ``calibrate`` (own stills), ``poses`` (video and a
+        camera), ``vicon`` (Vicon export and markers), ``pairs`` (all of them: sync, pairs,
+        optimisers, held-out evaluation).
+
+    Raises
+    ------
+    ConfigError
+        The session names a video without a camera, a Vicon export without markers, or
+        nothing to process; a ChArUco board without a usable marker_m or dictionary.
+    """
+    s = sessions[name]
+    where = f"config: sessions.{name}"
+    if isinstance(s.get("board"), dict) and s["board"].get("type") == "charuco":
+        try:
+            charuco_board(s["board"])
+        except ConfigError as exc:
+            raise ConfigError(f"{where}.{exc}") from exc
+    synth = "synth" in s
+    cam = camera_session(name, sessions)
+    has_video = synth or "video" in s
+    has_vicon = synth or "vicon" in s
+    stages = []
+    if cam == name:
+        stages.append("calibrate")
+    if has_video:
+        if cam is None:
+            raise ConfigError(
+                f"{where}: names a video ({s['video']}) but no calib_dir: its poses need the "
+                f"camera's intrinsics. Expected calib_dir (a folder of ~15 stills of the board) "
+                f"or camera: <session> to reuse the calibration of another session with the "
+                f"same camera and settings"
+            )
+        stages.append("poses")
+    if has_vicon:
+        if "markers" not in s:
+            raise ConfigError(
+                f"{where}: names a Vicon export but no markers: expected markers.camera.names "
+                f"and markers.board.names (the marker names of each rigid body in the export)"
+            )
+        stages.append("vicon")
+    if "poses" in stages and "vicon" in stages:
+        stages.append("pairs")
+    if not stages:
+        raise ConfigError(
+            f"{where}: nothing to process; expected calib_dir, video (with calib_dir or "
+            f"camera), vicon (with markers) or a synth block"
+        )
+    logger.debug("session %s: stages %s", name, ", ".join(stages))
+    return tuple(stages)
+
+
+def check_sessions(sessions: dict) -> dict[str, tuple[str, ...]]:
+    """`session_stages` of every session; the first inconsistent one raises ConfigError.
+
+    Parameters
+    ----------
+    sessions : dict
+        ``config["sessions"]``, validated against the schema: session name to its block.
+
+    Returns
+    -------
+    dict of str to tuple of str
+        Session name to its stages (:func:`session_stages`), in the order of ``sessions``.
+
+    Raises
+    ------
+    ConfigError
+        The first session (in order) whose inputs are inconsistent.
+    """
+    return {name: session_stages(name, sessions) for name in sessions}
+
+
+def session_methods(name: str, sessions: dict, default) -> tuple[str, ...]:
+    """The optimisers session ``name`` runs: its own ``methods``, else ``optimise.methods``.
+
+    A session whose hand or image border hides part of the board in every frame cannot be
+    fitted by the seed method (it needs whole boards); ``methods: [se3]`` on that session
+    alone lets the others keep both.
+
+    Parameters
+    ----------
+    name : str
+        Session key in ``config["sessions"]`` (after :func:`expand_rig_sessions`).
+    sessions : dict
+        The sessions, validated against the schema.
+    default : sequence of str
+        ``config["optimise"]["methods"]``.
+
+    Returns
+    -------
+    tuple of str
+        In the order given.
+    """
+    return tuple(sessions[name].get("methods", default))
+
+
+def rig_camera_session(rig: str, camera: str) -> str:
+    """The session name of camera ``camera`` of rig session ``rig``: ``{rig}-{camera}``.
+
+    Parameters
+    ----------
+    rig : str
+        Rig session key in ``config["sessions"]``.
+    camera : str
+        The camera's ``name`` in the rig's ``cameras`` list.
+
+    Returns
+    -------
+    str
+    """
+    return f"{rig}-{camera}"
+
+
+def expand_rig_sessions(sessions: dict) -> tuple[dict, dict]:
+    """Split rig sessions (a ``cameras:`` list) into per-camera sessions and the rig's mocap.
+
+    A rig session ``r`` with cameras ``a, b`` becomes three plain sessions, which the mono
+    rules run unchanged: ``r`` (the rig's motion-capture export and markers: the vicon
+    stages, bodies.parquet with the rig as the ``camera`` body) and ``r-a``, ``r-b`` (each
+    camera's stills and video: calibrate, corners, poses). Rendered rigs (a ``synth`` block)
+    get the paths the rig's synth rules write: ``data/r/vicon.csv``, ``data/r/<camera>/calib``,
+    ``data/r/<camera>/video.mp4``, ``data/r/<camera>/shared``. Sessions without ``cameras``
+    are passed through as they are, in their order.
+
+    Parameters
+    ----------
+    sessions : dict
+        ``config["sessions"]``, validated against the schema.
+
+    Returns
+    -------
+    plain : dict
+        Session name to a plain session block: the sessions without ``cameras`` (the same
+        objects, in order) and each rig's sessions in its place. Equal to ``sessions`` when
+        no session has ``cameras``.
+    rigs : dict
+        Rig name to ``{"cameras": [names], "sessions": [per-camera session names],
+        "shared_dirs": [per-camera folder of shared-view stills or None], "synth": bool}``.
+
+    Raises
+    ------
+    ConfigError
+        A rig without markers or a Vicon export (or synth), a camera without a name, stills
+        or video, repeated camera names, or a per-camera session name that is already a
+        session.
+    """
+    plain, rigs = {}, {}
+    for name, s in sessions.items():
+        if "cameras" not in s:
+            plain[name] = s
+            continue
+        where = f"config: sessions.{name}"
+        synth = "synth" in s
+        cams = s["cameras"]
+        names = [c.get("name") for c in cams]
+        if not names or not all(names) or len(set(names)) != len(names):
+            raise ConfigError(f"{where}.cameras: every camera needs a distinct name, got {names}")
+        if "markers" not in s:
+            raise ConfigError(f"{where}: a rig needs markers.camera (the rig body) and markers.board")
+        if "methods" in s:
+            raise ConfigError(f"{where}.methods: a rig is fitted by optimise_se3_rig alone; "
+                              "methods is for sessions with one camera")
+        if not synth and "vicon" not in s:
+            raise ConfigError(f"{where}: a rig needs its motion-capture export (vicon) or a synth block")
+        mocap = {k: s[k] for k in ("board", "markers", "mocap") if k in s}
+        plain[name] = {**mocap, "vicon": s.get("vicon", f"data/{name}/vicon.csv")}
+        entry = {"cameras": names, "sessions": [], "shared_dirs": [], "synth": synth}
+        for c in cams:
+            cam = rig_camera_session(name, c["name"])
+            if cam in sessions:
+                raise ConfigError(
+                    f"{where}.cameras: camera {c['name']}'s session name {cam} is already a session")
+            block = {"board": s["board"]}
+            for key, leaf in (("calib_dir", "calib"), ("video", "video.mp4")):
+                if key in c:
+                    block[key] = c[key]
+                elif synth:
+                    block[key] = f"data/{name}/{c['name']}/{leaf}"
+                else:
+                    raise ConfigError(f"{where}.cameras[{c['name']}]: {key} is missing "
+                                      f"(needed unless the rig has a synth block)")
+            plain[cam] = block
+            entry["sessions"].append(cam)
+            shared = f"data/{name}/{c['name']}/shared" if synth else None
+            entry["shared_dirs"].append(c.get("shared_dir", shared))
+        rigs[name] = entry
+    return plain, rigs

@@ -1,0 +1,1 @@
+"""Shared builders of test data: rendered boards, simulated sessions and mocap takes."""
