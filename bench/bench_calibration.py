@@ -29,8 +29,8 @@ import cv2
 import numpy as np
 import yaml
 
-from cvsflow.board.model import board_object_points
-from cvsflow.calibration.intrinsics import INTRINSIC_STD_NAMES, calibrate_camera
+from cvsflow.board import board_object_points
+from cvsflow.calibration import INTRINSIC_STD_NAMES, calibrate_camera
 from cvsflow.exceptions import ConfigError
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.render import render_stills

@@ -45,8 +45,8 @@ import cv2
 import numpy as np
 import yaml
 
-from cvsflow.board.model import SUBPIX_CRITERIA
-from cvsflow.corners.detect import detect_corners
+from cvsflow.board import SUBPIX_CRITERIA
+from cvsflow.corners import detect_corners
 from cvsflow.corners.grid import _subpix_window
 from cvsflow.io.synth_out import PyAvVideoSink, VideoSink
 from cvsflow.synth.effects import PTS_RATE_HZ

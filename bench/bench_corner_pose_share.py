@@ -32,9 +32,9 @@ import cv2
 import numpy as np
 import yaml
 
-from cvsflow.calibration.intrinsics import board_object_points
-from cvsflow.evaluate.heldout import ERROR_DIMS
-from cvsflow.io import read_parquet
+from cvsflow.board import board_object_points
+from cvsflow.io.files import read_parquet
+from cvsflow.metrics import ERROR_DIMS
 
 ROOT = Path(__file__).resolve().parents[1]
 SESSIONS = ("u_demo", "u_wide", "u_tele", "u_rs", "u_far")

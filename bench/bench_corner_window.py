@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from cvsflow.corners import extract_corners
 from cvsflow.corners import grid as corners_grid
-from cvsflow.corners.extract import extract_corners
 from cvsflow.io.media import iter_video_gray
 from cvsflow.synth.render import render_session
 

@@ -151,7 +151,7 @@ def _plain(video: Path, board: dict):
     import numpy as np
     import pandas as pd
 
-    from cvsflow.calibration.intrinsics import SUBPIX_CRITERIA, board_pattern
+    from cvsflow.board import SUBPIX_CRITERIA, board_pattern
     from cvsflow.io.media import iter_video_gray
 
     pattern = board_pattern(board)
@@ -180,7 +180,7 @@ def _plain(video: Path, board: dict):
 def _run_variant(name: str, video: Path, out: Path, board: dict) -> dict:
     """One variant in this process (one core); writes its table to ``out``; returns timings."""
     _one_core()
-    from cvsflow.corners.extract import extract_corners
+    from cvsflow.corners import extract_corners
     from cvsflow.io.media import iter_video_gray
 
     wall0, cpu0 = time.perf_counter(), time.process_time()
@@ -312,7 +312,7 @@ def main():
 
     import pandas as pd
 
-    from cvsflow.calibration.intrinsics import board_pattern
+    from cvsflow.board import board_pattern
 
     cache = args.cache.resolve()
     cache.mkdir(parents=True, exist_ok=True)

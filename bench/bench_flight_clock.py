@@ -33,7 +33,7 @@ import argparse
 
 import numpy as np
 
-from cvsflow.flight.clock import estimate_clock
+from cvsflow.flight import estimate_clock
 from cvsflow.synth.flight import render_flight
 from cvsflow.synth.flight_reference import CALIB_STD_DEFAULT
 

@@ -40,19 +40,21 @@ import numpy as np
 import yaml
 from bench_corner_pose_share import frame_shares
 
-from cvsflow.calibration.intrinsics import board_object_points
-from cvsflow.calibration.pnp import estimate_poses
-from cvsflow.corners.extract import extract_corners_parallel, summarise_corners
-from cvsflow.flight.clock import Clock
-from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
-from cvsflow.flight.reference import (
+from cvsflow.board import board_object_points
+from cvsflow.calibration import estimate_poses
+from cvsflow.corners import extract_corners_parallel, summarise_corners
+from cvsflow.flight import (
+    Clock,
+    T_from_traj,
+    check_against_truth,
     correct_rolling_shutter,
+    evaluate_flight,
     reference_covariance_transfer,
+    reference_from_poses,
     session_error_model,
 )
-from cvsflow.flight.trajectory import T_from_traj, reference_from_poses
-from cvsflow.geometry.transforms import invert_T
-from cvsflow.io import read_parquet, read_yaml
+from cvsflow.geometry import invert_T
+from cvsflow.io.files import read_parquet, read_yaml
 from cvsflow.io.flightlog import read_tum
 from cvsflow.io.media import iter_video_gray, video_info, video_timing
 from cvsflow.synth.flight_video import render_flight_video

@@ -24,14 +24,19 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from cvsflow.board.model import board_object_points
-from cvsflow.evaluate.heldout import make_time_blocks
-from cvsflow.io import read_parquet, read_yaml
-from cvsflow.optimise.se3_start import corner_arrays
-from cvsflow.rig.fit import common_times, optimise_se3_rig
-from cvsflow.rig.instants import corners_at_instants
-from cvsflow.rig.poses import fused_rig_poses
-from cvsflow.rig.run import fused_pose_nees, rig_camera_entries, rig_fit_options
+from cvsflow.board import board_object_points
+from cvsflow.evaluate import make_time_blocks
+from cvsflow.io.files import read_parquet, read_yaml
+from cvsflow.optimise import corner_arrays
+from cvsflow.rig import (
+    common_times,
+    corners_at_instants,
+    fused_pose_nees,
+    fused_rig_poses,
+    optimise_se3_rig,
+    rig_camera_entries,
+    rig_fit_options,
+)
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.motion import board_poses
 from cvsflow.synth.rig import make_rig_truth, true_board_poses_C0

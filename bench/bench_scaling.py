@@ -209,7 +209,7 @@ def main() -> None:
     print_tables(raw)
     if args.figure is None:
         return
-    from cvsflow.plots.timing import plot_stage_scaling  # matplotlib only when drawing
+    from cvsflow.plots.timing import plot_stage_scaling
 
     fig = plot_stage_scaling(prefer_whole_runs(raw))
     args.figure.parent.mkdir(parents=True, exist_ok=True)

@@ -13,12 +13,12 @@ import time
 
 import numpy as np
 
+from cvsflow import metrics
 from cvsflow import uncertainty as un
-from cvsflow.board.model import board_object_points
+from cvsflow.board import board_object_points
 from cvsflow.evaluate import heldout as ev
 from cvsflow.geometry import transforms as tf
-from cvsflow.optimise import se3
-from cvsflow.optimise.se3_sim import simulate_session
+from cvsflow.optimise import se3, simulate_session
 
 
 def main(seed: int = 0) -> None:
@@ -62,9 +62,9 @@ def main(seed: int = 0) -> None:
     scale = [1e3] * 3 + [np.degrees(1.0)] * 3
     print("  held-out std (mm, deg):",
           np.round(np.array(summ["std"]) * scale, 3).tolist())
-    d6 = held[[f"d6_{d}" for d in ev.ERROR_DIMS]].std().to_numpy()
+    d6 = held[[f"d6_{d}" for d in metrics.ERROR_DIMS]].std().to_numpy()
     print("  same errors as 6-vector differences, std (mm, deg):", np.round(d6 * scale, 3).tolist())
-    b = ev.bootstrap_error_stats(held[ev.error_columns()], block_len=60, n_boot=1000, seed=seed)
+    b = ev.bootstrap_error_stats(held[metrics.error_columns()], block_len=60, n_boot=1000, seed=seed)
     print("  95 % block-bootstrap CI of std, lo:", np.round(b["std_lo"] * scale, 3).tolist())
     print("                                  hi:", np.round(b["std_hi"] * scale, 3).tolist())
 

@@ -19,11 +19,10 @@ import time
 
 import numpy as np
 
+from cvsflow.geometry import INTRINSIC_NAMES
 from cvsflow.geometry import transforms as tf
-from cvsflow.geometry.camera import INTRINSIC_NAMES
-from cvsflow.optimise.se3_sim import simulate_rig_session
-from cvsflow.rig.fit import optimise_se3_rig
-from cvsflow.rig.poses import fused_rig_poses
+from cvsflow.optimise import simulate_rig_session
+from cvsflow.rig import fused_rig_poses, optimise_se3_rig
 
 FREE = ("fx", "fy", "k1", "k2")
 

@@ -36,8 +36,8 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from cvsflow.geometry import transforms as tf
-from cvsflow.io import read_parquet, read_yaml
-from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
+from cvsflow.io.files import read_parquet, read_yaml
+from cvsflow.optimise import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
 
 REPO = Path(__file__).resolve().parents[1]
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")

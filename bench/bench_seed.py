@@ -49,10 +49,11 @@ import numpy as np
 import pandas as pd
 import yaml
 
-from cvsflow.evaluate.seed import cross_validate_seed
-from cvsflow.geometry.transforms import T_from_pose6, rvec_tvec_from_T
-from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
-from cvsflow.optimise.seed import POSE_DIMS, board_object_points, optimise_seed
+from cvsflow.board import board_object_points
+from cvsflow.evaluate import cross_validate_seed
+from cvsflow.geometry import T_from_pose6, rvec_tvec_from_T
+from cvsflow.io.files import read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.optimise import POSE_DIMS, optimise_seed
 
 REPO = Path(__file__).resolve().parents[1]
 #: The package before the Jacobian planes and the folds' shared PnP rows (issue 20, third round;

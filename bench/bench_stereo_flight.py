@@ -30,10 +30,10 @@ import time
 import numpy as np
 
 from cvsflow import flight as F
-from cvsflow.board.model import board_object_points
-from cvsflow.geometry.transforms import R_from_rvec, invert_T, pose_error_left
-from cvsflow.optimise.se3_model import K_from_intrinsics
-from cvsflow.rig.fusion import board_pose_starts, fused_board_pose, fused_board_pose_best
+from cvsflow.board import board_object_points
+from cvsflow.geometry import R_from_rvec, invert_T, pose_error_left
+from cvsflow.optimise import K_from_intrinsics
+from cvsflow.rig import board_pose_starts, fused_board_pose, fused_board_pose_best
 from cvsflow.synth.flight import render_flight
 from cvsflow.synth.flight_reference import BOARD_DEFAULT, CAMERA_DEMO, observe_rig, stereo_rig
 

@@ -51,14 +51,12 @@ def run_stages(seed, duration_s, work):
     poses_raw, bodies : DataFrame
     truth : dict
     """
-    from cvsflow.calibration.intrinsics import calibrate_camera
-    from cvsflow.calibration.pnp import estimate_poses
-    from cvsflow.corners.extract import extract_corners
+    from cvsflow.calibration import calibrate_camera, estimate_poses
+    from cvsflow.corners import extract_corners
     from cvsflow.io.media import iter_video_gray, list_stills, read_gray, video_info
     from cvsflow.io.mocap.formats import read_markers
     from cvsflow.io.mocap.markers import select_markers
-    from cvsflow.mocap.bodies import fit_bodies
-    from cvsflow.mocap.repair import repair_markers
+    from cvsflow.mocap import fit_bodies, repair_markers
     from cvsflow.synth.render import render_session
 
     work = Path(work)
@@ -104,7 +102,7 @@ def load_align_at(rev):
 def sync_errors(poses, bodies, truth, before=None):
     """Errors (ms) of the sync estimates against the truth."""
     from cvsflow.exceptions import SyncError
-    from cvsflow.sync.offset import synchronise
+    from cvsflow.sync import synchronise
 
     dt_true = float(truth["dt_offset_s"])
     row = {}

@@ -47,9 +47,9 @@ import numpy as np
 import yaml
 
 from cvsflow import uncertainty as un
-from cvsflow.evaluate.heldout import ERROR_DIMS
-from cvsflow.io import read_parquet, read_yaml, write_yaml
+from cvsflow.io.files import read_parquet, read_yaml, write_yaml
 from cvsflow.io.media import video_timing
+from cvsflow.metrics import ERROR_DIMS
 from cvsflow.uncertainty import features as un_features
 from cvsflow.uncertainty import transfer as un_transfer
 
@@ -314,7 +314,7 @@ def worst_frames(names, held):
     import pandas as pd
 
     from cvsflow import flight as fl
-    from cvsflow.calibration.intrinsics import board_object_points
+    from cvsflow.board import board_object_points
 
     b = boards()
     S = {n: load(n, b[n]) for n in names}

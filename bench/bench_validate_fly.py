@@ -30,8 +30,7 @@ import time
 
 import numpy as np
 
-from cvsflow.flight import session_error_model
-from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
+from cvsflow.flight import check_against_truth, evaluate_flight, session_error_model
 from cvsflow.synth.flight import render_flight
 from cvsflow.synth.flight_reference import validate_simulated_session
 

@@ -23,8 +23,14 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.board.charuco import find_charuco, make_detector
-from cvsflow.board.model import SUBPIX_CRITERIA, board_object_points, board_pattern, ends_distinguishable
+from cvsflow.board import (
+    SUBPIX_CRITERIA,
+    board_object_points,
+    board_pattern,
+    ends_distinguishable,
+    find_charuco,
+    make_detector,
+)
 from cvsflow.exceptions import CalibrationError, InputError
 
 log = logging.getLogger(__name__)

@@ -16,8 +16,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.board.model import CORNER_COLUMNS
-from cvsflow.calibration.intrinsics import board_object_points, board_pattern
+from cvsflow.board import CORNER_COLUMNS, board_object_points, board_pattern
 from cvsflow.exceptions import InputError
 from cvsflow.geometry import transforms as tf
 

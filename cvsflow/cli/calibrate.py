@@ -19,7 +19,7 @@ def _board_from_args(args) -> dict:
     if missing:
         raise InputError(f"--charuco {args.charuco[0]}x{args.charuco[1]}: also give "
                          f"{' and '.join(missing)} (e.g. --marker-m 0.06 --dictionary DICT_5X5_100)")
-    from cvsflow.board.charuco import charuco_board
+    from cvsflow.board import charuco_board
 
     board = {"type": "charuco", "squares_x": args.charuco[0], "squares_y": args.charuco[1],
              "square_m": float(args.square_m), "marker_m": float(args.marker_m),
@@ -57,9 +57,9 @@ def cmd_calibrate(args) -> int:
     """
     import cv2
 
-    from cvsflow.calibration.intrinsics import calibrate_camera
-    from cvsflow.io import write_parquet, write_yaml
+    from cvsflow.calibration import calibrate_camera
     from cvsflow.io.camera_formats import write_all_formats
+    from cvsflow.io.files import write_parquet, write_yaml
     from cvsflow.io.media import list_stills, read_gray
 
     board = _board_from_args(args)

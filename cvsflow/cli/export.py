@@ -36,8 +36,8 @@ def cmd_export_camera(args) -> int:
     InputError
         No camera.yaml at ``src``, or a malformed one.
     """
-    from cvsflow.io import read_yaml
     from cvsflow.io.camera_formats import write_camera_format
+    from cvsflow.io.files import read_yaml
 
     path = _camera_yaml_path(args.src)
     write_camera_format(read_yaml(path), args.format, args.out)
@@ -49,7 +49,7 @@ def _tum_frame(t_s, T):
     """Common trajectory form (``t_s``, ``x_m..z_m``, ``qx..qw``) of (N, 4, 4) transforms."""
     import pandas as pd
 
-    from cvsflow.geometry.transforms import quat_from_R
+    from cvsflow.geometry import quat_from_R
 
     q = quat_from_R(T[:, :3, :3]).reshape(-1, 4)
     d = pd.DataFrame({"t_s": np.asarray(t_s, dtype=float)})
@@ -78,7 +78,7 @@ def session_trajectories(pairs, se3_result=None):
         ``vicon_T_C_B`` = T_Cm_C⁻¹ T_Cm_Bm T_Bm_B: the Vicon reference in the frames of the CVS
         estimate, so that ``evo_ape tum vicon_T_C_B.tum cvs_T_C_B.tum`` compares like with like.
     """
-    from cvsflow.geometry.transforms import R_from_quat, R_from_rvec, invert_T, make_T
+    from cvsflow.geometry import R_from_quat, R_from_rvec, invert_T, make_T
 
     rvec = pairs[["cvs_rvec_0", "cvs_rvec_1", "cvs_rvec_2"]].to_numpy(float)
     T_C_B = make_T(R_from_rvec(rvec), pairs[["cvs_x_m", "cvs_y_m", "cvs_z_m"]].to_numpy(float))
@@ -116,7 +116,7 @@ def cmd_export_trajectory(args) -> int:
         No pairs.parquet, missing pairs columns, a given ``se3`` file missing, or one without
         ``T_Cm_C`` and ``T_Bm_B``.
     """
-    from cvsflow.io import read_parquet, read_yaml
+    from cvsflow.io.files import read_parquet, read_yaml
     from cvsflow.io.flightlog import write_tum
 
     src = Path(args.results)

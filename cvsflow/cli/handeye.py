@@ -43,8 +43,8 @@ def cmd_handeye(args) -> int:
     """
     import cv2
 
-    from cvsflow.handeye.stills import calibrate_hand_eye, pair_stills_with_poses
-    from cvsflow.io import read_yaml, write_yaml
+    from cvsflow.handeye import calibrate_hand_eye, pair_stills_with_poses
+    from cvsflow.io.files import read_yaml, write_yaml
     from cvsflow.io.media import list_stills, read_gray
     from cvsflow.io.poses import natural_key, pose_table_T, read_pose_list
     from cvsflow.io.visp import read_known_camera

@@ -133,7 +133,7 @@ def _add_board(session: dict, notes: list, inner, stills_dir=None) -> None:
 def _add_charuco(session: dict, notes: list, stills_dir, inner=None) -> bool:
     """A ``type: charuco`` board from what the first stills show (False: no ChArUco markers,
     or a row length other than the chessboard ``inner`` found)."""
-    from cvsflow.board.charuco_guess import guess_charuco_board
+    from cvsflow.board import guess_charuco_board
     from cvsflow.io.media import list_stills, read_gray
 
     guess = guess_charuco_board(read_gray(p) for p in list_stills(stills_dir)[:5])
@@ -476,7 +476,7 @@ def cmd_init(args) -> int:
     """
     import yaml
 
-    from cvsflow.io import atomic_output
+    from cvsflow.io.files import atomic_output
 
     folder = Path(args.dir)
     out = Path(args.out) if args.out else folder / "cvsflow_session.yaml"

@@ -40,10 +40,10 @@ def cmd_calibrate_rig(args) -> int:
     """
     import cv2
 
-    from cvsflow.io import write_parquet, write_yaml
     from cvsflow.io.camera_formats import write_all_formats, write_kalibr_rig_camchain
+    from cvsflow.io.files import write_parquet, write_yaml
     from cvsflow.io.media import list_stills, read_gray
-    from cvsflow.rig.extrinsics import calibrate_rig
+    from cvsflow.rig import calibrate_rig
 
     if len(args.dirs) < 2:
         raise InputError("calibrate-rig: give one stills folder per camera, two or more")

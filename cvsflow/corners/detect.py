@@ -11,7 +11,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from cvsflow.calibration.intrinsics import board_pattern, order_corners
+from cvsflow.board import board_pattern
+from cvsflow.calibration import order_corners
 from cvsflow.corners.grid import MAX_GRID_DEVIATION_FRAC, _grid_points, _inside, _track_scales
 from cvsflow.corners.refine import (
     MIN_PATTERN_CONTRAST,

@@ -31,9 +31,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.board.charuco import extract_charuco_corners, is_charuco
-from cvsflow.board.model import CORNER_COLUMNS, CornerRows
-from cvsflow.calibration.intrinsics import board_pattern
+from cvsflow.board import CORNER_COLUMNS, CornerRows, board_pattern, extract_charuco_corners, is_charuco
 from cvsflow.corners.grid import MAX_GRID_DEVIATION_FRAC
 from cvsflow.corners.track import _CornerFollower
 from cvsflow.exceptions import InputError

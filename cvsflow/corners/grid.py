@@ -16,7 +16,7 @@ import math
 import cv2
 import numpy as np
 
-from cvsflow.calibration.intrinsics import board_pattern
+from cvsflow.board import board_pattern
 
 # Every pixel threshold scales with the board's squares as the image shows them (the local
 # spacing of the grid, ``local_spacing``), so the same checks hold at 640x480 and 1920x1080.

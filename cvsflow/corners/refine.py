@@ -14,7 +14,7 @@ import functools
 import cv2
 import numpy as np
 
-from cvsflow.calibration.intrinsics import board_pattern
+from cvsflow.board import board_pattern
 from cvsflow.corners.grid import (
     MAX_GRID_DEVIATION_FRAC,
     MIN_GRID_DEVIATION_PX,

@@ -1,3 +1,26 @@
 """Held-out evaluation, method comparison, seed scoring, per-run analysis, the summary and the headline
 table.
 """
+
+from cvsflow.evaluate.headline import (
+    flight_headline,
+    headline_rst,
+    headline_table,
+    rig_headline,
+    session_headline,
+)
+from cvsflow.evaluate.heldout import (
+    compare_heldout,
+    cross_validate_se3,
+    heldout_blocks,
+    make_time_blocks,
+    se3_run_tables,
+)
+from cvsflow.evaluate.seed import cross_validate_seed
+from cvsflow.evaluate.summary import summary_row
+
+__all__ = [
+    "compare_heldout", "cross_validate_se3", "cross_validate_seed", "flight_headline", "headline_rst",
+    "headline_table", "heldout_blocks", "make_time_blocks", "rig_headline", "se3_run_tables",
+    "session_headline", "summary_row"
+]

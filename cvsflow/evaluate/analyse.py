@@ -15,9 +15,9 @@ import pandas as pd
 from scipy import stats
 
 from cvsflow.exceptions import InputError
-from cvsflow.metrics.pose_errors import ERROR_DIMS, error_moments
+from cvsflow.metrics import ERROR_DIMS, error_moments
 
-#: The six pose dimensions, in the chapter's order (:data:`cvsflow.metrics.pose_errors.ERROR_DIMS`).
+#: The six pose dimensions, in the chapter's order (:data:`cvsflow.metrics.errors.ERROR_DIMS`).
 POSE_DIMS = ERROR_DIMS
 
 

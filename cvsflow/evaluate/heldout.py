@@ -1,7 +1,5 @@
-"""Pose errors done right: composed SE(3) errors, held-out time blocks, block bootstrap.
+"""Held-out time blocks and block bootstrap over the composed SE(3) errors of :mod:`cvsflow.metrics`.
 
-- :func:`pose_errors` (defined in :mod:`cvsflow.metrics.pose_errors`, re-exported here): per-axis errors
-  from the composed transform (not from subtracting 6-vectors), in a named frame.
 - :func:`make_time_blocks`, :func:`heldout_blocks` and :func:`cross_validate_se3`: fit on some
   contiguous time blocks, score on the others; the held-out figures are the ones to state.
 - :func:`bootstrap_error_stats`: moving-block bootstrap confidence intervals of the mean,
@@ -19,23 +17,16 @@ import pandas as pd
 
 from cvsflow import geometry as geo
 from cvsflow import uncertainty as un
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
-
-# The error definitions live in cvsflow.metrics.pose_errors; they stay importable from here.
-from cvsflow.metrics.pose_errors import (  # noqa: F401
+from cvsflow.metrics import (
     ERROR_DIMS,
-    FRAMES,
     error_columns,
     error_moments,
     frame_errors,
-    pose_errors,
     poses_from_table,
 )
-from cvsflow.optimise.se3 import optimise_se3
-from cvsflow.optimise.se3_apply import apply_se3
-from cvsflow.optimise.se3_start import corner_arrays
-from cvsflow.optimise.seed import DIVERGED_EPS_STD_M
+from cvsflow.optimise import DIVERGED_EPS_STD_M, apply_se3, corner_arrays, optimise_se3
 
 log = logging.getLogger(__name__)
 

@@ -14,9 +14,8 @@ import pandas as pd
 
 from cvsflow.evaluate.heldout import make_time_blocks
 from cvsflow.exceptions import WholeBoardError
-from cvsflow.metrics.pose_errors import ERROR_DIMS
-from cvsflow.optimise.seed import MIN_PAIRS, SE3_ALONE, compute_eps, optimise_seed
-from cvsflow.optimise.seed_cache import SeedPoseCache
+from cvsflow.metrics import ERROR_DIMS
+from cvsflow.optimise import MIN_PAIRS, SE3_ALONE, SeedPoseCache, compute_eps, optimise_seed
 
 log = logging.getLogger(__name__)
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.metrics.pose_errors import ERROR_DIMS as POSE_DIMS
-from cvsflow.optimise.seed import compute_p_bar
+from cvsflow.metrics import ERROR_DIMS as POSE_DIMS
+from cvsflow.optimise import compute_p_bar
 
 
 def summary_row(session, method, finit, result, stats, truth=None, pairs=None, truth_frames=None):

@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from cvsflow.exceptions import SyncError
 from cvsflow.flight.alignment import rotation_alignment
 from cvsflow.geometry import R_from_quat, rotation_angle
-from cvsflow.metrics.sandwich import leverage_corrected_scores
+from cvsflow.metrics import leverage_corrected_scores
 
 log = logging.getLogger(__name__)
 

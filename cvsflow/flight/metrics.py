@@ -8,7 +8,7 @@ import numpy as np
 from cvsflow.exceptions import InputError
 from cvsflow.flight.alignment import Alignment
 from cvsflow.geometry import euler_from_R, invert_T, rotation_angle, wrap_angle
-from cvsflow.metrics.pose_errors import error_moments
+from cvsflow.metrics import error_moments
 
 AXES = ["x", "y", "z", "roll", "pitch", "yaw"]
 ERR_COLS = ["ex_m", "ey_m", "ez_m", "eroll_rad", "epitch_rad", "eyaw_rad"]

@@ -17,15 +17,10 @@ from scipy.spatial.transform import Rotation
 
 from cvsflow import uncertainty as un
 from cvsflow.exceptions import InputError
-from cvsflow.geometry import euler_from_R, euler_jacobian, invert_T, wrap_angle
+from cvsflow.geometry import INTRINSIC_NAMES, euler_from_R, euler_jacobian, invert_T, wrap_angle
 from cvsflow.geometry import skew as skew_matrix
-from cvsflow.geometry.camera import INTRINSIC_NAMES
-from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD
-from cvsflow.uncertainty.propagation import (
-    composed_error_jacobian,
-    pnp_covariance,
-    propagated_pose_covariance,
-)
+from cvsflow.optimise import DEFAULT_INTRINSIC_STD
+from cvsflow.uncertainty import composed_error_jacobian, pnp_covariance, propagated_pose_covariance
 
 # --------------------------------------------------------------------------------------------
 # Reference uncertainty

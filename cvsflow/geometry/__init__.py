@@ -29,6 +29,7 @@ from cvsflow.geometry.transforms import (
     mean_rotation,
     pose6_from_T,
     pose_difference,
+    pose_error_left,
     project_SO3,
     quat_from_R,
     right_jacobian_SO3,
@@ -41,10 +42,10 @@ from cvsflow.geometry.transforms import (
 )
 
 __all__ = [
-    "EULER_SEQ", "INTRINSIC_NAMES", "R_from_euler", "R_from_quat", "R_from_rvec", "T_from_pose6",
-    "T_from_rvec_tvec", "block_mean_quats", "bracket", "euler_from_R", "euler_jacobian", "fit_rigid",
-    "fit_rigid_pair", "interpolate_T", "interpolate_quats", "invert_T", "make_T",
-    "mean_rotation", "pose6_from_T", "pose_difference", "project_SO3", "project_points",
-    "project_points_jac", "quat_from_R", "right_jacobian_SO3", "rotation_angle", "rvec_from_R",
-    "rvec_tvec_from_T", "skew", "slerp", "transform_points", "wrap_angle",
+    "block_mean_quats", "bracket", "euler_from_R", "euler_jacobian", "EULER_SEQ", "fit_rigid",
+    "fit_rigid_pair", "interpolate_quats", "interpolate_T", "INTRINSIC_NAMES", "invert_T", "make_T",
+    "mean_rotation", "pose6_from_T", "pose_difference", "pose_error_left", "project_points",
+    "project_points_jac", "project_SO3", "quat_from_R", "R_from_euler", "R_from_quat", "R_from_rvec",
+    "right_jacobian_SO3", "rotation_angle", "rvec_from_R", "rvec_tvec_from_T", "skew", "slerp",
+    "T_from_pose6", "T_from_rvec_tvec", "transform_points", "wrap_angle"
 ]

@@ -22,11 +22,10 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from cvsflow.exceptions import InputError
+from cvsflow.geometry import INTRINSIC_NAMES, project_points_jac, right_jacobian_SO3
 from cvsflow.geometry import transforms as tf
-from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points_jac
-from cvsflow.geometry.transforms import right_jacobian_SO3
 from cvsflow.handeye.model import MIN_STILLS, carrier_chain
-from cvsflow.optimise.se3_cov import covariances
+from cvsflow.optimise import covariances
 
 log = logging.getLogger(__name__)
 

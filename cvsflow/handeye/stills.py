@@ -42,7 +42,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cvsflow.calibration.intrinsics import board_object_points, board_pattern, find_board, order_corners
+from cvsflow.board import board_object_points, board_pattern
+from cvsflow.calibration import find_board, order_corners
 from cvsflow.exceptions import CalibrationError, InputError
 from cvsflow.geometry import transforms as tf
 from cvsflow.handeye.model import (
@@ -60,7 +61,7 @@ from cvsflow.handeye.refine import (
     leave_one_out_rms,
     refine_hand_eye,
 )
-from cvsflow.optimise.se3_start import solve_pnp_frames
+from cvsflow.optimise import solve_pnp_frames
 
 log = logging.getLogger(__name__)
 

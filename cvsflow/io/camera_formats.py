@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 
 from cvsflow.exceptions import InputError
-from cvsflow.geometry.transforms import invert_T
+from cvsflow.geometry import invert_T
 from cvsflow.io.files import atomic_output
 
 log = logging.getLogger(__name__)

@@ -30,7 +30,7 @@ import pandas as pd
 
 from cvsflow.exceptions import InputError
 from cvsflow.flight import trajectory_frame
-from cvsflow.geometry.transforms import R_from_euler, quat_from_R
+from cvsflow.geometry import R_from_euler, quat_from_R
 from cvsflow.io.files import atomic_output
 
 log = logging.getLogger(__name__)

@@ -15,14 +15,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from cvsflow.exceptions import MocapError
-from cvsflow.geometry import (
-    block_mean_quats,
-    euler_from_R,
-    fit_rigid,
-    interpolate_T,
-    make_T,
-    quat_from_R,
-)
+from cvsflow.geometry import block_mean_quats, euler_from_R, fit_rigid, interpolate_T, make_T, quat_from_R
 from cvsflow.mocap.layout import _rate_hz, _xyz, resolve_layouts
 
 log = logging.getLogger(__name__)

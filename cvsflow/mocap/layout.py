@@ -19,10 +19,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.exceptions import InputError, MocapError
-from cvsflow.geometry import (
-    fit_rigid,
-    transform_points,
-)
+from cvsflow.geometry import fit_rigid, transform_points
 
 log = logging.getLogger(__name__)
 

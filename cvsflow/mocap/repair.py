@@ -16,9 +16,7 @@ import pandas as pd
 from scipy.signal import butter, filtfilt
 
 from cvsflow.exceptions import MocapError
-from cvsflow.geometry import (
-    fit_rigid,
-)
+from cvsflow.geometry import fit_rigid
 from cvsflow.mocap.layout import _cols, _rate_hz, _xyz, resolve_layouts
 
 log = logging.getLogger(__name__)

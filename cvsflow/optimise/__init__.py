@@ -1,31 +1,45 @@
-"""Focal-length and offset optimisers: ``seed`` (the chapter, eqs. 1.5-1.12) and ``se3``.
+"""Focal-length and offset optimisers: ``seed`` (the chapter, eqs. 1.5-1.12) and ``se3`` (the joint
+SE(3) fit), each returning an :class:`OptimiseResult`."""
 
-Each optimiser returns an :class:`OptimiseResult`: the per-iteration table
-(``iterations.parquet``), the per-frame error table (``errors.parquet`` input of the
-analysis) and the ``result.yaml`` mapping (plain Python values, SI units).
-"""
+from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track, smooth_track_local
+from cvsflow.optimise.result import OptimiseResult
+from cvsflow.optimise.se3 import (
+    DEFAULT_FREE,
+    MIN_FRAMES,
+    camera_start,
+    correlation_warnings,
+    optimise_se3,
+    usable_frames,
+)
+from cvsflow.optimise.se3_apply import apply_se3, pose_columns, tracks_from_params
+from cvsflow.optimise.se3_cov import (
+    DEFAULT_INTRINSIC_STD,
+    covariances,
+    fixed_intrinsic_std,
+    parameter_covariance,
+)
+from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, refuse_implausible_fit, robust_cost
+from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model, jacobian_fd
+from cvsflow.optimise.se3_sim import simulate_rig_session, simulate_session
+from cvsflow.optimise.se3_start import corner_arrays, solve_hand_eye, solve_pnp_frames
+from cvsflow.optimise.seed import (
+    DIVERGED_EPS_STD_M,
+    MIN_PAIRS,
+    POSE_DIMS,
+    SE3_ALONE,
+    compute_eps,
+    compute_p_bar,
+    optimise_seed,
+)
+from cvsflow.optimise.seed_cache import SeedPoseCache
 
-from __future__ import annotations
-
-from dataclasses import dataclass, field
-
-import pandas as pd
-
-
-@dataclass
-class OptimiseResult:
-    """What an optimiser hands to the writer and to the analysis.
-
-    Attributes
-    ----------
-    iterations : pandas.DataFrame
-        One row per iteration (``iterations.parquet``), SI units.
-    errors : pandas.DataFrame
-        One row per pair frame: poses and errors at the initial and final focal lengths.
-    result : dict
-        ``result.yaml`` content: plain floats, ints, lists and strings.
-    """
-
-    iterations: pd.DataFrame
-    errors: pd.DataFrame
-    result: dict = field(default_factory=dict)
+__all__ = [
+    "apply_se3", "body_track", "BodyTrack", "CAMERA_MOVING_SMOOTH_S", "camera_start", "compute_eps",
+    "compute_p_bar", "corner_arrays", "correlation_warnings", "covariances", "DEFAULT_FREE",
+    "DEFAULT_INTRINSIC_STD", "DIVERGED_EPS_STD_M", "fixed_intrinsic_std", "jacobian_fd",
+    "K_from_intrinsics", "levenberg_marquardt", "LOSSES", "MIN_FRAMES", "MIN_PAIRS", "optimise_se3",
+    "optimise_seed", "OptimiseResult", "parameter_covariance", "pose_columns", "POSE_DIMS",
+    "refuse_implausible_fit", "robust_cost", "SE3_ALONE", "Se3Model", "SeedPoseCache",
+    "simulate_rig_session", "simulate_session", "smooth_track_local", "solve_hand_eye",
+    "solve_pnp_frames", "tracks_from_params", "usable_frames"
+]

@@ -65,18 +65,14 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
 
-from cvsflow.board.model import board_object_points
+from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import INTRINSIC_NAMES
 from cvsflow.geometry import transforms as tf
-from cvsflow.geometry.camera import INTRINSIC_NAMES
-from cvsflow.optimise import OptimiseResult
 from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
+from cvsflow.optimise.result import OptimiseResult
 from cvsflow.optimise.se3_apply import apply_se3
-from cvsflow.optimise.se3_cov import (
-    DEFAULT_INTRINSIC_STD,
-    fixed_intrinsic_std,
-    parameter_covariance,
-)
+from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD, fixed_intrinsic_std, parameter_covariance
 from cvsflow.optimise.se3_lm import (
     LOSSES,
     levenberg_marquardt,

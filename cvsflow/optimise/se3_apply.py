@@ -8,9 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from cvsflow.board.model import board_object_points
+from cvsflow.board import board_object_points
+from cvsflow.geometry import project_points
 from cvsflow.geometry import transforms as tf
-from cvsflow.geometry.camera import project_points
 from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
 from cvsflow.optimise.se3_start import corner_arrays, solve_pnp_frames
 

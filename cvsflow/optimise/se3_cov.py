@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.metrics.sandwich import leverage_corrected_scores
+from cvsflow.metrics import leverage_corrected_scores
 from cvsflow.optimise.se3_lm import gram, loss_weights
 
 #: 1-sigma of each intrinsic held fixed when camera.yaml has no ``std`` (px for fx..cy, then

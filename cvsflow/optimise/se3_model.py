@@ -11,9 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from cvsflow.geometry import INTRINSIC_NAMES, project_points, project_points_jac, right_jacobian_SO3, skew
 from cvsflow.geometry import transforms as tf
-from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points, project_points_jac
-from cvsflow.geometry.transforms import right_jacobian_SO3, skew
 
 #: Names of the six pose parameters of each marker transform (m, rad).
 POSE_PARAM_SUFFIXES = ("rx_rad", "ry_rad", "rz_rad", "x_m", "y_m", "z_m")

@@ -10,10 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from cvsflow.board.model import board_object_points
+from cvsflow.board import board_object_points
+from cvsflow.geometry import fit_rigid, project_points
 from cvsflow.geometry import transforms as tf
-from cvsflow.geometry.camera import project_points
-from cvsflow.geometry.rigid import fit_rigid
 from cvsflow.optimise.se3_model import K_from_intrinsics
 
 

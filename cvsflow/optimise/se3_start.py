@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 
 from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import project_SO3
 from cvsflow.geometry import transforms as tf
-from cvsflow.geometry.transforms import project_SO3
 
 log = logging.getLogger(__name__)
 

@@ -51,10 +51,10 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pandas as pd
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError, WholeBoardError
-from cvsflow.geometry.transforms import R_from_rvec, euler_from_R, wrap_angle
-from cvsflow.optimise import OptimiseResult
+from cvsflow.geometry import R_from_rvec, euler_from_R, wrap_angle
+from cvsflow.optimise.result import OptimiseResult
 from cvsflow.optimise.seed_pnp import dist5, focal_sensitivity, solve_rows
 
 log = logging.getLogger(__name__)

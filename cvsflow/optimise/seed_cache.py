@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
 from cvsflow.optimise.seed import corner_array
 from cvsflow.optimise.seed_pnp import dist5

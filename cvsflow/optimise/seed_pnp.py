@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from cvsflow.exceptions import OptimiseError
-from cvsflow.geometry.transforms import R_from_rvec, rvec_from_R
+from cvsflow.geometry import R_from_rvec, rvec_from_R
 
 #: Rows (candidate x frame) per stack of :func:`solve_rows`: bounds the memory of one
 #: stack (about 10 kB per row for a 20-corner board) while keeping numpy's per-call

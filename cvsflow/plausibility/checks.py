@@ -25,7 +25,7 @@ from cvsflow.exceptions import (
     StaticBoardError,
     UnitsError,
 )
-from cvsflow.geometry.transforms import R_from_rvec, mean_rotation, rotation_angle
+from cvsflow.geometry import R_from_rvec, mean_rotation, rotation_angle
 
 log = logging.getLogger(__name__)
 

@@ -139,7 +139,7 @@ def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict) -> Figu
         Top: |omega| in deg/s of the video (shifted by the offset) and of the Vicon over the
         video's span. Bottom: their difference in deg/s at the video samples.
     """
-    from cvsflow.sync.streams import angular_speed_streams
+    from cvsflow.sync import angular_speed_streams
 
     return plot_sync_streams(
         angular_speed_streams(poses_raw, bodies), sync["dt_offset_s"], sync.get("quality"), sync.get("method")

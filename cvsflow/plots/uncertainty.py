@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from cvsflow.uncertainty.scoring import chi2_pdf, chi2_quantile
+from cvsflow.uncertainty import chi2_pdf, chi2_quantile
 
 DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 NAMES = ("x", "y", "z", "roll", "pitch", "yaw")

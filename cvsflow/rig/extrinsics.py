@@ -24,10 +24,17 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.calibration.intrinsics import calibrate_camera
+from cvsflow.calibration import calibrate_camera
 from cvsflow.exceptions import CalibrationError, InputError
-from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points_jac
-from cvsflow.geometry.transforms import R_from_rvec, invert_T, make_T, rvec_from_R, skew
+from cvsflow.geometry import (
+    INTRINSIC_NAMES,
+    R_from_rvec,
+    invert_T,
+    make_T,
+    project_points_jac,
+    rvec_from_R,
+    skew,
+)
 from cvsflow.rig.fusion import _board_pose_jacobian
 
 #: Columns of the per-camera corner tables (calibration's ``calib_corners``; ``image`` names the

@@ -46,26 +46,36 @@ import time
 import numpy as np
 import pandas as pd
 
-from cvsflow.board.model import board_object_points
-from cvsflow.evaluate.heldout import make_time_blocks
+from cvsflow.board import board_object_points
+from cvsflow.evaluate import make_time_blocks
 from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import INTRINSIC_NAMES, project_SO3
 from cvsflow.geometry import transforms as tf
-from cvsflow.geometry.camera import INTRINSIC_NAMES
-from cvsflow.geometry.transforms import project_SO3
-from cvsflow.metrics.pose_errors import frame_errors
-from cvsflow.optimise import OptimiseResult
-from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
-from cvsflow.optimise.se3 import (
+from cvsflow.metrics import frame_errors
+from cvsflow.optimise import (
+    CAMERA_MOVING_SMOOTH_S,
     DEFAULT_FREE,
+    DEFAULT_INTRINSIC_STD,
+    LOSSES,
     MIN_FRAMES,
+    BodyTrack,
+    K_from_intrinsics,
+    OptimiseResult,
+    Se3Model,
+    body_track,
     camera_start,
+    corner_arrays,
     correlation_warnings,
+    fixed_intrinsic_std,
+    jacobian_fd,
+    levenberg_marquardt,
+    parameter_covariance,
+    refuse_implausible_fit,
+    robust_cost,
+    solve_hand_eye,
+    solve_pnp_frames,
     usable_frames,
 )
-from cvsflow.optimise.se3_cov import DEFAULT_INTRINSIC_STD, fixed_intrinsic_std, parameter_covariance
-from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, refuse_implausible_fit, robust_cost
-from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model, jacobian_fd
-from cvsflow.optimise.se3_start import corner_arrays, solve_hand_eye, solve_pnp_frames
 from cvsflow.rig.poses import fused_rig_poses
 
 log = logging.getLogger(__name__)
@@ -538,7 +548,7 @@ def cross_validate_se3_rig(cameras, bodies, board, *, n_folds=5, block_s=5.0, se
     seed : int
         Seed of the block-to-fold assignment.
     frame : {"C", "B"}
-        Frame of the errors (:func:`cvsflow.metrics.pose_errors.pose_errors`); ``C`` is camera 0's.
+        Frame of the errors (:func:`cvsflow.metrics.errors.pose_errors`); ``C`` is camera 0's.
     **options
         Passed to ``optimise_se3_rig``.
 
@@ -546,7 +556,7 @@ def cross_validate_se3_rig(cameras, bodies, board, *, n_folds=5, block_s=5.0, se
     -------
     heldout : DataFrame
         One row per held-out rig frame: :func:`fused_rig_poses` and
-        :func:`cvsflow.metrics.pose_errors.frame_errors` columns, ``fold`` and ``sigma_px``.
+        :func:`cvsflow.metrics.errors.frame_errors` columns, ``fold`` and ``sigma_px``.
     fits : list of dict
         Each fold's ``result``, with ``fold``.
     """

@@ -16,8 +16,16 @@ import cv2
 import numpy as np
 
 from cvsflow.exceptions import InputError
-from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points_jac
-from cvsflow.geometry.transforms import R_from_rvec, invert_T, make_T, pose_error_left, rvec_from_R, skew
+from cvsflow.geometry import (
+    INTRINSIC_NAMES,
+    R_from_rvec,
+    invert_T,
+    make_T,
+    pose_error_left,
+    project_points_jac,
+    rvec_from_R,
+    skew,
+)
 
 
 def _board_pose_jacobian(d_uv_d_p, R_Ci_C0, Rp_B):

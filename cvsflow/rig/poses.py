@@ -12,13 +12,17 @@ import logging
 import numpy as np
 import pandas as pd
 
-from cvsflow.board.model import board_object_points
+from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import INTRINSIC_NAMES, project_points
 from cvsflow.geometry import transforms as tf
-from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points
-from cvsflow.optimise.se3_apply import pose_columns, tracks_from_params
-from cvsflow.optimise.se3_model import K_from_intrinsics
-from cvsflow.optimise.se3_start import corner_arrays, solve_pnp_frames
+from cvsflow.optimise import (
+    K_from_intrinsics,
+    corner_arrays,
+    pose_columns,
+    solve_pnp_frames,
+    tracks_from_params,
+)
 from cvsflow.rig.fusion import fused_board_pose, fused_pose_jacobian
 from cvsflow.rig.instants import corners_at_instants, interpolation_error_ms
 

@@ -10,7 +10,7 @@ import numpy as np
 
 from cvsflow.exceptions import SyncError
 from cvsflow.geometry import mean_rotation, rotation_angle
-from cvsflow.plausibility.checks import OVERLAP_FLOOR
+from cvsflow.plausibility import OVERLAP_FLOOR
 from cvsflow.sync.streams import _cvs_rotations, _spans, _vicon_relative, check_take_covers_video
 
 

@@ -26,7 +26,7 @@ from scipy.signal import correlate, correlation_lags
 
 from cvsflow.exceptions import SyncError
 from cvsflow.geometry import rotation_angle
-from cvsflow.plausibility.checks import OVERLAP_FLOOR, check_overlap
+from cvsflow.plausibility import OVERLAP_FLOOR, check_overlap
 from cvsflow.sync.gesture import sync_gesture
 from cvsflow.sync.refine import refine_offset_rotations
 from cvsflow.sync.streams import (

@@ -23,8 +23,8 @@ from cvsflow.geometry import (
     quat_from_R,
     wrap_angle,
 )
-from cvsflow.mocap.bodies import body_poses
-from cvsflow.plausibility.checks import check_overlap
+from cvsflow.mocap import body_poses
+from cvsflow.plausibility import check_overlap
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from cvsflow.exceptions import InputError
 from cvsflow.geometry import R_from_rvec, interpolate_T, invert_T, rotation_angle
-from cvsflow.mocap.bodies import body_poses
+from cvsflow.mocap import body_poses
 
 # --------------------------------------------------------------------------- streams
 

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from cvsflow.board.charuco import charuco_board
-from cvsflow.geometry.transforms import invert_T
+from cvsflow.board import charuco_board
+from cvsflow.geometry import invert_T
 from cvsflow.synth.camera import Board, project_points, rectangle_outline_B
 
 INK_REFLECTANCE = 0.06

@@ -31,11 +31,8 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from cvsflow.exceptions import ConfigError
-from cvsflow.flight.clock import Clock
-from cvsflow.flight.metrics import ERR_COLS
-from cvsflow.flight.reference import reference_covariance_model
-from cvsflow.flight.trajectory import interpolate_trajectory, traj_from_T
-from cvsflow.geometry.transforms import R_from_euler, euler_from_R, invert_T, make_T, wrap_angle
+from cvsflow.flight import ERR_COLS, Clock, interpolate_trajectory, reference_covariance_model, traj_from_T
+from cvsflow.geometry import R_from_euler, euler_from_R, invert_T, make_T, wrap_angle
 from cvsflow.synth.flight_reference import measure_reference, measure_reference_rig, stereo_rig
 
 # Board mounting: board x = body right (y_Q), board y = body down (z_Q), board z (into the

@@ -14,18 +14,19 @@ import numpy as np
 import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from cvsflow.calibration.intrinsics import board_object_points, board_pattern
-from cvsflow.calibration.pnp import estimate_poses
+from cvsflow.board import board_object_points, board_pattern
+from cvsflow.calibration import estimate_poses
 from cvsflow.evaluate import heldout as ev
 from cvsflow.exceptions import ConfigError
-from cvsflow.flight.reference import reference_covariance_transfer
-from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points
-from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T
-from cvsflow.optimise import se3
-from cvsflow.optimise.se3_model import K_from_intrinsics
-from cvsflow.optimise.se3_sim import simulate_session
-from cvsflow.rig.extrinsics import stereo_extrinsics
-from cvsflow.rig.fusion import board_pose_starts, fused_board_pose_best, rig_calibration_covariance
+from cvsflow.flight import reference_covariance_transfer
+from cvsflow.geometry import INTRINSIC_NAMES, R_from_euler, invert_T, make_T, project_points
+from cvsflow.optimise import K_from_intrinsics, se3, simulate_session
+from cvsflow.rig import (
+    board_pose_starts,
+    fused_board_pose_best,
+    rig_calibration_covariance,
+    stereo_extrinsics,
+)
 from cvsflow.synth.camera import Board as SynthBoard
 from cvsflow.synth.stereo import shared_view_poses
 

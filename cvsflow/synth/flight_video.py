@@ -16,9 +16,9 @@ import logging
 import numpy as np
 
 from cvsflow.exceptions import ConfigError
-from cvsflow.flight.trajectory import traj_from_T
-from cvsflow.geometry.transforms import invert_T
-from cvsflow.io import write_parquet, write_yaml
+from cvsflow.flight import traj_from_T
+from cvsflow.geometry import invert_T
+from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.io.flightlog import write_tum
 from cvsflow.io.synth_out import PyAvVideoSink, VideoSink, staged_session_dir
 from cvsflow.synth.effects import PTS_RATE_HZ

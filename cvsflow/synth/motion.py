@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cvsflow.geometry.transforms import R_from_euler, R_from_rvec, invert_T, make_T
+from cvsflow.geometry import R_from_euler, R_from_rvec, invert_T, make_T
 from cvsflow.synth.camera import project_points
 
 # The chapter's session: board held still, then tilted forward (the sync gesture), then free.

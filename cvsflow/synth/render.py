@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from cvsflow.exceptions import ConfigError
-from cvsflow.geometry.transforms import invert_T, pose6_from_T, transform_points
+from cvsflow.geometry import invert_T, pose6_from_T, transform_points
 from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.io.mocap.vicon import write_nexus_csv
 from cvsflow.io.synth_out import (

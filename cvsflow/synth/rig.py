@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from cvsflow.exceptions import ConfigError
-from cvsflow.geometry.transforms import invert_T
+from cvsflow.geometry import invert_T
 from cvsflow.synth.motion import CameraView, HandMotion, board_poses, make_hand_motion
 from cvsflow.synth.session import Rig, make_rig, vicon_recording
 from cvsflow.synth.spec import VICON_RATE_HZ, SynthSpec, parse_session_config, random_streams

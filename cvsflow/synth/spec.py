@@ -10,9 +10,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cvsflow.board.charuco import board_type, charuco_board
+from cvsflow.board import board_type, charuco_board
 from cvsflow.exceptions import ConfigError
-from cvsflow.geometry.transforms import T_from_pose6
+from cvsflow.geometry import T_from_pose6
 from cvsflow.synth.camera import Board, camera_from_config
 from cvsflow.synth.effects import Effects, parse_effects
 from cvsflow.synth.motion import CAMERA_MOTION_TYPES, CameraMotion

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from cvsflow.exceptions import ConfigError
-from cvsflow.geometry.transforms import R_from_euler, R_from_rvec, make_T
+from cvsflow.geometry import R_from_euler, R_from_rvec, make_T
 from cvsflow.synth.camera import project_points
 from cvsflow.synth.frames import Renderer
 from cvsflow.synth.motion import _in_view, _min_square_px

@@ -63,6 +63,7 @@ from cvsflow.uncertainty.models import (
 )
 from cvsflow.uncertainty.propagation import (
     PARAM_BLOCKS,
+    composed_error_jacobian,
     cov_columns,
     cov_from_columns,
     parameter_covariance,
@@ -77,6 +78,8 @@ from cvsflow.uncertainty.scoring import (
     ar1_innovations,
     band_multipliers,
     block_mean_variance,
+    chi2_pdf,
+    chi2_quantile,
     fit_ar1,
     frame_runs,
     nees_values,
@@ -100,25 +103,17 @@ from cvsflow.uncertainty.transfer_scoring import (
 )
 
 __all__ = [
-    "BANDS", "CORNER_CORRELATION_PX", "FEATURES", "FILL_WINDOW_S", "MEASUREMENT_FEATURES",
-    "NOISE_POOL_COLUMN",
-    "PARAM_BLOCKS", "RENDERED_TRANSFER_MODEL", "TARGETS", "TRANSFER_PARAMS", "WORKING_UNITS",
-    "ar1_innovations", "autocorrelation", "band_multipliers", "block_mean_variance", "fit_ar1", "frame_runs",
-    "corner_noise_from_reproj", "corner_noise_pool", "correlated_noise_terms",
-    "cov_columns",
-    "cov_from_columns", "cramer_rao_sigma", "crossfit_transfer", "error_features",
-    "fit_error_model", "fit_transfer_model", "flip_weight", "frame_noise_terms",
-    "leave_one_session_out",
-    "measurement_features", "nees_values", "parameter_covariance", "pnp_alternatives",
-    "pnp_covariance",
-    "pose6_covariance", "predict_error_sigma", "predicted_covariance",
-    "propagated_pose_covariance", "score_covariance", "score_error_model", "score_time_correlated",
-    "score_transfer", "seen_corners", "shear_displacement", "shrink_corner_noise",
-    "standardised_errors", "unsheared_pnp",
-    "still_board_weight",
-    "excess_spread",
-    "session_scale_sd",
-    "target_pass_rates",
-    "time_correlation_of", "transfer_covariance", "transfer_mean", "transfer_nll",
-    "vicon_filled",
-]  # fmt: skip
+    "ar1_innovations", "autocorrelation", "band_multipliers", "BANDS", "block_mean_variance",
+    "chi2_pdf", "chi2_quantile", "composed_error_jacobian", "CORNER_CORRELATION_PX",
+    "corner_noise_from_reproj", "corner_noise_pool", "correlated_noise_terms", "cov_columns",
+    "cov_from_columns", "cramer_rao_sigma", "crossfit_transfer", "error_features", "excess_spread",
+    "FEATURES", "FILL_WINDOW_S", "fit_ar1", "fit_error_model", "fit_transfer_model", "flip_weight",
+    "frame_noise_terms", "frame_runs", "leave_one_session_out", "measurement_features",
+    "MEASUREMENT_FEATURES", "nees_values", "NOISE_POOL_COLUMN", "PARAM_BLOCKS", "parameter_covariance",
+    "pnp_alternatives", "pnp_covariance", "pose6_covariance", "predict_error_sigma",
+    "predicted_covariance", "propagated_pose_covariance", "RENDERED_TRANSFER_MODEL", "score_covariance",
+    "score_error_model", "score_time_correlated", "score_transfer", "seen_corners", "session_scale_sd",
+    "shear_displacement", "shrink_corner_noise", "standardised_errors", "still_board_weight",
+    "target_pass_rates", "TARGETS", "time_correlation_of", "transfer_covariance", "transfer_mean",
+    "transfer_nll", "TRANSFER_PARAMS", "unsheared_pnp", "vicon_filled", "WORKING_UNITS"
+]

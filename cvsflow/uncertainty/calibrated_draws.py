@@ -18,7 +18,7 @@ import numpy as np
 from scipy.special import gammaln
 
 from cvsflow.exceptions import OptimiseError
-from cvsflow.metrics.pose_errors import ERROR_DIMS
+from cvsflow.metrics import ERROR_DIMS
 from cvsflow.uncertainty.scoring import WORKING_UNITS, band_multipliers
 
 #: The uncertainty issue's targets for a held-out session or fold (closed intervals).

@@ -15,17 +15,13 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
 from cvsflow.geometry import transforms as tf
-from cvsflow.metrics.pose_errors import ERROR_DIMS, pose_errors
-from cvsflow.optimise.se3_start import corner_arrays
+from cvsflow.metrics import ERROR_DIMS, pose_errors
+from cvsflow.optimise import corner_arrays
 from cvsflow.uncertainty.ambiguity import pnp_alternatives
-from cvsflow.uncertainty.propagation import (
-    cov_columns,
-    parameter_covariance,
-    propagated_pose_covariance,
-)
+from cvsflow.uncertainty.propagation import cov_columns, parameter_covariance, propagated_pose_covariance
 from cvsflow.uncertainty.reference_noise import camera_body_error_cov, moving_body_noise
 from cvsflow.uncertainty.rolling_shutter import shear_displacement, unsheared_pnp
 

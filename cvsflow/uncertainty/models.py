@@ -34,7 +34,7 @@ from scipy.special import gammaln
 
 from cvsflow.exceptions import OptimiseError
 from cvsflow.geometry import transforms as tf
-from cvsflow.metrics.pose_errors import ERROR_DIMS
+from cvsflow.metrics import ERROR_DIMS
 from cvsflow.uncertainty.propagation import (
     PARAM_BLOCKS,
     cov_columns,

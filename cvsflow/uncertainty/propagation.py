@@ -6,7 +6,7 @@
    sec. 5.2.3).
 2. :func:`propagated_pose_covariance` / :func:`pose6_covariance`: the same covariance pushed
    through the linearised map to the composed error [x, y, z, roll, pitch, yaw] in C
-   (:func:`cvsflow.metrics.pose_errors.pose_errors`) or to the 6-vector of T_C_B.
+   (:func:`cvsflow.metrics.errors.pose_errors`) or to the 6-vector of T_C_B.
 3. :func:`parameter_covariance`: the error covariance of each held-out frame that comes from
    the uncertainty of the se3 fit that scored it (intrinsics fx, fy, k1, k2, p1, p2 through
    the PnP pose; the mountings T_Cm_C, T_Bm_B through the Vicon reference), from that fit's
@@ -25,7 +25,7 @@ import numpy as np
 
 from cvsflow.exceptions import OptimiseError
 from cvsflow.geometry import transforms as tf
-from cvsflow.metrics.pose_errors import ERROR_DIMS, pose_errors
+from cvsflow.metrics import ERROR_DIMS, pose_errors
 
 
 def pnp_covariance(rvec_C_B, tvec_C_B, p_B, K, dist, sigma_px):

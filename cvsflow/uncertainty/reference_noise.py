@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from cvsflow.geometry import transforms as tf
-from cvsflow.metrics.pose_errors import ERROR_DIMS, pose_errors
-from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, body_track, smooth_track_local
+from cvsflow.metrics import ERROR_DIMS, pose_errors
+from cvsflow.optimise import CAMERA_MOVING_SMOOTH_S, body_track, smooth_track_local
 from cvsflow.uncertainty.propagation import _numeric_jacobian
 
 #: Median of chi-square with one degree of freedom: a per-axis variance from the median of
@@ -71,7 +71,7 @@ def camera_body_error_cov(rvec_C_B, tvec_C_B, sigma_rot_rad, sigma_pos_m, frame=
     T_C_B <- exp([-R d_theta, -R d_p]) T_C_B, whose rotation about C moves the board by the
     lever of its distance. With isotropic noise (``sigma_rot_rad``, ``sigma_pos_m`` per axis,
     :func:`moving_body_noise`) the perturbation's covariance is diag(s_r^2 I, s_p^2 I); it is
-    pushed through :func:`cvsflow.metrics.pose_errors.pose_errors` by central differences.
+    pushed through :func:`cvsflow.metrics.errors.pose_errors` by central differences.
 
     Parameters
     ----------

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import gammaincinv, gammaln, stdtrit, xlogy
 
-from cvsflow.metrics.pose_errors import ERROR_DIMS
+from cvsflow.metrics import ERROR_DIMS
 
 #: Two-sided band multipliers of a normal: 68.27 % and 95 % (1.96 sigma).
 BANDS = {"68": 1.0, "95": 1.959963984540054}

@@ -16,7 +16,7 @@ from scipy.optimize import minimize
 from scipy.special import digamma, gammaln
 
 from cvsflow.exceptions import OptimiseError
-from cvsflow.metrics.pose_errors import ERROR_DIMS
+from cvsflow.metrics import ERROR_DIMS
 from cvsflow.uncertainty.ambiguity import flip_weight
 from cvsflow.uncertainty.features import (
     NOISE_POOL_COLUMN,
@@ -26,9 +26,7 @@ from cvsflow.uncertainty.features import (
     still_board_weight,
 )
 from cvsflow.uncertainty.propagation import cov_columns, cov_from_columns
-from cvsflow.uncertainty.scoring import (
-    WORKING_UNITS,
-)
+from cvsflow.uncertainty.scoring import WORKING_UNITS
 
 log = logging.getLogger(__name__)
 

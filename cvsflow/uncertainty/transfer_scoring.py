@@ -12,7 +12,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.exceptions import OptimiseError
-from cvsflow.metrics.pose_errors import ERROR_DIMS
+from cvsflow.metrics import ERROR_DIMS
 from cvsflow.uncertainty.crb import cramer_rao_sigma
 from cvsflow.uncertainty.scoring import (
     WORKING_UNITS,

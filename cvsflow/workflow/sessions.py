@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import logging
 
-from cvsflow.board.charuco import charuco_board
+from cvsflow.board import charuco_board
 from cvsflow.exceptions import ConfigError
 
 logger = logging.getLogger(__name__)

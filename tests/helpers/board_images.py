@@ -8,7 +8,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board.model import board_object_points
 from cvsflow.geometry import transforms as tf
 
 BOARD = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}  # the demo board, 5x4 inner corners

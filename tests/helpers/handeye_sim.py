@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board.model import board_object_points
 from cvsflow.geometry import transforms as tf
 from cvsflow.geometry.camera import project_points
 from tests.helpers.board_images import board_centre_pose

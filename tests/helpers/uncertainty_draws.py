@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow import uncertainty as un
-from cvsflow.metrics.pose_errors import ERROR_DIMS
+from cvsflow.metrics.errors import ERROR_DIMS
 
 
 def draw_transfer(rng, n, truth, n_blocks=8, reproj=None):

@@ -134,10 +134,10 @@ def _case(module, known):
 
 def test_the_scan_sees_the_package():
     """The scan finds the modules and their imports, those inside functions too."""
-    assert {"cvsflow.geometry.rigid", "cvsflow.metrics.pose_errors", "cvsflow.evaluate.heldout", "cvsflow.io.files"} <= set(MODULES)
+    assert {"cvsflow.geometry.rigid", "cvsflow.metrics.errors", "cvsflow.evaluate.heldout", "cvsflow.io.files"} <= set(MODULES)
     assert ("matplotlib.pyplot", True) in {(t, inner) for t, _, inner in _imports("cvsflow.io.files")}
     assert "cvsflow.geometry" in _edges()["cvsflow.mocap.bodies"]
-    assert {"cvsflow.evaluate.heldout", "cvsflow.uncertainty", "cvsflow.geometry.transforms", "cvsflow.metrics.pose_errors"} <= set(MATHS)
+    assert {"cvsflow.evaluate.heldout", "cvsflow.uncertainty", "cvsflow.geometry.transforms", "cvsflow.metrics.errors"} <= set(MATHS)
     assert _reach("cvsflow.plots.mocap")[-1].startswith("matplotlib")
 
 
@@ -185,7 +185,7 @@ def test_cycle_check_finds_a_cycle(monkeypatch):
     """The cycle check is not vacuous: a made-up back edge metrics -> evaluate is a cycle."""
     real = _edges()
     fake = {m: set(t) for m, t in real.items()}
-    fake["cvsflow.metrics.pose_errors"].add("cvsflow.evaluate.heldout")
+    fake["cvsflow.metrics.errors"].add("cvsflow.evaluate.heldout")
     monkeypatch.setitem(globals(), "_edges", lambda: fake)
     with pytest.raises(AssertionError, match="cvsflow.evaluate.heldout"):
         test_no_import_cycle()
@@ -214,13 +214,85 @@ def test_maths_modules_load_no_io_at_run_time():
 
 def test_reach_check_finds_an_import_hidden_in_a_function(monkeypatch):
     """The reach check is not vacuous: a made-up ``import cvsflow.io.files`` inside a function
-    of cvsflow.metrics.pose_errors is found, through evaluate, which imports metrics."""
+    of cvsflow.metrics.errors is found, through evaluate, which imports metrics."""
     real = _imports
 
     def fake(module):
-        extra = (("cvsflow.io.files", 99, True),) if module == "cvsflow.metrics.pose_errors" else ()
+        extra = (("cvsflow.io.files", 99, True),) if module == "cvsflow.metrics.errors" else ()
         return real(module) + extra
 
     monkeypatch.setitem(globals(), "_imports", fake)
     chain = _reach("cvsflow.evaluate.heldout")
-    assert chain is not None and "cvsflow.metrics.pose_errors" in chain and chain[-1].startswith("cvsflow.io.files")
+    assert chain is not None and "cvsflow.metrics.errors" in chain and chain[-1].startswith("cvsflow.io.files")
+
+
+#: Subpackages imported by module, never through a face: each job loads only the formats,
+#: figures and renderers it uses (and exceptions is one module).
+BY_MODULE = ("cvsflow.exceptions", "cvsflow.io", "cvsflow.plots", "cvsflow.synth", "cvsflow.cli",
+             "cvsflow.workflow")
+
+
+def _subpackage(module):
+    """The stage subpackage a module belongs to: cvsflow.corners.track -> cvsflow.corners."""
+    return ".".join(module.split(".")[:2])
+
+
+def _package_edges():
+    """Subpackage -> the subpackages its modules import."""
+    out = {}
+    for m, targets in _edges().items():
+        out.setdefault(_subpackage(m), set()).update(
+            _subpackage(t) for t in targets if _subpackage(t) != _subpackage(m))
+    return out
+
+
+def test_no_cycle_between_subpackages():
+    """The subpackages import each other in one direction: no chain leads from one back to itself."""
+    edges = _package_edges()
+    for start in edges:
+        seen, stack = set(), [[start]]
+        while stack:
+            chain = stack.pop()
+            for nxt in sorted(edges.get(chain[-1], ())):
+                assert nxt != start, "subpackage cycle: " + " -> ".join(chain + [nxt])
+                if nxt not in seen:
+                    seen.add(nxt)
+                    stack.append(chain + [nxt])
+
+
+def _cross_package_imports():
+    """(importer, line, imported module, names) of every `from cvsflow.x.y import ...` that leaves
+    the importer's subpackage."""
+    out = []
+    for module, path in MODULES.items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if (isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("cvsflow.")
+                    and _subpackage(node.module) != _subpackage(module)):
+                out.append((module, node.lineno, node.module, [a.name for a in node.names]))
+    return out
+
+
+def test_other_subpackages_are_reached_through_their_face():
+    """A maths subpackage is imported from its __init__ (`from cvsflow.corners import ...`),
+    which exports what other packages use; modules inside it stay its own business."""
+    bad = [f"{m} line {line}: from {target} import ..." for m, line, target, _ in _cross_package_imports()
+           if target != _subpackage(target) and not _subpackage(target).startswith(BY_MODULE)]
+    assert bad == []
+
+
+def test_no_private_name_crosses_a_subpackage():
+    """A name with a leading underscore is never imported from another subpackage."""
+    bad = [f"{m} line {line}: {n} from {target}" for m, line, target, names in _cross_package_imports()
+           for n in names if n.startswith("_")]
+    assert bad == []
+
+
+def test_at_most_twenty_top_level_entries_and_modules_under_600_lines():
+    """The package's top level stays a table of contents, and no module outgrows a screenful of
+    responsibilities (600 lines)."""
+    top = [p for p in PACKAGE.iterdir() if p.name != "__pycache__" and p.name != "__init__.py"
+           and (p.is_dir() or p.suffix == ".py")]
+    assert len(top) <= 20, sorted(p.name for p in top)
+    long = {str(p.relative_to(PACKAGE)): n for p in PACKAGE.rglob("*.py")
+            if (n := len(p.read_text().splitlines())) > 600}
+    assert long == {}

@@ -29,7 +29,7 @@ from cvsflow.io.mocap.markers import MocapExport, marker_names, select_markers
 from cvsflow.io.mocap.optitrack import read_motive_csv
 from cvsflow.io.mocap.qualisys import read_qtm_tsv
 from cvsflow.io.mocap.vicon import read_c3d, read_nexus_csv
-from cvsflow.mocap.bodies import select_system_bodies
+from cvsflow.mocap import select_system_bodies
 
 log = logging.getLogger(__name__)
 

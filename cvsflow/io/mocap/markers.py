@@ -18,8 +18,8 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.exceptions import InputError
-from cvsflow.geometry.transforms import make_T
-from cvsflow.mocap.bodies import bodies_from_poses
+from cvsflow.geometry import make_T
+from cvsflow.mocap import bodies_from_poses
 
 AXES = ("x", "y", "z")
 

@@ -3,9 +3,9 @@
 import json
 
 from cvsflow.evaluate import analyse
-from cvsflow.io import atomic_output, read_parquet, read_yaml, save_figure
+from cvsflow.io.files import atomic_output, read_parquet, read_yaml, save_figure
 from cvsflow.io.logs import stage_logging
-from cvsflow.plausibility.checks import check_rows
+from cvsflow.plausibility import check_rows
 from cvsflow.plots import results as plots
 from cvsflow.plots import se3 as plots_se3
 

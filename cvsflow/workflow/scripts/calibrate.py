@@ -2,9 +2,9 @@
 
 import cv2
 
-from cvsflow.calibration.intrinsics import calibrate_camera
-from cvsflow.io import save_figure, write_parquet, write_yaml
+from cvsflow.calibration import calibrate_camera
 from cvsflow.io.camera_formats import write_camera_format
+from cvsflow.io.files import save_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import list_stills, read_gray
 from cvsflow.plots import camera as plots

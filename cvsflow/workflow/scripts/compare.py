@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from cvsflow.evaluate.heldout import compare_heldout
-from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet, write_yaml
+from cvsflow.evaluate import compare_heldout
+from cvsflow.io.files import read_parquet, read_yaml, save_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.plots import se3 as plots
 from cvsflow.plots import uncertainty as uplots

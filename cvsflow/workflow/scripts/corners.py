@@ -4,8 +4,8 @@ from functools import partial
 
 import cv2
 
-from cvsflow.corners.extract import extract_corners_parallel, summarise_corners
-from cvsflow.io import write_parquet, write_yaml
+from cvsflow.corners import extract_corners_parallel, summarise_corners
+from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import iter_video_gray, video_info, video_timing
 

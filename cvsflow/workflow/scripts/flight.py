@@ -2,22 +2,23 @@
 
 import numpy as np
 
-from cvsflow.calibration.intrinsics import board_object_points
-from cvsflow.flight.clock import Clock
-from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
-from cvsflow.flight.reference import (
+from cvsflow.board import board_object_points
+from cvsflow.flight import (
+    Clock,
+    check_against_truth,
     corner_noise_per_axis,
     correct_rolling_shutter,
+    evaluate_flight,
     factor_from_columns,
     flip_from_columns,
     reference_covariance_from_pnp,
     reference_covariance_transfer,
+    reference_from_poses,
     session_error_model,
     sigma_from_columns,
 )
-from cvsflow.flight.trajectory import reference_from_poses
-from cvsflow.geometry.transforms import T_from_pose6
-from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet, write_yaml
+from cvsflow.geometry import T_from_pose6
+from cvsflow.io.files import read_parquet, read_yaml, save_figure, write_parquet, write_yaml
 from cvsflow.io.flightlog import read_flight_log, read_tum, write_tum
 from cvsflow.io.logs import stage_logging
 from cvsflow.plots import flight as plots

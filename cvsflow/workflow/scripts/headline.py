@@ -2,14 +2,8 @@
 
 from pathlib import Path
 
-from cvsflow.evaluate.headline import (
-    flight_headline,
-    headline_rst,
-    headline_table,
-    rig_headline,
-    session_headline,
-)
-from cvsflow.io import atomic_output, read_yaml
+from cvsflow.evaluate import flight_headline, headline_rst, headline_table, rig_headline, session_headline
+from cvsflow.io.files import atomic_output, read_yaml
 from cvsflow.io.logs import stage_logging
 
 with stage_logging(snakemake.log[0], "headline") as log:

@@ -1,7 +1,7 @@
 """The se3 calibration scored on time blocks it was not fitted on (rule heldout_se3)."""
 
-from cvsflow.evaluate.heldout import cross_validate_se3
-from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.evaluate import cross_validate_se3
+from cvsflow.io.files import read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 
 with stage_logging(snakemake.log[0], "heldout_se3") as log:

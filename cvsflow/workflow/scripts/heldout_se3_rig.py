@@ -1,9 +1,8 @@
 """The rig fit scored on time blocks it was not fitted on (rule heldout_se3_rig)."""
 
-from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.io.files import read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.rig.fit import cross_validate_se3_rig
-from cvsflow.rig.run import heldout_scores, rig_camera_entries, rig_fit_options
+from cvsflow.rig import cross_validate_se3_rig, heldout_scores, rig_camera_entries, rig_fit_options
 
 with stage_logging(snakemake.log[0], "heldout_se3_rig") as log:
     n = range(len(snakemake.params.cameras))

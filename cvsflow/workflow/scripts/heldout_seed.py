@@ -2,9 +2,8 @@
 
 import numpy as np
 
-from cvsflow.evaluate.heldout import heldout_blocks
-from cvsflow.evaluate.seed import cross_validate_seed
-from cvsflow.io import read_parquet, read_yaml, write_parquet
+from cvsflow.evaluate import cross_validate_seed, heldout_blocks
+from cvsflow.io.files import read_parquet, read_yaml, write_parquet
 from cvsflow.io.logs import stage_logging
 
 with stage_logging(snakemake.log[0], "heldout_seed") as log:

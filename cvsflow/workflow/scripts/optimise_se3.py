@@ -2,11 +2,11 @@
 
 import numpy as np
 
-from cvsflow.evaluate.heldout import se3_run_tables
-from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.evaluate import se3_run_tables
+from cvsflow.io.files import read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.optimise.se3 import optimise_se3
-from cvsflow.plausibility.results import check_se3_result
+from cvsflow.optimise import optimise_se3
+from cvsflow.plausibility import check_se3_result
 
 with stage_logging(snakemake.log[0], "optimise_se3") as log:
     camera = read_yaml(snakemake.input.camera)

@@ -1,10 +1,9 @@
 """N cameras on one rig body fitted together: each camera's intrinsics, mounting and time
 offset, the board's mounting, and the fused board poses (rule optimise_se3_rig)."""
 
-from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.io.files import read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.rig.fit import optimise_se3_rig
-from cvsflow.rig.run import name_rig_result, rig_camera_entries, rig_fit_options
+from cvsflow.rig import name_rig_result, optimise_se3_rig, rig_camera_entries, rig_fit_options
 
 with stage_logging(snakemake.log[0], "optimise_se3_rig") as log:
     names = snakemake.params.cameras

@@ -2,10 +2,10 @@
 
 import numpy as np
 
-from cvsflow.io import read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.io.files import read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.optimise.seed import optimise_seed
-from cvsflow.plausibility.results import check_seed_result
+from cvsflow.optimise import optimise_seed
+from cvsflow.plausibility import check_seed_result
 
 with stage_logging(snakemake.log[0], "optimise_seed") as log:
     camera = read_yaml(snakemake.input.camera)

@@ -1,9 +1,9 @@
 """CVS and Vicon poses side by side per video frame (rule pairs)."""
 
-from cvsflow.io import read_parquet, read_yaml, write_parquet
+from cvsflow.io.files import read_parquet, read_yaml, write_parquet
 from cvsflow.io.logs import stage_logging
-from cvsflow.plausibility.checks import check_pair_distances
-from cvsflow.sync.pairs import make_pairs
+from cvsflow.plausibility import check_pair_distances
+from cvsflow.sync import make_pairs
 
 with stage_logging(snakemake.log[0], "pairs") as log:
     pairs = make_pairs(

@@ -3,11 +3,11 @@
 import cv2
 import numpy as np
 
-from cvsflow.calibration.pnp import estimate_poses
-from cvsflow.io import read_parquet, read_yaml, save_figure, write_parquet
+from cvsflow.calibration import estimate_poses
+from cvsflow.io.files import read_parquet, read_yaml, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import video_size
-from cvsflow.plausibility.checks import check_image_size, check_poses_found
+from cvsflow.plausibility import check_image_size, check_poses_found
 from cvsflow.plots import camera as plots
 
 # OpenCV's own thread pool would take every core and make results differ in the last bits.

@@ -2,11 +2,11 @@
 
 import cv2
 
-from cvsflow.calibration.intrinsics import view_corners
-from cvsflow.io import read_yaml, write_yaml
+from cvsflow.calibration import view_corners
+from cvsflow.io.files import read_yaml, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import list_stills, read_gray
-from cvsflow.rig.extrinsics import stereo_extrinsics
+from cvsflow.rig import stereo_extrinsics
 
 cv2.setNumThreads(snakemake.threads)
 

@@ -1,6 +1,6 @@
 """Time per stage against session length, from bench/bench_scaling.py's table (rule stage_scaling)."""
 
-from cvsflow.io import read_csv_table, save_figure
+from cvsflow.io.files import read_csv_table, save_figure
 from cvsflow.io.logs import stage_logging
 from cvsflow.plots.timing import BENCHMARK_COLUMNS, plot_stage_scaling, prefer_whole_runs
 

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from cvsflow.evaluate.summary import summary_row
-from cvsflow.io import atomic_output, read_parquet, read_yaml, save_figure
+from cvsflow.evaluate import summary_row
+from cvsflow.io.files import atomic_output, read_parquet, read_yaml, save_figure
 from cvsflow.io.logs import stage_logging
 from cvsflow.plots import summary as plots
 

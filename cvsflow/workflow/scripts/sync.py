@@ -1,10 +1,10 @@
 """Time offset between the video and the Vicon take (rule sync)."""
 
-from cvsflow.io import read_parquet, save_figure, write_yaml
+from cvsflow.io.files import read_parquet, save_figure, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.plausibility.checks import check_sync_inputs
+from cvsflow.plausibility import check_sync_inputs
 from cvsflow.plots import mocap as plots
-from cvsflow.sync.offset import synchronise
+from cvsflow.sync import synchronise
 
 with stage_logging(snakemake.log[0], "sync") as log:
     poses = read_parquet(snakemake.input.poses)

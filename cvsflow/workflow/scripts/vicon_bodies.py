@@ -1,11 +1,10 @@
 """Camera and board poses: fitted to their markers, or as the mocap system solved them (rule vicon_bodies)."""
 
-from cvsflow.io import read_parquet, save_figure, write_parquet
+from cvsflow.io.files import read_parquet, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.mocap.formats import read_system_bodies
-from cvsflow.mocap.bodies import fit_bodies
-from cvsflow.mocap.layout import resolve_layouts
-from cvsflow.plausibility.checks import check_body_fits
+from cvsflow.mocap import fit_bodies, resolve_layouts
+from cvsflow.plausibility import check_body_fits
 from cvsflow.plots import mocap as plots
 
 with stage_logging(snakemake.log[0], "vicon_bodies") as log:

@@ -1,9 +1,9 @@
 """Read the motion-capture export into a marker table in metres (rule vicon_import)."""
 
-from cvsflow.io import write_parquet
+from cvsflow.io.files import write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.mocap.formats import read_markers
-from cvsflow.plausibility.checks import check_marker_scale
+from cvsflow.plausibility import check_marker_scale
 
 with stage_logging(snakemake.log[0], "vicon_import") as log:
     markers = snakemake.params.markers

@@ -1,8 +1,8 @@
 """Fill short marker gaps, optionally low-pass, flag every repaired sample (rule vicon_repair)."""
 
-from cvsflow.io import read_parquet, save_figure, write_parquet, write_yaml
+from cvsflow.io.files import read_parquet, save_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.mocap.repair import repair_markers
+from cvsflow.mocap import repair_markers
 from cvsflow.plots import mocap as plots
 
 with stage_logging(snakemake.log[0], "vicon_repair") as log:

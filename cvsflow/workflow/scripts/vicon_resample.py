@@ -1,9 +1,9 @@
 """Vicon body poses at the video rate: the chapter's block mean or interpolation (rule vicon_resample)."""
 
-from cvsflow.io import read_parquet, write_parquet
+from cvsflow.io.files import read_parquet, write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import video_info
-from cvsflow.mocap.bodies import downsample_bodies
+from cvsflow.mocap import downsample_bodies
 
 with stage_logging(snakemake.log[0], "vicon_resample") as log:
     fps = video_info(snakemake.input.video)["fps"]

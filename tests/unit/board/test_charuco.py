@@ -17,8 +17,8 @@ import pytest
 import yaml
 
 from cvsflow.board import charuco as ch
-from cvsflow.board.model import CORNER_COLUMNS
-from cvsflow.calibration.intrinsics import board_object_points, calibrate_camera
+from cvsflow.board.model import CORNER_COLUMNS, board_object_points
+from cvsflow.calibration.intrinsics import calibrate_camera
 from cvsflow.calibration.pnp import estimate_poses
 from cvsflow.corners.extract import extract_corners
 from cvsflow.exceptions import ConfigError

@@ -8,13 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from cvsflow.calibration.intrinsics import (
-    CALIB_CORNER_COLUMNS,
-    board_object_points,
-    board_pattern,
-    calibrate_camera,
-    ends_distinguishable,
-)
+from cvsflow.board.model import board_object_points, board_pattern, ends_distinguishable
+from cvsflow.calibration.intrinsics import CALIB_CORNER_COLUMNS, calibrate_camera
 from cvsflow.exceptions import CalibrationError, ConfigError, InputError
 from cvsflow.geometry import transforms as tf
 
@@ -261,7 +256,7 @@ def test_rendered_stills_give_true_focal_lengths(tmp_path):
     and fy within 1 % of the truth (measured 0.07 % and 0.05 %), RMS < 0.5 px (measured
     0.05 px), all stills used."""
     synth = pytest.importorskip("cvsflow.synth.render")
-    from cvsflow.io import read_yaml
+    from cvsflow.io.files import read_yaml
     from cvsflow.io.media import list_stills, read_gray
     from tests.helpers.sessions import synth_session_cfg
 

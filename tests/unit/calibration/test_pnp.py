@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board.model import board_object_points
 from cvsflow.calibration.pnp import POSE_COLUMNS, estimate_poses
 from cvsflow.corners.detect import detect_corners
 from cvsflow.corners.extract import extract_corners
@@ -243,7 +243,7 @@ def test_image_turned_180_degrees_gives_the_same_physical_pose(yaw_deg):
 def rendered_session(tmp_path_factory):
     """A 4 s rendered session (120 frames) with its truth, corners and PnP poses (true K)."""
     synth = pytest.importorskip("cvsflow.synth.render")
-    from cvsflow.io import read_parquet, read_yaml
+    from cvsflow.io.files import read_parquet, read_yaml
     from cvsflow.io.media import iter_video_gray
 
     out = tmp_path_factory.mktemp("synth") / "session"

@@ -13,7 +13,7 @@ import yaml
 from cvsflow import cli
 from cvsflow.cli import run as cli_run
 from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T
-from cvsflow.io import write_parquet, write_yaml
+from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.synth.stereo import render_shared_stills
 
 REAL = Path("/work/shared/data/real/opencv-chessboard")

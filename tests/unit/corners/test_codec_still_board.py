@@ -22,7 +22,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board.model import board_object_points
 from cvsflow.corners.extract import summarise_corners
 from cvsflow.io.media import iter_video_gray, video_timing
 from cvsflow.synth.render import render_session

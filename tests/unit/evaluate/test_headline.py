@@ -82,7 +82,7 @@ def test_mounting_angle_std_is_that_of_the_euler_angles_not_of_the_perturbation(
     perturbation's std for the angle (as before) misses it."""
     from scipy.spatial.transform import Rotation
 
-    from cvsflow.geometry import euler_from_R
+    from cvsflow.geometry.transforms import euler_from_R
 
     rows = by_key(full_rows())
     sd = np.array([7e-4, 3e-4, 1.1e-3])

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from cvsflow import metrics
 from cvsflow.evaluate import heldout as ev
 from cvsflow.exceptions import OptimiseError
 from cvsflow.geometry import transforms as tf
@@ -17,7 +18,7 @@ def test_pure_yaw_error_of_one_degree():
     T_true = tf.T_from_pose6([[0.1, -0.2, 2.0, 0.4, -0.3, 0.2]])
     T_est = T_true.copy()
     T_est[:, :3, :3] = tf.R_from_euler([0.0, 0.0, np.radians(1.0)]) @ T_true[:, :3, :3]
-    e = ev.pose_errors(T_true, T_est, frame="C").iloc[0]
+    e = metrics.pose_errors(T_true, T_est, frame="C").iloc[0]
     assert e["err_yaw_rad"] == pytest.approx(np.radians(1.0), abs=1e-9)
     assert e["err_roll_rad"] == pytest.approx(0.0, abs=1e-9)
     assert e["err_pitch_rad"] == pytest.approx(0.0, abs=1e-9)
@@ -31,8 +32,8 @@ def test_translation_error_in_C_and_in_B():
     T_true = tf.T_from_pose6([[0.0, 0.0, 2.0, 0.0, 0.0, np.pi / 2]])
     T_est = T_true.copy()
     T_est[:, 0, 3] += 0.005
-    eC = ev.pose_errors(T_true, T_est, frame="C").iloc[0]
-    eB = ev.pose_errors(T_true, T_est, frame="B").iloc[0]
+    eC = metrics.pose_errors(T_true, T_est, frame="C").iloc[0]
+    eB = metrics.pose_errors(T_true, T_est, frame="B").iloc[0]
     np.testing.assert_allclose([eC.err_x_m, eC.err_y_m, eC.err_z_m], [0.005, 0, 0], atol=1e-12)
     np.testing.assert_allclose([eB.err_x_m, eB.err_y_m, eB.err_z_m], [0, -0.005, 0], atol=1e-12)
     assert eB.err_dist_m == pytest.approx(0.005)
@@ -43,8 +44,8 @@ def test_rotation_error_frame_B_is_right_composition():
     T_true = tf.T_from_pose6([[0.0, 0.0, 2.0, 0.0, 0.0, np.pi / 2]])
     T_est = T_true.copy()
     T_est[:, :3, :3] = T_true[:, :3, :3] @ tf.R_from_euler([np.radians(2.0), 0, 0])
-    eB = ev.pose_errors(T_true, T_est, frame="B").iloc[0]
-    eC = ev.pose_errors(T_true, T_est, frame="C").iloc[0]
+    eB = metrics.pose_errors(T_true, T_est, frame="B").iloc[0]
+    eC = metrics.pose_errors(T_true, T_est, frame="C").iloc[0]
     assert eB.err_roll_rad == pytest.approx(np.radians(2.0), abs=1e-9)
     assert eC.err_pitch_rad == pytest.approx(np.radians(2.0), abs=1e-9)  # B's x is C's y
     assert eC.err_angle_rad == pytest.approx(eB.err_angle_rad, abs=1e-12)
@@ -53,9 +54,9 @@ def test_rotation_error_frame_B_is_right_composition():
 def test_pose_errors_bad_input():
     """Mismatched shapes and an unknown frame raise OptimiseError naming the problem."""
     with pytest.raises(OptimiseError, match="expected \\(N, 4, 4\\)"):
-        ev.pose_errors(np.eye(4)[None], np.eye(4)[None].repeat(2, 0))
+        metrics.pose_errors(np.eye(4)[None], np.eye(4)[None].repeat(2, 0))
     with pytest.raises(OptimiseError, match="frame 'W'"):
-        ev.pose_errors(np.eye(4)[None], np.eye(4)[None], frame="W")
+        metrics.pose_errors(np.eye(4)[None], np.eye(4)[None], frame="W")
 
 
 def test_time_blocks_are_contiguous_balanced_and_seeded():
@@ -160,7 +161,7 @@ def test_se3_figures_build_with_labelled_axes():
     rng = np.random.default_rng(9)
     n = 300
     errors = {"t_s": np.arange(n) / 30.0, "error_frame": "C"}
-    for d in ev.ERROR_DIMS:
+    for d in metrics.ERROR_DIMS:
         errors[f"err_{d}"] = rng.normal(0, 1e-3, n)
         errors[f"d6_{d}"] = rng.normal(0, 1e-3, n)
     import pandas as pd

@@ -4,9 +4,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cvsflow import metrics
 from cvsflow.evaluate import heldout as ev
 from cvsflow.evaluate.seed import cross_validate_seed
-from cvsflow.metrics.pose_errors import poses_from_table
+from cvsflow.metrics.errors import poses_from_table
 from cvsflow.optimise import se3, se3_apply
 from cvsflow.optimise.se3_sim import simulate_session
 
@@ -53,7 +54,7 @@ def test_se3_run_tables_errors_equal_composed_errors_by_hand(session):
     iterations, errors, result = ev.se3_run_tables(fit, s["corners"], s["bodies"], s["board"],
                                                    _poses_raw(s))
     frames = se3_apply.apply_se3(fit.result, s["corners"], s["bodies"], s["board"])
-    by_hand = ev.pose_errors(poses_from_table(frames, "ref_"), poses_from_table(frames, "cvs_"))
+    by_hand = metrics.pose_errors(poses_from_table(frames, "ref_"), poses_from_table(frames, "cvs_"))
     for d in DIMS:
         np.testing.assert_allclose(errors[f"eps_{d}"], by_hand[f"err_{d}"], atol=1e-12)
     assert result["norm_normalised_final_m"] == pytest.approx(

@@ -4,7 +4,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvsflow.evaluate.summary import POSE_DIMS, summary_row
+from cvsflow.evaluate.summary import summary_row
+from cvsflow.metrics.errors import ERROR_DIMS as POSE_DIMS
 
 
 def test_summary_row_converts_to_report_units_and_true_p_bar():

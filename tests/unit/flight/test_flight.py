@@ -638,7 +638,7 @@ def test_reference_covariance_transfer_against_truth_on_two_cameras(focal_px, bo
     corners are not; 4 flights share 4 calibration draws): never overconfident by more than
     10 %, conservative by the expected ~14 % on iid noise."""
     from cvsflow import uncertainty as un
-    from cvsflow.evaluate.heldout import ERROR_DIMS, pose_errors
+    from cvsflow.metrics.errors import ERROR_DIMS, pose_errors
 
     # no principal-point error: the flight's alignment absorbs it (its turn of C), and the
     # covariance leaves it out; the truth here is compared without an alignment
@@ -665,7 +665,7 @@ def test_flight_reference_states_its_error_with_the_validation_sessions_model():
     session (iid 0.3 px corners, a Vicon reference; comparison.yaml error_model_fit) states
     the PnP reference of corner-level flights of the same camera right, z RMS per axis within
     0.88-1.12, where the model fitted on the rendered sessions is ~14 % cautious (above)."""
-    from cvsflow.evaluate.heldout import ERROR_DIMS, pose_errors
+    from cvsflow.metrics.errors import ERROR_DIMS, pose_errors
     from cvsflow.synth.flight_reference import validate_simulated_session
 
     _, comparison, _ = validate_simulated_session(5, duration_s=12.0, calib_std={}, n_folds=4,

@@ -3,7 +3,7 @@
 import cv2
 import numpy as np
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board.model import board_object_points
 from cvsflow.flight.reference import corner_noise_per_axis, sigma_columns, sigma_from_columns
 
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board.model import board_object_points
 from cvsflow.exceptions import CalibrationError, InputError
 from cvsflow.geometry import transforms as tf
 from cvsflow.geometry.camera import project_points

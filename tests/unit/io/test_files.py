@@ -3,7 +3,7 @@
 from matplotlib.figure import Figure
 from PIL import Image
 
-from cvsflow.io import save_figure
+from cvsflow.io.files import save_figure
 
 
 def test_constrained_figure_is_saved_at_its_own_size(tmp_path):
@@ -27,7 +27,7 @@ def test_read_csv_table_names_the_file_and_the_missing_columns(tmp_path):
     import pytest
 
     from cvsflow.exceptions import InputError
-    from cvsflow.io import read_csv_table
+    from cvsflow.io.files import read_csv_table
 
     path = tmp_path / "scaling.csv"
     with pytest.raises(InputError, match="scaling.csv: file not found"):

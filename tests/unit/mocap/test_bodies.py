@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cvsflow.exceptions import MocapError
-from cvsflow.geometry import fit_rigid
+from cvsflow.geometry.rigid import fit_rigid
 from cvsflow.geometry.transforms import invert_T, make_T, rotation_angle, transform_points
 from cvsflow.mocap.bodies import (
     BODY_COLUMNS,

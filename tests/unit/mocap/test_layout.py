@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from cvsflow.exceptions import MocapError
-from cvsflow.geometry import fit_rigid
+from cvsflow.geometry.rigid import fit_rigid
 from cvsflow.geometry.transforms import invert_T, rotation_angle, transform_points
 from cvsflow.mocap.bodies import body_poses, fit_bodies
 from cvsflow.mocap.layout import learn_layout, refine_layout

@@ -7,11 +7,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cvsflow.board.model import board_object_points
 from cvsflow.exceptions import OptimiseError
 from cvsflow.geometry.transforms import R_from_rvec, T_from_pose6, rvec_tvec_from_T
 from cvsflow.optimise.seed import (
     POSE_DIMS,
-    board_object_points,
     compute_eps,
     compute_p_bar,
     normalised_error_norm,

@@ -27,7 +27,7 @@ from cvsflow.exceptions import (
     UnitsError,
 )
 from cvsflow.geometry.transforms import make_T, transform_points
-from cvsflow.io import write_parquet, write_yaml
+from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.io.mocap.vicon import read_nexus_csv, write_nexus_csv
 from cvsflow.mocap.bodies import fit_bodies
 from cvsflow.plausibility.checks import (

@@ -160,7 +160,7 @@ def test_flip_term_holds_the_planar_ambiguity():
     term the stated rotation sigma is too small (z RMS > 1.5 on some axis), with it not."""
     from scipy.spatial.transform import Rotation
 
-    from cvsflow.calibration.intrinsics import board_object_points
+    from cvsflow.board.model import board_object_points
     from cvsflow.synth.flight import true_flight
     from cvsflow.synth.flight_reference import BOARD_DEFAULT, CAMERA_DEMO, measure_reference
 
@@ -301,7 +301,7 @@ def test_pnp_flight_files_keep_the_flip_and_calibration_terms(tmp_path):
     """A rendered PnP flight written as files (write_flight_demo) and read back as the flight
     stage reads it: the covariance, the flip term and the calibration factor come back equal,
     and the evaluation from the files states the same sigma as from memory."""
-    from cvsflow.io import read_parquet
+    from cvsflow.io.files import read_parquet
     from cvsflow.io.flightlog import write_flight_demo
 
     d = render_flight(seed=3, duration_s=6.0, reference="pnp")

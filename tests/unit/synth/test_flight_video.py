@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import yaml
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board.model import board_object_points
 from cvsflow.corners.detect import detect_corners
 from cvsflow.exceptions import ConfigError
 from cvsflow.flight.trajectory import T_from_traj
 from cvsflow.geometry.transforms import invert_T
-from cvsflow.io import read_parquet, read_yaml
+from cvsflow.io.files import read_parquet, read_yaml
 from cvsflow.io.flightlog import read_tum
 from cvsflow.io.media import iter_video_gray
 from cvsflow.synth.camera import project_points
@@ -103,10 +103,7 @@ def test_a_rolling_shutter_flight_filmed_as_video_states_its_error(tmp_path):
     from cvsflow.corners.extract import extract_corners_parallel, summarise_corners
     from cvsflow.flight.clock import Clock
     from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
-    from cvsflow.flight.reference import (
-        correct_rolling_shutter,
-        reference_covariance_transfer,
-    )
+    from cvsflow.flight.reference import correct_rolling_shutter, reference_covariance_transfer
     from cvsflow.flight.trajectory import reference_from_poses
     from cvsflow.io.media import video_info, video_timing
 

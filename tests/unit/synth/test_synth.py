@@ -14,13 +14,7 @@ import yaml
 
 from cvsflow.calibration.intrinsics import calibrate_camera
 from cvsflow.exceptions import ConfigError
-from cvsflow.geometry.transforms import (
-    T_from_pose6,
-    euler_from_R,
-    invert_T,
-    rotation_angle,
-    rvec_tvec_from_T,
-)
+from cvsflow.geometry.transforms import T_from_pose6, euler_from_R, invert_T, rotation_angle, rvec_tvec_from_T
 from cvsflow.io import synth_out
 from cvsflow.synth.board_image import make_board_texture
 from cvsflow.synth.camera import Board, project_points

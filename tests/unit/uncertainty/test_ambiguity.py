@@ -7,15 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from cvsflow.calibration.intrinsics import board_object_points
+from cvsflow.board.model import board_object_points
 from cvsflow.geometry import transforms as tf
-from cvsflow.metrics.pose_errors import ERROR_DIMS, pose_errors
-from cvsflow.uncertainty import (
-    flip_weight,
-    pnp_alternatives,
-    pnp_covariance,
-    propagated_pose_covariance,
-)
+from cvsflow.metrics.errors import ERROR_DIMS, pose_errors
+from cvsflow.uncertainty.ambiguity import flip_weight, pnp_alternatives
+from cvsflow.uncertainty.propagation import pnp_covariance, propagated_pose_covariance
 
 BOARD = {"squares_x": 9, "squares_y": 7, "square_m": 0.025}  # 8 x 6 corners of 2.5 cm
 K = np.array([[520.0, 0.0, 320.0], [0.0, 520.0, 240.0], [0.0, 0.0, 1.0]])

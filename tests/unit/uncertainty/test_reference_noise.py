@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from cvsflow.geometry import transforms as tf
-from cvsflow.metrics.pose_errors import ERROR_DIMS, pose_errors
+from cvsflow.metrics.errors import ERROR_DIMS, pose_errors
 from cvsflow.uncertainty.reference_noise import camera_body_error_cov, moving_body_noise
 
 

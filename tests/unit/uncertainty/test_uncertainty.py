@@ -7,9 +7,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from cvsflow import metrics
 from cvsflow import uncertainty as un
 from cvsflow.board.model import board_object_points
-from cvsflow.evaluate import heldout as ev
 from cvsflow.exceptions import OptimiseError
 from cvsflow.geometry import transforms as tf
 from cvsflow.optimise.se3_sim import simulate_session
@@ -48,7 +48,7 @@ def test_propagated_pose_covariance_matches_monte_carlo_of_composed_errors():
     cov_e = un.propagated_pose_covariance(rvec, tvec, cov_rt)[0]
     x = rng.multivariate_normal(np.r_[rvec[0], tvec[0]], cov_rt[0], 4000)
     T0 = np.repeat(tf.T_from_rvec_tvec(rvec, tvec), len(x), 0)
-    e = ev.pose_errors(T0, tf.T_from_rvec_tvec(x[:, :3], x[:, 3:]))[ev.error_columns()]
+    e = metrics.pose_errors(T0, tf.T_from_rvec_tvec(x[:, :3], x[:, 3:]))[metrics.error_columns()]
     np.testing.assert_allclose(e.std().to_numpy(), np.sqrt(np.diag(cov_e)), rtol=0.1)
     cov6 = un.pose6_covariance(rvec, tvec, cov_rt)[0]
     np.testing.assert_allclose(cov6[:3, :3], cov_rt[0, 3:, 3:], rtol=1e-6)
@@ -65,9 +65,9 @@ def _model_data(rng, n, a, b, gamma, corr):
     sigma = np.sqrt(a**2 * v + b**2) * np.exp(Z.to_numpy() @ gamma)[:, None]
     L = np.linalg.cholesky(corr)
     e = (rng.normal(size=(n, 6)) @ L.T) * sigma
-    for j, d in enumerate(ev.ERROR_DIMS):
+    for j, d in enumerate(metrics.ERROR_DIMS):
         feats[f"pnp_var_{d}"] = v[:, j]
-    return feats, pd.DataFrame(e, columns=ev.error_columns())
+    return feats, pd.DataFrame(e, columns=metrics.error_columns())
 
 
 def test_error_model_bands_calibrated_on_its_own_data():
@@ -84,7 +84,7 @@ def test_error_model_bands_calibrated_on_its_own_data():
     assert abs(sc["inside_68_all"] - 0.6827) < 0.03
     assert abs(sc["inside_95_all"] - 0.95) < 0.02
     assert abs(sc["nees_mean"] - 6.0) < 0.5
-    for d in ev.ERROR_DIMS:
+    for d in metrics.ERROR_DIMS:
         assert model[d]["a"] == pytest.approx(1.5, rel=0.1)
 
 
@@ -204,14 +204,14 @@ def test_parameter_model_bands_calibrated_on_its_own_data():
     for block, C in (("parcov", P), ("intrcov", Kc)):
         for (a, bb) in zip(*iu, strict=True):
             feats[f"{block}_{a}{bb}"] = C[:, a, bb]
-    err = pd.DataFrame(e, columns=ev.error_columns())
+    err = pd.DataFrame(e, columns=metrics.error_columns())
     model = un.fit_error_model(feats[:2000], err[:2000])
     assert model["kind"] == "P"
     sc = un.score_error_model(model, feats[2000:].reset_index(drop=True), err[2000:].reset_index(drop=True))
     assert abs(sc["inside_68_all"] - 0.6827) < 0.03
     assert abs(sc["inside_95_all"] - 0.95) < 0.02
     assert abs(sc["nees_mean"] - 6.0) < 0.5
-    for d in ev.ERROR_DIMS:
+    for d in metrics.ERROR_DIMS:
         assert model[d]["c"] == pytest.approx(1.5, rel=0.15)
 
 
@@ -233,7 +233,7 @@ def _parameter_model_data(rng, n, c, k, b, nu):
     for block, C in (("parcov", P), ("intrcov", Kc)):
         for (a, bb) in zip(*iu, strict=True):
             feats[f"{block}_{a}{bb}"] = C[:, a, bb]
-    return feats, pd.DataFrame(e, columns=ev.error_columns())
+    return feats, pd.DataFrame(e, columns=metrics.error_columns())
 
 
 def test_parameter_model_heavy_tails_calibrated():
@@ -298,7 +298,7 @@ def test_parameter_covariance_of_a_fixed_intrinsic_matches_monte_carlo():
             T_Bm_B = tf.make_T(R_B, np.array([p[f"T_Bm_B_{a}_m"] for a in "xyz"]))
             T_r = tf.invert_T(T_Cm_C) @ T_ref[i] @ T_Bm_B  # T_Cm_C0 = T_Bm_B0 = I
             T_c = tf.T_from_rvec_tvec(r.ravel()[None], t.ravel()[None])
-            errs.append(ev.pose_errors(T_r[None], T_c, frame="C")[ev.error_columns()].to_numpy()[0])
+            errs.append(metrics.pose_errors(T_r[None], T_c, frame="C")[metrics.error_columns()].to_numpy()[0])
         C_mc = np.cov(np.array(errs), rowvar=False)
         sd_mc, sd = np.sqrt(np.diag(C_mc)), np.sqrt(np.diag(cov[i]))
         np.testing.assert_allclose(sd, sd_mc, rtol=0.1)
@@ -328,7 +328,7 @@ def truth_session():
     for j in range(3):
         rows[f"cvs_rvec_{j}"] = rv[:, j]
     rows["reproj_rms_px"] = 0.4
-    table = ev.frame_errors(pd.DataFrame(rows))
+    table = metrics.frame_errors(pd.DataFrame(rows))
     fits = [{"fold": 0, "K": tr["K"].tolist(), "dist": tr["dist"].tolist()}]
     return s, table, fits
 
@@ -339,7 +339,7 @@ def test_cramer_rao_sigma_is_the_pnp_scatter(truth_session):
     s, table, fits = truth_session
     feats = un.measurement_features(table, s["corners"], s["board"], fits=fits)
     crb = un.cramer_rao_sigma(feats, 0.4)
-    E = table[[f"err_{d}" for d in ev.ERROR_DIMS]].to_numpy()
+    E = table[[f"err_{d}" for d in metrics.ERROR_DIMS]].to_numpy()
     z = np.sqrt(np.mean((E / crb) ** 2, axis=0))
     np.testing.assert_allclose(z, 1.0, atol=0.1)
     assert (feats["n_corners"] == 20).all()
@@ -418,7 +418,7 @@ def test_transfer_model_recovers_its_parameters_and_is_calibrated():
     f2, E2, _ = draw_transfer(np.random.default_rng(4), 3000, TRUTH_T, n_blocks=100)
     sc = un.score_covariance(un.transfer_covariance(m, f2), E2, nu=m["nu"])
     assert 5.0 < sc["nees_mean"] < 7.0
-    for d in ev.ERROR_DIMS:
+    for d in metrics.ERROR_DIMS:
         assert 0.93 < sc["inside_95"][d] < 0.97 and 0.64 < sc["inside_68"][d] < 0.72, d
 
 
@@ -444,7 +444,7 @@ def _draw_still(rng, n, s_still, inter_coded):
     nu = TRUTH_T["nu"]
     w = np.sqrt((nu - 2) / rng.chisquare(nu, n))
     e = np.einsum("nij,nj->ni", np.linalg.cholesky(cov + np.diag(floor)), rng.normal(size=(n, 6)))
-    return feats, pd.DataFrame(e * w[:, None], columns=[f"err_{d}" for d in ev.ERROR_DIMS]), speed
+    return feats, pd.DataFrame(e * w[:, None], columns=[f"err_{d}" for d in metrics.ERROR_DIMS]), speed
 
 
 def test_transfer_model_still_board_codec_term():
@@ -546,7 +546,7 @@ def test_flight_reference_covariance_takes_the_shrinkage_option():
     without it; a huge k pulls every frame to the flight's pooled noise, so frames whose
     residual is below the pool get a larger covariance and those above a smaller one."""
     from cvsflow import flight as F
-    from cvsflow.calibration.intrinsics import board_object_points
+    from cvsflow.board.model import board_object_points
     from cvsflow.synth.flight import T_Q_B_DEFAULT, camera_pose, true_flight
     from cvsflow.synth.flight_reference import BOARD_DEFAULT, CAMERA_DEMO, measure_reference
 
@@ -592,7 +592,7 @@ def test_correlated_noise_terms_limits_are_iid_noise_and_a_common_shift():
     huge = un.correlated_noise_terms(uv, rvec[None], tvec[None], p_B, K, DIST, np.inf)[0]
     seen = np.isfinite(uv[0]).all(axis=1)
     T0 = tf.T_from_rvec_tvec(rvec[None], tvec[None])
-    cols = [f"err_{d}" for d in ev.ERROR_DIMS]
+    cols = [f"err_{d}" for d in metrics.ERROR_DIMS]
     eps, expect = 0.01, np.zeros((6, 6))
     for axis in range(2):
         shifted = uv[0, seen] + eps * np.eye(2)[axis]
@@ -600,7 +600,7 @@ def test_correlated_noise_terms_limits_are_iid_noise_and_a_common_shift():
                                rvec.copy()[:, None], tvec.copy()[:, None],
                                useExtrinsicGuess=True, flags=cv2.SOLVEPNP_ITERATIVE)  # fmt: skip
         T1 = tf.T_from_rvec_tvec(r.reshape(1, 3), t.reshape(1, 3))
-        e = ev.pose_errors(T0, T1)[cols].to_numpy()[0] / eps
+        e = metrics.pose_errors(T0, T1)[cols].to_numpy()[0] / eps
         expect += np.outer(e, e)
     np.testing.assert_allclose(huge, expect, rtol=0.02, atol=0.02 * np.abs(expect).max())
     with pytest.raises(OptimiseError, match="length_px"):
@@ -632,7 +632,7 @@ def test_transfer_model_fits_the_correlated_corner_term():
     f2, E2 = draw(np.random.default_rng(8), 2000)
     sc = un.score_covariance(un.transfer_covariance(m, f2), E2, nu=m["nu"])
     assert 5.0 < sc["nees_mean"] < 7.0
-    for d in ev.ERROR_DIMS:
+    for d in metrics.ERROR_DIMS:
         assert 0.93 < sc["inside_95"][d] < 0.97, d
     plain = feats.drop(columns=un.cov_columns("corrcov"))
     assert "s_corr" not in un.fit_transfer_model(plain.iloc[:300], E.iloc[:300])
@@ -652,7 +652,7 @@ def test_transfer_model_fits_the_shears_relative_error():
         feats, E, _ = draw_transfer(rng, n, TRUTH_T, n_blocks=100)
         scale = np.r_[3e-3, 2e-3, 8e-3, 4e-3, 4e-3, 1e-3] * rng.lognormal(0.0, 1.0, n)[:, None]
         mu = rng.normal(size=(n, 6)) * scale * (rng.uniform(size=n) < 0.6)[:, None]
-        for j, d in enumerate(ev.ERROR_DIMS):
+        for j, d in enumerate(metrics.ERROR_DIMS):
             feats[f"rs_err_{d}"] = mu[:, j]
         return feats, E + mu * (1.0 + 0.2 * rng.normal(size=n))[:, None], mu
 
@@ -669,7 +669,7 @@ def test_transfer_model_fits_the_shears_relative_error():
     assert 5.0 < nees.mean() < 7.0
     nees = un.nees_values(un.transfer_covariance({**m, "r_rs": 0.0}, f2), E2, mean=mean)
     assert (nees[big] < 12.59).mean() < 0.6  # 0.47: the shear's error is most of theirs
-    plain = feats.drop(columns=[f"rs_err_{d}" for d in ev.ERROR_DIMS])
+    plain = feats.drop(columns=[f"rs_err_{d}" for d in metrics.ERROR_DIMS])
     assert "r_rs" not in un.fit_transfer_model(plain.iloc[:300], E.iloc[:300])
     # the within-session cross-fit records each fold's r_rs (comparison.yaml error_model.folds)
     score, _, _ = un.crossfit_transfer(feats.iloc[:900], E.iloc[:900].assign(fold=np.arange(900) % 3))
@@ -696,7 +696,7 @@ def test_transfer_model_floors_follow_the_board_bodys_noise():
     plain = un.score_covariance(un.transfer_covariance({**m, "board_noise": None}, f2), E2,
                                 nu=m["nu"])  # fmt: skip
     assert 5.0 < scaled["nees_mean"] < 7.0 and plain["nees_mean"] > 9.0
-    for d in ev.ERROR_DIMS:
+    for d in metrics.ERROR_DIMS:
         assert 0.92 < scaled["inside_95"][d] < 0.98, d
 
 
@@ -730,7 +730,7 @@ def test_transfer_likelihood_gradient_matches_central_differences(case):
 
     rng = np.random.default_rng(11)
     feats, E, _ = draw_transfer(rng, 300, TRUTH_T, n_blocks=30)
-    for j, d in enumerate(ev.ERROR_DIMS):
+    for j, d in enumerate(metrics.ERROR_DIMS):
         feats[f"rs_err_{d}"] = rng.normal(size=300) * 2e-4 * (j + 1)
     feats["vicon_filled"] = (rng.uniform(size=300) < 0.2).astype(float)
     feats["n_corners"] = rng.integers(8, 21, 300)
@@ -746,7 +746,7 @@ def test_transfer_likelihood_gradient_matches_central_differences(case):
     if case == "flip":
         # a fifth of the frames with a second solution that fits about as well as the first
         has = rng.uniform(size=300) < 0.2
-        for j, d in enumerate(ev.ERROR_DIMS):
+        for j, d in enumerate(metrics.ERROR_DIMS):
             feats[f"flip_{d}"] = np.where(has, rng.normal(size=300) * 3.0 * un.WORKING_UNITS[j], 0.0)
         feats["flip_dssr_px2"] = np.where(has, rng.uniform(0.0, 1.0, 300), np.inf)
     if case == "still":

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow import uncertainty as un
-from cvsflow.metrics.pose_errors import ERROR_DIMS
+from cvsflow.metrics.errors import ERROR_DIMS
 from tests.helpers.uncertainty_draws import TRUTH_T, draw_transfer
 
 COLS = [f"err_{d}" for d in ERROR_DIMS]

@@ -1,4 +1,4 @@
-"""cvsflow.metrics.pose_errors: the error definitions shared by analyse, evaluate and uncertainty."""
+"""cvsflow.metrics.errors: the error definitions shared by analyse, evaluate and uncertainty."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pandas as pd
 from cvsflow import geometry as geo
 from cvsflow.evaluate import analyse
 from cvsflow.evaluate import heldout as evaluate
-from cvsflow.metrics import pose_errors as metrics
+from cvsflow.metrics import errors as metrics
 
 
 def _errors(seed, n=200):
@@ -53,4 +53,3 @@ def test_pose_errors_of_a_pure_yaw_error_and_the_table_form():
     table = metrics.frame_errors(pd.DataFrame([row]))
     np.testing.assert_allclose(table[metrics.error_columns()].to_numpy(), err[metrics.error_columns()].to_numpy(),
                                atol=1e-12)
-    assert evaluate.pose_errors is metrics.pose_errors  # re-exported, not copied
