@@ -2,7 +2,12 @@
 import os
 
 from cvsflow.io.mocap.formats import mocap_settings
-from cvsflow.workflow.sessions import camera_session, check_sessions, expand_rig_sessions, session_methods
+from cvsflow.workflow.sessions import (
+    camera_session,
+    check_sessions,
+    expand_rig_sessions,
+    session_methods,
+)
 
 
 wildcard_constraints:
@@ -17,7 +22,7 @@ SESSIONS, RIGS = expand_rig_sessions(config["sessions"])
 # nothing without rig sessions.
 RIG_PATTERN = "|".join(RIGS) if RIGS else "(?!x)x"
 SYNTH_RIG_PATTERN = "|".join(r for r in RIGS if RIGS[r]["synth"]) or "(?!x)x"
-# The sessions the synth rule renders: a real session's files under data/<name>/ are read where
+# Sessions the synth rule renders; a real session's files under data/<name>/ are read where
 # they are, whatever <name> is.
 SYNTH_PATTERN = "|".join(s for s in SESSIONS if "synth" in SESSIONS[s]) or "(?!x)x"
 # camera session -> its rig
@@ -25,7 +30,9 @@ RIG_OF_CAMERA = {cam: rig for rig, r in RIGS.items() for cam in r["sessions"]}
 # What each session runs; a session naming an input it cannot use stops here, before any job.
 SESSION_STAGES = check_sessions(SESSIONS)
 # The optimisers each session runs: its own methods, else optimise.methods.
-METHODS = {s: session_methods(s, SESSIONS, config["optimise"]["methods"]) for s in SESSIONS}
+METHODS = {
+    s: session_methods(s, SESSIONS, config["optimise"]["methods"]) for s in SESSIONS
+}
 
 
 # How each session's motion-capture export is read (format, bodies_from); checked here, at parse time.
@@ -246,3 +253,84 @@ def flight_targets():
         for name in FLIGHTS
         for leaf in ("stats.yaml", "figures/errors.png", "onboard_aligned.tum")
     ]
+
+
+# Inputs of the evaluate rules
+def compare_inputs(wildcards):
+    """se3's held-out table, and the seed method's when the session runs it."""
+    if "seed" in METHODS[wildcards.session]:
+        return {"seed": f"results/{wildcards.session}/heldout/seed.parquet"}
+    return {}
+
+
+# Inputs of the summary rules
+def headline_inputs(wildcards):
+    """Per session the files the headline table reads (only those its stages write)."""
+    files = {}
+    for session in SESSIONS:
+        cam = camera_session(session, SESSIONS)
+        if cam is not None and (cam != session or runs_stage(session, "calibrate")):
+            files[f"{session}/camera"] = f"results/{cam}/camera.yaml"
+        if is_synth(session):
+            files[f"{session}/truth"] = f"data/{session}/truth.yaml"
+        if runs_stage(session, "poses"):
+            files[f"{session}/corners"] = f"results/{session}/corners_summary.yaml"
+        if runs_stage(session, "vicon"):
+            files[f"{session}/vicon_repair"] = f"results/{session}/vicon_repair.yaml"
+        if runs_stage(session, "pairs"):
+            files[f"{session}/sync"] = f"results/{session}/sync.yaml"
+            for method in METHODS[session]:
+                # The headline reports the run from the calibrated focal lengths.
+                files[f"{session}/{method}"] = (
+                    f"results/{session}/{method}/calib/result.yaml"
+                )
+            if "se3" in METHODS[session]:
+                files[f"{session}/comparison"] = f"results/{session}/comparison.yaml"
+    for flight in FLIGHTS:
+        files[f"flight {flight}/stats"] = f"results/flights/{flight}/stats.yaml"
+    # none in a config without a rig session: the inputs are as they were
+    for rig in RIGS:
+        files[f"rig {rig}/result"] = f"results/{rig}/rig/result.yaml"
+        files[f"rig {rig}/heldout"] = f"results/{rig}/rig/heldout.yaml"
+        if RIGS[rig]["synth"]:
+            files[f"rig {rig}/truth"] = f"data/{rig}/truth.yaml"
+    return files
+
+
+# Inputs and targets of the rig rules (none is called without rig sessions)
+def rig_inputs(wildcards):
+    """Per camera its corners, camera.yaml and sync.yaml; the rig's bodies."""
+    files = {"bodies": f"results/{wildcards.rig}/bodies.parquet"}
+    for k, s in enumerate(RIGS[wildcards.rig]["sessions"]):
+        files[f"corners{k}"] = f"results/{s}/corners.parquet"
+        files[f"camera{k}"] = f"results/{s}/camera.yaml"
+        files[f"sync{k}"] = f"results/{s}/sync.yaml"
+    return files
+
+
+def shared_inputs(wildcards):
+    """Per camera its shared-view stills and camera.yaml."""
+    r = RIGS[wildcards.rig]
+    files = {}
+    for k, (s, d) in enumerate(zip(r["sessions"], r["shared_dirs"])):
+        files[f"shared{k}"] = d
+        files[f"camera{k}"] = f"results/{s}/camera.yaml"
+    return files
+
+
+def rig_targets():
+    out = []
+    for rig, r in RIGS.items():
+        out += [f"results/{s}/sync.yaml" for s in r["sessions"]]
+        out += [
+            f"results/{rig}/rig/{leaf}"
+            for leaf in (
+                "result.yaml",
+                "poses.parquet",
+                "heldout.parquet",
+                "heldout.yaml",
+            )
+        ]
+        if len(r["cameras"]) > 1 and all(r["shared_dirs"]):
+            out.append(f"results/{rig}/rig/extrinsics.yaml")
+    return out

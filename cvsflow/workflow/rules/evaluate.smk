@@ -48,13 +48,6 @@ rule heldout_se3:
         "../scripts/heldout_se3.py"
 
 
-def compare_inputs(wildcards):
-    """se3's held-out table, and the seed method's when the session runs it."""
-    if "seed" in METHODS[wildcards.session]:
-        return {"seed": f"results/{wildcards.session}/heldout/seed.parquet"}
-    return {}
-
-
 rule compare:
     input:
         unpack(compare_inputs),

@@ -5,44 +5,6 @@
 # the DAG of a config without rig sessions.
 
 
-def rig_inputs(wildcards):
-    """Per camera its corners, camera.yaml and sync.yaml; the rig's bodies."""
-    files = {"bodies": f"results/{wildcards.rig}/bodies.parquet"}
-    for k, s in enumerate(RIGS[wildcards.rig]["sessions"]):
-        files[f"corners{k}"] = f"results/{s}/corners.parquet"
-        files[f"camera{k}"] = f"results/{s}/camera.yaml"
-        files[f"sync{k}"] = f"results/{s}/sync.yaml"
-    return files
-
-
-def shared_inputs(wildcards):
-    """Per camera its shared-view stills and camera.yaml."""
-    r = RIGS[wildcards.rig]
-    files = {}
-    for k, (s, d) in enumerate(zip(r["sessions"], r["shared_dirs"])):
-        files[f"shared{k}"] = d
-        files[f"camera{k}"] = f"results/{s}/camera.yaml"
-    return files
-
-
-def rig_targets():
-    out = []
-    for rig, r in RIGS.items():
-        out += [f"results/{s}/sync.yaml" for s in r["sessions"]]
-        out += [
-            f"results/{rig}/rig/{leaf}"
-            for leaf in (
-                "result.yaml",
-                "poses.parquet",
-                "heldout.parquet",
-                "heldout.yaml",
-            )
-        ]
-        if len(r["cameras"]) > 1 and all(r["shared_dirs"]):
-            out.append(f"results/{rig}/rig/extrinsics.yaml")
-    return out
-
-
 rule rig_extrinsics:
     input:
         unpack(shared_inputs),

@@ -60,37 +60,6 @@ rule stage_scaling:
         "../scripts/stage_scaling.py"
 
 
-def headline_inputs(wildcards):
-    """Per session the files the headline table reads (only those its stages write)."""
-    files = {}
-    for session in SESSIONS:
-        cam = camera_session(session, SESSIONS)
-        if cam is not None and (cam != session or runs_stage(session, "calibrate")):
-            files[f"{session}/camera"] = f"results/{cam}/camera.yaml"
-        if is_synth(session):
-            files[f"{session}/truth"] = f"data/{session}/truth.yaml"
-        if runs_stage(session, "poses"):
-            files[f"{session}/corners"] = f"results/{session}/corners_summary.yaml"
-        if runs_stage(session, "vicon"):
-            files[f"{session}/vicon_repair"] = f"results/{session}/vicon_repair.yaml"
-        if runs_stage(session, "pairs"):
-            files[f"{session}/sync"] = f"results/{session}/sync.yaml"
-            for method in METHODS[session]:
-                # The headline reports the run from the calibrated focal lengths.
-                files[f"{session}/{method}"] = f"results/{session}/{method}/calib/result.yaml"
-            if "se3" in METHODS[session]:
-                files[f"{session}/comparison"] = f"results/{session}/comparison.yaml"
-    for flight in FLIGHTS:
-        files[f"flight {flight}/stats"] = f"results/flights/{flight}/stats.yaml"
-    # none in a config without a rig session: the inputs are as they were
-    for rig in RIGS:
-        files[f"rig {rig}/result"] = f"results/{rig}/rig/result.yaml"
-        files[f"rig {rig}/heldout"] = f"results/{rig}/rig/heldout.yaml"
-        if RIGS[rig]["synth"]:
-            files[f"rig {rig}/truth"] = f"data/{rig}/truth.yaml"
-    return files
-
-
 rule headline:
     input:
         unpack(headline_inputs),
