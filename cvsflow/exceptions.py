@@ -67,3 +67,31 @@ class BoardNotSeenError(NoUsableRowsError, SyncError):
 
 class ImageSizeError(ImplausibleError, InputError):
     """The video's frames are not the size the camera was calibrated at."""
+
+
+class PoseStreamError(InputError):
+    """A time-stamped pose stream (ASL, TUM, ETH CSV) cannot be read as it is."""
+
+
+class PoseFormatError(PoseStreamError):
+    """A pose file is not in the format given, or in none recognised (the message says what it looks like)."""
+
+
+class MissingColumnError(PoseFormatError):
+    """A pose CSV's header has no column (or several) for a time, position or quaternion component."""
+
+
+class QuaternionNormError(PoseStreamError):
+    """A pose row's quaternion is off unit norm beyond the tolerance (or zero, or not finite)."""
+
+
+class TimestampOrderError(PoseStreamError):
+    """A pose stream's timestamp is earlier than the row before it."""
+
+
+class FrameFolderError(InputError):
+    """A folder of timestamped frames cannot be used (no timestamps, a missing or unreadable image)."""
+
+
+class PosePairingError(ImplausibleError, InputError):
+    """Carrier poses and camera views do not describe one motion (wrong pairing or wrong scale)."""

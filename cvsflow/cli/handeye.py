@@ -103,8 +103,10 @@ def _add_handeye_parser(sub) -> None:
     )
     h.add_argument("--stills", required=True, help="folder of stills (png, jpg, ...)")
     h.add_argument("--poses", required=True, help="pose file(s), a quoted glob for one file per still")
-    h.add_argument("--pose-format", choices=("visp", "tum", "csv", "auto"), default="auto",
-                   help="visp: vpPoseVector YAML (m, theta-u rad); tum: t tx ty tz qx qy qz qw; "
+    h.add_argument("--pose-format", choices=("visp", "tum", "asl", "eth", "csv", "auto"), default="auto",
+                   help="visp: vpPoseVector YAML (m, theta-u rad); tum: t tx ty tz qx qy qz qw (s); "
+                   "asl: ASL/EuRoC CSV, a header naming the columns (timestamp [ns], x, y, z, qx, "
+                   "qy, qz, qw, any order); eth: t, x, y, z, qx, qy, qz, qw (s, comma separated); "
                    "csv: columns and units in --csv-spec; auto (default): from the file")  # fmt: skip
     h.add_argument("--csv-spec", help="YAML of the CSV's columns and units (time_col, pos_cols, "
                    "pos_unit, rot, rot_cols, angle_unit, name_col)")  # fmt: skip

@@ -13,8 +13,10 @@ Formats
 
   translation in metres then the theta-u rotation vector (axis times angle, radians; the same
   as a Rodrigues vector). One file per pose, or ``rows: N`` / ``cols: 6`` for N poses.
-- ``tum``: ``timestamp tx ty tz qx qy qz qw`` per line (metres, scalar-last quaternion), read
-  by :func:`cvsflow.io.flightlog.read_tum`.
+- ``tum``, ``asl``, ``eth``: the pose streams of :mod:`cvsflow.io.mocap` (TUM ``t x y z qx qy
+  qz qw``; an ASL/EuRoC CSV with a header naming the columns, times in ns; ETH's ``t, x, y,
+  z, qx, qy, qz, qw``), read in file order with every row kept
+  (:func:`cvsflow.io.mocap.formats.read_pose_stream` with ``in_time_order=False``).
 - ``csv``: a CSV with a header whose columns and units are declared (time/position/quaternion
   or Euler roll-pitch-yaw with R = Rz(yaw) Ry(pitch) Rx(roll), m/cm/mm, deg/rad), read by
   :func:`cvsflow.io.flightlog.read_csv_log`; the spec may add ``name_col``, a column naming
@@ -22,9 +24,11 @@ Formats
 
 Every reader returns a *pose table*: one row per pose, columns ``name`` (what pairs the pose
 with a still: the file stem for ``visp``, the ``name_col`` cell for ``csv``, else empty),
-``t_s`` (NaN when the format has no time), ``x_m y_m z_m`` (metres), ``qx qy qz qw``
-(scalar-last unit quaternion), ``pos_valid``, ``rot_valid`` and ``origin`` ("file, line n"),
-in file order. The pose is the carrier X in the pose source's world W, ``T_W_X``.
+``t_s`` (NaN when the format has no time), ``t_ns`` (nullable Int64: the exact time where the
+format writes one as a decimal, ``<NA>`` for ``visp`` and ``csv``), ``x_m y_m z_m`` (metres),
+``qx qy qz qw`` (scalar-last unit quaternion), ``pos_valid``, ``rot_valid`` and ``origin``
+("file, line n"), in file order. The pose is the carrier X in the pose source's world W,
+``T_W_X``.
 """
 
 from __future__ import annotations
@@ -40,21 +44,27 @@ import yaml
 
 from cvsflow.exceptions import InputError
 from cvsflow.geometry import transforms as tf
+from cvsflow.io.mocap.formats import BY_KEY, read_pose_stream
+from cvsflow.io.mocap.markers import read_head
 
 log = logging.getLogger(__name__)
 
-POSE_FORMATS = ("visp", "tum", "csv")
-POSE_TABLE_COLUMNS = ["name", "t_s", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw",
+#: The stream formats a pose list may be (read by :mod:`cvsflow.io.mocap`).
+STREAM_POSE_FORMATS = ("tum", "asl", "eth")
+POSE_FORMATS = ("visp", *STREAM_POSE_FORMATS, "csv")
+POSE_TABLE_COLUMNS = ["name", "t_s", "t_ns", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw",
                       "pos_valid", "rot_valid", "origin"]  # fmt: skip
 
 
-def _table(names, t_s, p_m, q_xyzw, origins, pos_valid=True, rot_valid=True) -> pd.DataFrame:
+def _table(names, t_s, p_m, q_xyzw, origins, pos_valid=True, rot_valid=True, t_ns=None) -> pd.DataFrame:
     p = np.asarray(p_m, float).reshape(-1, 3)
     q = np.asarray(q_xyzw, float).reshape(-1, 4)
     n = len(p)
+    t_ns = pd.array([pd.NA] * n if t_ns is None else np.asarray(t_ns, np.int64), dtype="Int64")
     return pd.DataFrame(
         {
             "name": list(names), "t_s": np.broadcast_to(np.asarray(t_s, float), n).copy(),
+            "t_ns": t_ns,
             "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
             "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3],
             "pos_valid": np.broadcast_to(np.asarray(pos_valid, bool), n).copy(),
@@ -241,6 +251,33 @@ def _file_order(t_file_s: np.ndarray) -> np.ndarray:
     return back
 
 
+def read_stream_poses(path, fmt: str = "tum") -> pd.DataFrame:
+    """Pose table of a pose-stream file (TUM, ASL or ETH), in file order, every row kept.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file.
+    fmt : {"tum", "asl", "eth", "auto"}
+        Its format (:func:`cvsflow.io.mocap.formats.read_pose_stream`).
+
+    Returns
+    -------
+    poses : DataFrame
+        Pose table (module docstring): ``name`` empty, ``t_s`` and exact ``t_ns``, T_W_X in
+        metres, scalar-last quaternion, ``origin`` "file, line n".
+
+    Raises
+    ------
+    InputError
+        As the stream readers (the bad line named; a format the content contradicts named).
+    """
+    path = Path(path)
+    s = read_pose_stream(path, fmt, in_time_order=False, given_by="the pose format")
+    return _table([""] * len(s), s["t_s"], s[["x_m", "y_m", "z_m"]], s[["qx", "qy", "qz", "qw"]],
+                  [f"{path}, line {n}" for n in s["line"]], t_ns=s["t_ns"])  # fmt: skip
+
+
 def read_tum_poses(path) -> pd.DataFrame:
     """Pose table of a TUM file (``timestamp tx ty tz qx qy qz qw``), in file order.
 
@@ -252,29 +289,14 @@ def read_tum_poses(path) -> pd.DataFrame:
     Returns
     -------
     poses : DataFrame
-        Pose table (module docstring): ``name, t_s, x_m, y_m, z_m, qx, qy, qz, qw,
-        pos_valid, rot_valid, origin``, T_W_X in metres, scalar-last quaternion;
-        ``name`` empty, ``t_s`` the timestamps (s), ``origin`` "file, line n".
+        :func:`read_stream_poses` with ``fmt="tum"``.
 
     Raises
     ------
     InputError
-        As :func:`cvsflow.io.flightlog.read_tum` (the bad line named).
+        As :func:`read_stream_poses`.
     """
-    from cvsflow.io.flightlog import read_tum
-
-    path = Path(path)
-    traj = read_tum(path)  # checks every line; sorted by time (stable)
-    lines, t_file = [], []
-    with open(path) as fh:
-        for lineno, s in enumerate(fh, start=1):
-            if s.strip() and not s.lstrip().startswith("#"):
-                lines.append(lineno)
-                t_file.append(float(s.replace(",", " ").split()[0]))
-    traj = traj.iloc[_file_order(np.asarray(t_file))]
-    return _table([""] * len(traj), traj["t_s"], traj[["x_m", "y_m", "z_m"]],
-                  traj[["qx", "qy", "qz", "qw"]], [f"{path}, line {n}" for n in lines],
-                  traj["pos_valid"], traj["rot_valid"])  # fmt: skip
+    return read_stream_poses(path, "tum")
 
 
 def read_csv_poses(path, spec: dict) -> pd.DataFrame:
@@ -366,47 +388,44 @@ def expand_pose_glob(pattern) -> list[Path]:
 
 
 def sniff_pose_format(path) -> str | None:
-    """``visp``, ``tum`` or ``csv`` when the start of a file looks like one, else None.
+    """``visp``, ``tum``, ``asl``, ``eth`` or ``csv`` when the start of a file looks like one, else None.
 
     Parameters
     ----------
     path : str or Path
-        The file; its first 4096 characters are looked at.
+        The file; its first 64 KiB are looked at.
 
     Returns
     -------
     str or None
-        ``visp`` (rows/cols/data keys), ``tum`` (the first lines hold 8 numbers), ``csv`` (a
-        non-numeric comma-separated header then a comma-separated line); None when the file
-        cannot be read, is empty or matches none.
+        ``visp`` (rows/cols/data keys); a pose stream whose columns are known without a spec
+        (the stream formats' own detection: TUM rows of 8 numbers, an ASL header naming every
+        column, ETH rows of 8 comma-separated numbers); ``csv`` (another comma-separated header
+        then a comma-separated line); None when the file cannot be read, is empty or matches
+        none.
     """
     try:
-        with open(path, errors="replace") as fh:
-            head = [ln.strip() for ln in fh.read(4096).splitlines() if ln.strip()]
-    except OSError:
+        head = read_head(path, "a pose file")
+    except InputError:
         return None
-    body = [ln for ln in head if not ln.startswith("#")]
-    if not body:
+    body = [ln.strip() for ln in head.lines if ln.strip() and not ln.lstrip().startswith("#")]
+    if not body or head.binary:
         return None
     keys = {ln.split(":")[0].strip() for ln in body if ":" in ln}
     if {"rows", "cols", "data"} <= keys:
         return "visp"
-
-    def numbers(ln):
-        try:
-            return len([float(v) for v in ln.replace(",", " ").split()])
-        except ValueError:
-            return 0
-
-    if all(numbers(ln) == 8 for ln in body[:5]):
-        return "tum"
-    if "," in body[0] and numbers(body[0]) == 0 and len(body) > 1 and "," in body[1]:
+    for key in STREAM_POSE_FORMATS:
+        if BY_KEY[key].detect(head):
+            lay = head.memo.get("stream_layout")
+            if key != "asl" or (lay is not None and lay.names_all_roles):
+                return key
+    if "," in body[0] and len(body) > 1 and "," in body[1]:
         return "csv"
     return None
 
 
 def read_pose_list(pattern, fmt: str, csv_spec: dict | None = None) -> pd.DataFrame:
-    """Pose table of the files matching ``pattern`` in format ``fmt`` (visp, tum, csv, auto).
+    """Pose table of the files matching ``pattern`` in format ``fmt`` (visp, tum, asl, eth, csv, auto).
 
     Several files are read in natural order of their names and concatenated. ``auto`` takes
     the format from the first file (:func:`sniff_pose_format`). A file that fails to read in
@@ -416,7 +435,7 @@ def read_pose_list(pattern, fmt: str, csv_spec: dict | None = None) -> pd.DataFr
     ----------
     pattern : str or Path
         Glob or path of the pose file(s).
-    fmt : {"visp", "tum", "csv", "auto"}
+    fmt : {"visp", "tum", "asl", "eth", "csv", "auto"}
         Their format.
     csv_spec : dict, optional
         Column/unit spec for ``csv`` (:func:`read_csv_poses`); required for that format.
@@ -424,7 +443,7 @@ def read_pose_list(pattern, fmt: str, csv_spec: dict | None = None) -> pd.DataFr
     Returns
     -------
     poses : DataFrame
-        Pose table (module docstring): ``name, t_s, x_m, y_m, z_m, qx, qy, qz, qw,
+        Pose table (module docstring): ``name, t_s, t_ns, x_m, y_m, z_m, qx, qy, qz, qw,
         pos_valid, rot_valid, origin``, T_W_X in metres, scalar-last quaternion;
         the files' rows concatenated in natural file order.
 
@@ -442,13 +461,15 @@ def read_pose_list(pattern, fmt: str, csv_spec: dict | None = None) -> pd.DataFr
         if fmt is None:
             raise InputError(
                 f"{paths[0]}: pose format not recognised; expected a ViSP vpPoseVector YAML "
-                "(rows, cols, data), TUM lines (t tx ty tz qx qy qz qw) or a CSV with a header"
+                "(rows, cols, data), a pose stream (TUM lines t tx ty tz qx qy qz qw, an ASL CSV "
+                "whose header names the columns, ETH's t, x, y, z, qx, qy, qz, qw) or a CSV with "
+                "a header and --csv-spec"
             )
     try:
         if fmt == "visp":
             return read_visp_poses(paths)
-        if fmt == "tum":
-            return pd.concat([read_tum_poses(p) for p in paths], ignore_index=True)
+        if fmt in STREAM_POSE_FORMATS:
+            return pd.concat([read_stream_poses(p, fmt) for p in paths], ignore_index=True)
         if csv_spec is None:
             raise InputError(f"{pattern}: pose format csv needs a spec declaring the columns and units")
         return pd.concat([read_csv_poses(p, csv_spec) for p in paths], ignore_index=True)

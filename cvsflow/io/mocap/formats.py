@@ -1,70 +1,60 @@
-"""Motion-capture exports of any make: format detection from the content, and one entry point.
+"""Motion-capture files of any make: the format registry, detection from the content, one entry point.
 
-Four formats are read into the same tables: Vicon Nexus 'Trajectories' CSV (``vicon_csv``),
-C3D (``c3d``), OptiTrack Motive CSV (``motive_csv``, :mod:`cvsflow.io.mocap.optitrack`) and Qualisys
-QTM TSV (``qtm_tsv``, :mod:`cvsflow.io.mocap.qualisys`). The *marker table* is the wide table of
-:mod:`cvsflow.io.mocap.markers` (``frame``, ``t_s``, ``{name}_{x,y,z}_m`` in metres in the system's world
-frame W, NaN where unseen, ``attrs["rate_hz"]``, ``attrs["markers"]``). Where the export also
-holds the system's own rigid-body solution (Motive rigid bodies, QTM 6DOF bodies), the *system
-bodies table* has the ``bodies.parquet`` columns (:data:`cvsflow.mocap.bodies.BODY_COLUMNS`) with the
-body named as in the export, ``fit_rms_m`` the system's own residual in metres (Motive: Mean
-Marker Error; QTM: the 6DOF residual), ``n_markers`` the markers the system used (-1 when the
-export does not say), ``n_filled`` 0.
+Two kinds of file are read. *Marker exports* give the marker table of
+:mod:`cvsflow.io.mocap.markers` (``frame``, ``t_s``, ``{name}_{x,y,z}_m`` in metres in the
+system's world frame W, NaN where unseen) and, where the export also holds the system's own
+rigid-body solution (Motive rigid bodies, QTM 6DOF bodies), the *system bodies table*
+(:data:`cvsflow.mocap.bodies.BODY_COLUMNS`, ``fit_rms_m`` the system's own residual, ``n_markers``
+-1 when the export does not say). *Pose streams* (ASL/EuRoC, TUM, ETH CSVs) give one body's
+pose per row with exact nanosecond times: the stream table of :mod:`cvsflow.io.mocap.streams`
+(:func:`read_pose_stream`), and as an export a bodies table of that one body.
 
-The format is found from the first bytes of the file, never from its suffix alone, so a file
-of the wrong kind (a Nexus Devices-only export, a TUM pose list, a TRC file) is named for what it
-is, with what was expected.
+Each format is one module with a :class:`~cvsflow.io.mocap.markers.MocapFormat` (its key, name,
+kind, ``detect`` and ``read``) and one line of :data:`REGISTRY`. Adding a format is that module,
+that line and its test. The format is found from the first bytes of the file (the registry's
+detectors, in order), never from its suffix, so a file of the wrong kind (a Nexus Devices-only
+export, a TRC file, a frame list) is named for what it is, with what was expected.
 """
 
 from __future__ import annotations
 
 import logging
-import re
 from pathlib import Path
 
 import pandas as pd
 
-from cvsflow.exceptions import ConfigError, InputError
-from cvsflow.io.mocap.markers import MocapExport, marker_names, select_markers
-from cvsflow.io.mocap.optitrack import read_motive_csv
-from cvsflow.io.mocap.qualisys import read_qtm_tsv
-from cvsflow.io.mocap.vicon import read_c3d, read_nexus_csv
+from cvsflow.exceptions import ConfigError, InputError, PoseFormatError
+from cvsflow.io.mocap import asl, eth, optitrack, qualisys, tum, vicon
+from cvsflow.io.mocap.markers import MocapExport, MocapFormat, marker_names, read_head, select_markers
+from cvsflow.io.mocap.stream_layout import describe_layout, stream_layout
 from cvsflow.mocap import select_system_bodies
 
 log = logging.getLogger(__name__)
 
-#: Formats the readers understand, with a human name each (used in messages).
-FORMATS = {
-    "vicon_csv": "Vicon Nexus Trajectories CSV",
-    "c3d": "C3D",
-    "motive_csv": "OptiTrack Motive CSV",
-    "qtm_tsv": "Qualisys QTM TSV",
-}
+#: The formats, in the order detection tries them (TUM before ETH: white-space rows of 8
+#: numbers are both; the first to claim a file names it under ``auto``).
+REGISTRY: tuple[MocapFormat, ...] = (
+    vicon.NEXUS_CSV,
+    vicon.C3D,
+    optitrack.FORMAT,
+    qualisys.FORMAT,
+    asl.FORMAT,
+    tum.FORMAT,
+    eth.FORMAT,
+)
+BY_KEY = {f.key: f for f in REGISTRY}
+#: Format keys with a human name each (used in messages and the config schema).
+FORMATS = {f.key: f.title for f in REGISTRY}
+MARKER_FORMATS = tuple(f.key for f in REGISTRY if f.kind == "markers")
+POSE_STREAM_FORMATS = tuple(f.key for f in REGISTRY if f.kind == "poses")
 EXPECTED = (
-    "expected a motion-capture export: Vicon Nexus Trajectories CSV, C3D, OptiTrack Motive CSV "
-    "(format 1.2x) or Qualisys QTM TSV (3D or 6D)"
+    "expected a motion-capture export (" + ", ".join(BY_KEY[k].title for k in MARKER_FORMATS)
+    + ") or a pose stream (" + "; ".join(BY_KEY[k].title for k in POSE_STREAM_FORMATS) + ")"
 )
 
-_NUMBER = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
-_TUM_LINE = re.compile(rf"^\s*{_NUMBER}(?:[ \t]+{_NUMBER}){{7}}\s*$")
 
-
-def _head(path: Path, n_bytes: int = 65536) -> bytes:
-    try:
-        with open(path, "rb") as fh:
-            return fh.read(n_bytes)
-    except FileNotFoundError as exc:
-        raise InputError(f"{path}: file not found ({EXPECTED})") from exc
-    except IsADirectoryError as exc:
-        raise InputError(f"{path}: is a folder, {EXPECTED}") from exc
-
-
-def _first_cells(lines, sep=","):
-    return [ln.split(sep)[0].strip().strip('"') for ln in lines]
-
-
-def detect_format(path) -> str:
-    """The format of a motion-capture export, from its content.
+def detect(path) -> tuple[MocapFormat, str]:
+    """The format of a file from its content, and why.
 
     Parameters
     ----------
@@ -72,92 +62,100 @@ def detect_format(path) -> str:
 
     Returns
     -------
-    fmt : str
-        ``vicon_csv``, ``c3d``, ``motive_csv`` or ``qtm_tsv``.
+    fmt : MocapFormat
+        The first entry of :data:`REGISTRY` whose ``detect`` claims the file.
+    reason : str
+        What it saw (for messages).
 
     Raises
     ------
     InputError
-        The file is of another kind. The message says what it looks like (a Vicon Nexus export
-        with only a Devices block, a TUM pose list, a TRC file, a QTM 2D or analog export, an
-        empty file) and what was expected.
+        Missing file or a folder; a file of another kind: the message says what it looks like
+        (an empty file, a binary file that is not C3D, a TRC file, a Nexus Devices-only
+        export, a QTM 2D export, rows of numbers no stream format reads) and what was expected.
     """
-    path = Path(path)
-    head = _head(path)
-    if len(head) >= 512 and head[1] == 0x50 and b"\x00" in head[:512]:
-        return "c3d"  # C3D: byte 2 of the header block is the parameter key 0x50
-    if not head.strip():
+    head = read_head(path)
+    for fmt in REGISTRY:
+        reason = fmt.detect(head)
+        if reason:
+            return fmt, reason
+    path = head.path
+    if not head.raw.strip():
         raise InputError(f"{path}: empty file, {EXPECTED}")
-    if b"\x00" in head:
+    if head.binary:
         raise InputError(f"{path}: a binary file that is not C3D (no 0x50 key in byte 2), {EXPECTED}")
-    text = head.decode("utf-8-sig", errors="replace")
-    lines = text.splitlines()
-    if len(head) == 65536 and len(lines) > 1:
-        lines = lines[:-1]  # the last line of a partial read may be cut
-    first = lines[0].strip()
-    if first.startswith("Format Version,") or first.startswith('"Format Version",'):
-        return "motive_csv"
-    key = first.split("\t")[0].strip()
-    if key in ("FILE_VERSION", "NO_OF_FRAMES"):
-        included = next((ln.split("\t")[1].strip() for ln in lines if ln.startswith("DATA_INCLUDED\t")), None)
-        if included in (None, "3D", "6D"):
-            return "qtm_tsv"
-        raise InputError(
-            f"{path}: a Qualisys QTM TSV with DATA_INCLUDED {included!r} (expected 3D markers or "
-            "6D bodies: export 3D data (.tsv) or 6DOF data (_6d.tsv) from QTM)"
-        )
-    if key.startswith("PathFileType"):
+    first = head.lines[0].strip() if head.lines else ""
+    if first.split("\t")[0].strip().startswith("PathFileType"):
         raise InputError(
             f"{path}: a TRC marker file (Motion Analysis / OpenSim), which cvsflow does not read; "
             f"{EXPECTED}. Export CSV from Motive or TSV from QTM instead"
         )
-    cells = _first_cells(lines)
-    if "Trajectories" in cells:
-        return "vicon_csv"
-    if cells[0] in ("Devices", "Model Outputs", "Segments", "Joints"):
-        sections = _nexus_sections(path)
-        if "Trajectories" in sections:
-            return "vicon_csv"
-        rate = lines[1].split(",")[0].strip() if len(lines) > 1 else "?"
+    if "filename" in first.lower().replace(" ", "").split(","):
         raise InputError(
-            f"{path}: a Vicon Nexus CSV with only the block(s) {', '.join(sections)} "
-            f"({cells[0]} at {rate} Hz: analog, force-plate or EMG channels), no Trajectories "
-            "block, so no marker positions. Expected the Trajectories (marker) export: in Nexus, "
-            "Export CSV with 'Trajectories' ticked"
+            f"{path}: a frame list ({first[:60]!r}: a camera's images by timestamp, as an ASL "
+            f"folder's cam0/data.csv), not motion capture; {EXPECTED}"
         )
-    data = [ln for ln in lines if ln.strip() and not ln.lstrip().startswith("#")]
-    if data and sum(bool(_TUM_LINE.match(ln)) for ln in data[:20]) == len(data[:20]):
-        raise InputError(
-            f"{path}: a TUM pose list (lines 'timestamp tx ty tz qx qy qz qw'), that is poses, "
-            f"not a motion-capture export of markers; {EXPECTED}"
-        )
+    rows = describe_layout(stream_layout(head))
+    if rows is not None:
+        raise PoseFormatError(f"{path}: format not recognised: {rows}; {EXPECTED}")
     raise InputError(f"{path}, line 1: unrecognised content {first[:60]!r}; {EXPECTED}")
 
 
-def _nexus_sections(path: Path) -> list[str]:
-    """Names of the Nexus CSV blocks (a block name is a line of one word followed by the rate)."""
-    names = []
-    prev_blank = True
-    with open(path, encoding="utf-8-sig", errors="replace") as fh:
-        for line in fh:
-            cell = line.split(",")[0].strip()
-            rest = line.strip().strip(",").strip()
-            if prev_blank and cell in ("Devices", "Trajectories", "Model Outputs", "Segments", "Joints") \
-                    and rest == cell:
-                names.append(cell)
-            prev_blank = not line.strip(", \t\r\n")
-    return names
+def detect_format(path) -> str:
+    """The key of a file's format, from its content (:func:`detect`).
+
+    Parameters
+    ----------
+    path : str or Path
+
+    Returns
+    -------
+    str
+        A key of :data:`FORMATS` (``vicon_csv``, ``c3d``, ``motive_csv``, ``qtm_tsv``, ``asl``,
+        ``tum``, ``eth``).
+
+    Raises
+    ------
+    InputError
+        As :func:`detect`.
+    """
+    return detect(path)[0].key
 
 
-def read_mocap(path, format: str = "auto") -> MocapExport:
-    """Read any supported motion-capture export.
+def _resolve(path, format: str, given_by: str) -> MocapFormat:
+    """The format to read ``path`` with: detected under ``auto``, else the one given, checked."""
+    path = Path(path)
+    if format != "auto" and format not in BY_KEY:
+        raise InputError(f"{path}: unknown format {format!r} (expected auto or one of {sorted(BY_KEY)})")
+    if format == "auto":
+        return detect(path)[0]
+    given = BY_KEY[format]
+    head = read_head(path)
+    if given.detect(head):
+        return given
+    try:
+        found, reason = detect(path)
+    except InputError:
+        return given  # nothing else claims it: the given reader says what is wrong
+    error = PoseFormatError if "poses" in (given.kind, found.kind) else InputError
+    raise error(
+        f"{path}: {given_by} says {given.title} ({given.key}) but the file is {found.a_title} "
+        f"({found.key}: {reason}); set the format to {found.key} or auto, or name the right file"
+    )
+
+
+def read_mocap(path, format: str = "auto", given_by: str = "the config") -> MocapExport:
+    """Read any supported motion-capture export or pose stream.
 
     Parameters
     ----------
     path : str or Path
     format : str
         ``auto`` (detect from the content) or a key of :data:`FORMATS`. A named format that
-        disagrees with the content is an error (a config naming the wrong system).
+        another format's detector claims the file for is an error (a config naming the wrong
+        system), which names both.
+    given_by : str
+        Who named the format, for that message (``the config``, ``--pose-format``).
 
     Returns
     -------
@@ -166,24 +164,50 @@ def read_mocap(path, format: str = "auto") -> MocapExport:
     Raises
     ------
     InputError
-        Unknown format name; content of another kind (:func:`detect_format`); the reader's
-        errors (file and line of any bad cell).
+        Unknown format name; content of another kind (:func:`detect`); the reader's errors
+        (file and line of any bad cell).
     """
-    path = Path(path)
-    if format != "auto" and format not in FORMATS:
-        raise InputError(f"{path}: unknown format {format!r} (expected auto or one of {sorted(FORMATS)})")
-    found = detect_format(path)
-    if format != "auto" and format != found:
-        raise InputError(
-            f"{path}: the config says {FORMATS[format]} ({format}) but the file is a "
-            f"{FORMATS[found]} ({found}); set the format to {found} or auto, or name the right file"
+    fmt = _resolve(path, format, given_by)
+    return fmt.read(Path(path))
+
+
+def read_pose_stream(path, format: str = "auto", in_time_order: bool = True,
+                     given_by: str = "the format given") -> pd.DataFrame:  # fmt: skip
+    """Read a time-stamped pose stream (ASL/EuRoC, TUM or ETH CSV) into the stream table.
+
+    Parameters
+    ----------
+    path : str or Path
+    format : str
+        ``auto`` or a key of :data:`POSE_STREAM_FORMATS`; a file the format contradicts is an
+        error saying what it is.
+    in_time_order : bool
+        True: a stream, in time order (rows repeating a timestamp dropped with a warning, a
+        time going back an error; :mod:`cvsflow.io.mocap.streams`). False: a pose list in file
+        order, every row kept.
+    given_by : str
+        Who named the format, for messages.
+
+    Returns
+    -------
+    DataFrame
+        :data:`cvsflow.io.mocap.streams.STREAM_COLUMNS` (exact ``t_ns``), ``attrs`` with the
+        format, the columns found and the rows dropped.
+
+    Raises
+    ------
+    PoseFormatError
+        Not a pose stream (a marker export is named), or a format the content contradicts.
+    MissingColumnError, QuaternionNormError, TimestampOrderError
+        The reader's checks (file and line named).
+    """
+    fmt = _resolve(path, format, given_by)
+    if fmt.kind != "poses":
+        raise PoseFormatError(
+            f"{path}: {fmt.a_title} ({fmt.key}), a marker export, not a pose stream; expected "
+            + "; or ".join(BY_KEY[k].a_title for k in POSE_STREAM_FORMATS)
         )
-    if found == "motive_csv":
-        return read_motive_csv(path)
-    if found == "qtm_tsv":
-        return read_qtm_tsv(path)
-    markers = read_nexus_csv(path) if found == "vicon_csv" else read_c3d(path)
-    return MocapExport(path, found, float(markers.attrs["rate_hz"]), markers, None, {})
+    return fmt.read_stream(Path(path), in_time_order=in_time_order)
 
 
 def read_markers(path, names=None, format="auto") -> pd.DataFrame:
@@ -211,7 +235,7 @@ def read_markers(path, names=None, format="auto") -> pd.DataFrame:
     Raises
     ------
     InputError
-        File missing or of another kind (a Nexus Devices-only export, a TUM pose list: the
+        File missing or of another kind (a Nexus Devices-only export, a pose stream: the
         message says what it is and what was expected); the reader's errors; an export
         without markers (a QTM 6D file: use ``mocap.bodies_from: system``); a configured
         marker missing from the file (the message lists the file's markers) or never seen.
@@ -220,6 +244,11 @@ def read_markers(path, names=None, format="auto") -> pd.DataFrame:
     if not path.exists():
         raise InputError(f"{path}: file not found")
     export = read_mocap(path, format)
+    if export.stream is not None:
+        raise InputError(
+            f"{path}: {BY_KEY[export.format].a_title}, the poses of one body, not a motion-capture "
+            "export of markers; expected " + ", ".join(BY_KEY[k].title for k in MARKER_FORMATS)
+        )
     df = export.markers
     if not marker_names(df):
         solved = export.meta.get("body_markers")
@@ -229,7 +258,7 @@ def read_markers(path, names=None, format="auto") -> pd.DataFrame:
         else:
             have = ", ".join(map(repr, export.body_names)) or "none"
             raise InputError(
-                f"{path}: a {FORMATS[export.format]} without marker positions (its rigid bodies: "
+                f"{path}: {BY_KEY[export.format].a_title} without marker positions (its rigid bodies: "
                 f"{have}); expected marker columns, or set the session's mocap.bodies_from: "
                 "system to use the system's own body poses"
             )
@@ -269,7 +298,7 @@ def read_system_bodies(path, names, format: str = "auto") -> pd.DataFrame:
     if export.bodies is None:
         n = len(export.markers.attrs.get("markers", []))
         raise InputError(
-            f"{path}: a {FORMATS[export.format]} with {n} markers and no rigid-body poses; "
+            f"{path}: {BY_KEY[export.format].a_title} with {n} markers and no rigid-body poses; "
             "bodies_from: system needs the system's own bodies (Motive: export Rigid Bodies; "
             "QTM: export 6DOF data as TSV). Use bodies_from: markers to fit the markers instead"
         )
@@ -296,10 +325,18 @@ def mocap_settings(session: str, cfg: dict) -> dict:
     Raises
     ------
     ConfigError
-        ``bodies_from: system`` with a body lacking ``system_body``, or ``bodies_from: markers``
-        with a body lacking ``names``.
+        A ``format`` that is not a marker export's key of :data:`FORMATS` (a pose stream's
+        named as such); ``bodies_from: system`` with a body lacking ``system_body``, or
+        ``bodies_from: markers`` with a body lacking ``names``.
     """
     out = {"format": "auto", "bodies_from": "markers", **(cfg.get("mocap") or {})}
+    if out["format"] != "auto" and out["format"] not in MARKER_FORMATS:
+        what = (f"{BY_KEY[out['format']].a_title}: the poses of one body, which cannot give a "
+                "session's camera and board bodies" if out["format"] in BY_KEY else "unknown")  # fmt: skip
+        raise ConfigError(
+            f"config: sessions.{session}.mocap.format: {out['format']!r} is {what}; expected auto "
+            f"or a motion-capture export's format: {', '.join(MARKER_FORMATS)}"
+        )
     need = "system_body" if out["bodies_from"] == "system" else "names"
     for body in ("camera", "board"):
         spec = (cfg.get("markers") or {}).get(body, {})

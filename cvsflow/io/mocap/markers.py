@@ -6,12 +6,18 @@ The *marker table* is a wide DataFrame at the export's native rate: columns ``fr
 ``df.attrs["rate_hz"]`` carries the rate and ``df.attrs["markers"]`` the marker names in file
 order. The *system bodies table* (an export's own rigid-body solution) has the
 ``bodies.parquet`` columns of :data:`cvsflow.mocap.bodies.BODY_COLUMNS`. :class:`MocapExport` holds one
-export read into these.
+export read into these. A *pose stream* (ASL, TUM, ETH CSV: one body's pose per row) is read
+into the stream table of :mod:`cvsflow.io.mocap.streams` and held as its ``stream``.
+
+:class:`MocapFormat` is one entry of the format registry (:mod:`cvsflow.io.mocap.formats`):
+a format's module defines one, and :class:`FileHead` is what its ``detect`` looks at.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -148,6 +154,9 @@ class MocapExport:
         System bodies table (module docstring), or None when the export holds no bodies.
     meta : dict
         Header values of the export (plain str/int/float), e.g. units, take name.
+    stream : DataFrame or None
+        A pose stream's table (:data:`cvsflow.io.mocap.streams.STREAM_COLUMNS`: exact
+        ``t_ns``), None for a marker export.
     """
 
     path: Path
@@ -156,6 +165,7 @@ class MocapExport:
     markers: pd.DataFrame
     bodies: pd.DataFrame | None = None
     meta: dict = field(default_factory=dict)
+    stream: pd.DataFrame | None = None
 
     @property
     def body_names(self) -> list[str]:
@@ -190,3 +200,100 @@ def system_bodies_table(frame, t_s, body, R_W_body, t_W_body_m, residual_m, n_ma
     """
     T = make_T(np.asarray(R_W_body, float), np.asarray(t_W_body_m, float))
     return bodies_from_poses(frame, t_s, body, T, residual_m, n_markers)
+
+
+#: Bytes of a file's start that format detection looks at.
+HEAD_BYTES = 65536
+
+
+@dataclass
+class FileHead:
+    """The start of a file, as format detection sees it.
+
+    Attributes
+    ----------
+    path : Path
+    raw : bytes
+        The first :data:`HEAD_BYTES` bytes.
+    memo : dict
+        Whatever a detector computed and another may reuse (e.g. the pose-stream layout).
+    """
+
+    path: Path
+    raw: bytes
+    memo: dict = field(default_factory=dict)
+
+    @cached_property
+    def lines(self) -> list[str]:
+        """The decoded lines (a last line cut by the read left out)."""
+        lines = self.raw.decode("utf-8-sig", errors="replace").splitlines()
+        if len(self.raw) == HEAD_BYTES and len(lines) > 1:
+            lines = lines[:-1]
+        return lines
+
+    @property
+    def binary(self) -> bool:
+        """Whether the start holds a NUL byte (not a text export)."""
+        return b"\x00" in self.raw
+
+
+def read_head(path, expected: str = "a motion-capture export or a pose stream") -> FileHead:
+    """The start of a file for format detection; InputError when it is missing or a folder.
+
+    Parameters
+    ----------
+    path : str or Path
+    expected : str
+        What the file should be, for the message.
+
+    Returns
+    -------
+    FileHead
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            return FileHead(path, fh.read(HEAD_BYTES))
+    except FileNotFoundError as exc:
+        raise InputError(f"{path}: file not found ({expected})") from exc
+    except IsADirectoryError as exc:
+        raise InputError(f"{path}: is a folder, {expected}") from exc
+
+
+@dataclass(frozen=True)
+class MocapFormat:
+    """One motion-capture format: its key, its name, how it is recognised and read.
+
+    Attributes
+    ----------
+    key : str
+        The name a config or ``--pose-format`` gives (``vicon_csv``, ``asl``, ...).
+    title : str
+        A human name for messages (``Vicon Nexus Trajectories CSV``).
+    kind : {"markers", "poses"}
+        ``markers``: an export of marker positions (with or without the system's bodies);
+        ``poses``: a time-stamped pose stream of one body.
+    detect : callable
+        ``detect(head: FileHead) -> str or None``: why the file is of this format (a short
+        reason, for messages), None when it is not. It may raise :class:`InputError` for a
+        file that is of this make but of a kind cvsflow cannot use (a Nexus Devices-only
+        export), saying what to export instead.
+    read : callable
+        ``read(path) -> MocapExport``.
+    read_stream : callable or None
+        Pose streams only: ``read_stream(path, in_time_order=True) -> DataFrame``, the stream
+        table of :mod:`cvsflow.io.mocap.streams` (``in_time_order=False``: a pose list in file
+        order).
+    """
+
+    key: str
+    title: str
+    kind: str
+    detect: Callable[[FileHead], str | None]
+    read: Callable[[Path], MocapExport]
+    read_stream: Callable[..., pd.DataFrame] | None = None
+
+    @property
+    def a_title(self) -> str:
+        """The title with its indefinite article (an ASL ..., a TUM ...)."""
+        return ("an " if self.title[0] in "AEIOU" else "a ") + self.title

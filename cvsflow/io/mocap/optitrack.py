@@ -39,7 +39,9 @@ from scipy.spatial.transform import Rotation
 from cvsflow.exceptions import InputError
 from cvsflow.io.files import atomic_output, check_frames, parse_numeric_block, read_text_lines
 from cvsflow.io.mocap.markers import (
+    FileHead,
     MocapExport,
+    MocapFormat,
     marker_columns,
     marker_names,
     marker_table,
@@ -347,3 +349,23 @@ def write_motive_csv(path, markers, bodies=None, rate_hz=None, units="Meters", t
         rows.append(",".join(cells))
     with atomic_output(path) as tmp, open(tmp, "w", newline="") as fh:
         fh.write("\r\n".join(head + rows) + "\r\n")
+
+
+def detect(head: FileHead) -> str | None:
+    """Why the file is a Motive CSV (its first line starts ``Format Version,``), or None.
+
+    Parameters
+    ----------
+    head : FileHead
+
+    Returns
+    -------
+    str or None
+    """
+    first = head.lines[0].strip() if head.lines and not head.binary else ""
+    if first.startswith("Format Version,") or first.startswith('"Format Version",'):
+        return "its first line starts 'Format Version,'"
+    return None
+
+
+FORMAT = MocapFormat("motive_csv", "OptiTrack Motive CSV", "markers", detect, read_motive_csv)

@@ -37,7 +37,9 @@ import pandas as pd
 from cvsflow.exceptions import InputError
 from cvsflow.io.files import atomic_output, check_frames, parse_numeric_block, read_text_lines
 from cvsflow.io.mocap.markers import (
+    FileHead,
     MocapExport,
+    MocapFormat,
     marker_columns,
     marker_names,
     marker_table,
@@ -386,3 +388,38 @@ def write_qtm_tsv(path, markers=None, bodies=None, rate_hz=None, layout="current
         rows.append(cells)
     with atomic_output(path) as tmp, open(tmp, "w", newline="") as fh:
         fh.write("\r\n".join(head + rows) + "\r\n")
+
+
+def detect(head: FileHead) -> str | None:
+    """Why the file is a QTM TSV (its first key FILE_VERSION or NO_OF_FRAMES), or None.
+
+    Parameters
+    ----------
+    head : FileHead
+
+    Returns
+    -------
+    str or None
+
+    Raises
+    ------
+    InputError
+        A QTM TSV of data other than 3D markers or 6D bodies (2D, analog, force): the message
+        says what to export instead.
+    """
+    if head.binary or not head.lines:
+        return None
+    key = head.lines[0].strip().split("\t")[0].strip()
+    if key not in ("FILE_VERSION", "NO_OF_FRAMES"):
+        return None
+    included = next((ln.split("\t")[1].strip() for ln in head.lines
+                     if ln.startswith("DATA_INCLUDED\t")), None)  # fmt: skip
+    if included in (None, "3D", "6D"):
+        return f"its first key {key}"
+    raise InputError(
+        f"{head.path}: a Qualisys QTM TSV with DATA_INCLUDED {included!r} (expected 3D markers or "
+        "6D bodies: export 3D data (.tsv) or 6DOF data (_6d.tsv) from QTM)"
+    )
+
+
+FORMAT = MocapFormat("qtm_tsv", "Qualisys QTM TSV", "markers", detect, read_qtm_tsv)

@@ -15,7 +15,14 @@ import pandas as pd
 
 from cvsflow.exceptions import InputError
 from cvsflow.io.files import atomic_output, check_frames, parse_numeric_block, read_text_lines
-from cvsflow.io.mocap.markers import marker_columns, marker_names, marker_table
+from cvsflow.io.mocap.markers import (
+    FileHead,
+    MocapExport,
+    MocapFormat,
+    marker_columns,
+    marker_names,
+    marker_table,
+)
 
 log = logging.getLogger(__name__)
 
@@ -271,3 +278,89 @@ def read_c3d(path) -> pd.DataFrame:
     return marker_table(frame0, xyz, names, rate_hz)
 
 
+
+
+# --------------------------------------------------------------------------- the format registry
+
+_NEXUS_BLOCKS = ("Devices", "Trajectories", "Model Outputs", "Segments", "Joints")
+
+
+def _nexus_sections(path: Path) -> list[str]:
+    """Names of the Nexus CSV blocks (a block name is a line of one word followed by the rate)."""
+    names = []
+    prev_blank = True
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        for line in fh:
+            cell = line.split(",")[0].strip()
+            rest = line.strip().strip(",").strip()
+            if prev_blank and cell in _NEXUS_BLOCKS and rest == cell:
+                names.append(cell)
+            prev_blank = not line.strip(", \t\r\n")
+    return names
+
+
+def detect_nexus_csv(head: FileHead) -> str | None:
+    """Why the file is a Nexus Trajectories CSV, or None; an InputError for a Nexus CSV without one.
+
+    Parameters
+    ----------
+    head : FileHead
+
+    Returns
+    -------
+    str or None
+
+    Raises
+    ------
+    InputError
+        A Nexus CSV with only Devices (analog), Model Outputs, Segments or Joints blocks: no
+        marker positions; the message says what to export instead.
+    """
+    if head.binary or not head.lines:
+        return None
+    cells = [ln.split(",")[0].strip().strip('"') for ln in head.lines]
+    if "Trajectories" in cells:
+        return "a Trajectories block"
+    if cells[0] not in _NEXUS_BLOCKS:
+        return None
+    sections = _nexus_sections(head.path)
+    if "Trajectories" in sections:
+        return "a Trajectories block"
+    rate = head.lines[1].split(",")[0].strip() if len(head.lines) > 1 else "?"
+    raise InputError(
+        f"{head.path}: a Vicon Nexus CSV with only the block(s) {', '.join(sections)} "
+        f"({cells[0]} at {rate} Hz: analog, force-plate or EMG channels), no Trajectories "
+        "block, so no marker positions. Expected the Trajectories (marker) export: in Nexus, "
+        "Export CSV with 'Trajectories' ticked"
+    )
+
+
+def detect_c3d(head: FileHead) -> str | None:
+    """Why the file is a C3D file (byte 2 of the header block is the parameter key 0x50), or None.
+
+    Parameters
+    ----------
+    head : FileHead
+
+    Returns
+    -------
+    str or None
+    """
+    if len(head.raw) >= 512 and head.raw[1] == 0x50 and b"\x00" in head.raw[:512]:
+        return "the C3D parameter key 0x50 in byte 2"
+    return None
+
+
+def _nexus_export(path) -> MocapExport:
+    markers = read_nexus_csv(path)
+    return MocapExport(Path(path), "vicon_csv", float(markers.attrs["rate_hz"]), markers, None, {})
+
+
+def _c3d_export(path) -> MocapExport:
+    markers = read_c3d(path)
+    return MocapExport(Path(path), "c3d", float(markers.attrs["rate_hz"]), markers, None, {})
+
+
+NEXUS_CSV = MocapFormat("vicon_csv", "Vicon Nexus Trajectories CSV", "markers", detect_nexus_csv,
+                        _nexus_export)  # fmt: skip
+C3D = MocapFormat("c3d", "C3D", "markers", detect_c3d, _c3d_export)

@@ -265,7 +265,7 @@ def test_pose_format_detected_and_wrong_kind_named(tmp_path):
     tum = tmp_path / "p.txt"
     tum.write_text("# t x y z qx qy qz qw\n1 0 0 0 0 0 0 1\n2 1 0 0 0 0 0 1\n")
     csv = tmp_path / "p.csv"
-    csv.write_text("t,x,y,z,qx,qy,qz,qw\n0,0,0,0,0,0,0,1\n")
+    csv.write_text("name,t,x_mm,y_mm,z_mm,roll,pitch,yaw\nstill_1,0,0,0,0,0,0,1\n")
     assert [sniff_pose_format(p) for p in (visp, tum, csv)] == ["visp", "tum", "csv"]
     assert len(read_pose_list(tum, "auto")) == 2
     np.testing.assert_allclose(read_pose_list(visp, "auto")[["x_m", "y_m", "z_m"]].iloc[0], [0, 1, 2])

@@ -325,7 +325,7 @@ def test_real_tum_file_is_named(real_root):
     path = real_root / "tum-fr2-desk" / "fr2_desk_groundtruth.txt"
     if not path.exists():
         pytest.skip(f"{path} not available")
-    with pytest.raises(InputError, match=r"a TUM pose list .*not a motion-capture export"):
+    with pytest.raises(InputError, match=r"a TUM trajectory .*the poses of one body, not a motion-capture export"):
         read_markers(path)
 
 
