@@ -32,7 +32,7 @@ import yaml
 from cvsflow.board import board_object_points
 from cvsflow.calibration import INTRINSIC_STD_NAMES, calibrate_camera
 from cvsflow.exceptions import ConfigError
-from cvsflow.synth.camera import project_points
+from cvsflow.synth.imaging import project_points
 from cvsflow.synth.render import render_stills
 
 REPO = Path(__file__).resolve().parents[1]

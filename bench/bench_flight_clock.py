@@ -34,7 +34,7 @@ import argparse
 import numpy as np
 
 from cvsflow.flight import estimate_clock
-from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_demo import render_flight
 from cvsflow.synth.flight_reference import CALIB_STD_DEFAULT
 
 NO_PP = {k: v for k, v in CALIB_STD_DEFAULT.items() if k not in ("cx", "cy")}

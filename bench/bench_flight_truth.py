@@ -27,7 +27,7 @@ import cvsflow.synth.flight_reference as reference_synth
 from cvsflow import uncertainty as un
 from cvsflow.exceptions import SyncError
 from cvsflow.flight import check_against_truth, estimate_clock, evaluate_flight, session_error_model
-from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_demo import render_flight
 from cvsflow.synth.flight_reference import CALIB_STD_DEFAULT, validate_simulated_session
 
 CAMERAS = {

@@ -37,9 +37,9 @@ from cvsflow.rig import (
     rig_camera_entries,
     rig_fit_options,
 )
-from cvsflow.synth.camera import project_points
+from cvsflow.synth.imaging import project_points
 from cvsflow.synth.motion import board_poses
-from cvsflow.synth.rig import make_rig_truth, true_board_poses_C0
+from cvsflow.synth.rig_session import make_rig_truth, true_board_poses_C0
 
 REPO = Path(__file__).resolve().parents[1]
 

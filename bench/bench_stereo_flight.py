@@ -34,7 +34,7 @@ from cvsflow.board import board_object_points
 from cvsflow.geometry import R_from_rvec, invert_T, pose_error_left
 from cvsflow.optimise import K_from_intrinsics
 from cvsflow.rig import board_pose_starts, fused_board_pose, fused_board_pose_best
-from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_demo import render_flight
 from cvsflow.synth.flight_reference import BOARD_DEFAULT, CAMERA_DEMO, observe_rig, stereo_rig
 
 AXES = ("x", "y", "z", "roll", "pitch", "yaw")

@@ -31,7 +31,7 @@ import time
 import numpy as np
 
 from cvsflow.flight import check_against_truth, evaluate_flight, session_error_model
-from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_demo import render_flight
 from cvsflow.synth.flight_reference import validate_simulated_session
 
 

@@ -16,7 +16,7 @@ from cvsflow.evaluate.heldout import (
     make_time_blocks,
     se3_run_tables,
 )
-from cvsflow.evaluate.seed import cross_validate_seed
+from cvsflow.evaluate.heldout_seed import cross_validate_seed
 from cvsflow.evaluate.summary import summary_row
 
 __all__ = [

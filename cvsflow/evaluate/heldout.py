@@ -85,7 +85,7 @@ def heldout_blocks(corners, board, *, n_folds=5, block_s=5.0, seed=0):
     """The held-out fold of every frame with corners: the blocks all methods are scored on.
 
     :func:`cross_validate_se3` fits and scores on these folds, and the seed method's held-out
-    scoring (:func:`cvsflow.evaluate.seed.cross_validate_seed`) takes them from the same
+    scoring (:func:`cvsflow.evaluate.heldout_seed.cross_validate_seed`) takes them from the same
     corners table, so that it need not wait for se3's held-out scoring to know them.
 
     Parameters
@@ -445,7 +445,7 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     Parameters
     ----------
     seed_heldout : DataFrame or None
-        :func:`cvsflow.evaluate.seed.cross_validate_seed` output (``eps_*``, 6-vector errors);
+        :func:`cvsflow.evaluate.heldout_seed.cross_validate_seed` output (``eps_*``, 6-vector errors);
         None for a session that runs se3 alone: the comparison then has no ``seed`` section
         and no ``rms_ratio_se3_to_seed``, and the error model is scored as with both.
     se3_heldout : DataFrame
@@ -549,7 +549,7 @@ def mark_seed_divergence(comparison, seed_heldout):
     The seed section becomes ``{diverged: true, diverged_reason, n,
     statistics_not_measurements: {per_dim}}`` and ``rms_ratio_se3_to_seed`` moves to
     ``rms_ratio_se3_to_seed_not_measurements`` (the top-level key is None), when any fold's fit
-    diverged (``diverged`` column of :func:`cvsflow.evaluate.seed.cross_validate_seed`) or a
+    diverged (``diverged`` column of :func:`cvsflow.evaluate.heldout_seed.cross_validate_seed`) or a
     held-out translation error std exceeds ``cvsflow.optimise.seed.DIVERGED_EPS_STD_M``.
     Otherwise the section gets ``diverged: false``.
 
@@ -558,7 +558,7 @@ def mark_seed_divergence(comparison, seed_heldout):
     comparison : dict
         :func:`compare_methods` output with a ``seed`` section (edited in place).
     seed_heldout : DataFrame
-        :func:`cvsflow.evaluate.seed.cross_validate_seed` output (``fold``, ``diverged``,
+        :func:`cvsflow.evaluate.heldout_seed.cross_validate_seed` output (``fold``, ``diverged``,
         ``diverged_reason``).
 
     Returns

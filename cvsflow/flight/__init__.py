@@ -27,9 +27,9 @@ Reference uncertainty: ``Sigma_ref`` (N, 6, 6) is the covariance of the referenc
 
 Modules, bottom to top: :mod:`~cvsflow.flight.trajectory` (the common form, the reference from
 PnP poses, resampling, association), :mod:`~cvsflow.flight.alignment` (Umeyama, yaw-only,
-hand-eye rotations), :mod:`~cvsflow.flight.metrics` (APE/RPE, per-axis errors and statistics),
+hand-eye rotations), :mod:`~cvsflow.flight.trajectory_errors` (APE/RPE, per-axis errors and statistics),
 :mod:`~cvsflow.flight.clock` (:func:`estimate_clock`), :mod:`~cvsflow.flight.reference` (the
-reference's covariance) and :mod:`~cvsflow.flight.evaluate` (:func:`evaluate_flight`). The
+reference's covariance) and :mod:`~cvsflow.flight.comparison` (:func:`evaluate_flight`). The
 names below are re-exported for existing callers.
 """
 
@@ -42,18 +42,7 @@ from cvsflow.flight.alignment import (
     umeyama,
 )
 from cvsflow.flight.clock import Clock, angular_speed, estimate_clock
-from cvsflow.flight.evaluate import FlightResult, check_against_truth, evaluate_flight
-from cvsflow.flight.metrics import (
-    AXES,
-    ERR_COLS,
-    SIG_COLS,
-    ape_rotation,
-    ape_translation,
-    axis_errors,
-    axis_stats,
-    error_stats,
-    rpe,
-)
+from cvsflow.flight.comparison import FlightResult, check_against_truth, evaluate_flight
 from cvsflow.flight.reference import (
     corner_noise_per_axis,
     correct_rolling_shutter,
@@ -79,6 +68,17 @@ from cvsflow.flight.trajectory import (
     reference_from_poses,
     traj_from_T,
     trajectory_frame,
+)
+from cvsflow.flight.trajectory_errors import (
+    AXES,
+    ERR_COLS,
+    SIG_COLS,
+    ape_rotation,
+    ape_translation,
+    axis_errors,
+    axis_stats,
+    error_stats,
+    rpe,
 )
 
 __all__ = [

@@ -514,7 +514,7 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
 
 
 def write_flight_demo(demo, out_dir) -> None:
-    """Write a rendered flight (:class:`cvsflow.synth.flight.FlightDemo`) as the files a real
+    """Write a rendered flight (:class:`cvsflow.synth.flight_demo.FlightDemo`) as the files a real
     flight session has, plus its truth: ``reference.parquet`` (T_C_B per video frame with its
     covariance columns S00..S55; from a PnP reference the flip term's ``flip_*``, from a PnP or
     rig reference the calibration's factor ``G{i}_{c}``),

@@ -41,7 +41,7 @@ def error_moments(x, ddof=1):
         Per-frame errors of one dimension (m or rad), N > ``ddof``.
     ddof : int, default 1
         Delta degrees of freedom of the standard deviation: 1 the sample one, 0 the
-        population one (evo's statistics, :func:`cvsflow.flight.metrics.error_stats`).
+        population one (evo's statistics, :func:`cvsflow.flight.trajectory_errors.error_stats`).
 
     Returns
     -------

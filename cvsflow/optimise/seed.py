@@ -39,7 +39,7 @@ the poses at the current focal lengths moved by their first-order sensitivity to
 Every row's arithmetic is independent of the others, so neither the stacking, the chunking
 nor the ``n_workers`` threads change a single bit of the result; nor does a
 :class:`cvsflow.optimise.seed_cache.SeedPoseCache` (``pose_cache``), through which the folds
-of :func:`cvsflow.evaluate.seed.cross_validate_seed` share the rows they have in common.
+of :func:`cvsflow.evaluate.heldout_seed.cross_validate_seed` share the rows they have in common.
 """
 
 from __future__ import annotations

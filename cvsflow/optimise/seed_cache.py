@@ -1,6 +1,6 @@
 """PnP poses the seed optimiser solved, shared by its runs on subsets of one session's frames.
 
-:func:`cvsflow.evaluate.seed.cross_validate_seed` runs :func:`cvsflow.optimise.seed.optimise_seed`
+:func:`cvsflow.evaluate.heldout_seed.cross_validate_seed` runs :func:`cvsflow.optimise.seed.optimise_seed`
 once per fold, on all the session's pairs but that fold's. Every run starts at the calibrated
 focal lengths from the same poses, so the first iteration's grid solves the same frames at
 the same candidates from the same warm starts in every fold. What one frame's solve returns

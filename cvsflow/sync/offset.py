@@ -12,7 +12,7 @@ and R_C_Cm, R_Bm_B constant, the relative rotation between two instants differs 
 constant conjugation, so its angle, hence the angular speed, is the same in both streams
 whatever the unknown marker offsets are.
 
-The streams are :mod:`cvsflow.sync.streams`, the rotation refinement :mod:`cvsflow.sync.refine`
+The streams are :mod:`cvsflow.sync.streams`, the rotation refinement :mod:`cvsflow.sync.offset_refine`
 and the chapter's gesture method :mod:`cvsflow.sync.gesture`; this module cross-correlates the
 streams (``sync_angular_speed``) and dispatches on the method (``synchronise``).
 """
@@ -28,7 +28,7 @@ from cvsflow.exceptions import SyncError
 from cvsflow.geometry import rotation_angle
 from cvsflow.plausibility import OVERLAP_FLOOR, check_overlap
 from cvsflow.sync.gesture import sync_gesture
-from cvsflow.sync.refine import refine_offset_rotations
+from cvsflow.sync.offset_refine import refine_offset_rotations
 from cvsflow.sync.streams import (
     _cvs_rotations,
     _frame_list,

@@ -2,7 +2,7 @@
 
 The board is rendered in one resampling step per instant: for every pixel of the distorted
 image, its undistorted normalised ray (computed once per camera,
-:func:`cvsflow.synth.camera.undistortion_grid`) is mapped by the plane homography into the
+:func:`cvsflow.synth.imaging.undistortion_grid`) is mapped by the plane homography into the
 board texture, and the pixel's value is the texture's exact mean over the pixel's footprint
 there (an axis-aligned box in texel space read from the finest level's summed-area table,
 :func:`render_board_region`). Far boards are so free of aliasing, and an edge's image does not
@@ -19,7 +19,7 @@ import numpy as np
 
 from cvsflow.board import charuco_board
 from cvsflow.geometry import invert_T
-from cvsflow.synth.camera import Board, project_points, rectangle_outline_B
+from cvsflow.synth.imaging import Board, project_points, rectangle_outline_B
 
 INK_REFLECTANCE = 0.06
 MARKER_RADIUS_M = 0.007  # 14 mm Vicon marker

@@ -17,7 +17,7 @@ import numpy as np
 
 from cvsflow.exceptions import ConfigError
 from cvsflow.synth.board_image import BoardTexture, texture_pyramid
-from cvsflow.synth.camera import Board
+from cvsflow.synth.imaging import Board
 from cvsflow.synth.motion import random_sine_sum
 
 log = logging.getLogger(__name__)

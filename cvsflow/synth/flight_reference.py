@@ -5,7 +5,7 @@ corner noise added, the CVS's PnP with a calibration one draw of its stated std 
 lens, model (T)'s covariance) or a rig of cameras exposed together
 (:func:`measure_reference_rig`: the rig calibrated on shared views with the drawn lenses, the
 board pose fused from every camera, its covariance with the calibration's share). Used by
-:func:`cvsflow.synth.flight.render_flight` (``reference="pnp"`` / ``"stereo"``).
+:func:`cvsflow.synth.flight_demo.render_flight` (``reference="pnp"`` / ``"stereo"``).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from cvsflow.rig import (
     rig_calibration_covariance,
     stereo_extrinsics,
 )
-from cvsflow.synth.camera import Board as SynthBoard
+from cvsflow.synth.imaging import Board as SynthBoard
 from cvsflow.synth.stereo import shared_view_poses
 
 #: The demo's camera (its lens, bench/uncertainty_sessions.yaml u_demo), 640 x 480 px.

@@ -1,6 +1,6 @@
 """A rendered flight as a camera records it: the body's board in images, through a codec.
 
-:func:`cvsflow.synth.flight.render_flight` measures its reference from corners drawn with
+:func:`cvsflow.synth.flight_demo.render_flight` measures its reference from corners drawn with
 independent noise. Here the same flight (true trajectory, on-board log and clock) is rendered
 as video frames by a session's camera, lens, image effects and codec (the session renderer,
 :mod:`cvsflow.synth.frames`), so the reference is measured as a user's is: corners detected in
@@ -22,7 +22,7 @@ from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.io.flightlog import write_tum
 from cvsflow.io.synth_out import PyAvVideoSink, VideoSink, staged_session_dir
 from cvsflow.synth.effects import PTS_RATE_HZ
-from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_demo import render_flight
 from cvsflow.synth.frames import FrameEffects, Lighting
 from cvsflow.synth.motion import PoseTrack, random_sine_sum
 from cvsflow.synth.render import _session_setup, realistic_truth
@@ -49,7 +49,7 @@ def render_flight_video(session_cfg: dict, out_dir, seed: int = 1, duration_s: f
         Folder for :data:`FLIGHT_VIDEO_FILES`, written whole or not at all; an existing one
         may hold only those (a previous render's), which are replaced.
     seed : int
-        The flight's seed (:func:`cvsflow.synth.flight.render_flight`: trajectory, on-board
+        The flight's seed (:func:`cvsflow.synth.flight_demo.render_flight`: trajectory, on-board
         error and clock).
     duration_s : float
         Flight (and video) length, s.

@@ -17,8 +17,8 @@ from cvsflow.synth.board_image import (
     render_board,
     render_board_region,
 )
-from cvsflow.synth.camera import expose, make_background, undistortion_grid, vignetting
 from cvsflow.synth.effects import SKIN_BGR
+from cvsflow.synth.imaging import expose, make_background, undistortion_grid, vignetting
 from cvsflow.synth.motion import board_poses
 from cvsflow.synth.spec import FOCUS_DEPTH_M, SynthSpec
 

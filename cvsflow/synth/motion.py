@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cvsflow.geometry import R_from_euler, R_from_rvec, invert_T, make_T
-from cvsflow.synth.camera import project_points
+from cvsflow.synth.imaging import project_points
 
 # The chapter's session: board held still, then tilted forward (the sync gesture), then free.
 HOLD_S = 1.5

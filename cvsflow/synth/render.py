@@ -37,7 +37,7 @@ from cvsflow.synth.effects import (
 )
 from cvsflow.synth.frames import FrameEffects, Lighting, Renderer
 from cvsflow.synth.motion import make_hand_motion, random_sine_sum, still_poses
-from cvsflow.synth.rig import (
+from cvsflow.synth.rig_session import (
     camera_frame_times,
     make_rig_truth,
     rig_truth_document,
@@ -364,7 +364,7 @@ def render_rig_mocap(session_cfg: dict, vicon_path, truth_path) -> dict:
     ----------
     session_cfg : dict
         ``config["sessions"][rig]`` with ``synth``, ``board``, ``markers`` and ``cameras``
-        (:mod:`cvsflow.synth.rig`).
+        (:mod:`cvsflow.synth.rig_session`).
     vicon_path, truth_path : str or Path
         Where ``vicon.csv`` (Nexus form, mm) and ``truth.yaml`` (:func:`rig_truth_document`)
         go.
@@ -377,7 +377,7 @@ def render_rig_mocap(session_cfg: dict, vicon_path, truth_path) -> dict:
     Raises
     ------
     ConfigError
-        As :func:`cvsflow.synth.rig.make_rig_truth` and :func:`shared_views`.
+        As :func:`cvsflow.synth.rig_session.make_rig_truth` and :func:`shared_views`.
     """
     truth = make_rig_truth(session_cfg)
     vicon_df, _, n_dropouts = rig_vicon_recording(truth)
@@ -390,7 +390,7 @@ def render_rig_mocap(session_cfg: dict, vicon_path, truth_path) -> dict:
 def render_rig_camera(session_cfg: dict, camera: str, out_dir) -> dict:
     """Render one camera of a rig session into ``out_dir`` (``data/{rig}/{camera}/``).
 
-    The mono renderer's fast path for that camera (:func:`cvsflow.synth.rig.camera_session_config`):
+    The mono renderer's fast path for that camera (:func:`cvsflow.synth.rig_session.camera_session_config`):
     its calibration stills (``calib/``), the rig's shared views as it sees them
     (``shared/shared_000.png`` ..., the same names in every camera), its video at its own frame
     rate and clock, and its mono ``truth.yaml`` (its mounting and offset, plus ``rig``,

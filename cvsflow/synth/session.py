@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.geometry import euler_from_R, invert_T, quat_from_R, transform_points
-from cvsflow.synth.camera import Board, project_points, rectangle_outline_B
+from cvsflow.synth.imaging import Board, project_points, rectangle_outline_B
 from cvsflow.synth.markers import add_dropouts, marker_table, true_mounting
 from cvsflow.synth.motion import HandMotion, board_poses, camera_poses, random_sine_sum
 from cvsflow.synth.spec import FPS, IN_VIEW_MARGIN_PX, VICON_RATE_HZ, VICON_TAIL_S, SynthSpec

@@ -13,8 +13,8 @@ import numpy as np
 from cvsflow.board import board_type, charuco_board
 from cvsflow.exceptions import ConfigError
 from cvsflow.geometry import T_from_pose6
-from cvsflow.synth.camera import Board, camera_from_config
 from cvsflow.synth.effects import Effects, parse_effects
+from cvsflow.synth.imaging import Board, camera_from_config
 from cvsflow.synth.motion import CAMERA_MOTION_TYPES, CameraMotion
 
 IMAGE_SIZE = (640, 480)  # width, height, px

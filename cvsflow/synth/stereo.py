@@ -12,8 +12,8 @@ import numpy as np
 
 from cvsflow.exceptions import ConfigError
 from cvsflow.geometry import R_from_euler, R_from_rvec, make_T
-from cvsflow.synth.camera import project_points
 from cvsflow.synth.frames import Renderer
+from cvsflow.synth.imaging import project_points
 from cvsflow.synth.motion import _in_view, _min_square_px
 from cvsflow.synth.session import still_outline_B
 from cvsflow.synth.spec import parse_session_config

@@ -18,7 +18,7 @@ import yaml
 
 from cvsflow.geometry import transforms as tf
 from cvsflow.rig.run import fused_pose_nees
-from cvsflow.synth.rig import make_rig_truth, true_board_poses_C0
+from cvsflow.synth.rig_session import make_rig_truth, true_board_poses_C0
 
 from .test_workflow import REPO, dry_run_jobs, snakemake, write_config
 

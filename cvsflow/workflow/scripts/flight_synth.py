@@ -4,7 +4,7 @@ from pathlib import Path
 
 from cvsflow.io.flightlog import write_flight_demo
 from cvsflow.io.logs import stage_logging
-from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_demo import render_flight
 
 with stage_logging(snakemake.log[0], "flight_synth") as log:
     demo = render_flight(**snakemake.params.synth)

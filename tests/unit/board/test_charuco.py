@@ -24,9 +24,9 @@ from cvsflow.corners.extract import extract_corners
 from cvsflow.exceptions import ConfigError
 from cvsflow.geometry import transforms as tf
 from cvsflow.optimise.se3_start import corner_arrays
-from cvsflow.synth.camera import project_points
 from cvsflow.synth.effects import Grip, make_hand_texture, occluded_corners
 from cvsflow.synth.frames import FrameEffects, Renderer
+from cvsflow.synth.imaging import project_points
 from cvsflow.synth.motion import make_hand_motion
 from cvsflow.synth.render import realistic_truth, render_stills
 from cvsflow.synth.session import still_outline_B

@@ -6,7 +6,7 @@ import pytest
 
 from cvsflow import metrics
 from cvsflow.evaluate import heldout as ev
-from cvsflow.evaluate.seed import cross_validate_seed
+from cvsflow.evaluate.heldout_seed import cross_validate_seed
 from cvsflow.metrics.errors import poses_from_table
 from cvsflow.optimise import se3, se3_apply
 from cvsflow.optimise.se3_sim import simulate_session

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -12,10 +10,10 @@ from scipy.spatial.transform import Rotation
 from cvsflow import flight as F
 from cvsflow.exceptions import InputError, OptimiseError, SyncError
 from cvsflow.geometry.transforms import R_from_euler, euler_from_R, invert_T, make_T
-from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_demo import render_flight
+from tests.helpers.real_data import REAL_DATA
 
-REAL = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real"
-TUM = REAL / "tum-fr2-desk"
+TUM = REAL_DATA / "tum-fr2-desk"
 
 
 @pytest.fixture(scope="module")

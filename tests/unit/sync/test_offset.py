@@ -9,8 +9,8 @@ from cvsflow.exceptions import InputError, SyncError
 from cvsflow.geometry.transforms import invert_T, make_T, rotation_angle
 from cvsflow.mocap.bodies import fit_bodies
 from cvsflow.sync.offset import sync_angular_speed, synchronise
+from cvsflow.sync.offset_refine import refine_offset_rotations
 from cvsflow.sync.pairs import build_pairs
-from cvsflow.sync.refine import refine_offset_rotations
 from cvsflow.sync.streams import (
     angular_speed_cvs,
     angular_speed_streams,
@@ -150,7 +150,7 @@ def test_refine_offset_rotations_too_few_pairs():
 def test_smooth_rotations_keeps_time_and_masks_holes():
     """A constant-rate turn is its own Gaussian mean (to 1e-9 rad): smoothing shifts nothing in
     time; samples within 2.5 sigma of an invalid one, or of either end, are marked invalid."""
-    from cvsflow.sync.refine import _smooth_rotations
+    from cvsflow.sync.offset_refine import _smooth_rotations
 
     t = np.arange(0.0, 1.0, 1.0 / RATE_HZ)
     R = Rotation.from_rotvec(np.outer(1.7 * t, [0.36, 0.48, 0.8])).as_matrix()

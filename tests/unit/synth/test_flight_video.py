@@ -14,9 +14,9 @@ from cvsflow.geometry.transforms import invert_T
 from cvsflow.io.files import read_parquet, read_yaml
 from cvsflow.io.flightlog import read_tum
 from cvsflow.io.media import iter_video_gray
-from cvsflow.synth.camera import project_points
-from cvsflow.synth.flight import render_flight
+from cvsflow.synth.flight_demo import render_flight
 from cvsflow.synth.flight_video import FLIGHT_VIDEO_FILES, render_flight_video
+from cvsflow.synth.imaging import project_points
 from cvsflow.synth.motion import PoseTrack, board_poses
 
 DEMO = yaml.safe_load((Path(__file__).resolve().parents[3] / "config" / "config.yaml")
@@ -102,7 +102,7 @@ def test_a_rolling_shutter_flight_filmed_as_video_states_its_error(tmp_path):
     from cvsflow.calibration.pnp import estimate_poses
     from cvsflow.corners.extract import extract_corners_parallel, summarise_corners
     from cvsflow.flight.clock import Clock
-    from cvsflow.flight.evaluate import check_against_truth, evaluate_flight
+    from cvsflow.flight.comparison import check_against_truth, evaluate_flight
     from cvsflow.flight.reference import correct_rolling_shutter, reference_covariance_transfer
     from cvsflow.flight.trajectory import reference_from_poses
     from cvsflow.io.media import video_info, video_timing

@@ -17,8 +17,8 @@ from cvsflow.exceptions import ConfigError
 from cvsflow.geometry.transforms import T_from_pose6, euler_from_R, invert_T, rotation_angle, rvec_tvec_from_T
 from cvsflow.io import synth_out
 from cvsflow.synth.board_image import make_board_texture
-from cvsflow.synth.camera import Board, project_points
 from cvsflow.synth.frames import Renderer
+from cvsflow.synth.imaging import Board, project_points
 from cvsflow.synth.markers import fit_rigid, true_mounting
 from cvsflow.synth.motion import board_poses, make_hand_motion, still_poses
 from cvsflow.synth.render import render_session, render_stills

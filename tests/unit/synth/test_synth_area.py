@@ -22,7 +22,7 @@ from cvsflow.synth.board_image import (
     render_board,
     render_board_region,
 )
-from cvsflow.synth.camera import Board, project_points, undistortion_grid
+from cvsflow.synth.imaging import Board, project_points, undistortion_grid
 
 BOARD = Board(6, 5, 0.09)
 SIZE = (640, 480)

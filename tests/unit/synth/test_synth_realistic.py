@@ -18,9 +18,9 @@ import pytest
 import yaml
 
 from cvsflow.exceptions import ConfigError
-from cvsflow.synth.camera import project_points
 from cvsflow.synth.effects import PRESETS, auto_exposure, make_timeline, parse_effects
 from cvsflow.synth.frames import ILLUMINANT_BGR, FrameEffects, Lighting, Renderer
+from cvsflow.synth.imaging import project_points
 from cvsflow.synth.motion import board_poses, make_hand_motion, random_sine_sum
 from cvsflow.synth.render import render_session
 from cvsflow.synth.session import corners_at_line_times

@@ -547,7 +547,7 @@ def test_flight_reference_covariance_takes_the_shrinkage_option():
     residual is below the pool get a larger covariance and those above a smaller one."""
     from cvsflow import flight as F
     from cvsflow.board.model import board_object_points
-    from cvsflow.synth.flight import T_Q_B_DEFAULT, camera_pose, true_flight
+    from cvsflow.synth.flight_demo import T_Q_B_DEFAULT, camera_pose, true_flight
     from cvsflow.synth.flight_reference import BOARD_DEFAULT, CAMERA_DEMO, measure_reference
 
     t = np.arange(60) / 30.0

@@ -13,7 +13,9 @@ from scipy.spatial.transform import Rotation
 from cvsflow.exceptions import InputError, SyncError
 from cvsflow.flight.alignment import Alignment, align_trajectories, align_weighted, rotation_alignment
 from cvsflow.flight.clock import Clock, estimate_clock
-from cvsflow.flight.metrics import (
+from cvsflow.flight.reference import propagate_reference_sigma
+from cvsflow.flight.trajectory import T_from_traj, check_trajectory, interpolate_trajectory, traj_from_T
+from cvsflow.flight.trajectory_errors import (
     AXES,
     ERR_COLS,
     SIG_COLS,
@@ -24,8 +26,6 @@ from cvsflow.flight.metrics import (
     error_stats,
     rpe,
 )
-from cvsflow.flight.reference import propagate_reference_sigma
-from cvsflow.flight.trajectory import T_from_traj, check_trajectory, interpolate_trajectory, traj_from_T
 from cvsflow.geometry import invert_T, make_T, skew, wrap_angle
 
 log = logging.getLogger(__name__)

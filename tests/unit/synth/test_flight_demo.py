@@ -1,4 +1,4 @@
-"""Tests of cvsflow.synth.flight (the rendered flight demo) and cvsflow.plots.flight."""
+"""Tests of cvsflow.synth.flight_demo (the rendered flight demo) and cvsflow.plots.flight."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from cvsflow import flight as F
 from cvsflow.exceptions import ConfigError, SyncError
 from cvsflow.geometry.transforms import invert_T
-from cvsflow.synth.flight import T_Q_B_DEFAULT, camera_pose, render_flight
+from cvsflow.synth.flight_demo import T_Q_B_DEFAULT, camera_pose, render_flight
 from cvsflow.synth.flight_reference import CALIB_STD_DEFAULT, corner_noise
 
 
@@ -161,7 +161,7 @@ def test_flip_term_holds_the_planar_ambiguity():
     from scipy.spatial.transform import Rotation
 
     from cvsflow.board.model import board_object_points
-    from cvsflow.synth.flight import true_flight
+    from cvsflow.synth.flight_demo import true_flight
     from cvsflow.synth.flight_reference import BOARD_DEFAULT, CAMERA_DEMO, measure_reference
 
     t = np.arange(601) / 30.0

@@ -1,4 +1,4 @@
-"""Tests of the rendered multi-camera session (cvsflow.synth.rig, synth.render's rig functions)
+"""Tests of the rendered multi-camera session (cvsflow.synth.rig_session, synth.render's rig functions)
 and of its expansion into per-camera sessions (cvsflow.workflow.sessions.expand_rig_sessions), against
 the renderer's own truth."""
 
@@ -18,10 +18,10 @@ from cvsflow.exceptions import ConfigError
 from cvsflow.geometry.transforms import invert_T, rotation_angle
 from cvsflow.io.mocap.vicon import read_nexus_csv
 from cvsflow.rig.extrinsics import stereo_extrinsics
-from cvsflow.synth.camera import project_points
+from cvsflow.synth.imaging import project_points
 from cvsflow.synth.motion import CameraView, board_poses
 from cvsflow.synth.render import render_rig_camera, render_rig_mocap
-from cvsflow.synth.rig import (
+from cvsflow.synth.rig_session import (
     camera_session_config,
     make_rig_truth,
     rig_vicon_recording,
