@@ -114,10 +114,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser(
         "run",
-        help="run the workflow (snakemake with the workstation profile); other options pass through",
-        description="Runs `python -m snakemake --profile profiles/default [ARGS]` (or "
-        "workflow/profiles/default if the former is absent) in the current folder; every "
-        "argument goes to snakemake unchanged, e.g. `cvsflow run --configfile my.yaml -n`.",
+        usage="cvsflow run [CONFIG.yaml] [--cores N] [snakemake options] [targets]",
+        help="run the workflow on a config file, from any folder; snakemake options pass through",
+        description="Runs the workflow that ships in the package on exactly the sessions and "
+        "flights of CONFIG.yaml (keys left out take the schema's defaults), with results/, "
+        "logs/ and benchmarks/ in the current folder (or --directory DIR), using the package's "
+        "workstation profile (--workflow-profile slurm: its SLURM profile). Paths in the config "
+        "are relative to that folder. Every other argument goes to snakemake unchanged, e.g. "
+        "`cvsflow run my.yaml -n`. Without CONFIG it runs the Snakefile of the current folder "
+        "(in the repository: the demo, as `snakemake --cores 2`). A config may run code "
+        "(`__use_yte__: true`, Snakemake's YTE templates): read one from elsewhere first.",
     )
     r.set_defaults(func=None)
 
@@ -127,8 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
         description="Finds the stills folder, the video and the Nexus CSV / C3D export; lists "
         "the subjects and marker names in the export; tries common inner-corner sizes on the "
         "first stills; leaves TODO where it cannot know (square_m always) and layout_m out "
-        "(learned from the take). Never overwrites. The file merges with config/config.yaml "
-        "when given to --configfile. Two or more camera folders (DIR/<camera>/ with its stills "
+        "(learned from the take). Never overwrites. Run it with `cvsflow run FILE`. Two or more "
+        "camera folders (DIR/<camera>/ with its stills "
         "and one video; shared views in DIR/<camera>/shared/ or DIR/shared/<camera>/, the same "
         "file names in every camera) give a rig session (a cameras: list).",
     )

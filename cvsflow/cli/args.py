@@ -10,7 +10,7 @@ examples:
   cvsflow export camera results/demo --format kalibr --out camchain.yaml
   cvsflow export trajectory results/demo --out-dir traj/
   cvsflow init recordings/lab1 --out my_session.yaml
-  cvsflow run --cores 2 --configfile my_session.yaml results/lab1/comparison.yaml
+  cvsflow run my_session.yaml --cores 2
 `cvsflow COMMAND --help` explains each command's options.
 
 board convention: cvsflow's config counts SQUARES (board.squares_x, squares_y); OpenCV and

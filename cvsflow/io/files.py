@@ -256,7 +256,11 @@ def read_yaml(path):
     except FileNotFoundError as exc:
         raise InputError(f"{path}: file not found") from exc
     except yaml.YAMLError as exc:
-        raise InputError(f"{path}: not valid YAML ({exc})") from exc
+        # PyYAML's own message spans lines with a drawing of the spot: one line here
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise InputError(f"{path}: not valid YAML{where} ({what})") from exc
     if not isinstance(data, dict):
         raise InputError(f"{path}: expected a YAML mapping, got {type(data).__name__}")
     return data

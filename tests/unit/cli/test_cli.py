@@ -11,7 +11,6 @@ import pytest
 import yaml
 
 from cvsflow import cli
-from cvsflow.cli import run as cli_run
 from cvsflow.geometry.transforms import R_from_euler, invert_T, make_T
 from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.synth.stereo import render_shared_stills
@@ -205,19 +204,6 @@ def test_init_on_a_6dof_only_qtm_export_uses_the_system_bodies(tmp_path):
     assert mocap_settings("q", config["sessions"]["q"])["bodies_from"] == "system"
 
 
-def test_run_passes_arguments_and_picks_profile(tmp_path, monkeypatch):
-    calls = []
-    monkeypatch.setattr(cli_run.subprocess, "call", lambda cmd: calls.append(cmd) or 0)
-    (tmp_path / "Snakefile").write_text("")
-    (tmp_path / "workflow" / "profiles" / "default").mkdir(parents=True)
-    monkeypatch.chdir(tmp_path)
-    assert cli.main(["run", "-n", "--cores", "2"]) == 0
-    assert calls[-1][-5:] == ["--profile", "workflow/profiles/default", "-n", "--cores", "2"]
-    (tmp_path / "profiles" / "default").mkdir(parents=True)
-    assert cli.main(["run", "--configfile", "x.yaml"]) == 0
-    assert calls[-1][-4:] == ["--profile", "profiles/default", "--configfile", "x.yaml"]
-
-
 def test_bad_inner_is_usage_error():
     with pytest.raises(SystemExit) as exc:
         cli.main(["calibrate", "d", "--inner", "9by6", "--square-m", "0.02", "--out", "o"])
@@ -243,24 +229,27 @@ def _readme_session_block():
     return yaml.safe_load(section.split("```yaml", 1)[1].split("```", 1)[0])
 
 
-def test_readme_session_config_validates_merged_with_the_demo_config():
-    """The README's copyable session, merged as --configfile merges it, passes the schema and
-    runs every stage; the demo session stays in (the merge the README warns about)."""
-    import copy
+def test_readme_session_config_validates_on_its_own():
+    """The README's copyable session, alone (as `cvsflow run` reads it: no demo merged in),
+    passes the schema, which fills every block it leaves out with the documented defaults, and
+    runs every stage."""
+    from snakemake.utils import validate
 
-    from snakemake.utils import update_config, validate
-
+    from cvsflow.workflow.config import SCHEMA
     from cvsflow.workflow.sessions import check_sessions
 
-    root = Path(__file__).resolve().parents[3]
-    config = yaml.safe_load((root / "config" / "config.yaml").read_text())
-    update_config(config, copy.deepcopy(_readme_session_block()))
-    validate(config, str(root / "cvsflow" / "workflow" / "schemas" / "config.schema.yaml"))
-    assert set(config["sessions"]) == {"demo", "lab1"}
+    config = _readme_session_block()
+    assert set(config) == {"sessions"}
+    validate(config, str(SCHEMA))
+    assert set(config["sessions"]) == {"lab1"} and config["flights"] == {}
     stages = check_sessions(config["sessions"])
     assert {"calibrate", "poses", "vicon", "pairs"} <= set(stages["lab1"])
     lab1 = config["sessions"]["lab1"]
     assert lab1["board"]["squares_x"] == 6 and len(lab1["markers"]["camera"]["layout_m"]) == 4
+    # blocks left out entirely are filled to their last key
+    assert config["pnp"]["ransac_reproj_px"] == 3.0 and config["sync"]["method"] == "angular_speed"
+    assert config["evaluate"]["n_folds"] == 5 and config["optimise"]["se3"]["loss"] == "soft_l1"
+    assert config["vicon"]["filter"]["enabled"] is False and config["corners"]["subpix_window_px"] == 5
 
 
 def test_calibrate_rig_from_rendered_stereo_stills(tmp_path, capsys):
