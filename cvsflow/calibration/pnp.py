@@ -102,7 +102,8 @@ def estimate_poses(
         ``x_m, y_m, z_m`` (tvec_C_B, m: board origin in the camera frame C),
         ``roll_rad, pitch_rad, yaw_rad`` (of R_C_B, R = Rz Ry Rx), ``reproj_rms_px`` (RMS of
         the inliers' reprojection errors after refinement, px), ``n_inliers``, ``n_corners``
-        (corners the frame has: a found frame may have a subset, e.g. a hand over the board).
+        (corners the frame has: a found frame may have a subset, e.g. a hand over the board);
+        ``t_ns`` (int64, exact) after ``t_s`` when the corners table has it (a frame folder).
         Frames without a board, with fewer than ``MIN_INLIERS`` corners or all of them on one
         grid line, or whose PnP fails or keeps fewer than ``MIN_INLIERS`` inliers, have
         ``valid = False`` and NaN pose.
@@ -167,6 +168,8 @@ def estimate_poses(
         {"frame": np.int64, "t_s": np.float64, "valid": bool, "n_inliers": np.int64,
          "n_corners": np.int64}
     )
+    if "t_ns" in corners.columns:  # a timestamped source: its exact times carried along
+        poses.insert(2, "t_ns", ordered.groupby("frame", sort=True)["t_ns"].first().to_numpy(np.int64))
     n_valid = int(poses["valid"].sum())
     log.info("poses: %d of %d frames valid", n_valid, len(poses))
     return poses

@@ -144,6 +144,17 @@ def test_estimate_poses_keeps_not_found_frames_invalid():
     assert poses.loc[[0, 2], "n_inliers"].tolist() == [0, 0]
 
 
+def test_estimate_poses_carries_exact_ns_of_a_timestamped_source():
+    """A corners table with t_ns (a frame folder's) gives poses with the same exact t_ns."""
+    T_true = board_centre_pose(np.radians([5, 5, 5]), [0.0, 0.0, 1.2])
+    uv = _project(T_true, K_DEMO, DIST_DEMO)
+    corners = _corners_table([None, uv])
+    t_ns = np.array([1606153907495166540, 1606153915653051138], np.int64)
+    corners.insert(2, "t_ns", t_ns[corners["frame"].to_numpy()])
+    poses = estimate_poses(corners, K_DEMO, DIST_DEMO, BOARD)
+    assert poses["t_ns"].tolist() == t_ns.tolist() and list(poses.columns[:3]) == ["frame", "t_s", "t_ns"]
+
+
 def test_estimate_poses_is_reproducible_for_a_seed():
     """Two runs with the same seed on noisy corners with outliers give identical tables."""
     rng = np.random.default_rng(4)
