@@ -1,7 +1,7 @@
 """Hand-eye calibration from chessboard stills, each with a pose of the camera's carrier.
 
 Frames, the two modes (``eye_in_hand``, ``eye_to_hand``) and the problem
-``T_C_B,i = inv(H) @ A_i @ G`` (``A_i G = H B_i``) are set out in :mod:`cvsflow.handeye.model`.
+``T_C_B,i = inv(H) @ A_i @ G`` (``A_i G = H B_i``) are set out in :mod:`cvsflow.handeye.closed_form`.
 
 Method
 ------
@@ -10,12 +10,12 @@ Method
    still shares one board frame; for boards whose ends look alike the order of each still is
    chosen so its relative rotations match the carrier's); PnP per still
    (:func:`cvsflow.optimise.se3_start.solve_pnp_frames`).
-2. Closed form (:mod:`cvsflow.handeye.model`): ``cv2.calibrateHandEye`` (Tsai, Park,
+2. Closed form (:mod:`cvsflow.handeye.closed_form`): ``cv2.calibrateHandEye`` (Tsai, Park,
    Horaud, Andreff, Daniilidis) or ``cv2.calibrateRobotWorldHandEye`` (Shah, Li); G from the
    mean of ``inv(A_i) H B_i``.
 3. Outlier screen: with the carrier poses taken as exact, each still's reprojection RMS under
    the fit of the other stills; the worst is rejected while it exceeds 4x the median.
-4. Refinement (:mod:`cvsflow.handeye.refine`): H, G (and optionally fx, fy, cx, cy, distortion)
+4. Refinement (:mod:`cvsflow.handeye.reprojection`): H, G (and optionally fx, fy, cx, cy, distortion)
    minimising the corner reprojection error over all stills, ``scipy.optimize.least_squares``
    with the analytic Jacobian; projection and its derivatives from :mod:`cvsflow.geometry.camera`.
    By default the carrier poses are not exact: each still's pose error (a turn about the carrier
@@ -46,7 +46,7 @@ from cvsflow.board import board_object_points, board_pattern
 from cvsflow.calibration import find_board, order_corners
 from cvsflow.exceptions import CalibrationError, InputError
 from cvsflow.geometry import transforms as tf
-from cvsflow.handeye.model import (
+from cvsflow.handeye.closed_form import (
     FRAME_NAMES,
     MIN_AXIS_SPREAD_DEG,
     MIN_STILLS,
@@ -54,7 +54,13 @@ from cvsflow.handeye.model import (
     closed_form_hand_eye,
     motion_axis_spread_deg,
 )
-from cvsflow.handeye.refine import (
+from cvsflow.handeye.consistency import (
+    MAX_ANGLE_DISAGREEMENT_DEG,
+    check_motion_scale,
+    check_pose_pairing,
+    motion_scale,
+)
+from cvsflow.handeye.reprojection import (
     _intrinsics_vector,
     _Model,
     jackknife_std,
@@ -194,6 +200,11 @@ def calibrate_hand_eye(
         Image and pose counts differ, or a bad mode, method or camera.
     CalibrationError
         Fewer than 3 usable stills, or carrier motions about one axis only.
+    PosePairingError
+        Stills and poses paired wrong (the angles of their motions disagree; worst pairs named).
+    ScaleMismatchError
+        The camera's translations by PnP and the carrier's disagree in scale (a wrong
+        ``square_m`` or pose unit).
     """
     _check_mode(mode)
     T_W_X = np.asarray(T_W_X, float)
@@ -225,13 +236,7 @@ def calibrate_hand_eye(
         if not ok[k]:
             records[i]["reason"] = "PnP failed"
     keep = ok.copy()
-    spread = motion_axis_spread_deg(T_W_X[np.array(idx)[keep]])
-    if spread < MIN_AXIS_SPREAD_DEG:
-        raise CalibrationError(
-            f"hand-eye: the carrier's motions between the {int(keep.sum())} usable stills turn "
-            f"about axes at most {spread:.1f} deg apart (expected at least "
-            f"{MIN_AXIS_SPREAD_DEG:g} deg): rotate the carrier about two different axes"
-        )
+    _check_motions(records, idx, keep, T_W_X, T_C_B, mode, method, board)
     opts = {"pose_noise": pose_noise, "pose_sigma_m": pose_sigma_m,
             "pose_sigma_rad": pose_sigma_rad}
     while True:
@@ -319,6 +324,31 @@ def calibrate_hand_eye(
     log.info("hand-eye (%s): %d of %d stills, RMS %.3f px", mode, len(sel), len(images),
              fit["rms_px"])  # fmt: skip
     return result
+
+
+def _check_motions(records, idx, keep, T_W_X, T_C_B, mode, method, board):
+    """Before any fit: views paired with their poses (outliers marked, keep updated in place),
+    rotations about two axes, and the camera's translations in the carrier's scale."""
+    sel = np.array(idx)[keep]
+    bad = check_pose_pairing(T_W_X[sel], T_C_B[keep], [records[i]["name"] for i in sel],
+                             [records[i]["pose"] or f"pose {i}" for i in sel])  # fmt: skip
+    for i in sel[bad]:
+        records[i]["reason"] = (f"outlier: the angles of its motions disagree with its carrier "
+                                f"pose's by more than {MAX_ANGLE_DISAGREEMENT_DEG:g} deg")  # fmt: skip
+        log.warning("hand-eye: still %s rejected (%s)", records[i]["name"], records[i]["reason"])
+    keep[np.flatnonzero(keep)[bad]] = False
+    sel = np.array(idx)[keep]
+    spread = motion_axis_spread_deg(T_W_X[sel])
+    if spread < MIN_AXIS_SPREAD_DEG:
+        raise CalibrationError(
+            f"hand-eye: the carrier's motions between the {int(keep.sum())} usable stills turn "
+            f"about axes at most {spread:.1f} deg apart (expected at least "
+            f"{MIN_AXIS_SPREAD_DEG:g} deg): rotate the carrier about two different axes"
+        )
+    if len(sel) >= MIN_STILLS:
+        T_H, T_G = closed_form_hand_eye(T_W_X[sel], T_C_B[keep], mode, method)
+        R_X = (T_H if mode == "eye_in_hand" else T_G)[:3, :3]
+        check_motion_scale(motion_scale(T_W_X[sel], T_C_B[keep], R_X, mode), board["square_m"])
 
 
 def _frames_note(mode):

@@ -19,10 +19,7 @@ PACKAGE = Path(__file__).resolve().parents[2] / "cvsflow"
 #: Packages whose module names mirror the stages by design (see the module docstring).
 EDGES = ("io", "plots", "cli", "workflow")
 #: Module names still shared: name -> reason.
-SHARED_YET = {
-    "model": "board/model.py and handeye/model.py: board and handeye are restructured by issues 38/39",
-    "refine": "corners/refine.py and handeye/refine.py: corners and handeye are restructured by issues 38/39",
-}
+SHARED_YET: dict = {}
 
 
 def _subpackages():

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ from cvsflow.board.model import board_object_points
 from cvsflow.exceptions import CalibrationError, InputError
 from cvsflow.geometry import transforms as tf
 from cvsflow.geometry.camera import project_points
-from cvsflow.handeye import model as hm
+from cvsflow.handeye import closed_form as hm
 from cvsflow.handeye import stills as he
 from tests.helpers.board_images import board_centre_pose, render_board
 from tests.helpers.handeye_sim import (
@@ -179,6 +180,45 @@ def test_cli_handeye_on_franka(tmp_path):
     assert [r["name"] for r in res["stills"]] == [f"franka_image-{i}.png" for i in range(1, 9)]
     assert [r["pose"].endswith(f"franka_pose_rPe_{i}.yaml") for i, r in
             enumerate(res["stills"], start=1)] == [True] * 8  # fmt: skip
+
+
+def _franka_cli(tmp_path, poses, square_m="0.0236", method="park"):
+    """`cvsflow handeye` on the Franka stills with the given pose glob; its exit code."""
+    from cvsflow.cli import main
+
+    d = _visp_dir()
+    out = tmp_path / "out"
+    return main(["handeye", "--stills", str(d), "--poses", str(poses), "--pose-format", "visp", "--inner", "9x6",
+          "--square-m", square_m, "--camera", str(d / "franka_camera.xml"), "--out", str(out),
+          "--method", method])  # fmt: skip
+
+
+def test_cli_handeye_square_10x_too_large_is_a_named_error(tmp_path, capsys):
+    """issue 43: --square-m 10x too large on the Franka set: the carrier's and the board's
+    motions disagree in scale (named, with the factor and the size that would agree); no output."""
+    d = _visp_dir()
+    assert _franka_cli(tmp_path, d / "franka_pose_rPe_*.yaml", "0.236") == 1
+    assert re.search(r"cvsflow: error: hand-eye: the carrier's motion and the board's motion disagree in "
+                     r"scale: the camera's translations by PnP are 8\.\d+ times the carrier's.*given "
+                     r"0\.236 m; 0\.02\d+ m would agree", capsys.readouterr().err)  # fmt: skip
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+@pytest.mark.parametrize("method", ["park", "tsai"])
+def test_cli_handeye_poses_in_the_wrong_order_is_a_named_error(tmp_path, capsys, method):
+    """issue 43: the Franka poses paired with the stills shifted by one: a named error naming the
+    worst pairs (their motion angles disagree by tens of degrees), no scipy traceback; no output."""
+    d = _visp_dir()
+    shifted = tmp_path / "poses"
+    shifted.mkdir()
+    for i in range(1, 9):
+        (shifted / f"franka_pose_rPe_{i % 8 + 1}.yaml").write_text((d / f"franka_pose_rPe_{i}.yaml").read_text())
+    assert _franka_cli(tmp_path, shifted / "franka_pose_rPe_*.yaml", method=method) == 1
+    err = capsys.readouterr().err
+    assert re.search(r"not paired right: .*median of 12\.\d deg over 8 views.*Worst pairs: "
+                     r"franka_image-1\.png with .*franka_pose_rPe_1\.yaml \(68\.\d deg\)", err)  # fmt: skip
+    assert "Traceback" not in err
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 
 def test_board_with_alike_ends_gets_one_corner_order():

@@ -17,7 +17,7 @@ robot-world/hand-eye problem ``A_i G = H B_i`` with ``B_i = T_C_B,i`` from PnP.
 
 The closed form is ``cv2.calibrateHandEye`` (Tsai, Park, Horaud, Andreff, Daniilidis) or
 ``cv2.calibrateRobotWorldHandEye`` (Shah, Li); G from the mean of ``inv(A_i) H B_i``. Its
-refinement is :mod:`cvsflow.handeye.refine`, the tool around both :mod:`cvsflow.handeye.stills`.
+refinement is :mod:`cvsflow.handeye.reprojection`, the tool around both :mod:`cvsflow.handeye.stills`.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cvsflow.handeye import model as hm
+from cvsflow.handeye import closed_form as hm
 from tests.helpers.handeye_sim import pose_errors, simulate
 
 

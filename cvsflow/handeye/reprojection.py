@@ -9,7 +9,7 @@ variance components). Standard errors: ``N^-1`` of the whitened problem, plus th
 intrinsics' std when the camera gives it; the leave-one-out RMS of each still and a
 delete-one-still jackknife.
 
-Frames and modes are :mod:`cvsflow.handeye.model`'s. Rotation errors are local:
+Frames and modes are :mod:`cvsflow.handeye.closed_form`'s. Rotation errors are local:
 ``R = R_hat @ expm([w]x)``, w about the axes of the child frame (C for ``T_Cm_C`` and ``T_W_C``,
 B for ``T_W_B`` and ``T_Bm_B``); translations in the parent.
 """
@@ -24,7 +24,7 @@ from scipy.optimize import least_squares
 from cvsflow.exceptions import InputError
 from cvsflow.geometry import INTRINSIC_NAMES, project_points_jac, right_jacobian_SO3
 from cvsflow.geometry import transforms as tf
-from cvsflow.handeye.model import MIN_STILLS, carrier_chain
+from cvsflow.handeye.closed_form import MIN_STILLS, carrier_chain
 from cvsflow.optimise import covariances
 
 log = logging.getLogger(__name__)

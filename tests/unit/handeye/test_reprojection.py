@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cvsflow.handeye import model as hm
-from cvsflow.handeye import refine as hr
+from cvsflow.handeye import closed_form as hm
+from cvsflow.handeye import reprojection as hr
 from tests.helpers.handeye_sim import CAMERA, K, pose_errors, simulate
 
 
