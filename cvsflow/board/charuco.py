@@ -33,12 +33,10 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.board.model import SUBPIX_CRITERIA, CornerRows, board_object_points, board_pattern
+from cvsflow.board.model import SUBPIX_CRITERIA, CornerRows, board_object_points, board_pattern, board_type
 from cvsflow.exceptions import ConfigError, InputError
 
 log = logging.getLogger(__name__)
-
-BOARD_TYPES = ("chessboard", "charuco")
 
 # A frame (or still) counts as found with at least this many refined, checked corners spread
 # over two rows and two columns of the grid: PnP's minimum (cvsflow.calibration.pnp.MIN_INLIERS).
@@ -70,31 +68,6 @@ MIN_MARKER_DEVIATION_PX = 1.0
 # 6 with 0.09 or less were within 0.24 px.
 MAX_ASYMMETRY = 0.09
 MIN_CORNER_CONTRAST = 20.0
-
-
-def board_type(board: dict) -> str:
-    """``board["type"]``, ``"chessboard"`` when absent.
-
-    Parameters
-    ----------
-    board : dict
-        The session's ``board`` block (``type``, ``squares_x``, ``squares_y``, ``square_m``,
-        ``marker_m``, ``dictionary``).
-
-    Returns
-    -------
-    kind : str
-        A key of ``BOARD_TYPES``.
-
-    Raises
-    ------
-    ConfigError
-        An unknown type.
-    """
-    kind = board.get("type", "chessboard")
-    if kind not in BOARD_TYPES:
-        raise ConfigError(f"board.type={kind!r}; expected one of {list(BOARD_TYPES)}")
-    return kind
 
 
 def is_charuco(board: dict) -> bool:

@@ -1,7 +1,11 @@
-"""The calibration board: its corner grid in its own frame B, shared by every board type.
+"""The calibration board: its corner ids and their points in its own frame B, for every board type.
 
 A chessboard and a ChArUco board (:mod:`cvsflow.board.charuco`) have the same squares and corners:
-corner ``k`` is at ``((k % nx) * s, (k // nx) * s, 0)`` in B, square (0, 0) black.
+corner ``k`` is at ``((k % nx) * s, (k // nx) * s, 0)`` in B, square (0, 0) black, z into the board.
+An AprilGrid (:mod:`cvsflow.board.aprilgrid`) has corner ``4 t + k`` (corner k of tag t) in
+Kalibr's target frame, z out of the printed face. Everything downstream of the detectors (the
+corners table, PnP, the calibration, the fits) takes a corner id as a row of
+:func:`board_object_points`.
 """
 
 from __future__ import annotations
@@ -10,11 +14,39 @@ import cv2
 import numpy as np
 import pandas as pd
 
+from cvsflow.board.aprilgrid import aprilgrid_from_board
 from cvsflow.exceptions import ConfigError
+
+#: The ``board.type`` values: a chessboard (the default), a ChArUco board, a Kalibr AprilGrid.
+BOARD_TYPES = ("chessboard", "charuco", "aprilgrid")
 
 # The termination criteria of OpenCV's calibration tutorial (and of the published reference
 # calibration in shared/data/real/SOURCES.md): 30 iterations or a 0.001 px step.
 SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
+
+
+def board_type(board: dict) -> str:
+    """``board["type"]``, ``"chessboard"`` when absent.
+
+    Parameters
+    ----------
+    board : dict
+        The session's ``board`` block.
+
+    Returns
+    -------
+    kind : str
+        One of ``BOARD_TYPES``.
+
+    Raises
+    ------
+    ConfigError
+        An unknown type.
+    """
+    kind = board.get("type", "chessboard")
+    if kind not in BOARD_TYPES:
+        raise ConfigError(f"board.type={kind!r}; expected one of {list(BOARD_TYPES)}")
+    return kind
 
 
 def board_pattern(board: dict) -> tuple[int, int]:
@@ -33,8 +65,12 @@ def board_pattern(board: dict) -> tuple[int, int]:
     Raises
     ------
     ConfigError
-        If ``squares_x``/``squares_y`` are not integers >= 3 or ``square_m`` is not positive.
+        If ``squares_x``/``squares_y`` are not integers >= 3 or ``square_m`` is not positive, or
+        the board is an AprilGrid (a grid of tags, no chessboard pattern).
     """
+    if board.get("type") == "aprilgrid":
+        raise ConfigError("board: type aprilgrid has no chessboard pattern (squares_x, squares_y); "
+                          "this step takes a chessboard or ChArUco board")
     try:
         squares_x = int(board["squares_x"])
         squares_y = int(board["squares_y"])
@@ -57,22 +93,71 @@ def board_pattern(board: dict) -> tuple[int, int]:
 
 
 def board_object_points(board: dict) -> np.ndarray:
-    """Inner-corner positions of the board in its own frame B.
+    """Corner positions of the board in its own frame B, row ``k`` for corner id ``k``.
 
     Parameters
     ----------
     board : dict
-        ``squares_x``, ``squares_y`` (int, squares along board x and y), ``square_m`` (m).
+        ``squares_x``, ``squares_y`` (int, squares along board x and y), ``square_m`` (m); a
+        ``type: aprilgrid`` board has ``tag_cols``, ``tag_rows``, ``tag_size_m``,
+        ``tag_spacing`` instead.
 
     Returns
     -------
-    p_B : ndarray, shape (nx * ny, 3), float64
-        Corner ``k`` at ``((k % nx) * s, (k // nx) * s, 0)``, metres, frame B.
+    p_B : ndarray, shape (N, 3), float64
+        Metres, frame B. Chessboard and ChArUco: N = nx * ny inner corners, corner ``k`` at
+        ``((k % nx) * s, (k // nx) * s, 0)``; AprilGrid: N = 4 tags, Kalibr's points
+        (:meth:`cvsflow.board.aprilgrid.AprilGrid.object_points`).
     """
+    if board_type(board) == "aprilgrid":
+        return aprilgrid_from_board(board).object_points()
     nx, ny = board_pattern(board)
     s = float(board["square_m"])
     k = np.arange(nx * ny)
     return np.stack([(k % nx) * s, (k // nx) * s, np.zeros(nx * ny)], axis=1).astype(np.float64)
+
+
+def board_name(board: dict) -> str:
+    """How messages name a board.
+
+    Parameters
+    ----------
+    board : dict
+        The session's ``board`` block.
+
+    Returns
+    -------
+    name : str
+        ``"9x6 chessboard"`` (inner corners), ``"ChArUco board"`` or ``"6x6 AprilGrid"`` (tags).
+    """
+    kind = board_type(board)
+    if kind == "aprilgrid":
+        return f"{board['tag_cols']}x{board['tag_rows']} AprilGrid"
+    return "ChArUco board" if kind == "charuco" else "{}x{} chessboard".format(*board_pattern(board))
+
+
+def board_record(board: dict) -> dict:
+    """The board block as a result file records it (camera.yaml's ``board``), plain numbers.
+
+    Parameters
+    ----------
+    board : dict
+        The session's ``board`` block.
+
+    Returns
+    -------
+    record : dict
+        Chessboard: ``squares_x``, ``squares_y``, ``square_m``; ChArUco: also ``type``,
+        ``marker_m``, ``dictionary``; AprilGrid: :meth:`cvsflow.board.aprilgrid.AprilGrid.config`.
+    """
+    kind = board_type(board)
+    if kind == "aprilgrid":
+        return aprilgrid_from_board(board).config()
+    out = {"squares_x": int(board["squares_x"]), "squares_y": int(board["squares_y"]),
+           "square_m": float(board["square_m"])}
+    if kind == "charuco":
+        out.update(type="charuco", marker_m=float(board["marker_m"]), dictionary=str(board["dictionary"]))
+    return out
 
 
 def ends_distinguishable(board: dict) -> bool:

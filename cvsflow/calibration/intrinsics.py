@@ -25,11 +25,17 @@ import pandas as pd
 
 from cvsflow.board import (
     SUBPIX_CRITERIA,
+    board_name,
     board_object_points,
     board_pattern,
+    board_record,
+    board_type,
+    default_passes,
     ends_distinguishable,
+    find_aprilgrid,
     find_charuco,
     make_detector,
+    passes_name,
 )
 from cvsflow.exceptions import CalibrationError, InputError
 
@@ -42,8 +48,9 @@ CALIB_FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 
 CALIB_CORNER_COLUMNS = ["image", "corner", "u_px", "v_px", "X_m", "Y_m"]
 
-# camera.yaml's reason for a still without a board (chessboard, ChArUco).
-NOT_FOUND = {False: "no chessboard found", True: "no ChArUco corners found"}
+# camera.yaml's reason for a still without a board, by board type.
+NOT_FOUND = {"chessboard": "no chessboard found", "charuco": "no ChArUco corners found",
+             "aprilgrid": "no AprilGrid found"}
 
 #: Keys of camera.yaml's ``std`` (the intrinsics' standard deviations; px, then unitless).
 INTRINSIC_STD_NAMES = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
@@ -218,9 +225,11 @@ def _duplicate_of(uv: np.ndarray, kept: list[tuple[str, np.ndarray]], duplicate_
 
 def _detect_view(gray: np.ndarray, board: dict, subpix_window_px: int, detector):
     """(corner ids, corners px in board order) of a still, or None: the chessboard's whole grid
-    (``find_board``, ``order_corners``), or the ChArUco corners seen (``detector`` not None)."""
+    (``find_board``, ``order_corners``), the ChArUco corners seen (``detector`` not None) or the
+    AprilGrid's (its own window, from each tag's size)."""
+    if board.get("type") == "aprilgrid":
+        return find_aprilgrid(gray, board)
     if detector is not None:
-
         return find_charuco(gray, board, subpix_window_px, detector)
     corners = find_board(gray, board, subpix_window_px)
     if corners is None:
@@ -352,8 +361,9 @@ def calibrate_camera(
         8-bit grayscale image, shape (H, W). All stills must have the same size.
     board : dict
         ``squares_x``, ``squares_y``, ``square_m`` (m). With ``type: charuco`` (``marker_m``,
-        ``dictionary``) the corners come from ``cvsflow.board.charuco.find_charuco`` and a still
-        may show part of the board (each view enters with the corners it has).
+        ``dictionary``) or ``type: aprilgrid`` the corners come from ``find_charuco`` or
+        ``find_aprilgrid`` and a still may show part of the board (each view enters with the
+        corners it has; camera.yaml's ``detector`` names an AprilGrid's tag detector).
     subpix_window_px : int
         cornerSubPix half window (OpenCV ``winSize``), pixels.
     min_images : int
@@ -404,12 +414,9 @@ def calibrate_camera(
     if len(images) == 0:
         raise CalibrationError("calibration: no stills given; expected at least one image")
     p_B = board_object_points(board).astype(np.float32)
-    charuco = board.get("type", "chessboard") == "charuco"
-    detector = None
-    if charuco:
-
-        detector = make_detector(board)
-    what = "ChArUco board" if charuco else "{}x{} chessboard".format(*board_pattern(board))
+    kind = board_type(board)
+    detector = make_detector(board) if kind == "charuco" else None
+    what = board_name(board)
     size_wh = None
     first_name = None
     records = []
@@ -429,7 +436,7 @@ def calibrate_camera(
         if view is None:
             log.warning("%s: no %s found; skipped", name, what)
             records.append(
-                {"name": name, "used": False, "reason": NOT_FOUND[charuco], "rms_px": None}
+                {"name": name, "used": False, "reason": NOT_FOUND[kind], "rms_px": None}
             )
             continue
         ids, ordered = view
@@ -456,7 +463,7 @@ def calibrate_camera(
         records.append({"name": name, "used": True, "reason": "ok", "rms_px": None})
 
     if len(used_names) < min_images:
-        skipped = [r["name"] for r in records if r["reason"] == NOT_FOUND[charuco]]
+        skipped = [r["name"] for r in records if r["reason"] == NOT_FOUND[kind]]
         dup_text = (
             f"; near-duplicates removed: {', '.join(duplicates)}, within {duplicate_px:g} px"
             if duplicates
@@ -522,16 +529,12 @@ def calibrate_camera(
         "rms_px": float(rms_px),
         "images": records,
         "n_used": len(used_names),
-        "board": {
-            "squares_x": int(board["squares_x"]),
-            "squares_y": int(board["squares_y"]),
-            "square_m": float(board["square_m"]),
-            **({"type": "charuco", "marker_m": float(board["marker_m"]),
-                "dictionary": str(board["dictionary"])} if charuco else {}),
-        },
+        "board": board_record(board),
         "quality": quality,
         "warnings": warnings,
     }
+    if kind == "aprilgrid":  # which tag detector found the corners (pupil-apriltags may be missing)
+        camera["detector"] = passes_name(default_passes())
     log.info(
         "calibrated on %d of %d stills: rms %.3f px, fx %.2f, fy %.2f px",
         len(used_names),

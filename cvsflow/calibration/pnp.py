@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.board import CORNER_COLUMNS, board_object_points, board_pattern
+from cvsflow.board import CORNER_COLUMNS, board_object_points
 from cvsflow.exceptions import InputError
 from cvsflow.geometry import transforms as tf
 
@@ -84,7 +84,8 @@ def estimate_poses(
     dist : ndarray, shape (5,)
         Distortion [k1, k2, p1, p2, k3] (OpenCV).
     board : dict
-        ``squares_x``, ``squares_y``, ``square_m`` (m).
+        ``squares_x``, ``squares_y``, ``square_m`` (m); any board type (corner ids are rows of
+        ``cvsflow.board.board_object_points``).
     ransac_reproj_px : float
         RANSAC inlier threshold, pixels.
     ransac_iterations : int
@@ -154,7 +155,7 @@ def estimate_poses(
                     f"corners table, frame {frame}: non-finite u_px/v_px on a found frame; "
                     "expected pixel coordinates"
                 )
-            if _spread_ok(ids, board):
+            if _spread_ok(p_B[ids]):
                 row.update(
                     _solve_frame(p_B[ids], uv, K, dist, ransac_reproj_px, ransac_iterations,
                                  ransac_confidence, seed)
@@ -175,12 +176,11 @@ def estimate_poses(
     return poses
 
 
-def _spread_ok(ids: np.ndarray, board: dict) -> bool:
-    """At least MIN_INLIERS corners spanning two rows and two columns of the grid (not all
-    on one line: a pose needs a non-degenerate planar spread)."""
-    nx, _ = board_pattern(board)
-    return bool(len(ids) >= MIN_INLIERS and len(np.unique(ids % nx)) >= 2
-                and len(np.unique(ids // nx)) >= 2)
+def _spread_ok(p_B: np.ndarray) -> bool:
+    """At least MIN_INLIERS corners spanning two rows and two columns of the board (two distinct
+    x and two distinct y in B: not all on one grid line, a pose needs a planar spread)."""
+    return bool(len(p_B) >= MIN_INLIERS and len(np.unique(p_B[:, 0])) >= 2
+                and len(np.unique(p_B[:, 1])) >= 2)
 
 
 def _solve_frame(p_B, uv, K, dist, reproj_px, iterations, confidence, seed) -> dict:

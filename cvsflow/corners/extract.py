@@ -31,7 +31,16 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from cvsflow.board import CORNER_COLUMNS, CornerRows, board_pattern, extract_charuco_corners, is_charuco
+from cvsflow.board import (
+    CORNER_COLUMNS,
+    CornerRows,
+    board_name,
+    board_pattern,
+    board_type,
+    extract_aprilgrid_corners,
+    extract_charuco_corners,
+    is_charuco,
+)
 from cvsflow.corners.grid import MAX_GRID_DEVIATION_FRAC
 from cvsflow.corners.track import _CornerFollower
 from cvsflow.exceptions import InputError
@@ -70,8 +79,9 @@ def extract_corners(
         e.g. ``cvsflow.io.media.iter_video_gray``.
     board : dict
         ``squares_x``, ``squares_y``, ``square_m`` (m); with ``type: charuco`` (and
-        ``marker_m``, ``dictionary``) ``cvsflow.board.charuco.extract_charuco_corners`` makes the
-        table instead (the tracking arguments do not apply).
+        ``marker_m``, ``dictionary``) ``cvsflow.board.extract_charuco_corners`` makes the table
+        instead, with ``type: aprilgrid`` ``cvsflow.board.extract_aprilgrid_corners`` (the
+        tracking arguments do not apply: the markers or tags name every corner).
     subpix_window_px : int
         Largest cornerSubPix half window, pixels (shrunk for far boards, see ``_subpix_window``).
     n_frames : int, optional
@@ -129,6 +139,8 @@ def extract_corners(
     if is_charuco(board):  # the markers name each corner: every frame detected on its own
         return extract_charuco_corners(frames, board, subpix_window_px, n_frames, log_every,
                                        keep_partial)
+    if board_type(board) == "aprilgrid":  # so do the tags
+        return extract_aprilgrid_corners(frames, board, n_frames, log_every)
     rows = CornerRows(int(np.prod(board_pattern(board))))
     methods: dict[str, int] = {}
     follower = _CornerFollower(board, subpix_window_px, max_grid_deviation,
@@ -252,7 +264,8 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
         frame has no board),
         ``n_cv_errors``, ``n_predicted`` (frames followed by prediction rather than optical
         flow), ``corners_per_found_frame``
-        (min, median, max); with ``timing``: ``n_frames_header``, ``n_frames_demuxed``,
+        (min, median, max); ``detector`` (an AprilGrid's tag detector); with ``timing``:
+        ``n_frames_header``, ``n_frames_demuxed``,
         ``n_dropped``, ``dropped_gaps`` (``[after_frame, missing]``), ``period_s`` (median),
         ``period_min_s``, ``period_max_s``, ``codec``, ``key_frame_share`` (key frames over
         demuxed frames) and ``inter_coded`` (some frame coded from another: a still board
@@ -275,6 +288,8 @@ def summarise_corners(corners: pd.DataFrame, timing: dict | None = None) -> dict
         "corners_per_found_frame": [int(n_per.min()), float(n_per.median()), int(n_per.max())]
         if len(n_per) else [0, 0.0, 0],
     }
+    if "detector" in attrs:  # an AprilGrid's tag detector (pupil-apriltags may be missing)
+        out["detector"] = str(attrs["detector"])
     if timing is not None:
         dt = np.diff(np.asarray(timing["t_s"], dtype=np.float64))
         out.update({
@@ -437,7 +452,22 @@ def merge_corner_chunks(chunks: list[pd.DataFrame]) -> pd.DataFrame:
         "n_cv_errors": sum(int(c.attrs.get("n_cv_errors", 0)) for c in ordered),
         "n_predicted": sum(int(c.attrs.get("n_predicted", 0)) for c in ordered),
     }
+    detectors = {c.attrs["detector"] for c in ordered if "detector" in c.attrs}
+    if detectors:
+        merged.attrs["detector"] = " | ".join(sorted(detectors))
     return merged
+
+
+def _board_seen(corners: pd.DataFrame, board: dict) -> pd.DataFrame:
+    """``corners``, or an InputError when an AprilGrid was found in none of its frames (a
+    chessboard's video keeps its not-found frames, as it always has)."""
+    if board_type(board) == "aprilgrid" and not corners.attrs.get("n_found", 0):
+        raise InputError(
+            f"video: the {board_name(board)} was found in none of its {corners.attrs.get('n_frames', 0)} "
+            f"frames ({corners.attrs.get('detector', '')}); expected it in at least one: check the "
+            f"board block or target file against the print ({board!r}: tag counts, tag36h11, a 2-bit border)"
+        )
+    return corners
 
 
 def _run_chunk(args) -> pd.DataFrame:
@@ -473,17 +503,21 @@ def extract_corners_parallel(
     corners : DataFrame
         As ``extract_corners`` on the whole video.
 
+    Raises
+    ------
+    InputError
+        An AprilGrid found in no frame (its board block or target file does not describe the
+        grid filmed: a tag count, family or border that is not the print's).
+
     Notes
     -----
     One contiguous chunk per worker, so each worker seeks once. Workers are forked where the
     platform allows (no re-import of the package); each uses one OpenCV thread.
     """
     restart_every = kwargs.get("restart_every", RESTART_EVERY_FRAMES)
-    if n_workers <= 1 or not restart_every:
-        return extract_corners_range(source, 0, None, board, **kwargs)
-    ranges = chunk_ranges(n_frames, n_workers, restart_every)
-    if len(ranges) == 1:
-        return extract_corners_range(source, 0, None, board, **kwargs)
+    ranges = chunk_ranges(n_frames, n_workers, restart_every) if n_workers > 1 and restart_every else []
+    if len(ranges) <= 1:
+        return _board_seen(extract_corners_range(source, 0, None, board, **kwargs), board)
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else None)
     jobs = [(source, a, b, board, kwargs) for a, b in ranges]
@@ -505,7 +539,7 @@ def extract_corners_parallel(
     finally:
         gc.unfreeze()
         cv2.setNumThreads(n_threads)
-    corners = merge_corner_chunks(chunks)
+    corners = _board_seen(merge_corner_chunks(chunks), board)
     a = corners.attrs
     log.info(
         "corners: board found in %d of %d frames (all chunks); frames by method %s",

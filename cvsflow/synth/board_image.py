@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from cvsflow.board import charuco_board
+from cvsflow.board import AprilGrid, charuco_board
 from cvsflow.geometry import invert_T
 from cvsflow.synth.imaging import Board, project_points, rectangle_outline_B
 
@@ -122,6 +122,103 @@ def _charuco_marker_ink(board: Board, x_m, y_m):
     ink = image[np.clip(ri, 0, image.shape[0] - 1)][:, np.clip(ci, 0, image.shape[1] - 1)] < 128
     white_square = ((ri[:, None] // pps + ci[None, :] // pps) % 2) == 1
     return ink & white_square & in_r[:, None] & in_c[None, :]
+
+
+def tag_bits_image(tag_id: int, grid: AprilGrid,
+                   dictionary: int = cv2.aruco.DICT_APRILTAG_36h11) -> np.ndarray:
+    """A tag's bits as printed on a Kalibr AprilGrid, seen from the printed face, rows downward.
+
+    Parameters
+    ----------
+    tag_id : int
+        Id in ``dictionary`` (any id of it: a tag of another grid can be drawn).
+    grid : AprilGrid
+        ``border_bits`` is used.
+    dictionary : int
+        ``cv2.aruco`` predefined dictionary of the tag (``DICT_APRILTAG_36h11`` is tag36h11).
+
+    Returns
+    -------
+    bits : ndarray, shape (n, n), bool
+        True for white; ``n = data bits + 2 border_bits``; image rows run along B's -y.
+    """
+    d = cv2.aruco.getPredefinedDictionary(dictionary)
+    n_data = d.markerSize
+    marker = cv2.aruco.generateImageMarker(d, int(tag_id), n_data + 2, borderBits=1)
+    b = grid.border_bits
+    bits = np.zeros((n_data + 2 * b,) * 2, dtype=bool)
+    # Kalibr's kalibr_create_target_pdf draws the code turned by 180 degrees against cv2.aruco.
+    bits[b:b + n_data, b:b + n_data] = np.rot90(marker[1:-1, 1:-1] > 127, 2)
+    return bits
+
+
+def aprilgrid_texture(grid: AprilGrid, texels_per_bit: int = 12, margin_bits: int = 6,
+                      tags: dict | None = None, ink_spread_bits: float = 0.0, n_levels: int = 4,
+                      markers_B=None) -> BoardTexture:
+    """Texture of a printed Kalibr AprilGrid, for :func:`render_board`.
+
+    The grid as ``kalibr_create_target_pdf`` prints it: each tag a black square of
+    ``tag_bits`` bits (:func:`tag_bits_image`) and a black square of side
+    ``tag_spacing * tag_size_m`` at each of its corners, on white paper. Texel edges fall on
+    bit edges, so every tag corner is exact in the texture. Texture rows run along B's +y.
+
+    Parameters
+    ----------
+    grid : AprilGrid
+    texels_per_bit : int
+        Texels across one bit (the gaps are rounded to texels: whole for Kalibr's 0.3).
+    margin_bits : int
+        White paper round the outer corner squares, bits.
+    tags : dict, optional
+        ``{tag_id: bits}`` replacing the pattern of some tags (``bits`` as from
+        :func:`tag_bits_image`): a mirrored tag, a tag of another grid, for tests.
+    ink_spread_bits : float
+        Every black region grows by this much on each side (negative: shrinks), bits, rounded
+        to texels. At 0 a tag and its corner squares meet in a point; above 0 they overlap (ink
+        spread), below 0 a white path separates them. The X junction, the true corner, stays.
+    n_levels : int
+        Texture pyramid levels.
+    markers_B : ndarray, shape (M, 3), optional
+        Motion-capture markers stuck on the sheet (frame B, metres), drawn as grey discs.
+
+    Returns
+    -------
+    texture : BoardTexture
+        Texel (c, r) has its centre at B = (x0 + (c + 0.5) / ppm, y0 + (r + 0.5) / ppm).
+    """
+    n_bits = grid.tag_bits
+    ppm = texels_per_bit * n_bits / grid.tag_size_m
+    gap_tex = int(round(grid.tag_spacing * n_bits * texels_per_bit))
+    tag_tex = n_bits * texels_per_bit
+    pitch_tex = tag_tex + gap_tex
+    pad = gap_tex + margin_bits * texels_per_bit
+    step = 2 ** (n_levels - 1)
+    cols = -(-(grid.tag_cols * pitch_tex - gap_tex + 2 * pad) // step) * step
+    rows = -(-(grid.tag_rows * pitch_tex - gap_tex + 2 * pad) // step) * step
+    white = np.ones((rows, cols), dtype=bool)
+    tags = tags or {}
+    for t in range(grid.n_tags):
+        r0 = pad + (t // grid.tag_cols) * pitch_tex
+        c0 = pad + (t % grid.tag_cols) * pitch_tex
+        bits = tags.get(t, tag_bits_image(t, grid))
+        # texture rows run along +y: the face view (rows along -y) upside down
+        white[r0:r0 + tag_tex, c0:c0 + tag_tex] = np.kron(
+            np.flipud(bits), np.ones((texels_per_bit, texels_per_bit), dtype=bool))
+        for dr in (-gap_tex, tag_tex):
+            for dc in (-gap_tex, tag_tex):
+                white[r0 + dr:r0 + dr + gap_tex, c0 + dc:c0 + dc + gap_tex] = False
+    spread = int(round(abs(ink_spread_bits) * texels_per_bit))
+    if spread:
+        kernel = np.ones((2 * spread + 1, 2 * spread + 1), np.uint8)
+        grow = cv2.erode if ink_spread_bits > 0 else cv2.dilate
+        white = grow(white.astype(np.uint8), kernel, borderType=cv2.BORDER_REPLICATE).astype(bool)
+    x0 = -pad / ppm
+    reflectance = np.where(white, PAPER_REFLECTANCE, INK_REFLECTANCE).astype(np.float32)
+    if markers_B is not None:
+        reflectance = _draw_markers(reflectance, markers_B, x0, x0, ppm,
+                                    (x0, x0 + cols / ppm, x0, x0 + rows / ppm))
+    level = np.dstack([reflectance, np.ones_like(reflectance)])
+    return texture_pyramid(level, ppm, n_levels, x0, x0)
 
 
 def texture_pyramid(level, ppm, n_levels, x0, y0) -> BoardTexture:
