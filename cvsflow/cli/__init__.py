@@ -1,7 +1,7 @@
 """The ``cvsflow`` command: calibrate stills, export results, run the workflow, start a session.
 
 One module per subcommand group (``calibrate``, ``rig`` (calibrate-rig), ``export``, ``run``,
-``init``, ``remux``, ``handeye``); this one builds the parser and dispatches (``main``, the
+``demo``, ``init``, ``remux``, ``handeye``); this one builds the parser and dispatches (``main``, the
 ``cvsflow`` entry point).
 
 Exit codes: 0 success; 1 a cvsflow error (one line on stderr naming the file); 2 a usage error
@@ -16,6 +16,7 @@ import sys
 
 from cvsflow.cli.args import EPILOG, _parse_inner, _parse_squares
 from cvsflow.cli.calibrate import cmd_calibrate
+from cvsflow.cli.demo import MIN_DURATION_S, cmd_demo, duration_arg
 from cvsflow.cli.export import cmd_export_camera, cmd_export_trajectory
 from cvsflow.cli.handeye import _add_handeye_parser
 from cvsflow.cli.init import cmd_init
@@ -32,8 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     -------
     argparse.ArgumentParser
         Subcommands ``calibrate``, ``calibrate-rig``, ``export camera``, ``export trajectory``, ``run``,
-        ``init``, ``remux``, ``handeye``; each sets ``func`` to its ``cmd_*`` handler (None for ``run``,
-        which :func:`main` handles).
+        ``demo``, ``init``, ``remux``, ``handeye``; each sets ``func`` to its ``cmd_*`` handler
+        (None for ``run``, which :func:`main` handles).
     """
     p = argparse.ArgumentParser(
         prog="cvsflow",
@@ -126,6 +127,21 @@ def build_parser() -> argparse.ArgumentParser:
         "(`__use_yte__: true`, Snakemake's YTE templates): read one from elsewhere first.",
     )
     r.set_defaults(func=None)
+
+    d = sub.add_parser(
+        "demo",
+        help="render the demo session into a folder and run the workflow on it there",
+        description="Writes the demo's config as DIR/session.yaml (a rendered session and a "
+        "rendered flight, every key commented) and runs it in DIR: the workflow renders the "
+        "inputs into DIR/data/ and writes DIR/results/, DIR/logs/, DIR/benchmarks/. A second "
+        "call with the same options has nothing to do; an existing session.yaml that differs "
+        "is never overwritten. About 2-4 minutes on 2 cores at the default 20 s.",
+    )
+    d.add_argument("dir", help="the demo's folder (created if needed)")
+    d.add_argument("--duration-s", type=duration_arg, help="seconds of rendered video "
+                   f"(default the demo's 20; at least {MIN_DURATION_S:g})")
+    d.add_argument("--cores", type=int, help="cores to use (default the workstation profile's, 2)")
+    d.set_defaults(func=cmd_demo)
 
     i = sub.add_parser(
         "init",

@@ -11,6 +11,7 @@ examples:
   cvsflow export trajectory results/demo --out-dir traj/
   cvsflow init recordings/lab1 --out my_session.yaml
   cvsflow run my_session.yaml --cores 2
+  cvsflow demo cvsflow-demo/
 `cvsflow COMMAND --help` explains each command's options.
 
 board convention: cvsflow's config counts SQUARES (board.squares_x, squares_y); OpenCV and

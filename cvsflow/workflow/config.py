@@ -1,7 +1,8 @@
 """Where the shipped workflow's files are, and the checks a config passes before any job.
 
 The workflow is package data: ``cvsflow run`` and the repository's Snakefile both run
-:data:`SNAKEFILE`, with the profiles in :data:`PROFILES` (``default``, ``slurm``).
+:data:`SNAKEFILE`, with the profiles in :data:`PROFILES` (``default``, ``slurm``); the
+demo's config is :data:`DEMO_CONFIG` (the repository's ``config/config.yaml`` links to it).
 A config that the schema refuses stops the run with one line naming the key
 (:func:`schema_error`), not with Snakemake's dump of the whole schema.
 """
@@ -20,6 +21,8 @@ SNAKEFILE = WORKFLOW_DIR / "Snakefile"
 SCHEMA = WORKFLOW_DIR / "schemas" / "config.schema.yaml"
 #: Snakemake workflow profiles: ``default`` (a workstation), ``slurm`` (a SLURM cluster).
 PROFILES = WORKFLOW_DIR / "profiles"
+#: The demo's config (a rendered session and flight); the repository's config/config.yaml.
+DEMO_CONFIG = WORKFLOW_DIR / "demo.yaml"
 
 
 def _sources(configfiles) -> str:
