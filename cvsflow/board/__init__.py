@@ -29,6 +29,7 @@ from cvsflow.board.model import (
     board_type,
     ends_distinguishable,
 )
+from cvsflow.board.order import order_corners
 
 __all__ = [
     "AprilGrid", "aprilgrid_from_board", "board_name", "board_object_points", "board_pattern",
@@ -36,6 +37,7 @@ __all__ = [
     "BOARD_TYPES", "charuco_board", "CORNER_COLUMNS", "CornerRows", "default_passes",
     "detect_aprilgrid", "ends_distinguishable", "extract_aprilgrid_corners", "extract_charuco_corners",
     "find_aprilgrid", "find_charuco", "guess_charuco_board", "is_charuco", "kalibr_board",
-    "kalibr_target", "KalibrCheckerboard", "make_detector", "passes_name", "R_B_KALIBR_CHECKERBOARD",
+    "kalibr_target", "KalibrCheckerboard", "make_detector", "order_corners", "passes_name",
+    "R_B_KALIBR_CHECKERBOARD",
     "SUBPIX_CRITERIA"
 ]

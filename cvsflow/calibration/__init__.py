@@ -6,12 +6,10 @@ from cvsflow.calibration.intrinsics import (
     INTRINSIC_STD_NAMES,
     calibrate_camera,
     find_board,
-    order_corners,
     view_corners,
 )
 from cvsflow.calibration.pnp import estimate_poses
 
 __all__ = [
-    "calibrate_camera", "estimate_poses", "find_board", "INTRINSIC_STD_NAMES", "order_corners",
-    "view_corners"
+    "calibrate_camera", "estimate_poses", "find_board", "INTRINSIC_STD_NAMES", "view_corners"
 ]

@@ -11,8 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from cvsflow.board import board_pattern
-from cvsflow.calibration import order_corners
+from cvsflow.board import board_pattern, order_corners
 from cvsflow.corners.grid import MAX_GRID_DEVIATION_FRAC, _grid_points, _inside, _track_scales
 from cvsflow.corners.refine import (
     MIN_PATTERN_CONTRAST,
@@ -73,7 +72,7 @@ def detect_corners(
     -------
     corners_px : ndarray, shape (nx * ny, 2), float64, or None
         Corner k at board point (k % nx, k // nx) * square_m (see
-        ``cvsflow.calibration.intrinsics.order_corners``); with ``"partial"``, NaN for the corners
+        ``cvsflow.board.order.order_corners``); with ``"partial"``, NaN for the corners
         dropped.
     method : str
         How the 180-degree ambiguity was decided (``"colour"``, ``"continuity"``,

@@ -6,7 +6,7 @@ Frames, the two modes (``eye_in_hand``, ``eye_to_hand``) and the problem
 Method
 ------
 1. Corners per still with :func:`cvsflow.calibration.intrinsics.find_board` and ordered with
-   :func:`cvsflow.calibration.intrinsics.order_corners` (the board's colour fixes corner 0, so every
+   :func:`cvsflow.board.order.order_corners` (the board's colour fixes corner 0, so every
    still shares one board frame; for boards whose ends look alike the order of each still is
    chosen so its relative rotations match the carrier's); PnP per still
    (:func:`cvsflow.optimise.se3_start.solve_pnp_frames`).
@@ -42,8 +42,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cvsflow.board import board_object_points, board_pattern
-from cvsflow.calibration import find_board, order_corners
+from cvsflow.board import board_object_points, board_pattern, order_corners
+from cvsflow.calibration import find_board
 from cvsflow.exceptions import CalibrationError, InputError
 from cvsflow.geometry import transforms as tf
 from cvsflow.handeye.closed_form import (

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
@@ -12,8 +10,8 @@ from cvsflow.board.model import board_object_points, board_pattern, ends_disting
 from cvsflow.calibration.intrinsics import CALIB_CORNER_COLUMNS, calibrate_camera
 from cvsflow.exceptions import CalibrationError, ConfigError, InputError
 from cvsflow.geometry import transforms as tf
+from tests.helpers.real_data import REAL_DATA as REAL
 
-REAL = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real"
 OPENCV_BOARD = {"squares_x": 10, "squares_y": 7, "square_m": 1.0}  # 9x6 inner corners
 
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cvsflow.calibration.intrinsics import order_corners
+from cvsflow.board import order_corners
 from cvsflow.corners.detect import detect_corners
 from tests.helpers.board_images import board_centre_pose, render_board
 
