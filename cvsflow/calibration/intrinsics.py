@@ -37,6 +37,7 @@ from cvsflow.board import (
     order_corners,
     passes_name,
 )
+from cvsflow.calibration.still_corners import refine_still_corners
 from cvsflow.exceptions import CalibrationError, InputError
 
 log = logging.getLogger(__name__)
@@ -119,19 +120,40 @@ def _duplicate_of(uv: np.ndarray, kept: list[tuple[str, np.ndarray]], duplicate_
     return None
 
 
-def _detect_view(gray: np.ndarray, board: dict, subpix_window_px: int, detector):
-    """(corner ids, corners px in board order) of a still, or None: the chessboard's whole grid
-    (``find_board``, ``order_corners``), the ChArUco corners seen (``detector`` not None) or the
-    AprilGrid's (its own window, from each tag's size)."""
+#: cornerSubPix half window of a ChArUco still when none is given (its detector's own
+#: square-scaled window, ``detect_charuco_corners``, bounded by this).
+CHARUCO_WINDOW_PX = 11
+
+
+def _detect_view(gray: np.ndarray, board: dict, subpix_window_px: int | None, detector):
+    """(corner ids, corners px in board order, refinement notes) of a still, or None.
+
+    The chessboard's whole grid (``findChessboardCorners``, then the per-corner windows of
+    :func:`cvsflow.calibration.still_corners.refine_still_corners`, or one fixed window of
+    ``subpix_window_px``; ``order_corners``), or the ChArUco corners seen (``detector`` not
+    None) or the AprilGrid's (its own window, from each tag's size). The notes name corners
+    whose refinement is suspect (a fixed window reaching beyond the corner's four squares, a
+    corner off its grid neighbours after a second refinement).
+    """
     if board.get("type") == "aprilgrid":
-        return find_aprilgrid(gray, board)
+        view = find_aprilgrid(gray, board)
+        return None if view is None else (*view, {"notes": []})
     if detector is not None:
-        return find_charuco(gray, board, subpix_window_px, detector)
-    corners = find_board(gray, board, subpix_window_px)
-    if corners is None:
+        view = find_charuco(gray, board, subpix_window_px or CHARUCO_WINDOW_PX, detector)
+        return None if view is None else (*view, {"notes": []})
+    found, corners = cv2.findChessboardCorners(gray, board_pattern(board), None, CALIB_FIND_FLAGS)
+    if not found:
         return None
-    ordered, _ = order_corners(corners, gray, board)
-    return None, ordered
+    refined = refine_still_corners(gray, corners, board, window_px=subpix_window_px)
+    ordered, _ = order_corners(refined.uv_px, gray, board)
+    over = int(np.sum(refined.window_px > np.floor(refined.limit_px)))
+    notes = [f"corner {k} (OpenCV order): {why}" for k, why in refined.suspect.items()]
+    if over:
+        notes.append(f"{over} corners' fixed {int(subpix_window_px)} px window reaches beyond "
+                     "their four squares (a neighbouring corner or the board's outline)")
+    info = {"window_px": [int(refined.window_px.min()), int(refined.window_px.max())],
+            "notes": notes}
+    return None, ordered, info
 
 
 def calibration_quality(
@@ -241,7 +263,7 @@ def quality_warnings(
 def calibrate_camera(
     images: Sequence[tuple[str, np.ndarray]],
     board: dict,
-    subpix_window_px: int = 11,
+    subpix_window_px: int | None = None,
     min_images: int = 5,
     duplicate_px: float = 0.5,
     min_coverage: float = 0.3,
@@ -260,8 +282,11 @@ def calibrate_camera(
         ``dictionary``) or ``type: aprilgrid`` the corners come from ``find_charuco`` or
         ``find_aprilgrid`` and a still may show part of the board (each view enters with the
         corners it has; camera.yaml's ``detector`` names an AprilGrid's tag detector).
-    subpix_window_px : int
-        cornerSubPix half window (OpenCV ``winSize``), pixels.
+    subpix_window_px : int, optional
+        One cornerSubPix half window (OpenCV ``winSize``, pixels) for every corner; 11 is
+        OpenCV's calibration sample (and reproduces its result). None (default): each corner
+        its own window, sized to its squares and the edges' blur
+        (:mod:`cvsflow.calibration.still_corners`).
     min_images : int
         Fewest *distinct* views (stills with a detected board, near-duplicates removed)
         needed to calibrate.
@@ -335,7 +360,7 @@ def calibrate_camera(
                 {"name": name, "used": False, "reason": NOT_FOUND[kind], "rms_px": None}
             )
             continue
-        ids, ordered = view
+        ids, ordered, info = view
         dup = _duplicate_of(ordered, kept, duplicate_px, ids)
         if dup is not None:
             log.warning("%s: near-duplicate of %s (corners within %.3f px RMS); skipped",
@@ -356,7 +381,9 @@ def calibrate_camera(
         img_points.append(ordered.astype(np.float32).reshape(-1, 1, 2))
         view_ids.append(np.arange(len(p_B)) if ids is None else ids)
         used_names.append(name)
-        records.append({"name": name, "used": True, "reason": "ok", "rms_px": None})
+        records.append({"name": name, "used": True, "reason": "ok", "rms_px": None, **info})
+        for note in info["notes"]:
+            log.warning("%s: %s", name, note)
 
     if len(used_names) < min_images:
         skipped = [r["name"] for r in records if r["reason"] == NOT_FOUND[kind]]
@@ -443,8 +470,8 @@ def calibrate_camera(
     return camera, calib_corners
 
 
-def view_corners(images: Sequence[tuple[str, np.ndarray]], board: dict, subpix_window_px: int = 11
-                 ) -> pd.DataFrame:
+def view_corners(images: Sequence[tuple[str, np.ndarray]], board: dict,
+                 subpix_window_px: int | None = None) -> pd.DataFrame:
     """The board's refined corners in each still, as a ``calib_corners`` table, no calibration.
 
     For stills whose camera is calibrated already, e.g. the shared views of a rig
@@ -458,8 +485,9 @@ def view_corners(images: Sequence[tuple[str, np.ndarray]], board: dict, subpix_w
         ``(name, gray)`` pairs, 8-bit grayscale (H, W).
     board : dict
         ``squares_x``, ``squares_y``, ``square_m`` (m); ChArUco keys with ``type: charuco``.
-    subpix_window_px : int
-        cornerSubPix half window, px.
+    subpix_window_px : int, optional
+        One cornerSubPix half window for every corner, px; None: per-corner windows (as
+        :func:`calibrate_camera`).
 
     Returns
     -------
@@ -480,7 +508,7 @@ def view_corners(images: Sequence[tuple[str, np.ndarray]], board: dict, subpix_w
         if view is None:
             log.warning("%s: no board found; left out", name)
             continue
-        ids, uv = view
+        ids, uv, _ = view
         ids = np.arange(len(p_B)) if ids is None else np.asarray(ids, dtype=np.int64)
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         rows.append(pd.DataFrame({"image": name, "corner": ids.astype(np.int64), "u_px": uv[:, 0],

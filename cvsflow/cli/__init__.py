@@ -62,7 +62,9 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--marker-m", type=float, help="ChArUco marker side, metres")
     c.add_argument("--dictionary", help="ChArUco ArUco dictionary, e.g. DICT_5X5_100")
     c.add_argument("--out", required=True, help="output folder")
-    c.add_argument("--subpix-window-px", type=int, default=11, help="cornerSubPix half window (px)")
+    c.add_argument("--subpix-window-px", type=int, default=None,
+                   help="one cornerSubPix half window for every corner (px; 11 = OpenCV's sample); "
+                   "default: each corner its own, sized to its squares")
     c.add_argument("--min-images", type=int, default=5, help="fewest stills with a board")
     c.set_defaults(func=cmd_calibrate)
 
@@ -79,7 +81,8 @@ def build_parser() -> argparse.ArgumentParser:
     cr.add_argument("--inner", type=_parse_inner, required=True, help="inner corners NXxNY, e.g. 9x6")
     cr.add_argument("--square-m", type=float, required=True, help="square side, metres")
     cr.add_argument("--out", required=True, help="output folder")
-    cr.add_argument("--subpix-window-px", type=int, default=11, help="cornerSubPix half window (px)")
+    cr.add_argument("--subpix-window-px", type=int, default=None,
+                    help="one cornerSubPix half window for every corner (px); default: per corner")
     cr.add_argument("--min-images", type=int, default=5, help="fewest stills with a board per camera")
     cr.add_argument("--min-shared-views", type=int, default=3,
                     help="fewest stills each camera must share with camera 0")

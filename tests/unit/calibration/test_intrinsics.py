@@ -140,7 +140,22 @@ def test_still_without_board_is_skipped_with_reason():
     assert blank[0]["rms_px"] is None
     assert camera["n_used"] == 13
     assert "blank.png" not in set(calib_corners["image"])
-    assert camera["K"][0][0] == pytest.approx(536.07, abs=0.05)
+    assert camera["K"][0][0] == pytest.approx(533.16, abs=0.05)
+
+
+def test_real_stills_default_windows_land_on_the_three_route_consensus():
+    """Per-corner windows (the default): fx, cy within 1 px of what mrcal (its outlier
+    rejection, 11 px corners), OpenCV with 5 px windows and mrcal on 5 px corners agree on
+    (fx 533.2-533.9, cy 233.8-233.9), where the 11 px window gives 536.07 and 235.54; left02,
+    whose near squares the 11 px window overreaches, fits like the others."""
+    camera, _ = calibrate_camera(_real_stills(), OPENCV_BOARD)
+    K = np.array(camera["K"])
+    assert 533.2 - 1.0 < K[0, 0] < 533.9 + 1.0 and 233.8 - 1.0 < K[1, 2] < 233.9 + 1.0
+    assert K[0, 0] == pytest.approx(533.16, abs=0.05) and K[1, 2] == pytest.approx(234.03, abs=0.05)
+    rms = {im["name"]: im["rms_px"] for im in camera["images"]}
+    assert rms["left02.jpg"] < 0.2
+    left02 = next(im for im in camera["images"] if im["name"] == "left02.jpg")
+    assert 2 <= left02["window_px"][0] < left02["window_px"][1] <= 30
 
 
 def test_too_few_usable_stills_is_a_calibration_error_naming_the_count():
