@@ -19,7 +19,7 @@ import numpy as np
 
 from cvsflow.board import AprilGrid, charuco_board
 from cvsflow.geometry import invert_T
-from cvsflow.synth.imaging import Board, project_points, rectangle_outline_B
+from cvsflow.synth.imaging import APRILGRID_MARGIN_BITS, Board, project_points, rectangle_outline_B
 
 INK_REFLECTANCE = 0.06
 MARKER_RADIUS_M = 0.007  # 14 mm Vicon marker
@@ -63,8 +63,11 @@ def make_board_texture(board: Board, ppm=1200.0, n_levels=5, markers_B=None) -> 
     -------
     BoardTexture
         ``n_levels`` levels, the finest at ``ppm`` texels per metre, with texel edges on the
-        square edges and one empty texel ring round the sheet.
+        square edges and one empty texel ring round the sheet (an AprilGrid: its own texels
+        on its bit edges, :func:`aprilgrid_texture`).
     """
+    if board.kind == "aprilgrid":
+        return aprilgrid_texture(board.grid, margin_bits=APRILGRID_MARGIN_BITS, markers_B=markers_B)
     s = board.square_m
     x_min, _, y_min, _ = board.printed_B()
     sx0, sx1, sy0, sy1 = board.sheet_B()

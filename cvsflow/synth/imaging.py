@@ -12,7 +12,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from cvsflow.board import AprilGrid
+
 A1_SHEET_M = (0.841, 0.594)  # printed sheet, width x height, metres
+#: White paper round an AprilGrid's outer corner squares, bits of its tags (the sheet).
+APRILGRID_MARGIN_BITS = 6
 # Beyond this normalised radius the 5-term polynomial is no longer a physical lens
 # (it folds back); rays there are far outside a 640x480 image at f ~ 700 px (r ~ 0.6).
 MAX_RAY_RADIUS = 1.2
@@ -25,6 +29,9 @@ class Board:
     Attributes are metres; ``nx``, ``ny`` count inner corners along x and y. ``kind``
     ``"charuco"`` adds ArUco markers of side ``marker_m`` from ``dictionary`` to the white
     squares (``cvsflow.board.charuco``); the squares and corners are the chessboard's.
+    ``kind`` ``"aprilgrid"`` is a Kalibr AprilGrid ``grid`` instead (:func:`aprilgrid_board`):
+    its corners are the grid's, in Kalibr's frame (z out of the printed face), and
+    ``square_m`` is its tag size, the feature a still must show large enough.
     """
 
     squares_x: int
@@ -33,10 +40,13 @@ class Board:
     kind: str = "chessboard"
     marker_m: float = 0.0
     dictionary: str = ""
+    grid: AprilGrid | None = None
 
     def config(self) -> dict:
         """The board's config block (``board:``): the chessboard's three keys, plus
-        ``type``, ``marker_m`` and ``dictionary`` for a ChArUco board."""
+        ``type``, ``marker_m`` and ``dictionary`` for a ChArUco board; an AprilGrid's keys."""
+        if self.kind == "aprilgrid":
+            return self.grid.config()
         out = {"squares_x": self.squares_x, "squares_y": self.squares_y,
                "square_m": self.square_m}
         if self.kind == "charuco":
@@ -52,28 +62,74 @@ class Board:
         return self.squares_y - 1
 
     def corners_B(self) -> np.ndarray:
-        """Inner corners, shape (nx * ny, 3): corner k at ((k % nx) s, (k // nx) s, 0)."""
+        """Inner corners, shape (nx * ny, 3): corner k at ((k % nx) s, (k // nx) s, 0); an
+        AprilGrid's corners, shape (4 n_tags, 3), row = corner id."""
+        if self.kind == "aprilgrid":
+            return self.grid.object_points()
         k = np.arange(self.nx * self.ny)
         return np.stack(
             [(k % self.nx) * self.square_m, (k // self.nx) * self.square_m, 0.0 * k], axis=1
         )
 
+    def edge_pairs(self) -> tuple[np.ndarray, np.ndarray]:
+        """Neighbouring corners (rows of :meth:`corners_B`), whose image distance says how large
+        the board's features are: the chessboard's grid neighbours, an AprilGrid's tag sides.
+
+        Returns
+        -------
+        a, b : ndarray, shape (E,), int
+        """
+        if self.kind == "aprilgrid":
+            k = np.arange(self.grid.n_corners)
+            return k, 4 * (k // 4) + (k + 1) % 4
+        k = np.arange(self.nx * self.ny).reshape(self.ny, self.nx)
+        return (np.r_[k[:, :-1].ravel(), k[:-1, :].ravel()], np.r_[k[:, 1:].ravel(), k[1:, :].ravel()])
+
+    def R_face_B(self) -> np.ndarray:
+        """Rotation (3, 3) from B to the board's face-on frame (x right, y down the printed face as
+        the camera sees it, z away from the camera): identity for a chessboard, a half turn
+        about x for an AprilGrid (its z points out of the printed face)."""
+        return np.diag([1.0, -1.0, -1.0]) if self.kind == "aprilgrid" else np.eye(3)
+
     def printed_B(self):
-        """Printed squares' extent in B: (x_min, x_max, y_min, y_max), metres."""
+        """Printed squares' extent in B: (x_min, x_max, y_min, y_max), metres (an AprilGrid: its
+        tags and corner squares)."""
+        if self.kind == "aprilgrid":
+            return self.grid.printed_extent_m()
         s = self.square_m
         return (-s, (self.squares_x - 1) * s, -s, (self.squares_y - 1) * s)
 
     def sheet_B(self):
         """A1 sheet's extent in B, centred on the printed squares: (x0, x1, y0, y1), metres."""
         x0, x1, y0, y1 = self.printed_B()
+        if self.kind == "aprilgrid":  # the print and its white margin
+            m = APRILGRID_MARGIN_BITS * self.grid.tag_size_m / self.grid.tag_bits
+            return (x0 - m, x1 + m, y0 - m, y1 + m)
         cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
         w, h = A1_SHEET_M
         return (cx - w / 2, cx + w / 2, cy - h / 2, cy + h / 2)
 
     def center_B(self) -> np.ndarray:
-        """Centre of the inner-corner grid, shape (3,), metres."""
+        """Centre of the inner-corner grid (an AprilGrid's tags), shape (3,), metres."""
+        if self.kind == "aprilgrid":
+            return self.grid.tag_centres().mean(axis=0)
         return np.array([(self.nx - 1) * self.square_m / 2, (self.ny - 1) * self.square_m / 2, 0])
 
+
+
+def aprilgrid_board(grid: AprilGrid) -> Board:
+    """The renderer's :class:`Board` of a Kalibr AprilGrid.
+
+    Parameters
+    ----------
+    grid : AprilGrid
+
+    Returns
+    -------
+    Board
+        ``kind="aprilgrid"``, ``square_m`` its tag size, no chessboard squares.
+    """
+    return Board(0, 0, float(grid.tag_size_m), kind="aprilgrid", grid=grid)
 
 
 def rectangle_outline_B(extent, n_per_edge=8) -> np.ndarray:

@@ -91,9 +91,12 @@ class HandMotion:
     center_B: np.ndarray  # (3,) the point of the board the hand moves (centre of the corners)
     depth_center_m: float = 2.0  # geometric centre of the depth range, m
     depth_half_log: float = 0.7  # half width of the log-depth range (depth = centre exp(+-this))
+    # (3, 3) B to the board's face-on frame (Board.R_face_B) when it is not the identity: the
+    # channels turn the face-on frame, so an AprilGrid (z out of its face) faces the camera too.
+    R_face_B: np.ndarray | None = None
 
 
-def make_hand_motion(rng, K, size, center_B, distance_m=None) -> HandMotion:
+def make_hand_motion(rng, K, size, center_B, distance_m=None, R_face_B=None) -> HandMotion:
     """Draw a hand motion for a camera ``K`` (3x3, px) and image ``size`` (width, height) px.
 
     Parameters
@@ -108,6 +111,8 @@ def make_hand_motion(rng, K, size, center_B, distance_m=None) -> HandMotion:
         turns about it.
     distance_m : tuple of float, optional
         (min, max) depth of the board centre, m; by default the demo's 1.0 .. 4.0 m.
+    R_face_B : ndarray, shape (3, 3), optional
+        ``Board.R_face_B`` of a board whose frame is not face-on (an AprilGrid); None: B is.
 
     Returns
     -------
@@ -132,11 +137,13 @@ def make_hand_motion(rng, K, size, center_B, distance_m=None) -> HandMotion:
         ]
     )
     if distance_m is None:
-        return HandMotion(free, tremor, hold, tan_half_fov, np.asarray(center_B, dtype=float))
+        return HandMotion(free, tremor, hold, tan_half_fov, np.asarray(center_B, dtype=float),
+                          R_face_B=R_face_B)
     d_min, d_max = distance_m
     return HandMotion(
         free, tremor, hold, tan_half_fov, np.asarray(center_B, dtype=float),
         depth_center_m=float(np.sqrt(d_min * d_max)), depth_half_log=float(0.5 * np.log(d_max / d_min)),
+        R_face_B=R_face_B,
     )
 
 
@@ -242,6 +249,8 @@ def board_poses(motion: HandMotion | CameraView | PoseTrack, t_s):
     )
     center_C = center_C + tremor[:, :3]
     R_C_B = R_from_euler(ch[:, 3:6] + tremor[:, 3:6])
+    if motion.R_face_B is not None:
+        R_C_B = R_C_B @ motion.R_face_B
     t_C_B = center_C - (R_C_B @ motion.center_B)
     return make_T(R_C_B, t_C_B)
 
@@ -314,15 +323,13 @@ def _in_view(uv, size, margin_px):
 
 
 def _min_square_px(T_C_B, board_corners, K, dist):
-    """Shortest projected side between neighbouring inner corners, px (inf without a board)."""
+    """Shortest projected side between neighbouring corners, px (inf without a board);
+    ``board_corners`` = ``(corners_B, *board.edge_pairs())``."""
     if board_corners is None:
         return np.inf
-    corners_B, nx, ny = board_corners
-    g = project_points(T_C_B, corners_B, K, dist).reshape(ny, nx, 2)
-    sides = np.r_[
-        np.linalg.norm(np.diff(g, axis=1), axis=-1).ravel(),
-        np.linalg.norm(np.diff(g, axis=0), axis=-1).ravel(),
-    ]
+    corners_B, a, b = board_corners
+    g = project_points(T_C_B, corners_B, K, dist)
+    sides = np.linalg.norm(g[b] - g[a], axis=-1)
     return float(np.min(sides)) if np.all(np.isfinite(sides)) else 0.0
 
 
@@ -403,7 +410,9 @@ def still_poses(
     width, height = size
     center_B = outline_B.mean(axis=0)
     limit = 2.0 * max(width / K[0, 0], height / K[1, 1])  # normalised, beyond any fit
-    board_corners = None if board is None else (board.corners_B(), board.nx, board.ny)
+    board_corners = None if board is None else (board.corners_B(), *board.edge_pairs())
+    # An AprilGrid's frame is turned against its face (z out of it): the views turn its face.
+    R_face_B = board.R_face_B() if board is not None and board.kind == "aprilgrid" else None
     # Deepest board whose squares (foreshortened by the largest tilt) keep min_square_px: used
     # only for a still the nominal depths cannot place, so sessions that render keep their draws.
     z_cap_m = np.inf
@@ -430,6 +439,8 @@ def still_poses(
             R_C_B = R_from_euler([0.0, 0.0, in_plane]) @ R_from_rvec(
                 tilt * np.array([np.cos(axis), np.sin(axis), 0.0])
             )
+            if R_face_B is not None:
+                R_C_B = R_C_B @ R_face_B
 
             # The board centre on the ray of normalised image point (x_n, y_n), at depth z_m.
             def pose(x_n, y_n, R_C_B=R_C_B, z_m=z_m):

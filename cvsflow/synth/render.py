@@ -147,7 +147,8 @@ def render_session(session_cfg: dict, out_dir) -> dict:
     spec = parse_session_config(session_cfg)
     rngs, rig, renderer, T_C_B_stills = _session_setup(spec)
     motion = make_hand_motion(
-        rngs["motion"], spec.K, spec.image_size, spec.board.center_B(), spec.effects.distance_m
+        rngs["motion"], spec.K, spec.image_size, spec.board.center_B(), spec.effects.distance_m,
+        R_face_B=spec.board.R_face_B() if spec.board.kind == "aprilgrid" else None,
     )
     if spec.realistic:
         return _render_realistic(spec, rngs, rig, renderer, T_C_B_stills, motion, out_dir, wall_start)

@@ -176,7 +176,8 @@ def make_rig_truth(session_cfg: dict) -> RigTruth:
                 f"{-dt:.3f} s before the Vicon take; expected vicon_lead_s + clock_offset_s > 0"
             )
     motion = make_hand_motion(
-        rngs["motion"], spec0.K, spec0.image_size, spec0.board.center_B(), spec0.effects.distance_m
+        rngs["motion"], spec0.K, spec0.image_size, spec0.board.center_B(), spec0.effects.distance_m,
+        R_face_B=spec0.board.R_face_B() if spec0.board.kind == "aprilgrid" else None,
     )
     n_shared = int((session_cfg.get("synth") or {}).get("n_shared_stills", DEFAULT_SHARED_STILLS))
     return RigTruth(names, specs, rig, T_Cm_C, dts, tuple(offsets), motion, n_shared, spec0.seed)

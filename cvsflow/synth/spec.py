@@ -10,11 +10,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from cvsflow.board import board_type, charuco_board
+from cvsflow.board import aprilgrid_from_board, board_type, charuco_board
 from cvsflow.exceptions import ConfigError
 from cvsflow.geometry import T_from_pose6
 from cvsflow.synth.effects import Effects, parse_effects
-from cvsflow.synth.imaging import Board, camera_from_config
+from cvsflow.synth.imaging import Board, aprilgrid_board, camera_from_config
 from cvsflow.synth.motion import CAMERA_MOTION_TYPES, CameraMotion
 
 IMAGE_SIZE = (640, 480)  # width, height, px
@@ -120,11 +120,14 @@ def parse_session_config(session_cfg) -> SynthSpec:
                 f"({len(names)} names, at least 3), got shape {layout.shape}"
             )
         layouts[body] = (names, layout)
-    board = Board(
-        int(_require(board_cfg, "squares_x", "board")),
-        int(_require(board_cfg, "squares_y", "board")),
-        float(_require(board_cfg, "square_m", "board")),
-    )
+    if board_type(board_cfg) == "aprilgrid":
+        board = aprilgrid_board(aprilgrid_from_board(board_cfg))
+    else:
+        board = Board(
+            int(_require(board_cfg, "squares_x", "board")),
+            int(_require(board_cfg, "squares_y", "board")),
+            float(_require(board_cfg, "square_m", "board")),
+        )
     if board_type(board_cfg) == "charuco":
         charuco_board(board_cfg)  # checks marker_m and dictionary (ConfigError)
         board = replace(board, kind="charuco", marker_m=float(board_cfg["marker_m"]),
@@ -137,6 +140,10 @@ def parse_session_config(session_cfg) -> SynthSpec:
     video_quality = int(synth.get("video_quality", 75))
     if n_stills < 1:
         raise ConfigError(f"session config, synth.n_stills: expected >= 1, got {n_stills}")
+    effects = parse_effects(synth, image_noise_sigma, video_quality)
+    if board.kind == "aprilgrid" and effects.occlusion:
+        raise ConfigError("session config, synth.occlusion: the hand is drawn over a chessboard's "
+                          "squares only; set occlusion: {enabled: false} for an AprilGrid session")
     return SynthSpec(
         seed=int(_require(synth, "seed", "synth")),
         duration_s=duration_s,
@@ -157,7 +164,7 @@ def parse_session_config(session_cfg) -> SynthSpec:
         vicon_lead_s=float(synth.get("vicon_lead_s", 2.37)),
         image_noise_sigma=image_noise_sigma,
         video_quality=video_quality,
-        effects=parse_effects(synth, image_noise_sigma, video_quality),
+        effects=effects,
         camera_motion=parse_camera_motion(synth.get("camera_motion")),
     )
 

@@ -58,7 +58,7 @@ def shared_view_poses(rng, n, cameras, T_Ci_C0, board, depth_m=(1.2, 2.6), max_t
     """
     outline_B = still_outline_B(board)
     centre_B = outline_B.mean(axis=0)
-    corners = (board.corners_B(), board.nx, board.ny)
+    corners = (board.corners_B(), *board.edge_pairs())
     K0, _, (w0, h0) = cameras[0]
     poses = []
     for _ in range(max_tries):

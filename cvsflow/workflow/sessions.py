@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import logging
 
-from cvsflow.board import charuco_board
-from cvsflow.exceptions import ConfigError
+from cvsflow.board import aprilgrid_from_board, board_type, charuco_board
+from cvsflow.exceptions import ConfigError, CvsflowError
 
 logger = logging.getLogger(__name__)
 
@@ -87,13 +87,17 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     ------
     ConfigError
         The session names a video without a camera, a Vicon export without markers, or
-        nothing to process; a ChArUco board without a usable marker_m or dictionary.
+        nothing to process; a ChArUco board without a usable marker_m or dictionary; an
+        AprilGrid with a missing or invalid key.
     """
     s = sessions[name]
     where = f"config: sessions.{name}"
-    if isinstance(s.get("board"), dict) and s["board"].get("type") == "charuco":
+    if isinstance(s.get("board"), dict) and s["board"].get("type") in ("charuco", "aprilgrid"):
         try:
-            charuco_board(s["board"])
+            if board_type(s["board"]) == "charuco":
+                charuco_board(s["board"])
+            else:
+                aprilgrid_from_board(s["board"])
         except ConfigError as exc:
             raise ConfigError(f"{where}.{exc}") from exc
     synth = "synth" in s
@@ -173,6 +177,53 @@ def session_methods(name: str, sessions: dict, default) -> tuple[str, ...]:
         In the order given.
     """
     return tuple(sessions[name].get("methods", default))
+
+
+def resolve_targets(sessions: dict, read_board) -> dict:
+    """Sessions with their ``target`` file read into ``board``.
+
+    A session names its board in the config (``board:``) or a Kalibr target file
+    (``target: FILE``); the path is relative to the folder the workflow runs in, as
+    ``calib_dir`` and ``video`` are. Every rule then sees a ``board`` block; ``target`` stays in
+    the session for the record.
+
+    Parameters
+    ----------
+    sessions : dict
+        ``config["sessions"]``, validated against the schema.
+    read_board : callable
+        Path to a board block, raising a CvsflowError for a file that describes none
+        (:func:`cvsflow.io.targets.read_target_board`; the workflow passes it, this module
+        does no I/O).
+
+    Returns
+    -------
+    dict
+        Session name to its block: the same object for a session without ``target``, a copy
+        with ``board`` added for one with it; in the order of ``sessions``.
+
+    Raises
+    ------
+    ConfigError
+        A session with both ``board`` and ``target``, or a target file that cannot be read or
+        describes no cvsflow board (an unsupported target type, a missing or invalid key): the
+        message names the session, the file and the key.
+    """
+    out = {}
+    for name, s in sessions.items():
+        if "target" not in s:
+            out[name] = s
+            continue
+        where = f"config: sessions.{name}.target"
+        if "board" in s:
+            raise ConfigError(f"{where}: the session names a board too; expected board or target, not both")
+        try:
+            board = read_board(s["target"])
+        except CvsflowError as exc:
+            raise ConfigError(f"{where}: {exc}") from exc
+        logger.debug("session %s: board %s from %s", name, board, s["target"])
+        out[name] = {**s, "board": board}
+    return out
 
 
 def rig_camera_session(rig: str, camera: str) -> str:

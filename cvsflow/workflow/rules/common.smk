@@ -2,10 +2,12 @@
 import os
 
 from cvsflow.io.mocap.formats import mocap_settings
+from cvsflow.io.targets import read_target_board
 from cvsflow.workflow.sessions import (
     camera_session,
     check_sessions,
     expand_rig_sessions,
+    resolve_targets,
     session_methods,
 )
 
@@ -16,8 +18,11 @@ wildcard_constraints:
 
 # A rig session (a `cameras:` list) runs as plain sessions: its mocap (`<rig>`) and one per
 # camera (`<rig>-<camera>`); RIGS holds what the rig rules (cvsflow/workflow/rules/rig.smk) need.
-# Without rig sessions SESSIONS is config["sessions"] itself and RIGS is empty.
-SESSIONS, RIGS = expand_rig_sessions(config["sessions"])
+# Without rig sessions SESSIONS is config["sessions"] itself and RIGS is empty. A session's
+# `target:` (a Kalibr target file, relative to the working directory) is read into its board here.
+SESSIONS, RIGS = expand_rig_sessions(
+    resolve_targets(config["sessions"], read_target_board)
+)
 # The rig's name in the rig rules' wildcards (rendered rigs: the synth rules'); both match
 # nothing without rig sessions.
 RIG_PATTERN = "|".join(RIGS) if RIGS else "(?!x)x"
