@@ -14,7 +14,7 @@ import argparse
 import logging
 import sys
 
-from cvsflow.cli.args import EPILOG, _parse_inner, _parse_squares
+from cvsflow.cli.args import EPILOG, add_board_args
 from cvsflow.cli.calibrate import cmd_calibrate
 from cvsflow.cli.demo import MIN_DURATION_S, cmd_demo, duration_arg
 from cvsflow.cli.export import cmd_export_camera, cmd_export_trajectory
@@ -47,18 +47,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser(
         "calibrate",
-        help="calibrate a camera from a folder of chessboard or ChArUco stills",
+        help="calibrate a camera from a folder of chessboard, ChArUco or AprilGrid stills",
         description="Calibrate from stills alone (the workflow's calibrate stage); writes "
         "camera.yaml, calib_corners.parquet and the OpenCV, Kalibr and ROS files into OUT.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     c.add_argument("dir", help="folder of stills (png, jpg, ...)")
-    kind = c.add_mutually_exclusive_group(required=True)
-    kind.add_argument("--inner", type=_parse_inner, help="chessboard inner corners NXxNY, e.g. 9x6")
-    kind.add_argument("--charuco", type=_parse_squares, metavar="SXxSY",
-                      help="a ChArUco board of SXxSY squares (needs --marker-m and --dictionary)")
-    c.add_argument("--square-m", type=float, required=True, help="square side, metres")
+    add_board_args(c, charuco=True)
     c.add_argument("--marker-m", type=float, help="ChArUco marker side, metres")
     c.add_argument("--dictionary", help="ChArUco ArUco dictionary, e.g. DICT_5X5_100")
     c.add_argument("--out", required=True, help="output folder")
@@ -78,8 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     cr.add_argument("dirs", nargs="+", help="one stills folder per camera, camera 0 first")
-    cr.add_argument("--inner", type=_parse_inner, required=True, help="inner corners NXxNY, e.g. 9x6")
-    cr.add_argument("--square-m", type=float, required=True, help="square side, metres")
+    add_board_args(cr)
     cr.add_argument("--out", required=True, help="output folder")
     cr.add_argument("--subpix-window-px", type=int, default=None,
                     help="one cornerSubPix half window for every corner (px); default: per corner")

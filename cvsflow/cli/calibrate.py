@@ -1,4 +1,4 @@
-"""``cvsflow calibrate``: calibrate a camera from a folder of chessboard stills."""
+"""``cvsflow calibrate``: calibrate a camera from a folder of chessboard, ChArUco or AprilGrid stills."""
 
 from __future__ import annotations
 
@@ -6,14 +6,17 @@ from pathlib import Path
 
 import numpy as np
 
+from cvsflow.cli.args import board_from_args
 from cvsflow.exceptions import InputError
 
 
 def _board_from_args(args) -> dict:
-    """The board config of ``--inner`` (a chessboard) or ``--charuco`` (with its marker)."""
+    """The board config of ``--inner`` (a chessboard), ``--target`` (a Kalibr target file) or
+    ``--charuco`` (with its marker)."""
     if getattr(args, "charuco", None) is None:
-        nx, ny = args.inner
-        return {"squares_x": nx + 1, "squares_y": ny + 1, "square_m": float(args.square_m)}
+        return board_from_args(args)
+    if args.square_m is None:
+        raise InputError("--square-m: the square side in metres is needed with --charuco")
     missing = [f"--{k.replace('_', '-')}" for k in ("marker_m", "dictionary")
                if getattr(args, k, None) is None]
     if missing:
@@ -37,9 +40,10 @@ def cmd_calibrate(args) -> int:
     Parameters
     ----------
     args : argparse.Namespace
-        ``dir`` (stills folder), ``inner`` ((nx, ny) inner corners of a chessboard) or
-        ``charuco`` ((sx, sy) squares, with ``marker_m`` (m) and ``dictionary``), ``square_m``
-        (square side, m), ``out`` (output folder), ``subpix_window_px``, ``min_images``.
+        ``dir`` (stills folder), ``inner`` ((nx, ny) inner corners of a chessboard),
+        ``charuco`` ((sx, sy) squares, with ``marker_m`` (m) and ``dictionary``) or ``target``
+        (a Kalibr target file: an AprilGrid or a checkerboard), ``square_m`` (square side, m;
+        not with ``target``), ``out`` (output folder), ``subpix_window_px``, ``min_images``.
 
     Returns
     -------
@@ -49,9 +53,11 @@ def cmd_calibrate(args) -> int:
     Raises
     ------
     InputError
-        No images in ``dir`` (or an unreadable one), or ``--charuco`` without its marker.
+        No images in ``dir`` (or an unreadable one), ``--charuco`` without its marker, a
+        missing ``--square-m`` or one given with ``--target``, an unreadable target file.
     ConfigError
-        A ChArUco marker not smaller than its square, or an unknown dictionary.
+        A ChArUco marker not smaller than its square, an unknown dictionary, or a target file
+        of an unsupported type or with a missing or invalid key.
     CalibrationError
         Too few stills with a board, or the calibration failed.
     """

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cvsflow.cli.args import EPILOG, _parse_inner
-from cvsflow.exceptions import InputError
+from cvsflow.cli.args import EPILOG, add_board_args, board_from_args
+from cvsflow.exceptions import ConfigError, InputError
 
 log = logging.getLogger(__name__)
 
@@ -24,8 +24,9 @@ def cmd_handeye(args) -> int:
     Parameters
     ----------
     args : argparse.Namespace
-        ``stills``, ``poses`` (file or glob), ``pose_format``, ``csv_spec``, ``inner``,
-        ``square_m`` (m), ``camera`` (known intrinsics file), ``out``, ``eye_to_hand``,
+        ``stills``, ``poses`` (file or glob), ``pose_format``, ``csv_spec``, ``inner`` with
+        ``square_m`` (m) or ``target`` (a Kalibr checkerboard file), ``camera`` (known
+        intrinsics file), ``out``, ``eye_to_hand``,
         ``method``, ``free_intrinsics`` (comma separated), ``exact_poses``,
         ``pose_sigma_mm``, ``pose_sigma_deg``, ``subpix_window_px``.
 
@@ -37,7 +38,11 @@ def cmd_handeye(args) -> int:
     Raises
     ------
     InputError
-        No images, unreadable poses or camera, stills and poses that cannot be paired.
+        No images, unreadable poses, camera or target file, stills and poses that cannot be
+        paired, a missing ``--square-m``.
+    ConfigError
+        A target file that is an AprilGrid (not taken here yet), of an unsupported type, or
+        with a missing or invalid key.
     CalibrationError
         Too few usable stills or motions, or the fit failed.
     """
@@ -49,8 +54,10 @@ def cmd_handeye(args) -> int:
     from cvsflow.io.poses import natural_key, pose_table_T, read_pose_list
     from cvsflow.io.visp import read_known_camera
 
-    nx, ny = args.inner
-    board = {"squares_x": nx + 1, "squares_y": ny + 1, "square_m": float(args.square_m)}
+    board = board_from_args(args)
+    if board.get("type") == "aprilgrid":
+        raise ConfigError(f"--target {args.target}: an AprilGrid; cvsflow handeye's stills take a "
+                          "chessboard (whole views) so far: give a checkerboard target or --inner")
     cv2.setNumThreads(1)
     paths = sorted(list_stills(args.stills), key=lambda p: natural_key(p.name))
     if not paths:
@@ -110,8 +117,7 @@ def _add_handeye_parser(sub) -> None:
                    "csv: columns and units in --csv-spec; auto (default): from the file")  # fmt: skip
     h.add_argument("--csv-spec", help="YAML of the CSV's columns and units (time_col, pos_cols, "
                    "pos_unit, rot, rot_cols, angle_unit, name_col)")  # fmt: skip
-    h.add_argument("--inner", type=_parse_inner, required=True, help="inner corners NXxNY, e.g. 9x6")
-    h.add_argument("--square-m", type=float, required=True, help="square side, metres")
+    add_board_args(h)
     h.add_argument("--camera", required=True,
                    help="known intrinsics: ViSP camera XML, cvsflow camera.yaml or OpenCV YAML")
     h.add_argument("--out", required=True, help="output folder")

@@ -18,6 +18,8 @@ RAW_STREAM_SUFFIXES = (".h264", ".264", ".h265", ".265", ".hevc")
 
 
 MOCAP_SUFFIXES = (".csv", ".c3d", ".tsv")
+#: Files a Kalibr target description may be in.
+TARGET_SUFFIXES = (".yaml", ".yml")
 
 
 #: Inner-corner sizes ``cvsflow init`` tries (OpenCV sample, common printed boards, the demo's).
@@ -113,6 +115,40 @@ def _add_mocap(session: dict, notes: list, candidates) -> tuple[list[str], list[
     if session["vicon"] == "TODO":
         notes.append("no Nexus CSV, C3D, Motive CSV or QTM TSV export found: set vicon")
     return names, system_bodies
+
+
+def _find_target(folder: Path, notes: list):
+    """The first Kalibr target file in the folder (sorted paths), or None; noted either way.
+
+    A YAML file counts when :func:`cvsflow.io.targets.read_target_board` reads a board from it
+    (Kalibr's target keys, yac's ``calib_target`` block, hand_eye_calibration's keys); one that
+    names a ``target_type`` cvsflow cannot use is noted with the reason.
+    """
+    from cvsflow.io.files import read_yaml
+    from cvsflow.io.targets import read_target_board
+
+    for p in sorted(q for q in folder.rglob("*") if q.suffix.lower() in TARGET_SUFFIXES and q.is_file()):
+        try:
+            board = read_target_board(p)
+        except CvsflowError as exc:
+            try:
+                data = read_yaml(p)
+            except CvsflowError:
+                continue
+            if "target_type" in data or "target_type" in (data.get("calib_target") or {}):
+                notes.append(f"{p}: a target file cvsflow cannot use ({exc})")
+            continue
+        notes.append(f"board: Kalibr target file {p} ({_describe(board)}); set as target, "
+                     "no chessboard searched on the stills")
+        return p
+    return None
+
+
+def _describe(board: dict) -> str:
+    if board.get("type") == "aprilgrid":
+        return (f"AprilGrid of {board['tag_cols']}x{board['tag_rows']} tags, {board['tag_size_m']} m, "
+                f"spacing {board['tag_spacing']}")
+    return f"checkerboard of {board['squares_x']}x{board['squares_y']} squares, {board['square_m']} m"
 
 
 def _add_board(session: dict, notes: list, inner, stills_dir=None) -> None:
@@ -304,8 +340,9 @@ def build_rig_config(folder, cams: list[Path]) -> tuple[dict, list[str]]:
     -------
     session : dict
         ``cameras`` (per camera ``name``, ``calib_dir``, ``video`` and, when every camera has
-        shared views that pair by file name, ``shared_dir``), ``vicon``, ``board``, ``markers``
-        (TODO where nothing or more than one candidate was found).
+        shared views that pair by file name, ``shared_dir``), ``vicon``, ``board`` (or
+        ``target``, a Kalibr target file found in the folder), ``markers`` (TODO where nothing
+        or more than one candidate was found).
     notes : list of str
         What was found and what the user must check; a problem names its folder.
 
@@ -323,6 +360,7 @@ def build_rig_config(folder, cams: list[Path]) -> tuple[dict, list[str]]:
         raise InputError(f"{folder}: camera folders {[c.name for c in cams]} give camera names "
                          f"{names}, not distinct: rename the folders")
     shared = _check_shared(_shared_dirs(folder, cams, notes), cams, notes)
+    target = _find_target(folder, notes)
     cameras, found, seen_sizes = [], [], []
     for c, name in zip(cams, names, strict=True):
         cam = {"name": name}
@@ -335,10 +373,13 @@ def build_rig_config(folder, cams: list[Path]) -> tuple[dict, list[str]]:
                          f"counted): set cameras[{name}].calib_dir")
         else:
             cam["calib_dir"] = str(stills[0])
-            sizes, tried = _inner_sizes_found(stills[0], first=seen_sizes)
-            found += sizes
-            notes.append(f"{name}: stills {stills[0]} ({stills[1]} images), board found on "
-                         f"{len(sizes)} of the first {tried}")
+            if target is None:
+                sizes, tried = _inner_sizes_found(stills[0], first=seen_sizes)
+                found += sizes
+                notes.append(f"{name}: stills {stills[0]} ({stills[1]} images), board found on "
+                             f"{len(sizes)} of the first {tried}")
+            else:
+                notes.append(f"{name}: stills {stills[0]} ({stills[1]} images)")
         others = [d for d in sorted(c.rglob("*")) if d.is_dir() and stills and d != stills[0]
                   and not any(s == d or s in d.parents for s in _own_shared(c)) and _n_images(d) >= 3]
         if others:
@@ -375,7 +416,10 @@ def build_rig_config(folder, cams: list[Path]) -> tuple[dict, list[str]]:
         notes.append(f"the cameras' stills show different boards {sorted(set(found))} (inner "
                      f"corners): took {inner}, the most common; a rig watches one board, check")
     first_stills = next((Path(c["calib_dir"]) for c in cameras if c.get("calib_dir") != "TODO"), None)
-    _add_board(session, notes, inner, first_stills)
+    if target is not None:
+        session["target"] = str(target)
+    else:
+        _add_board(session, notes, inner, first_stills)
     # The rig body is the bar the cameras sit on: named like a rig, bar or camera.
     _add_markers(session, notes, marker_list, system_bodies, camera_keys=("rig", "bar", "cam"))
     notes.append("markers.camera is the rig body: the markers on what every camera is fixed to")
@@ -401,7 +445,9 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
     -------
     session : dict
         ``calib_dir``, ``video``, ``vicon``, ``board``, ``markers`` (entries marked TODO where
-        nothing was found); for a rig ``cameras`` instead of ``calib_dir`` and ``video``.
+        nothing was found); for a rig ``cameras`` instead of ``calib_dir`` and ``video``; a
+        Kalibr target file in the folder (:func:`cvsflow.io.targets.read_target_board`) gives
+        ``target`` (its path) instead of ``board``.
     notes : list of str
         What was found and what the user must check.
     """
@@ -421,6 +467,7 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
     notes = []
     session: dict = {}
     stills = _find_stills(folder)
+    target = _find_target(folder, notes)
     inner = None
     if stills is None:
         session["calib_dir"] = "TODO"
@@ -428,7 +475,7 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
     else:
         session["calib_dir"] = str(stills[0])
         notes.append(f"stills: {stills[0]} ({stills[1]} images)")
-        found, tried = _inner_sizes_found(stills[0])
+        found, tried = _inner_sizes_found(stills[0]) if target is None else ([], 0)
         if found:
             inner = max(set(found), key=found.count)
             notes.append(f"board found on {found.count(inner)} of the first {tried} stills")
@@ -444,7 +491,10 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
         notes.append(f"{len(videos)} videos found; took the first, check")
     mocap = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MOCAP_SUFFIXES)
     names, system_bodies = _add_mocap(session, notes, mocap)
-    _add_board(session, notes, inner, None if stills is None else stills[0])
+    if target is not None:
+        session["target"] = str(target)
+    else:
+        _add_board(session, notes, inner, None if stills is None else stills[0])
     _add_markers(session, notes, names, system_bodies)
     return session, notes
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from cvsflow.cli.args import board_from_args
 from cvsflow.exceptions import InputError
 
 
@@ -23,8 +24,9 @@ def cmd_calibrate_rig(args) -> int:
     ----------
     args : argparse.Namespace
         ``dirs`` (one stills folder per camera, camera 0 first), ``inner`` ((nx, ny) inner
-        corners), ``square_m`` (m), ``out`` (folder), ``subpix_window_px``, ``min_images``,
-        ``min_shared_views``.
+        corners) with ``square_m`` (m), or ``target`` (a Kalibr target file: an AprilGrid's
+        views count with the corners they show), ``out`` (folder), ``subpix_window_px``,
+        ``min_images``, ``min_shared_views``.
 
     Returns
     -------
@@ -34,7 +36,10 @@ def cmd_calibrate_rig(args) -> int:
     Raises
     ------
     InputError
-        Fewer than two folders, or a folder without images.
+        Fewer than two folders, a folder without images, a missing ``--square-m``, an
+        unreadable target file.
+    ConfigError
+        A target file of an unsupported type or with a missing or invalid key.
     CalibrationError
         A camera that cannot be calibrated, or too few shared views (named).
     """
@@ -47,8 +52,7 @@ def cmd_calibrate_rig(args) -> int:
 
     if len(args.dirs) < 2:
         raise InputError("calibrate-rig: give one stills folder per camera, two or more")
-    nx, ny = args.inner
-    board = {"squares_x": nx + 1, "squares_y": ny + 1, "square_m": float(args.square_m)}
+    board = board_from_args(args)
     cv2.setNumThreads(1)
     stills = []
     for d in args.dirs:

@@ -53,7 +53,10 @@ def _camera_arrays(camera: dict, source="camera.yaml") -> tuple[np.ndarray, np.n
 
 def _board_comment(camera: dict) -> str:
     board = camera.get("board") or {}
-    if "squares_x" in board:
+    if board.get("type") == "aprilgrid":
+        size = (f"Kalibr AprilGrid of {board['tag_cols']}x{board['tag_rows']} tags (tagCols x tagRows), "
+                f"tagSize {board['tag_size_m']} m, tagSpacing {board['tag_spacing']}")
+    elif "squares_x" in board:
         sx, sy = int(board["squares_x"]), int(board["squares_y"])
         size = f"{sx}x{sy} squares = {sx - 1}x{sy - 1} inner corners, square {board['square_m']} m"
     else:
