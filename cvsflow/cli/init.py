@@ -135,7 +135,8 @@ def _find_target(folder: Path, notes: list):
                 data = read_yaml(p)
             except CvsflowError:
                 continue
-            if "target_type" in data or "target_type" in (data.get("calib_target") or {}):
+            block = data.get("calib_target")
+            if "target_type" in data or (isinstance(block, dict) and "target_type" in block):
                 notes.append(f"{p}: a target file cvsflow cannot use ({exc})")
             continue
         notes.append(f"board: Kalibr target file {p} ({_describe(board)}); set as target, "
