@@ -48,7 +48,19 @@ def _parse_inner(text: str) -> tuple[int, int]:
 def add_board_args(parser, charuco: bool = False) -> None:
     """The board options of a command: ``--inner NXxNY`` with ``--square-m`` (a chessboard),
     ``--charuco SXxSY`` (when ``charuco``), or ``--target FILE`` (a Kalibr target file), one
-    of them required."""
+    of them required.
+
+    Parameters
+    ----------
+    parser : argparse.ArgumentParser
+        The subcommand's parser.
+    charuco : bool
+        Offer ``--charuco`` too.
+
+    Returns
+    -------
+    None
+    """
     kind = parser.add_mutually_exclusive_group(required=True)
     kind.add_argument("--inner", type=_parse_inner, help="chessboard inner corners NXxNY, e.g. 9x6")
     if charuco:
@@ -63,6 +75,24 @@ def board_from_args(args) -> dict:
     """The board block of ``--inner``/``--square-m`` (a chessboard) or ``--target`` (Kalibr's file).
 
     ``--charuco`` is the calibrate command's own (``cvsflow.cli.calibrate``).
+
+    Parameters
+    ----------
+    args : argparse.Namespace
+        ``inner`` ((nx, ny) inner corners) and ``square_m`` (m), or ``target`` (a path).
+
+    Returns
+    -------
+    board : dict
+        ``squares_x``, ``squares_y``, ``square_m``; or the target file's board
+        (:func:`cvsflow.io.targets.read_target_board`).
+
+    Raises
+    ------
+    InputError
+        ``--square-m`` missing with ``--inner`` or given with ``--target``; an unreadable file.
+    ConfigError
+        A target file of an unsupported type or with a missing or invalid key.
     """
     from cvsflow.exceptions import InputError
 
