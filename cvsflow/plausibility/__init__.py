@@ -10,11 +10,12 @@ from cvsflow.plausibility.checks import (
     check_poses_found,
     check_rows,
     check_sync_inputs,
+    overlap_share,
 )
 from cvsflow.plausibility.results import check_se3_result, check_seed_result
 
 __all__ = [
     "check_body_fits", "check_image_size", "check_marker_scale", "check_overlap",
     "check_pair_distances", "check_poses_found", "check_rows", "check_se3_result", "check_seed_result",
-    "check_sync_inputs", "OVERLAP_FLOOR"
+    "check_sync_inputs", "overlap_share", "OVERLAP_FLOOR"
 ]

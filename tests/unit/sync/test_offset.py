@@ -1,11 +1,13 @@
 """Synchronisation (angular speed, gesture) against a synthetic session with known offset."""
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
 from scipy.spatial.transform import Rotation
 
-from cvsflow.exceptions import InputError, SyncError
+from cvsflow.exceptions import InputError, OverlapError, SyncError
 from cvsflow.geometry.transforms import invert_T, make_T, rotation_angle
 from cvsflow.mocap.bodies import fit_bodies
 from cvsflow.sync.offset import sync_angular_speed, synchronise
@@ -216,6 +218,44 @@ def test_partial_overlap_uses_what_overlaps(session):
     assert len(out["warnings"]) == 1 and "min_overlap_share 0.95" in out["warnings"][0]
     quiet = synchronise(poses, cut, max_offset_s=10.0, min_quality=0.2, min_overlap_share=0.8)
     assert quiet["warnings"] == []
+
+
+@pytest.mark.parametrize("end", ["first", "second"])
+def test_take_covering_half_the_video_synchronises_with_a_warning(session, end):
+    """A take covering the first (or second) half of the video: before, 'correlation peak at the
+    edge of the search range' (the search wanted half the video inside the take, so the true
+    lag sat on its edge); now the offset within 3 ms, overlap_share 0.5 and one warning naming
+    both spans, as docs/failures.md says for any overlap of at least 20 %."""
+    poses, bodies, _ = session
+    t_cut = DT_OFFSET_S + 0.5 * float(poses["t_s"].max())
+    cut = bodies[bodies["t_s"] <= t_cut] if end == "first" else bodies[bodies["t_s"] >= t_cut]
+    out = synchronise(poses, cut, max_offset_s=30.0, min_quality=0.25)
+    assert abs(out["dt_offset_s"] - DT_OFFSET_S) < 0.003
+    assert abs(out["overlap_share"] - 0.5) < 0.01
+    (warning,) = out["warnings"]
+    assert re.search(r"only 5\d\.\d % of the video frames fall inside the Vicon take .*video frames span "
+                     r"0\.000\.\.11\.967 s.*the take spans \d+\.\d{3}\.\.\d+\.\d{3} s", warning)
+
+
+def test_take_overlapping_too_little_says_so_with_both_spans(session):
+    """Where the overlap limits the search the sync says the overlap is too short, with both
+    spans: the best lag on the limit (not 'at the edge of the search range'), or no lag at all;
+    a take covering 20 % of a 12 s video needs quality 0.5 (its best lag, 2 s off, scored 0.29,
+    which min_quality 0.25 would have taken)."""
+    poses, bodies, _ = session
+    t_v = float(poses["t_s"].max())
+    late = bodies[bodies["t_s"] >= DT_OFFSET_S + 0.4 * t_v]
+    spans = r"the video spans 0\.000\.\.11\.967 s \(11\.967 s, video clock\), the take 7\.1\d\d\.\.15\.367 s"
+    with pytest.raises(OverlapError, match=r"overlap of the take and the video is too short: the best lag "
+                       rf"\(dt = .* inside the take, at the limit of the search .*{spans}"):
+        sync_angular_speed(poses, late, max_offset_s=10.0, min_quality=0.5, min_overlap_frac=0.8)
+    with pytest.raises(OverlapError, match=r"too short: no lag within \+-10\.0 s puts \d+ % of the video's "
+                       rf"frames with a board inside the take .*{spans}"):
+        sync_angular_speed(poses, late, max_offset_s=10.0, min_quality=0.5, min_overlap_frac=0.9)
+    early = bodies[bodies["t_s"] <= DT_OFFSET_S + 0.2 * t_v]
+    with pytest.raises(SyncError, match=r"below min_quality 0\.5 .*take is shorter than the video.*"
+                       r"the take 0\.000\.\.4\.\d{3} s"):
+        synchronise(poses, early, max_offset_s=30.0, min_quality=0.25)
 
 
 def test_streams_for_the_figure(session):
