@@ -3,7 +3,8 @@
 One row per quantity, in report units (px, mm, deg, s, %), with its standard error where the
 source gives one, the truth of a rendered session, and the file and key it was read from, so
 a reader can check every number. Inputs are the stage outputs as loaded dicts (SI units):
-``camera.yaml``, ``corners_summary.yaml``, ``vicon_repair.yaml``, ``sync.yaml``, the se3 and
+``camera.yaml``, ``corners_summary.yaml``, ``vicon_import.yaml`` (its warnings only),
+``vicon_repair.yaml``, ``sync.yaml``, the se3 and
 seed ``result.yaml``, ``comparison.yaml``, ``truth.yaml`` and a flight's ``stats.yaml``; any
 of them may be missing (a session that only calibrates, a config without the seed method).
 """
@@ -96,7 +97,7 @@ def _euler_std(T, std, correlation, name, corr_prefix=""):
 
 
 def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=None, seed=None,
-                     comparison=None, truth=None, corners=None, vicon_repair=None):
+                     comparison=None, truth=None, corners=None, vicon_repair=None, vicon_import=None):
     """The headline rows of one session (see the module docstring for the inputs).
 
     Parameters
@@ -137,6 +138,9 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
         r.add("data", "video frames dropped (timestamp gaps)", corners.get("n_dropped"), "",
               f"{src}: n_dropped", text=str(corners.get("n_dropped", "n/a")))
         warnings += [("corners", w, f"{src}: warnings") for w in corners.get("warnings") or []]
+    if vicon_import is not None:  # a take cut short: both counts
+        warnings += [("vicon", w, f"{base}/vicon_import.yaml: warnings")
+                     for w in vicon_import.get("warnings") or []]
     if vicon_repair is not None:
         src = f"{base}/vicon_repair.yaml"
         tot = vicon_repair.get("total") or {}

@@ -119,6 +119,31 @@ def check_frames(path, frames, first, lines, column="Frame") -> None:
         )
 
 
+def drop_cut_last_row(lines, n_cols, sep=",") -> tuple[list[str], bool]:
+    """The data lines without a last line cut mid-row (an export or copy interrupted).
+
+    Parameters
+    ----------
+    lines : list of str
+        The data lines (no header).
+    n_cols : int
+        Cells a whole line has at least.
+    sep : str
+        Cell separator.
+
+    Returns
+    -------
+    lines : list of str
+        ``lines``, less its last line when that one has fewer than ``n_cols`` cells.
+    cut : bool
+        Whether the last line was left out. A short line before the last stays, for
+        :func:`parse_numeric_block` to name as an error.
+    """
+    if lines and lines[-1].count(sep) + 1 < n_cols:
+        return lines[:-1], True
+    return lines, False
+
+
 def parse_numeric_block(
     path, lines, first, n_cols, column_names, sep=",", na_values=(), expected=None, pandas_na=False
 ) -> np.ndarray:

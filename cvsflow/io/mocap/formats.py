@@ -231,6 +231,9 @@ def read_markers(path, names=None, format="auto") -> pd.DataFrame:
     markers : DataFrame
         Wide marker table, metres in W (module docstring). A Motive export without plain
         ``Marker`` columns gives its ``Rigid Body Marker`` positions instead (with a warning).
+        ``attrs``: ``format``, ``n_frames_stated`` (the header's frame count, None when the
+        format states none) and ``warnings`` (a file cut short: both counts), for
+        :func:`cvsflow.io.mocap.markers.import_summary`.
 
     Raises
     ------
@@ -254,7 +257,7 @@ def read_markers(path, names=None, format="auto") -> pd.DataFrame:
         solved = export.meta.get("body_markers")
         if solved is not None and marker_names(solved):
             log.warning("%s: no Marker columns; using the Rigid Body Marker (solved) positions", path)
-            df = solved
+            df = _carry_read_notes(df, solved)
         else:
             have = ", ".join(map(repr, export.body_names)) or "none"
             raise InputError(
@@ -304,7 +307,15 @@ def read_system_bodies(path, names, format: str = "auto") -> pd.DataFrame:
         )
     out = select_system_bodies(export.bodies, names, source=str(path))
     out.attrs["rate_hz"] = export.rate_hz
-    return out
+    return _carry_read_notes(export.markers, out)
+
+
+def _carry_read_notes(source: pd.DataFrame, table: pd.DataFrame) -> pd.DataFrame:
+    """``table`` with the reader's notes on ``source`` (format, stated count, warnings) in attrs."""
+    for key in ("format", "n_frames_stated", "warnings"):
+        if key in source.attrs:
+            table.attrs[key] = source.attrs[key]
+    return table
 
 
 def mocap_settings(session: str, cfg: dict) -> dict:

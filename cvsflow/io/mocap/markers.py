@@ -15,6 +15,7 @@ a format's module defines one, and :class:`FileHead` is what its ``detect`` look
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -26,6 +27,8 @@ import pandas as pd
 from cvsflow.exceptions import InputError
 from cvsflow.geometry import make_T
 from cvsflow.mocap import bodies_from_poses
+
+log = logging.getLogger(__name__)
 
 AXES = ("x", "y", "z")
 
@@ -95,6 +98,85 @@ def marker_table(frame0, xyz_m, names, rate_hz) -> pd.DataFrame:
     return df
 
 
+def note_frame_count(df: pd.DataFrame, path, n_stated=None, stated_by="", cut_line=None) -> None:
+    """Record on a marker table the frame count its export states; warn when the file was cut.
+
+    A take cut short (an export or copy interrupted) is used as far as it goes, as a video
+    whose last frames do not decode is: one WARNING names both counts, and the same text goes
+    to ``df.attrs["warnings"]`` for the stage's summary (:func:`import_summary`).
+
+    Parameters
+    ----------
+    df : DataFrame
+        The marker table as read (``frame``, ``t_s``, ``attrs["rate_hz"]``); its ``attrs`` are
+        updated in place.
+    path : str or Path
+        The export, for the message.
+    n_stated : int, optional
+        Frames the export's header states; None when the format states none (Nexus CSV).
+    stated_by : str
+        Where the header states it (``Total Exported Frames``, ``NO_OF_FRAMES``, ...).
+    cut_line : int, optional
+        1-based line of a last row cut mid-row and left out.
+
+    Returns
+    -------
+    None
+        Sets ``attrs["n_frames_stated"]`` (int or None) and appends to ``attrs["warnings"]``.
+    """
+    n_read = len(df)
+    rate = float(df.attrs.get("rate_hz", float("nan")))
+    df.attrs["n_frames_stated"] = None if n_stated is None else int(n_stated)
+    df.attrs.setdefault("warnings", [])
+    cut = f"; its last row (line {cut_line}) was cut mid-row and left out" if cut_line else ""
+    if n_stated is not None and n_read < n_stated:
+        text = (f"{path}: the file was cut short: {n_read} of the {n_stated} frames its header "
+                f"states ({stated_by}) were read ({n_read / rate:.3f} of {n_stated / rate:.3f} s "
+                f"at {rate:g} Hz; an interrupted export or copy?){cut}; the take is used as far "
+                "as it goes")
+    elif n_stated is not None and n_read > n_stated:
+        text = (f"{path}: {n_read} frames read, its header states {n_stated} ({stated_by}); all "
+                f"{n_read} are used{cut}")
+    elif cut_line:
+        text = (f"{path}: the file was cut short: its last row (line {cut_line}) was cut mid-row "
+                f"and left out; {n_read} whole frames read ({n_read / rate:.3f} s at {rate:g} Hz; "
+                "an interrupted export or copy?)")
+    else:
+        return
+    log.warning(text)
+    df.attrs["warnings"] = [*df.attrs["warnings"], text]
+
+
+def import_summary(df: pd.DataFrame, path) -> dict:
+    """What an import read, for the stage's YAML summary.
+
+    Parameters
+    ----------
+    df : DataFrame
+        A marker (or system bodies) table as a reader returned it.
+    path : str or Path
+        The export.
+
+    Returns
+    -------
+    dict
+        ``file``, ``format``, ``rate_hz`` (Hz), ``n_frames`` (frames read), ``n_frames_stated``
+        (the header's count, None when the format states none), ``t_span_s`` ([first, last]
+        frame time, s) and ``warnings`` (the reader's, e.g. a file cut short).
+    """
+    frames = pd.unique(df["frame"]) if len(df) else np.zeros(0, np.int64)
+    t = df["t_s"].to_numpy(float) if len(df) else np.zeros(0)
+    return {
+        "file": str(path),
+        "format": df.attrs.get("format"),
+        "rate_hz": float(df.attrs["rate_hz"]) if "rate_hz" in df.attrs else None,
+        "n_frames": int(len(frames)),
+        "n_frames_stated": df.attrs.get("n_frames_stated"),
+        "t_span_s": [float(t.min()), float(t.max())] if t.size else None,
+        "warnings": list(df.attrs.get("warnings", [])),
+    }
+
+
 def select_markers(df: pd.DataFrame, names, source="marker table") -> pd.DataFrame:
     """Keep only the named markers; each must exist and be seen at least once.
 
@@ -116,7 +198,8 @@ def select_markers(df: pd.DataFrame, names, source="marker table") -> pd.DataFra
     Raises
     ------
     InputError
-        A name absent from the table (lists what it has) or a marker empty for the whole take.
+        A name absent from the table (lists what it has), a marker empty for the whole take,
+        or one of its coordinate columns empty for the whole take (marker and column named).
     """
     have = marker_names(df)
     missing = [n for n in names if n not in have]
@@ -126,10 +209,22 @@ def select_markers(df: pd.DataFrame, names, source="marker table") -> pd.DataFra
             f"{', '.join(have)})"
         )
     for n in names:
-        if not np.isfinite(df[marker_columns(n)].to_numpy()).any():
+        seen = np.isfinite(df[marker_columns(n)].to_numpy()).any(axis=0)
+        if not seen.any():
             raise InputError(
                 f"{source}: marker {n!r} is absent for the whole take "
                 f"({len(df)} frames, every cell empty); expected it seen in at least one frame"
+            )
+        if not seen.all():
+            # a whole coordinate column lost (an edited or damaged export): the marker would be
+            # a gap in every frame, silently rebuilt from the layout
+            empty = [a.upper() for a, s in zip(AXES, seen, strict=True) if not s]
+            have = [a.upper() for a, s in zip(AXES, seen, strict=True) if s]
+            raise InputError(
+                f"{source}: marker {n!r}: its {'/'.join(empty)} column is empty in all "
+                f"{len(df)} frames while {'/'.join(have)} hold values; expected X, Y and Z (a "
+                "column lost in an edit or export?). Re-export the take, or leave the marker "
+                "out of the body's names and layout_m"
             )
     out = df[["frame", "t_s"] + [c for n in names for c in marker_columns(n)]].copy()
     out.attrs = dict(df.attrs)

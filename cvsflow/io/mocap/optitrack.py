@@ -37,7 +37,13 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from cvsflow.exceptions import InputError
-from cvsflow.io.files import atomic_output, check_frames, parse_numeric_block, read_text_lines
+from cvsflow.io.files import (
+    atomic_output,
+    check_frames,
+    drop_cut_last_row,
+    parse_numeric_block,
+    read_text_lines,
+)
 from cvsflow.io.mocap.markers import (
     FileHead,
     MocapExport,
@@ -45,6 +51,7 @@ from cvsflow.io.mocap.markers import (
     marker_columns,
     marker_names,
     marker_table,
+    note_frame_count,
     system_bodies_table,
 )
 
@@ -160,7 +167,7 @@ def read_motive_csv(path) -> MocapExport:
     end = first
     while end < len(lines) and lines[end].strip(", \t"):
         end += 1
-    data_lines = lines[first:end]
+    data_lines, cut = drop_cut_last_row(lines[first:end], n_cols)
     col_names = [
         "Frame" if j == 0 else "Time" if j == 1 else f"{names[j]} {kind[j]} {axes[j]}".replace("  ", " ")
         for j in range(n_cols)
@@ -189,6 +196,9 @@ def read_motive_csv(path) -> MocapExport:
         bodies.attrs["rate_hz"] = rate_hz
         bodies.attrs["residual"] = "Motive Mean Marker Error"
     markers.attrs["format"] = "motive_csv"
+    stated = meta.get("Total Exported Frames", "")
+    note_frame_count(markers, path, int(stated) if stated.isdigit() else None,
+                     "Total Exported Frames", first + len(data_lines) + 1 if cut else None)
     return MocapExport(path, "motive_csv", rate_hz, markers, bodies, meta)
 
 

@@ -35,7 +35,13 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.exceptions import InputError
-from cvsflow.io.files import atomic_output, check_frames, parse_numeric_block, read_text_lines
+from cvsflow.io.files import (
+    atomic_output,
+    check_frames,
+    drop_cut_last_row,
+    parse_numeric_block,
+    read_text_lines,
+)
 from cvsflow.io.mocap.markers import (
     FileHead,
     MocapExport,
@@ -43,11 +49,15 @@ from cvsflow.io.mocap.markers import (
     marker_columns,
     marker_names,
     marker_table,
+    note_frame_count,
     system_bodies_table,
 )
 
 log = logging.getLogger(__name__)
 
+#: The header keys QTM writes on a TSV's first line (FILE_VERSION, else NO_OF_FRAMES first).
+_QTM_KEY = re.compile(r"^(?:FILE_VERSION|NO_OF_[A-Z]+|FREQUENCY|ANALOG_FREQUENCY|DESCRIPTION|"
+                      r"TIME_STAMP|DATA_INCLUDED|MARKER_NAMES|BODY_NAMES)$")
 _KEY = re.compile(r"^(?:[A-Z][A-Z0-9]*_[A-Z0-9_]+|FREQUENCY|DESCRIPTION|EVENT)$")
 _NA = ("NaN", "nan", "NULL", "null", "-")
 _MM = 1e-3
@@ -75,9 +85,13 @@ def read_qtm_tsv(path) -> MocapExport:
     Raises
     ------
     InputError
-        Not a QTM TSV; DATA_INCLUDED other than 3D/6D; header counts that disagree with the
-        names or the columns; a short row; a non-numeric cell (file, line and column named);
-        non-consecutive frames; fewer rows than NO_OF_FRAMES (file cut short).
+        Not a QTM TSV; no NO_OF_FRAMES or FREQUENCY header line (the message names the one
+        missing); DATA_INCLUDED other than 3D/6D, or missing with no single MARKER_NAMES or
+        BODY_NAMES line to tell which; header counts that disagree with the names or the
+        columns; a short row; a non-numeric cell (file, line and column named); non-consecutive
+        frames. Fewer rows than NO_OF_FRAMES (a file cut short, at a row boundary or mid-row)
+        are read as far as they go with a WARNING naming both counts
+        (:func:`cvsflow.io.mocap.markers.note_frame_count`).
     """
     path = Path(path)
     lines = read_text_lines(path, "TSV")
@@ -94,14 +108,16 @@ def read_qtm_tsv(path) -> MocapExport:
         else:
             header[key] = values
         i += 1
-    if "NO_OF_FRAMES" not in header or "FREQUENCY" not in header:
+    missing = [k for k in ("NO_OF_FRAMES", "FREQUENCY") if k not in header]
+    if missing:
         raise InputError(
-            f"{path}, line 1: expected QTM TSV header lines NO_OF_FRAMES and FREQUENCY "
-            "(export with 'Include TSV header' ticked)"
+            f"{path}, lines 1-{i}: no {' and no '.join(missing)} header line (expected "
+            f"{' and '.join(f'{k!r}<tab><value>' for k in missing)} among the header lines QTM "
+            "writes; export with 'Include TSV header' ticked, or restore the line)"
         )
     rate_hz = _number(path, header, "FREQUENCY", lines)
     n_frames = int(_number(path, header, "NO_OF_FRAMES", lines))
-    included = (header.get("DATA_INCLUDED") or ["3D"])[0]
+    included = _data_included(path, header, i)
     meta = {k: (v[0] if len(v) == 1 else v) for k, v in header.items() if k != "EVENTS"}
     if included not in ("3D", "6D"):
         raise InputError(
@@ -118,18 +134,39 @@ def read_qtm_tsv(path) -> MocapExport:
     while end < len(lines) and lines[end].strip("\t "):
         end += 1
     data_lines = lines[first:end]
-    if len(data_lines) < n_frames:
-        raise InputError(
-            f"{path}, line {end + 1}: {len(data_lines)} data rows, NO_OF_FRAMES says {n_frames} "
-            "(file cut short)"
-        )
-    if len(data_lines) > n_frames:
-        log.warning("%s: %d data rows, NO_OF_FRAMES says %d; reading all rows", path,
-                    len(data_lines), n_frames)
     if included == "3D":
-        return _read_3d(path, header, meta, labels, data_lines, first, rate_hz, lines)
-    return _read_6d(path, header, meta, labels, data_lines, first, rate_hz,
-                    i_labels if labels else None, lines)
+        export = _read_3d(path, header, meta, labels, data_lines, first, rate_hz, lines)
+    else:
+        export = _read_6d(path, header, meta, labels, data_lines, first, rate_hz,
+                          i_labels if labels else None, lines)
+    note_frame_count(export.markers, path, n_frames, "NO_OF_FRAMES", meta.pop("cut_line", None))
+    if "DATA_INCLUDED" not in header:
+        note = (f"{path}: no DATA_INCLUDED header line; read as {included}, as its "
+                f"{'MARKER_NAMES' if included == '3D' else 'BODY_NAMES'} line says")
+        log.warning(note)
+        export.markers.attrs["warnings"] = [*export.markers.attrs.get("warnings", []), note]
+    return export
+
+
+def _data_included(path, header, n_header_lines):
+    """3D or 6D: DATA_INCLUDED, or without it the kind its one names line gives."""
+    if "DATA_INCLUDED" in header:
+        return (header["DATA_INCLUDED"] or [""])[0]
+    kinds = [k for k, key in (("3D", "MARKER_NAMES"), ("6D", "BODY_NAMES")) if key in header]
+    if len(kinds) != 1:
+        raise InputError(
+            f"{path}, lines 1-{n_header_lines}: no DATA_INCLUDED header line (expected "
+            "'DATA_INCLUDED<tab>3D' or '6D'), and no single MARKER_NAMES or BODY_NAMES line to "
+            "tell which"
+        )
+    return kinds[0]
+
+
+def _whole_rows(data_lines, n_cols, first, meta):
+    """The data lines less a last row cut mid-row, whose line goes to ``meta["cut_line"]``."""
+    whole, cut = drop_cut_last_row(data_lines, n_cols, sep="\t")
+    meta["cut_line"] = first + len(whole) + 1 if cut else None
+    return whole
 
 
 def _number(path, header, key, lines):
@@ -211,6 +248,7 @@ def _read_3d(path, header, meta, labels, data_lines, first, rate_hz, lines):
         cols = list(range(3 * len(names)))
         n_cols = len(cols)
         col_names = [f"{n} {a}" for n in names for a in "XYZ"]
+    data_lines = _whole_rows(data_lines, n_cols, first, meta)
     values = parse_numeric_block(path, data_lines, first, n_cols, col_names, sep="\t", na_values=_NA)
     frame, _ = _frames_and_times(path, values, labels, first, data_lines, rate_hz)
     xyz = values[:, cols].reshape(len(values), len(names), 3) * _MM
@@ -266,6 +304,7 @@ def _read_6d(path, header, meta, labels, data_lines, first, rate_hz, i_labels, l
             col_names[s + k] = f"{name} {lab}"
     if labels[0] == "Frame":
         col_names[0], col_names[1] = "Frame", "Time"
+    data_lines = _whole_rows(data_lines, n_cols, first, meta)
     values = parse_numeric_block(path, data_lines, first, n_cols, col_names, sep="\t", na_values=_NA)
     frame, t_s = _frames_and_times(path, values, labels if layout == "current" else None, first,
                                    data_lines, rate_hz)
@@ -391,7 +430,10 @@ def write_qtm_tsv(path, markers=None, bodies=None, rate_hz=None, layout="current
 
 
 def detect(head: FileHead) -> str | None:
-    """Why the file is a QTM TSV (its first key FILE_VERSION or NO_OF_FRAMES), or None.
+    """Why the file is a QTM TSV (its first line a QTM header key and a tab), or None.
+
+    Any of QTM's header keys will do, so a file that lost its NO_OF_FRAMES line is still read
+    as a QTM TSV, and the reader names the missing line.
 
     Parameters
     ----------
@@ -409,8 +451,9 @@ def detect(head: FileHead) -> str | None:
     """
     if head.binary or not head.lines:
         return None
-    key = head.lines[0].strip().split("\t")[0].strip()
-    if key not in ("FILE_VERSION", "NO_OF_FRAMES"):
+    first = head.lines[0].strip()
+    key = first.split("\t")[0].strip()
+    if "\t" not in first or not _QTM_KEY.match(key):
         return None
     included = next((ln.split("\t")[1].strip() for ln in head.lines
                      if ln.startswith("DATA_INCLUDED\t")), None)  # fmt: skip

@@ -8,13 +8,20 @@ file's content to these readers or to :mod:`cvsflow.io.mocap.optitrack` and :mod
 from __future__ import annotations
 
 import logging
+import struct
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from cvsflow.exceptions import InputError
-from cvsflow.io.files import atomic_output, check_frames, parse_numeric_block, read_text_lines
+from cvsflow.io.files import (
+    atomic_output,
+    check_frames,
+    drop_cut_last_row,
+    parse_numeric_block,
+    read_text_lines,
+)
 from cvsflow.io.mocap.markers import (
     FileHead,
     MocapExport,
@@ -22,6 +29,7 @@ from cvsflow.io.mocap.markers import (
     marker_columns,
     marker_names,
     marker_table,
+    note_frame_count,
 )
 
 log = logging.getLogger(__name__)
@@ -108,9 +116,11 @@ def read_nexus_csv(path) -> pd.DataFrame:
     Raises
     ------
     InputError
-        No Trajectories block, no rate line, a malformed header, an unknown unit, a row with
-        fewer cells than the header (a file cut short), a non-numeric cell, frames not
-        consecutive. The message names the file and the 1-based line number.
+        No Trajectories block, no rate line, a malformed header, an unknown unit, a row inside
+        the block with fewer cells than the header, a non-numeric cell, frames not
+        consecutive. The message names the file and the 1-based line number. A last row cut
+        mid-row (a file cut short) is left out with a WARNING
+        (:func:`cvsflow.io.mocap.markers.note_frame_count`).
     """
     path = Path(path)
     lines = read_text_lines(path, "CSV")
@@ -184,10 +194,10 @@ def read_nexus_csv(path) -> pd.DataFrame:
     end = first
     while end < len(lines) and lines[end].strip(", \t"):
         end += 1
-    data_lines = lines[first:end]
+    n_cols = 2 + 3 * n_markers
+    data_lines, cut = drop_cut_last_row(lines[first:end], n_cols)
     if not data_lines:
         raise InputError(f"{path}, line {first + 1}: no data rows after the units row")
-    n_cols = 2 + 3 * n_markers
     col_names = ["Frame", "Sub Frame"] + [f"{n}_{a}" for n in names for a in "XYZ"]
     values = parse_numeric_block(
         path, data_lines, first, n_cols, col_names,
@@ -207,7 +217,10 @@ def read_nexus_csv(path) -> pd.DataFrame:
         )
         coords = np.where(bad, np.nan, coords)
     xyz_m = (coords * scale).reshape(len(values), n_markers, 3)
-    return marker_table(frames.astype(np.int64) - 1, xyz_m, names, rate_hz)
+    markers = marker_table(frames.astype(np.int64) - 1, xyz_m, names, rate_hz)
+    # Nexus states no frame count: only a last row cut mid-row shows a file cut short
+    note_frame_count(markers, path, None, cut_line=first + len(data_lines) + 1 if cut else None)
+    return markers
 
 
 def read_c3d(path) -> pd.DataFrame:
@@ -224,6 +237,8 @@ def read_c3d(path) -> pd.DataFrame:
     markers : DataFrame
         Wide marker table (module docstring); ``frame`` 0-based from the header's first frame
         (ezc3d counts from 0, so Nexus frame 1 is frame 0, as in the CSV).
+        ``attrs["n_frames_stated"]``: the frames the file's header block states; a file cut
+        short is read as far as it goes, with a WARNING naming both counts.
 
     Raises
     ------
@@ -275,8 +290,30 @@ def read_c3d(path) -> pd.DataFrame:
         xyz[bad] = np.nan
     first = int(c3d["header"]["points"]["first_frame"])
     frame0 = first + np.arange(xyz.shape[0])
-    return marker_table(frame0, xyz, names, rate_hz)
+    markers = marker_table(frame0, xyz, names, rate_hz)
+    note_frame_count(markers, path, *_c3d_stated_frames(path, c3d))
+    return markers
 
+
+def _c3d_stated_frames(path, c3d) -> tuple[int | None, str]:
+    """Frames the C3D's own header block states, and where (ezc3d rewrites its header to the
+    frames it could read, so a file cut short reads as whole there)."""
+    with open(path, "rb") as fh:
+        head = fh.read(512)
+        fh.seek(512 * (head[0] - 1) + 3)
+        processor = fh.read(1)
+    # processor type 84 Intel, 85 DEC: little-endian words; 86 MIPS: big-endian
+    order = ">" if processor == b"\x56" else "<"
+    first, last = struct.unpack(f"{order}HH", head[6:10])
+    if last == 0xFFFF:  # the header's 16-bit count is full: long takes state it in TRIAL
+        trial = c3d["parameters"].get("TRIAL", {})
+        try:
+            start, end = (trial[k]["value"] for k in ("ACTUAL_START_FIELD", "ACTUAL_END_FIELD"))
+            first, last = int(start[0]) + 65536 * int(start[1]), int(end[0]) + 65536 * int(end[1])
+        except (KeyError, IndexError):
+            return None, ""
+        return last - first + 1, "TRIAL:ACTUAL_START_FIELD..ACTUAL_END_FIELD"
+    return last - first + 1, f"header frames {first}..{last}"
 
 
 
@@ -353,11 +390,13 @@ def detect_c3d(head: FileHead) -> str | None:
 
 def _nexus_export(path) -> MocapExport:
     markers = read_nexus_csv(path)
+    markers.attrs["format"] = "vicon_csv"
     return MocapExport(Path(path), "vicon_csv", float(markers.attrs["rate_hz"]), markers, None, {})
 
 
 def _c3d_export(path) -> MocapExport:
     markers = read_c3d(path)
+    markers.attrs["format"] = "c3d"
     return MocapExport(Path(path), "c3d", float(markers.attrs["rate_hz"]), markers, None, {})
 
 

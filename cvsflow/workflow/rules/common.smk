@@ -280,6 +280,8 @@ def headline_inputs(wildcards):
             files[f"{session}/truth"] = f"data/{session}/truth.yaml"
         if runs_stage(session, "poses"):
             files[f"{session}/corners"] = f"results/{session}/corners_summary.yaml"
+        if runs_stage(session, "vicon") and MOCAP[session]["bodies_from"] == "markers":
+            files[f"{session}/vicon_import"] = f"results/{session}/vicon_import.yaml"
         if runs_stage(session, "vicon"):
             files[f"{session}/vicon_repair"] = f"results/{session}/vicon_repair.yaml"
         if runs_stage(session, "pairs"):

@@ -2,7 +2,8 @@ rule vicon_import:
     input:
         vicon_path,
     output:
-        "results/{session}/markers.parquet",
+        markers="results/{session}/markers.parquet",
+        summary="results/{session}/vicon_import.yaml",
     log:
         "logs/{session}/vicon_import.log",
     benchmark:

@@ -19,6 +19,7 @@ with stage_logging(snakemake.log[0], "headline") as log:
             sync=load(f"{s}/sync"), se3=load(f"{s}/se3"), seed=load(f"{s}/seed"),
             comparison=load(f"{s}/comparison"), truth=load(f"{s}/truth"),
             corners=load(f"{s}/corners"), vicon_repair=load(f"{s}/vicon_repair"),
+            vicon_import=load(f"{s}/vicon_import"),
         )
     for f in snakemake.params.flights:
         rows += flight_headline(f, load(f"flight {f}/stats"))

@@ -116,6 +116,18 @@ def test_diverged_seed_shows_reason_and_no_numbers():
     assert "3 stills tilted" in " ".join(warns)
 
 
+def test_a_take_cut_short_is_a_headline_warning_with_its_source():
+    """vicon_import.yaml's warnings (a take cut short: both counts) reach the headline's
+    warnings, naming the file they come from; a whole take adds nothing."""
+    cut = ("vicon.csv: the file was cut short: 693 of the 1353 frames its header states "
+           "(Total Exported Frames) were read")
+    rows = headline.session_headline("lab", vicon_import={"warnings": [cut]})
+    (row,) = [r for r in rows if r["group"] == "warnings"]
+    assert cut in row["text"] and row["source"] == "results/lab/vicon_import.yaml: warnings"
+    rows = headline.session_headline("lab", vicon_import={"n_frames": 10, "warnings": []})
+    assert [r["text"] for r in rows if r["group"] == "warnings"] == ["none"]
+
+
 def test_converged_seed_reports_its_held_out_rms():
     seed = {"fx_px": 700.0, "fy_px": 699.0, "diverged": False}
     comparison = {**COMPARISON, "seed": {"diverged": False, "per_dim": PER_DIM}}

@@ -6,9 +6,6 @@ and, where a stage script is run, that the stage left no output behind.
 """
 
 import logging
-import runpy
-from pathlib import Path
-from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -40,9 +37,8 @@ from cvsflow.plausibility.checks import (
     check_sync_inputs,
 )
 from cvsflow.plausibility.results import check_se3_result, check_seed_result
+from tests.helpers.stages import run_stage
 
-REPO = Path(__file__).resolve().parents[3]
-SCRIPTS = REPO / "cvsflow" / "workflow" / "scripts"
 CAMERA_NAMES = ["camera:C1", "camera:C2", "camera:C3", "camera:C4"]
 BOARD_NAMES = ["board:B1", "board:B2", "board:B3", "board:B4"]
 SPECS = {
@@ -53,23 +49,6 @@ SPECS = {
 }
 VICON_CFG = {"max_fit_rms_m": 0.01, "max_fit_rms_share": 0.1}
 K = [[700.0, 0.0, 320.0], [0.0, 698.0, 240.0], [0.0, 0.0, 1.0]]
-
-
-class _Named(list):
-    """Stand-in for Snakemake's Namedlist: positional and named access."""
-
-    def __init__(self, **named):
-        super().__init__(str(v) for v in named.values())
-        self.__dict__.update({k: str(v) for k, v in named.items()})
-
-
-def run_stage(script, tmp_path, inputs, outputs, params, threads=1):
-    """Run a workflow script with a fake ``snakemake`` object; return the log path."""
-    log = tmp_path / "logs" / f"{script}.log"
-    sm = SimpleNamespace(input=_Named(**inputs), output=_Named(**outputs), params=SimpleNamespace(**params),
-                         log=[str(log)], threads=threads, wildcards=SimpleNamespace())
-    runpy.run_path(str(SCRIPTS / f"{script}.py"), init_globals={"snakemake": sm})
-    return log
 
 
 def markers_table(n=300, rate_hz=300.0, seed=0, noise_m=0.0003):
@@ -118,10 +97,11 @@ def test_units_row_m_on_mm_data_stops_vicon_import(tmp_path):
     out = tmp_path / "markers.parquet"
     with pytest.raises(UnitsError, match=r"vicon\.csv: body 'camera'.*span 2\d\d(\.\d+)? m.*layout_m spans "
                        r"0\.2\d* m.*ratio 1\d\d\d.*says m where the values are mm"):
-        run_stage("vicon_import", tmp_path, {"csv": csv}, {"out": out},
+        run_stage("vicon_import", tmp_path, {"csv": csv}, {"markers": out, "summary": tmp_path / "s.yaml"},
                   {"markers": SPECS, "max_scale_ratio": 3.0})
-    assert not out.exists()
-    assert "UnitsError" not in (tmp_path / "logs" / "vicon_import.log").read_text()
+    assert not out.exists() and not (tmp_path / "s.yaml").exists()
+    assert "Traceback" not in (tmp_path / "logs" / "vicon_import.log").read_text()
+    assert "vicon_import failed (UnitsError)" in (tmp_path / "logs" / "vicon_import.log").read_text()
     assert "vicon.csv: body 'camera'" in (tmp_path / "logs" / "vicon_import.log").read_text()
 
 

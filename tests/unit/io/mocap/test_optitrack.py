@@ -6,11 +6,13 @@ import pandas as pd
 import pytest
 
 from cvsflow.exceptions import InputError
-from cvsflow.io.mocap.formats import detect_format, read_mocap
+from cvsflow.io.files import read_yaml
+from cvsflow.io.mocap.formats import detect_format, read_markers, read_mocap
 from cvsflow.io.mocap.markers import marker_columns, marker_names
 from cvsflow.io.mocap.optitrack import read_motive_csv, write_motive_csv
 from cvsflow.mocap.bodies import body_poses, fit_bodies
 from tests.helpers.real_data import REAL_DATA, need_real_file
+from tests.helpers.stages import run_stage
 
 MOTIVE = REAL_DATA / "mocap" / "optitrack-motive"
 RIGID = MOTIVE / "grvc_rigidbody_test" / "test.csv"
@@ -180,15 +182,48 @@ def test_bad_cell_names_file_line_and_column(tmp_path):
         read_motive_csv(path)
 
 
-def test_file_cut_short(tmp_path):
-    """A last row with fewer cells than the header is named as a file cut short."""
+def test_file_cut_short(tmp_path, caplog):
+    """A last row cut mid-row is left out and the take read as far as it goes: one WARNING (and
+    the table's ``warnings``) names the line and both counts."""
     rng = np.random.default_rng(5)
     path = tmp_path / "take.csv"
     write_motive_csv(path, _table(rng))
     text = path.read_text()
     path.write_text(text[: len(text) - 30])
-    with pytest.raises(InputError, match=r"line 47: .* cut short"):
-        read_motive_csv(path)
+    with caplog.at_level("WARNING"):
+        export = read_motive_csv(path)
+    assert len(export.markers) == 39 and export.markers.attrs["n_frames_stated"] == 40
+    msg = export.markers.attrs["warnings"]
+    assert len(msg) == 1 and msg[0] in caplog.text
+    assert "take.csv: the file was cut short: 39 of the 40 frames" in msg[0]
+    assert "(Total Exported Frames)" in msg[0] and "last row (line 47) was cut mid-row" in msg[0]
+
+
+def test_real_export_cut_at_a_row_boundary_warns_with_both_counts(tmp_path, caplog):
+    """The real 360 Hz Motive export cut after 693 of the 1353 rows its header states (at a
+    row boundary, so every row is whole): read as far as it goes, the WARNING names the file
+    and both counts, and the marker table carries them for vicon_import's summary."""
+    lines = _need(UNLAB).read_text().splitlines(keepends=True)
+    path = tmp_path / "cut.csv"
+    path.write_text("".join(lines[: 7 + 693]))
+    with caplog.at_level("WARNING"):
+        df = read_markers(path)
+    assert len(df) == 693 and df.attrs["n_frames_stated"] == 1353
+    assert df.attrs["format"] == "motive_csv"
+    (msg,) = df.attrs["warnings"]
+    assert f"{path}: the file was cut short: 693 of the 1353 frames its header states" in msg
+    assert msg in caplog.text
+    whole = read_markers(_need(UNLAB))
+    assert whole.attrs["n_frames_stated"] == 1353 and whole.attrs.get("warnings", []) == []
+    # the stage's summary (vicon_import.yaml, which the headline's warnings read) has both counts
+    names = marker_names(whole)
+    specs = {"camera": {"names": names[:4]}, "board": {"names": names[4:8]}}
+    out = {"markers": tmp_path / "markers.parquet", "summary": tmp_path / "vicon_import.yaml"}
+    run_stage("vicon_import", tmp_path, {"export": path}, out, {"markers": specs, "max_scale_ratio": 3.0})
+    summary = read_yaml(out["summary"])
+    assert summary["format"] == "motive_csv" and summary["rate_hz"] == 360.0
+    assert summary["n_frames"] == 693 and summary["n_frames_stated"] == 1353
+    assert summary["warnings"] == [msg]
 
 
 @pytest.mark.parametrize(

@@ -181,18 +181,60 @@ def test_bad_cell_names_file_line_and_column(tmp_path):
         read_qtm_tsv(path)
 
 
-def test_cut_short_and_count_mismatch(tmp_path):
-    """Fewer rows than NO_OF_FRAMES, or MARKER_NAMES that disagree with NO_OF_MARKERS, are named."""
+def test_cut_short_and_count_mismatch(tmp_path, caplog):
+    """Fewer rows than NO_OF_FRAMES (cut at a row boundary or mid-row) are read as far as they go
+    with a WARNING naming both counts, as the Motive and C3D readers do; MARKER_NAMES that
+    disagree with NO_OF_MARKERS are an error naming both."""
     rng = np.random.default_rng(14)
     path = tmp_path / "take.tsv"
     write_qtm_tsv(path, markers=_table(rng), layout="old")
     lines = path.read_text().splitlines()
     path.write_text("\n".join(lines[:-3]) + "\n")
-    with pytest.raises(InputError, match="27 data rows, NO_OF_FRAMES says 30"):
-        read_qtm_tsv(path)
+    with caplog.at_level("WARNING"):
+        export = read_qtm_tsv(path)
+    assert len(export.markers) == 27 and export.markers.attrs["n_frames_stated"] == 30
+    (msg,) = export.markers.attrs["warnings"]
+    assert "take.tsv: the file was cut short: 27 of the 30 frames its header states (NO_OF_FRAMES)" in msg
+    assert msg in caplog.text
+    text = "\n".join(lines[:-3]) + "\n"
+    path.write_text(text[: len(text) - 12])  # and the last row cut mid-row
+    export = read_qtm_tsv(path)
+    assert len(export.markers) == 26
+    assert f"last row (line {len(lines) - 3}) was cut mid-row" in export.markers.attrs["warnings"][0]
     path.write_text("\n".join(lines).replace("NO_OF_MARKERS\t3", "NO_OF_MARKERS\t4") + "\n")
     with pytest.raises(InputError, match="3 MARKER_NAMES, NO_OF_MARKERS says 4"):
         read_qtm_tsv(path)
+
+
+@pytest.mark.parametrize("key", ["NO_OF_FRAMES", "FREQUENCY"])
+@pytest.mark.parametrize("rel", [SWING_3D, STAND_6D], ids=["3D", "6D"])
+def test_missing_header_line_is_named(tmp_path, rel, key):
+    """A real QTM export without its NO_OF_FRAMES or FREQUENCY line: still recognised as a QTM
+    TSV (whatever its first line), and the error names the missing header line."""
+    lines = _need(rel).read_text().splitlines()
+    path = tmp_path / "take.tsv"
+    path.write_text("\n".join(ln for ln in lines if not ln.startswith(key + "\t")) + "\n")
+    assert detect_format(path) == "qtm_tsv"
+    with pytest.raises(InputError, match=rf"take\.tsv, lines 1-\d+: no {key} header line"):
+        read_mocap(path)
+
+
+@pytest.mark.parametrize("rel, kind", [(SWING_3D, "3D"), (STAND_6D, "6D")], ids=["3D", "6D"])
+def test_missing_data_included_is_read_from_the_names_line(tmp_path, caplog, rel, kind):
+    """Without DATA_INCLUDED a real export is read as its names line says (MARKER_NAMES: 3D,
+    BODY_NAMES: 6D; a 6D file was refused as '3D export without MARKER_NAMES'), with a WARNING
+    naming the missing line; with neither names line the error names DATA_INCLUDED."""
+    lines = _need(rel).read_text().splitlines()
+    path = tmp_path / "take.tsv"
+    path.write_text("\n".join(ln for ln in lines if not ln.startswith("DATA_INCLUDED\t")) + "\n")
+    with caplog.at_level("WARNING"):
+        export = read_mocap(path)
+    assert export.format == "qtm_tsv" and (export.bodies is not None) == (kind == "6D")
+    assert any(f"no DATA_INCLUDED header line; read as {kind}" in w for w in export.markers.attrs["warnings"])
+    names = "MARKER_NAMES" if kind == "3D" else "BODY_NAMES"
+    path.write_text("\n".join(ln for ln in lines if not ln.startswith(("DATA_INCLUDED\t", names))) + "\n")
+    with pytest.raises(InputError, match=r"no DATA_INCLUDED header line \(expected 'DATA_INCLUDED<tab>3D'"):
+        read_mocap(path)
 
 
 def test_2d_export_is_refused(tmp_path):

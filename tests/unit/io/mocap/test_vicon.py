@@ -195,13 +195,37 @@ def _write_small(tmp_path, rng, name="v.csv"):
     return path
 
 
-def test_file_cut_short_names_last_line(tmp_path):
-    """A file cut in its last row raises InputError naming the file and that 1-based line."""
+def test_file_cut_short_names_last_line(tmp_path, caplog):
+    """A file cut in its last row (Nexus states no frame count, so this is the only sign): the
+    row is left out and one WARNING names the file and that 1-based line."""
     path = _write_small(tmp_path, np.random.default_rng(3))
     raw = path.read_bytes()
     path.write_bytes(raw[: len(raw) - 30])  # cut inside the last row (frame 20, line 25)
-    with pytest.raises(InputError, match=r"v\.csv, line 25: .*cut short"):
-        read_markers(path)
+    with caplog.at_level("WARNING"):
+        df = read_markers(path)
+    assert len(df) == 19 and df.attrs["n_frames_stated"] is None
+    (msg,) = df.attrs["warnings"]
+    assert "v.csv: the file was cut short: its last row (line 25) was cut mid-row" in msg
+    assert msg in caplog.text
+
+
+def test_real_c3d_cut_to_half_warns_with_both_counts(tmp_path, caplog):
+    """The real C3D cut to half its bytes: ezc3d reads 288 frames and rewrites its header to
+    them; the reader takes the count from the file's own header block (580) and warns with
+    both, and the marker table carries them for vicon_import's summary."""
+    if not REAL_C3D.exists():
+        pytest.skip(f"real Vicon export not available at {REAL_C3D}")
+    raw = REAL_C3D.read_bytes()
+    path = tmp_path / "cut.c3d"
+    path.write_bytes(raw[: len(raw) // 2])
+    with caplog.at_level("WARNING"):
+        df = read_markers(path)
+    assert len(df) == 288 and df.attrs["n_frames_stated"] == 580 and df.attrs["format"] == "c3d"
+    (msg,) = df.attrs["warnings"]
+    assert f"{path}: the file was cut short: 288 of the 580 frames its header states" in msg
+    assert msg in caplog.text
+    whole = read_markers(REAL_C3D)
+    assert whole.attrs["n_frames_stated"] == 580 and whole.attrs["warnings"] == []
 
 
 def test_truncated_row_inside_file(tmp_path):
@@ -271,6 +295,27 @@ def test_marker_absent_for_whole_take(tmp_path):
     write_nexus_csv(df, path, rate_hz=300.0)
     with pytest.raises(InputError, match=r"marker 'board:B1' is absent for the whole take"):
         read_markers(path, names=["camera:C1", "board:B1"])
+
+
+def test_real_marker_with_one_coordinate_column_empty_is_named(tmp_path):
+    """The real Nexus export with one marker's Z column emptied for the whole take: before,
+    the marker was a gap in every frame and silently rebuilt from the layout (the body moved
+    3.7 mm); now an InputError names the file, the marker and the empty column."""
+    if not REAL_CSV.exists():
+        pytest.skip(f"real Vicon export not available at {REAL_CSV}")
+    lines = REAL_CSV.read_text().splitlines()
+    j = lines[2].split(",").index("boite:droite_int") + 2  # its Z cell
+    for i in range(5, len(lines)):
+        cells = lines[i].split(",")
+        cells[j] = ""
+        lines[i] = ",".join(cells)
+    path = tmp_path / "markers.csv"
+    path.write_text("\r\n".join(lines) + "\r\n")
+    names = [f"boite:{n}" for n in ("gauche_ext", "gauche_int", "droite_int", "droite_ext")]
+    with pytest.raises(InputError, match=rf"{path}: marker 'boite:droite_int': its Z column is "
+                       r"empty in all 580 frames while X/Y hold values"):
+        read_markers(path, names=names)
+    assert len(read_markers(path, names=names[:2])) == 580  # a marker not used is no concern
 
 
 def test_non_consecutive_frames(tmp_path):
