@@ -11,13 +11,32 @@ from pathlib import Path
 
 from cvsflow.exceptions import CvsflowError
 
+#: Set (to anything but 0 or empty) to print a failed stage's traceback on the console too.
+DEBUG_ENV = "CVSFLOW_DEBUG"
+
+
+def _quiet_hook(exc: BaseException, log_path: Path, stage: str):
+    """An excepthook that ends the process on ``exc`` with the log's path instead of a traceback."""
+    previous = sys.excepthook
+
+    def hook(kind, value, tb):
+        if value is not exc:
+            return previous(kind, value, tb)
+        sys.stderr.write(f"cvsflow: stage {stage} failed; its log: {log_path} (the traceback is "
+                         f"left out: {DEBUG_ENV}=1 prints it)\n")
+
+    return hook
+
 
 @contextlib.contextmanager
 def stage_logging(log_path, stage: str):
     """Send cvsflow's log records to ``log_path`` and stderr for one stage; log a failure's reason.
 
-    A ``CvsflowError`` is logged as one line (its message already says where and what) and
-    re-raised so that Snakemake marks the job failed and removes its outputs.
+    A ``CvsflowError`` is logged as one line naming its class (its message already says where
+    and what) and re-raised so that Snakemake marks the job failed and removes its outputs.
+    If it ends the process (a workflow script run by Snakemake) the console gets that line and
+    the log's path, not the traceback, unless the environment sets ``CVSFLOW_DEBUG``. Any
+    other exception is a bug: logged with its traceback, which the console shows too.
 
     Parameters
     ----------
@@ -48,7 +67,9 @@ def stage_logging(log_path, stage: str):
     try:
         yield log
     except CvsflowError as exc:
-        log.error("stage %s failed: %s", stage, exc)
+        log.error("stage %s failed (%s): %s", stage, type(exc).__name__, exc)
+        if os.environ.get(DEBUG_ENV, "0") in ("", "0"):
+            sys.excepthook = _quiet_hook(exc, log_path, stage)
         raise
     except Exception:
         log.exception("stage %s failed with an unexpected error", stage)

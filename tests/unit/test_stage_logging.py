@@ -1,6 +1,9 @@
 """A stage's log: its failure reason in one line, and on success its wall and CPU time."""
 
+import os
 import re
+import subprocess
+import sys
 import time
 
 import pytest
@@ -29,4 +32,38 @@ def test_a_failed_stage_logs_its_reason_and_no_done_line(tmp_path):
     with pytest.raises(InputError), stage_logging(log_path, "s"):
         raise InputError("video.mp4: frame 12 is not readable")
     text = log_path.read_text()
-    assert "stage s failed: video.mp4: frame 12 is not readable" in text and "done in" not in text
+    assert "stage s failed (InputError): video.mp4: frame 12 is not readable" in text
+    assert "done in" not in text and "Traceback" not in text
+
+
+SCRIPT = """
+from cvsflow.exceptions import InputError, ResultRangeError
+from cvsflow.io.logs import stage_logging
+import sys
+with stage_logging(sys.argv[1], "s"):
+    if sys.argv[2] == "named":
+        raise ResultRangeError("result.yaml: fx_px 1.2e-10 outside 175..2800 px")
+    raise KeyError("a bug")
+"""
+
+
+@pytest.mark.parametrize("debug", ["", "1"])
+def test_a_failed_script_prints_the_named_error_and_log_not_a_traceback(tmp_path, debug):
+    """A stage script ended by a named error (as Snakemake runs it: its own process) prints the
+    one-line error with its class and the log's path on stderr, without the traceback, and
+    exits 1; CVSFLOW_DEBUG=1 prints the traceback too. A bug (any other exception) keeps its
+    traceback on the console and in the log."""
+    log_path = tmp_path / "logs" / "s.log"
+    env = {**os.environ, "CVSFLOW_DEBUG": debug}
+    run = [sys.executable, "-c", SCRIPT, str(log_path)]
+    named = subprocess.run([*run, "named"], capture_output=True, text=True, env=env, timeout=120)
+    assert named.returncode == 1
+    line = "stage s failed (ResultRangeError): result.yaml: fx_px 1.2e-10 outside 175..2800 px"
+    assert line in named.stderr and line in log_path.read_text()
+    assert ("Traceback" in named.stderr) == bool(debug)
+    if not debug:
+        assert f"its log: {log_path}" in named.stderr
+    assert "Traceback" not in log_path.read_text()
+    bug = subprocess.run([*run, "bug"], capture_output=True, text=True, env=env, timeout=120)
+    assert bug.returncode == 1 and "Traceback" in bug.stderr and "KeyError: 'a bug'" in bug.stderr
+    assert "Traceback" in log_path.read_text()

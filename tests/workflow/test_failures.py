@@ -128,6 +128,24 @@ def test_calib_dir_that_is_a_file_says_so(tmp_path):
     assert results_of(tmp_path) == []
 
 
+@pytest.mark.parametrize("debug", ["", "1"], ids=["default", "CVSFLOW_DEBUG"])
+def test_a_failed_stage_shows_its_named_error_and_log_not_a_traceback(tmp_path, monkeypatch, debug):
+    """Any stage failing in a plain `snakemake` run (the workstation profile): the console shows
+    the one-line named error and the log's path; the script's Python traceback only with
+    CVSFLOW_DEBUG=1 (before, every failure printed it)."""
+    still = tmp_path / "still.png"
+    still.write_bytes(b"")
+    write_config(tmp_path, {"sessions": {"s": {"calib_dir": str(still), "board": BOARD}}})
+    monkeypatch.setenv("CVSFLOW_DEBUG", debug)
+    proc = plain_snakemake(tmp_path)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0
+    assert f"stage calibrate failed (InputError): {still}: is a file, expected a folder" in out
+    assert "logs/s/calibrate.log" in out
+    assert ("Traceback (most recent call last)" in out) == bool(debug)
+    assert results_of(tmp_path) == []
+
+
 def test_video_that_is_a_folder_says_so(tmp_path):
     """video pointing at a folder: 'is a folder, expected a video file'; no corners table."""
     (tmp_path / "calib").mkdir()
