@@ -191,6 +191,46 @@ def read_visp_camera(path, name=None, width=None, height=None, model="auto") -> 
     }
 
 
+#: cv::FileNode types (FileNode_INT .. FileNode_MAP), in words.
+_NODE_KINDS = {0: "empty", 1: "an integer", 2: "a number", 3: "a string", 4: "a list (a YAML sequence)",
+               5: "a mapping without rows, cols, dt and data"}
+
+
+def _node_kind(node) -> str:
+    return _NODE_KINDS.get(node.type() & 7, f"node type {node.type()}")
+
+
+def _storage_matrix(fs, key, path, optional=False):
+    """A FileStorage matrix node (``!!opencv-matrix``: rows, cols, dt, data), or InputError naming it."""
+    import cv2
+
+    node = fs.getNode(key)
+    if node.empty():
+        if optional:
+            return None
+        raise InputError(f"{path}: no {key} node; expected a 3x3 !!opencv-matrix (rows, cols, dt, data)")
+    try:
+        mat = node.mat() if node.isMap() else None
+    except cv2.error:
+        mat = None
+    if mat is None:
+        raise InputError(
+            f"{path}: node {key} is {_node_kind(node)}; expected an !!opencv-matrix mapping "
+            "(rows, cols, dt, data), as cv::FileStorage writes a cv::Mat"
+        )
+    return mat
+
+
+def _storage_int(fs, key, path) -> int:
+    """A positive integer node (image_width, image_height), or InputError naming it."""
+    node = fs.getNode(key)
+    value = node.real() if node.isInt() or node.isReal() else float("nan")
+    if not (np.isfinite(value) and value > 0 and value == int(value)):
+        what = "missing" if node.empty() else _node_kind(node)
+        raise InputError(f"{path}: node {key} is {what}; expected the image size in px, a positive integer")
+    return int(value)
+
+
 def _read_opencv_storage(path: Path) -> dict:
     """camera_matrix / distortion_coefficients / image_width / image_height of a FileStorage."""
     import cv2
@@ -202,9 +242,9 @@ def _read_opencv_storage(path: Path) -> dict:
     try:
         if not fs.isOpened():
             raise InputError(f"{path}: not readable as OpenCV FileStorage")
-        K = fs.getNode("camera_matrix").mat()
-        dist = fs.getNode("distortion_coefficients").mat()
-        w, h = fs.getNode("image_width").real(), fs.getNode("image_height").real()
+        K = _storage_matrix(fs, "camera_matrix", path)
+        dist = _storage_matrix(fs, "distortion_coefficients", path, optional=True)
+        w, h = (_storage_int(fs, k, path) for k in ("image_width", "image_height"))
     finally:
         fs.release()
     if K is None or np.shape(K) != (3, 3):
@@ -219,8 +259,8 @@ def _read_opencv_storage(path: Path) -> dict:
             "terms; expected the 5-term model k1 k2 p1 p2 k3"
         )
     d = np.concatenate([d[:5], np.zeros(5 - min(d.size, 5))])
-    return {"K": np.asarray(K, float).tolist(), "dist": d.tolist(), "width": int(w),
-            "height": int(h), "source": str(path)}  # fmt: skip
+    return {"K": np.asarray(K, float).tolist(), "dist": d.tolist(), "width": w, "height": h,
+            "source": str(path)}  # fmt: skip
 
 
 def read_known_camera(path) -> dict:

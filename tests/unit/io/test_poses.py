@@ -256,6 +256,32 @@ def test_known_camera_from_camera_yaml_and_opencv_storage(tmp_path):
         read_known_camera(tmp_path / "bad.yaml")
 
 
+def test_opencv_storage_with_a_node_of_the_wrong_kind_names_file_and_node(tmp_path):
+    """An OpenCV FileStorage camera file whose camera_matrix is a plain list (as hand-written
+    files have it): before, a cv2.error traceback ('isMap()'); now an InputError naming the file,
+    the node and what was expected. A missing image_width was read as 0 px; now it is named."""
+    cam = {"K": [[610.0, 0, 322.0], [0, 611.0, 244.0], [0, 0, 1]],
+           "dist": [0.1, -0.2, 1e-3, -2e-3, 0.05], "width": 640, "height": 480}  # fmt: skip
+    path = tmp_path / "camera_opencv.yaml"
+    write_opencv_yaml(cam, path)
+    text = path.read_text()
+    start = text.index("camera_matrix:")
+    end = text.index("distortion_coefficients:")
+    cases = {
+        "camera_matrix: [610., 0., 322., 0., 611., 244., 0., 0., 1.]\n":
+            r"node camera_matrix is a list \(a YAML sequence\); expected an !!opencv-matrix mapping",
+        "camera_matrix: {fx: 610.}\n": r"node camera_matrix is a mapping without rows, cols, dt and data",
+        "": r"no camera_matrix node; expected a 3x3 !!opencv-matrix",
+    }
+    for node, match in cases.items():
+        path.write_text(text[:start] + node + text[end:])
+        with pytest.raises(InputError, match=rf"{path}: {match}"):
+            read_known_camera(path)
+    path.write_text("\n".join(ln for ln in text.splitlines() if not ln.startswith("image_width")))
+    with pytest.raises(InputError, match=rf"{path}: node image_width is missing; expected the image size"):
+        read_known_camera(path)
+
+
 def test_pose_format_detected_and_wrong_kind_named(tmp_path):
     """auto finds visp, tum and csv; a file read as the wrong kind says what it looks like."""
     from cvsflow.io.poses import sniff_pose_format
