@@ -269,6 +269,7 @@ def calibrate_camera(
     min_coverage: float = 0.3,
     min_normal_spread_deg: float = 10.0,
     max_rel_std_f: float = 0.01,
+    unreadable: Sequence[tuple[str, str]] = (),
 ) -> tuple[dict, pd.DataFrame]:
     """Intrinsics and distortion of a camera from chessboard (or ChArUco) stills.
 
@@ -297,6 +298,10 @@ def calibrate_camera(
     min_coverage, min_normal_spread_deg, max_rel_std_f : float
         Thresholds of the warnings (`quality_warnings`): share of the image covered by the
         board, spread of the board normals (deg), std of fx or fy over its value.
+    unreadable : sequence of (str, str)
+        ``(name, reason)`` of the stills that could not be decoded (an empty or truncated
+        file: ``cvsflow.io.media.read_stills``): listed unused with their reason after the
+        others, counted among the stills, and named in ``warnings``.
 
     Returns
     -------
@@ -333,7 +338,8 @@ def calibrate_camera(
     (``optimise_se3``) propagate it into their own standard errors.
     """
     if len(images) == 0:
-        raise CalibrationError("calibration: no stills given; expected at least one image")
+        bad = "".join(f"; {n}: {r}" for n, r in unreadable)
+        raise CalibrationError(f"calibration: no stills given; expected at least one image{bad}")
     p_B = board_object_points(board).astype(np.float32)
     kind = board_type(board)
     detector = make_detector(board) if kind == "charuco" else None
@@ -385,6 +391,9 @@ def calibrate_camera(
         for note in info["notes"]:
             log.warning("%s: %s", name, note)
 
+    records += [{"name": n, "used": False, "reason": r, "rms_px": None} for n, r in unreadable]
+    bad_text = f"; {len(unreadable)} cannot be decoded: {', '.join(n for n, _ in unreadable)}" \
+        if unreadable else ""
     if len(used_names) < min_images:
         skipped = [r["name"] for r in records if r["reason"] == NOT_FOUND[kind]]
         dup_text = (
@@ -393,10 +402,10 @@ def calibrate_camera(
             else ""
         )
         raise CalibrationError(
-            f"calibration: {len(used_names)} of {len(images)} stills have a usable and "
-            f"distinct {what} view; "
+            f"calibration: {len(used_names)} of {len(images) + len(unreadable)} stills have a "
+            f"usable and distinct {what} view; "
             f"at least {min_images} needed (used: {used_names}; no board found in: "
-            f"{skipped}{dup_text})"
+            f"{skipped}{dup_text}{bad_text})"
         )
 
     try:
@@ -443,6 +452,7 @@ def calibrate_camera(
     )
     for text in warnings:
         log.warning("calibration: %s", text)
+    warnings += [f"{n}: {r}; left out" for n, r in unreadable]  # logged when read
     camera = {
         "K": np.asarray(K, dtype=float).tolist(),
         "dist": np.asarray(dist, dtype=float).ravel()[:5].tolist(),
@@ -461,7 +471,7 @@ def calibrate_camera(
     log.info(
         "calibrated on %d of %d stills: rms %.3f px, fx %.2f, fy %.2f px",
         len(used_names),
-        len(images),
+        len(images) + len(unreadable),
         rms_px,
         K[0, 0],
         K[1, 1],

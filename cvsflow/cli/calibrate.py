@@ -66,16 +66,17 @@ def cmd_calibrate(args) -> int:
     from cvsflow.calibration import calibrate_camera
     from cvsflow.io.camera_formats import write_all_formats
     from cvsflow.io.files import write_parquet, write_yaml
-    from cvsflow.io.media import list_stills, read_gray
+    from cvsflow.io.media import list_stills, read_stills
 
     board = _board_from_args(args)
     cv2.setNumThreads(1)
     paths = list_stills(args.dir)
     if not paths:
         raise InputError(f"{args.dir}: no images (png, jpg, ...) in the stills folder")
-    images = [(p.name, read_gray(p)) for p in paths]
+    images, unreadable = read_stills(paths)
     camera, corners = calibrate_camera(
-        images, board, subpix_window_px=args.subpix_window_px, min_images=args.min_images
+        images, board, subpix_window_px=args.subpix_window_px, min_images=args.min_images,
+        unreadable=unreadable,
     )
     out = Path(args.out)
     write_yaml(camera, out / "camera.yaml")

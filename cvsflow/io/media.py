@@ -42,8 +42,21 @@ def list_stills(folder) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
 
 
+def _truncated(path) -> str | None:
+    """Pillow's complaint when the image's data ends early (OpenCV decodes a cut JPEG in silence,
+    grey below the cut), or None."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+    except OSError as exc:  # Pillow's UnidentifiedImageError is one too: cv2 may read those
+        return str(exc) if "truncated" in str(exc) else None
+    return None
+
+
 def read_gray(path) -> np.ndarray:
-    """An image as 8-bit grayscale; an unreadable file is an InputError naming it.
+    """An image as 8-bit grayscale; an empty, cut or unreadable file is an InputError naming it.
 
     Parameters
     ----------
@@ -53,11 +66,51 @@ def read_gray(path) -> np.ndarray:
     Returns
     -------
     ndarray of uint8, shape (H, W)
+
+    Raises
+    ------
+    InputError
+        ``{path}: empty file (0 bytes)``, ``{path}: cannot be decoded (truncated? ...)`` (its
+        data ends early: a copy or upload cut off) or ``{path}: cannot be decoded as an image``.
     """
+    path = Path(path)
+    if path.is_file() and path.stat().st_size == 0:
+        raise InputError(f"{path}: empty file (0 bytes), cannot be decoded as an image")
+    cut = _truncated(path) if path.is_file() else None
+    if cut is not None:
+        raise InputError(f"{path}: cannot be decoded (truncated? {cut})")
     img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if img is None:
-        raise InputError(f"{path}: cannot be read as an image")
+        raise InputError(f"{path}: cannot be decoded as an image")
     return img
+
+
+def read_stills(paths) -> tuple[list[tuple[str, np.ndarray]], list[tuple[str, str]]]:
+    """Calibration stills as 8-bit grayscale; those that cannot be decoded are named, not read.
+
+    Parameters
+    ----------
+    paths : sequence of Path
+        The stills (:func:`list_stills`).
+
+    Returns
+    -------
+    images : list of (str, ndarray)
+        ``(file name, gray (H, W) uint8)`` of the stills that decode, in the order given.
+    unreadable : list of (str, str)
+        ``(file name, reason)`` of the others (empty, truncated, not an image: see
+        :func:`read_gray`), each also logged at WARNING. The calibration lists them unused
+        with their reason.
+    """
+    images, unreadable = [], []
+    for p in paths:
+        try:
+            images.append((p.name, read_gray(p)))
+        except InputError as exc:
+            reason = str(exc).removeprefix(f"{p}: ")
+            log.warning("%s: %s; left out", p, reason)
+            unreadable.append((p.name, reason))
+    return images, unreadable
 
 
 def _check_video_path(path) -> Path:

@@ -14,6 +14,9 @@ class Named(list):
         super().__init__(str(v) for v in named.values())
         self.__dict__.update({k: str(v) for k, v in named.items()})
 
+    def __getitem__(self, key):
+        return self.__dict__[key] if isinstance(key, str) else super().__getitem__(key)
+
 
 def run_stage(script, tmp_path, inputs, outputs, params, threads=1):
     """Run a workflow script with a fake ``snakemake`` object; return the log path."""

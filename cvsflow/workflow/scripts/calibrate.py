@@ -6,7 +6,7 @@ from cvsflow.calibration import calibrate_camera
 from cvsflow.io.camera_formats import write_camera_format
 from cvsflow.io.files import save_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.io.media import list_stills, read_gray
+from cvsflow.io.media import list_stills, read_stills
 from cvsflow.plots import camera as plots
 
 # OpenCV's own thread pool would take every core and make results differ in the last bits.
@@ -14,8 +14,9 @@ cv2.setNumThreads(snakemake.threads)
 
 with stage_logging(snakemake.log[0], "calibrate") as log:
     paths = list_stills(snakemake.input[0])
-    images = [(p.name, read_gray(p)) for p in paths]
-    camera, calib_corners = calibrate_camera(images, snakemake.params.board, **snakemake.params.calibrate)
+    images, unreadable = read_stills(paths)  # an empty or cut still: left out, named in camera.yaml
+    camera, calib_corners = calibrate_camera(images, snakemake.params.board, **snakemake.params.calibrate,
+                                             unreadable=unreadable)
     log.info("calibrated on %d of %d stills, RMS %.3f px", camera["n_used"], len(paths), camera["rms_px"])
     write_yaml(camera, snakemake.output.camera)
     write_parquet(calib_corners, snakemake.output.corners)

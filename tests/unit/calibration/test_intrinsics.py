@@ -185,6 +185,47 @@ def test_no_stills_is_a_calibration_error():
 # Synthetic stills with known intrinsics
 
 
+def test_a_truncated_and_an_empty_still_are_left_out_and_named(tmp_path):
+    """The real OpenCV stills with left03.jpg cut to 60 % of its bytes and left05.jpg emptied:
+    before, the cut one was 'no 9x6 chessboard found; skipped' and the empty one stopped the
+    run ('cannot be read as an image'); now the calibrate stage leaves both out, camera.yaml
+    lists them unused with 'cannot be decoded (truncated? ...)' / 'empty file (0 bytes)' and
+    names them in its warnings. With too few stills left the error names them and nothing is
+    written."""
+    from cvsflow.io.files import read_yaml
+    from tests.helpers.stages import run_stage
+
+    folder = REAL / "opencv-chessboard"
+    if not folder.is_dir():
+        pytest.skip(f"{folder} not present")
+    stills = tmp_path / "stills"
+    stills.mkdir()
+    for p in folder.glob("left*.jpg"):
+        (stills / p.name).write_bytes(p.read_bytes())
+    data = (stills / "left03.jpg").read_bytes()
+    (stills / "left03.jpg").write_bytes(data[: len(data) * 6 // 10])
+    (stills / "left05.jpg").write_bytes(b"")
+    out = {k: tmp_path / "out" / f for k, f in (
+        ("camera", "camera.yaml"), ("corners", "calib_corners.parquet"), ("opencv", "camera_opencv.yaml"),
+        ("kalibr", "camchain.yaml"), ("ros", "camera_info.yaml"), ("fig_errors", "errors.png"),
+        ("fig_coverage", "coverage.png"))}
+    params = {"board": OPENCV_BOARD, "calibrate": {"subpix_window_px": 11, "min_images": 5}}
+    run_stage("calibrate", tmp_path, {"stills": stills}, out, params)
+    camera = read_yaml(out["camera"])
+    assert camera["n_used"] == 11
+    unused = {r["name"]: r["reason"] for r in camera["images"] if not r["used"]}
+    assert unused["left03.jpg"].startswith("cannot be decoded (truncated? image file is truncated")
+    assert unused["left05.jpg"] == "empty file (0 bytes), cannot be decoded as an image"
+    assert any(w.startswith("left03.jpg: cannot be decoded (truncated?") for w in camera["warnings"])
+    assert any(w.startswith("left05.jpg: empty file (0 bytes)") for w in camera["warnings"])
+    for f in out.values():
+        f.unlink()
+    params["calibrate"]["min_images"] = 12
+    with pytest.raises(CalibrationError, match=r"11 of 13 stills .*2 cannot be decoded: left03\.jpg, left05\.jpg"):
+        run_stage("calibrate", tmp_path, {"stills": stills}, out, params)
+    assert not any(f.exists() for f in out.values())
+
+
 def test_synthetic_stills_recover_known_focal_lengths():
     """Twelve rendered stills of the demo board (known K, no distortion, 2 grey levels of
     noise) give fx, fy within 0.2 % and cx, cy within 2 px, RMS below 0.15 px (measured:

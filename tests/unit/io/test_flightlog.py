@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -12,8 +11,9 @@ import pytest
 from cvsflow.exceptions import InputError
 from cvsflow.geometry.transforms import R_from_euler, R_from_quat, quat_from_R
 from cvsflow.io.flightlog import read_csv_log, read_tum, read_ulog, read_ulog_topic, write_tum
+from tests.helpers.real_data import REAL_DATA
 
-REAL = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "real"
+REAL = REAL_DATA
 PX4 = REAL / "px4"
 TUM = REAL / "tum-fr2-desk"
 

@@ -274,3 +274,31 @@ def test_an_mp4_cut_off_before_its_index_says_so(tmp_path):
     for call in (video_info, video_timing, lambda p: list(iter_video_gray(p))):
         with pytest.raises(InputError, match="cut.mp4.*cut off has no index"):
             call(path)
+
+
+def test_an_empty_cut_or_foreign_still_cannot_be_decoded_and_says_why(tmp_path):
+    """read_gray names an empty file, a JPEG or PNG whose data ends early (OpenCV decoded the cut
+    JPEG in silence, grey below the cut, and the calibration said 'no chessboard found') and a
+    file that is no image; read_stills leaves them out with that reason and reads the rest."""
+    from cvsflow.io.media import read_gray, read_stills
+
+    rng = np.random.default_rng(0)
+    gray = rng.integers(0, 255, (120, 160), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "a_good.png"), gray)
+    for name in ("cut.jpg", "cut.png"):
+        cv2.imwrite(str(tmp_path / name), gray)
+        data = (tmp_path / name).read_bytes()
+        (tmp_path / name).write_bytes(data[: len(data) * 6 // 10])
+    (tmp_path / "empty.jpg").write_bytes(b"")
+    (tmp_path / "notes.png").write_text("not an image")
+    cases = {"cut.jpg": r"cannot be decoded \(truncated\? image file is truncated",
+             "cut.png": r"cannot be decoded \(truncated\? image file is truncated",
+             "empty.jpg": r"empty file \(0 bytes\), cannot be decoded as an image",
+             "notes.png": r"cannot be decoded as an image$"}
+    for name, match in cases.items():
+        with pytest.raises(InputError, match=rf"{tmp_path / name}: {match}"):
+            read_gray(tmp_path / name)
+    images, unreadable = read_stills(sorted(tmp_path.iterdir()))
+    assert [n for n, _ in images] == ["a_good.png"] and np.array_equal(images[0][1], gray)
+    assert [n for n, _ in unreadable] == ["cut.jpg", "cut.png", "empty.jpg", "notes.png"]
+    assert unreadable[2][1] == "empty file (0 bytes), cannot be decoded as an image"
