@@ -7,10 +7,13 @@ session; two or more camera folders (each with its stills and its video) give a 
 
 from __future__ import annotations
 
+import logging
 import re
 from pathlib import Path
 
 from cvsflow.exceptions import CvsflowError, InputError
+
+log = logging.getLogger(__name__)
 
 VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".m4v")
 # bare H.264 / HEVC streams (Raspberry Pi cameras): no frame times until remuxed
@@ -78,7 +81,11 @@ def _inner_sizes_found(stills_dir: Path, first=None) -> tuple[list, int]:
     tried = list_stills(stills_dir)[:5]
     found = []
     for still in tried:
-        size = _try_inner_sizes(still, () if first is None else tuple(first))
+        try:
+            size = _try_inner_sizes(still, () if first is None else tuple(first))
+        except InputError as exc:  # an empty or cut still: left out, as the calibration does
+            log.warning("%s; left out", exc)
+            continue
         if size is not None:
             found.append(size)
             if first is not None and size not in first:
@@ -171,9 +178,10 @@ def _add_charuco(session: dict, notes: list, stills_dir, inner=None) -> bool:
     """A ``type: charuco`` board from what the first stills show (False: no ChArUco markers,
     or a row length other than the chessboard ``inner`` found)."""
     from cvsflow.board import guess_charuco_board
-    from cvsflow.io.media import list_stills, read_gray
+    from cvsflow.io.media import list_stills, read_stills
 
-    guess = guess_charuco_board(read_gray(p) for p in list_stills(stills_dir)[:5])
+    images, _ = read_stills(list_stills(stills_dir)[:5])  # an empty or cut still: left out
+    guess = guess_charuco_board(gray for _, gray in images)
     if guess is None or (inner is not None and guess["squares_x"] not in (None, inner[0] + 1)):
         return False
     sx, sy = guess["squares_x"], guess["squares_y_min"]

@@ -168,6 +168,30 @@ def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
     assert "never overwrites" in capsys.readouterr().err
 
 
+def test_init_leaves_out_an_empty_or_cut_still(tmp_path, caplog):
+    """cvsflow init tries its board sizes on the first stills: an empty and a cut one among them
+    are left out with a WARNING naming them (an empty one stopped init), as the calibration
+    leaves them out; the board comes from the others."""
+    from tests.helpers.board_images import board_centre_pose, render_board
+
+    K = np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]])
+    rec = tmp_path / "rec"
+    (rec / "stills").mkdir(parents=True)
+    for i in range(4):
+        gray, _ = render_board(board_centre_pose([0.1 * i, -0.1, 0.0], [0.0, 0.0, 1.2]), K, seed=i)
+        cv2.imwrite(str(rec / "stills" / f"s{i}.jpg"), gray)
+    (rec / "stills" / "a_empty.jpg").write_bytes(b"")
+    data = (rec / "stills" / "s0.jpg").read_bytes()
+    (rec / "stills" / "s0.jpg").write_bytes(data[: len(data) // 2])
+    out = tmp_path / "session.yaml"
+    with caplog.at_level("WARNING"):
+        assert cli.main(["init", str(rec), "--out", str(out), "--name", "s1"]) == 0
+    cfg = yaml.safe_load(out.read_text())["sessions"]["s1"]
+    assert cfg["board"]["squares_x"] == 6 and cfg["board"]["squares_y"] == 5
+    assert "a_empty.jpg: empty file (0 bytes)" in caplog.text
+    assert "s0.jpg: cannot be decoded (truncated?" in caplog.text
+
+
 def test_init_on_a_6dof_only_qtm_export_uses_the_system_bodies(tmp_path):
     """A QTM 6D TSV (no markers): init names the format, sets bodies_from: system and guesses each
     body's system_body from the export's body names; the config validates with the demo config."""
