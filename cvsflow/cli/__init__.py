@@ -58,6 +58,8 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--marker-m", type=float, help="ChArUco marker side, metres")
     c.add_argument("--dictionary", help="ChArUco ArUco dictionary, e.g. DICT_5X5_100")
     c.add_argument("--out", required=True, help="output folder")
+    c.add_argument("--force", action="store_true",
+                   help="replace files of the same names in OUT (never otherwise)")
     c.add_argument("--subpix-window-px", type=int, default=None,
                    help="one cornerSubPix half window for every corner (px; 11 = OpenCV's sample); "
                    "default: each corner its own, sized to its squares")
@@ -76,6 +78,8 @@ def build_parser() -> argparse.ArgumentParser:
     cr.add_argument("dirs", nargs="+", help="one stills folder per camera, camera 0 first")
     add_board_args(cr)
     cr.add_argument("--out", required=True, help="output folder")
+    cr.add_argument("--force", action="store_true",
+                    help="replace files of the same names in OUT (never otherwise)")
     cr.add_argument("--subpix-window-px", type=int, default=None,
                     help="one cornerSubPix half window for every corner (px); default: per corner")
     cr.add_argument("--min-images", type=int, default=5, help="fewest stills with a board per camera")
@@ -94,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     ec.add_argument("src", help="results/<session> folder or a camera.yaml")
     ec.add_argument("--format", choices=("opencv", "kalibr", "ros"), required=True)
     ec.add_argument("--out", required=True, help="output file")
+    ec.add_argument("--force", action="store_true", help="replace OUT if it exists (never otherwise)")
     ec.set_defaults(func=cmd_export_camera)
     et = esub.add_parser(
         "trajectory",
@@ -107,6 +112,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     et.add_argument("results", help="results/<session> folder or its pairs.parquet")
     et.add_argument("--out-dir", required=True, help="output folder")
+    et.add_argument("--force", action="store_true",
+                    help="replace .tum files of the same names in OUT_DIR (never otherwise)")
     et.add_argument("--se3", help="se3 result.yaml with the mountings "
                     "(default: RESULTS/se3/calib/result.yaml if present)")
     et.set_defaults(func=cmd_export_trajectory)

@@ -43,7 +43,8 @@ def cmd_calibrate(args) -> int:
         ``dir`` (stills folder), ``inner`` ((nx, ny) inner corners of a chessboard),
         ``charuco`` ((sx, sy) squares, with ``marker_m`` (m) and ``dictionary``) or ``target``
         (a Kalibr target file: an AprilGrid or a checkerboard), ``square_m`` (square side, m;
-        not with ``target``), ``out`` (output folder), ``subpix_window_px``, ``min_images``.
+        not with ``target``), ``out`` (output folder), ``force`` (replace files of the same
+        names there), ``subpix_window_px``, ``min_images``.
 
     Returns
     -------
@@ -53,8 +54,10 @@ def cmd_calibrate(args) -> int:
     Raises
     ------
     InputError
-        No images in ``dir`` (or an unreadable one), ``--charuco`` without its marker, a
-        missing ``--square-m`` or one given with ``--target``, an unreadable target file.
+        No images in ``dir``, ``--charuco`` without its marker, a missing ``--square-m`` or
+        one given with ``--target``, an unreadable target file, or a file this command writes
+        already in ``out`` without ``--force`` (checked before anything is computed). Stills
+        that cannot be decoded are left out and named in camera.yaml.
     ConfigError
         A ChArUco marker not smaller than its square, an unknown dictionary, or a target file
         of an unsupported type or with a missing or invalid key.
@@ -64,11 +67,14 @@ def cmd_calibrate(args) -> int:
     import cv2
 
     from cvsflow.calibration import calibrate_camera
-    from cvsflow.io.camera_formats import write_all_formats
-    from cvsflow.io.files import write_parquet, write_yaml
+    from cvsflow.io.camera_formats import FORMAT_FILES, write_all_formats
+    from cvsflow.io.files import refuse_overwrite, write_parquet, write_yaml
     from cvsflow.io.media import list_stills, read_stills
 
     board = _board_from_args(args)
+    out = Path(args.out)
+    refuse_overwrite([out / n for n in ("camera.yaml", "calib_corners.parquet", *FORMAT_FILES.values())],
+                     args.force, "cvsflow calibrate")
     cv2.setNumThreads(1)
     paths = list_stills(args.dir)
     if not paths:
@@ -78,7 +84,6 @@ def cmd_calibrate(args) -> int:
         images, board, subpix_window_px=args.subpix_window_px, min_images=args.min_images,
         unreadable=unreadable,
     )
-    out = Path(args.out)
     write_yaml(camera, out / "camera.yaml")
     write_parquet(corners, out / "calib_corners.parquet")
     files = write_all_formats(camera, out)

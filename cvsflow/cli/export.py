@@ -24,7 +24,7 @@ def cmd_export_camera(args) -> int:
     ----------
     args : argparse.Namespace
         ``src`` (a results/<session> folder or a camera.yaml), ``format`` (opencv, kalibr,
-        ros), ``out`` (output file).
+        ros), ``out`` (output file), ``force`` (replace ``out`` if it exists).
 
     Returns
     -------
@@ -34,15 +34,20 @@ def cmd_export_camera(args) -> int:
     Raises
     ------
     InputError
-        No camera.yaml at ``src``, or a malformed one.
+        No camera.yaml at ``src``, or a malformed one; ``out`` exists and no ``--force``.
     """
     from cvsflow.io.camera_formats import write_camera_format
-    from cvsflow.io.files import read_yaml
+    from cvsflow.io.files import read_yaml, refuse_overwrite
 
+    refuse_overwrite([args.out], args.force, "cvsflow export camera")
     path = _camera_yaml_path(args.src)
     write_camera_format(read_yaml(path), args.format, args.out)
     print(f"wrote {args.out} ({args.format}) from {path}")
     return 0
+
+
+#: The files ``cvsflow export trajectory`` writes (``vicon_T_C_B`` only with an se3 result).
+TRAJECTORY_NAMES = ("cvs_T_C_B", "vicon_T_Cm_Bm", "vicon_T_C_B")
 
 
 def _tum_frame(t_s, T):
@@ -103,7 +108,8 @@ def cmd_export_trajectory(args) -> int:
     ----------
     args : argparse.Namespace
         ``results`` (a results/<session> folder or its pairs.parquet), ``out_dir``, ``se3``
-        (a result.yaml, or None for ``RESULTS/se3/calib/result.yaml`` when present).
+        (a result.yaml, or None for ``RESULTS/se3/calib/result.yaml`` when present), ``force``
+        (replace .tum files of the same names in ``out_dir``).
 
     Returns
     -------
@@ -114,11 +120,14 @@ def cmd_export_trajectory(args) -> int:
     ------
     InputError
         No pairs.parquet, missing pairs columns, a given ``se3`` file missing, or one without
-        ``T_Cm_C`` and ``T_Bm_B``.
+        ``T_Cm_C`` and ``T_Bm_B``; a .tum file of the same name in ``out_dir`` and no
+        ``--force`` (checked first).
     """
-    from cvsflow.io.files import read_parquet, read_yaml
+    from cvsflow.io.files import read_parquet, read_yaml, refuse_overwrite
     from cvsflow.io.flightlog import write_tum
 
+    out = Path(args.out_dir)
+    refuse_overwrite([out / f"{n}.tum" for n in TRAJECTORY_NAMES], args.force, "cvsflow export trajectory")
     src = Path(args.results)
     path = src / "pairs.parquet" if src.is_dir() else src
     if not path.is_file():
@@ -135,7 +144,6 @@ def cmd_export_trajectory(args) -> int:
     se3 = read_yaml(se3_path) if se3_path.is_file() else None
     if se3 is not None and not {"T_Cm_C", "T_Bm_B"} <= set(se3):
         raise InputError(f"{se3_path}: expected the keys T_Cm_C and T_Bm_B (an se3 result.yaml)")
-    out = Path(args.out_dir)
     t_s = pairs["t_s"].to_numpy(float)
     written = []
     for name, T in session_trajectories(pairs, se3).items():

@@ -26,7 +26,7 @@ def cmd_handeye(args) -> int:
     args : argparse.Namespace
         ``stills``, ``poses`` (file or glob), ``pose_format``, ``csv_spec``, ``inner`` with
         ``square_m`` (m) or ``target`` (a Kalibr checkerboard file), ``camera`` (known
-        intrinsics file), ``out``, ``eye_to_hand``,
+        intrinsics file), ``out``, ``force`` (replace an ``OUT/handeye.yaml``), ``eye_to_hand``,
         ``method``, ``free_intrinsics`` (comma separated), ``exact_poses``,
         ``pose_sigma_mm``, ``pose_sigma_deg``, ``subpix_window_px``.
 
@@ -39,7 +39,7 @@ def cmd_handeye(args) -> int:
     ------
     InputError
         No images, unreadable poses, camera or target file, stills and poses that cannot be
-        paired, a missing ``--square-m``.
+        paired, a missing ``--square-m``, an ``OUT/handeye.yaml`` without ``--force``.
     ConfigError
         A target file that is an AprilGrid (not taken here yet), of an unsupported type, or
         with a missing or invalid key.
@@ -49,7 +49,7 @@ def cmd_handeye(args) -> int:
     import cv2
 
     from cvsflow.handeye import calibrate_hand_eye, pair_stills_with_poses
-    from cvsflow.io.files import read_yaml, write_yaml
+    from cvsflow.io.files import read_yaml, refuse_overwrite, write_yaml
     from cvsflow.io.media import list_stills, read_gray
     from cvsflow.io.poses import natural_key, pose_table_T, read_pose_list
     from cvsflow.io.visp import read_known_camera
@@ -58,6 +58,8 @@ def cmd_handeye(args) -> int:
     if board.get("type") == "aprilgrid":
         raise ConfigError(f"--target {args.target}: an AprilGrid; cvsflow handeye's stills take a "
                           "chessboard (whole views) so far: give a checkerboard target or --inner")
+    out = Path(args.out) / "handeye.yaml"
+    refuse_overwrite([out], args.force, "cvsflow handeye")
     cv2.setNumThreads(1)
     paths = sorted(list_stills(args.stills), key=lambda p: natural_key(p.name))
     if not paths:
@@ -82,7 +84,6 @@ def cmd_handeye(args) -> int:
     )  # fmt: skip
     res = {"command": "cvsflow handeye", "camera": str(args.camera), "poses": str(args.poses),
            "pose_format": args.pose_format, "pairing": rule, **res}  # fmt: skip
-    out = Path(args.out) / "handeye.yaml"
     write_yaml(res, out)
     name = "T_W_C" if args.eye_to_hand else "T_Cm_C"
     T, sd = np.asarray(res[name]), res["std"][name]
@@ -121,6 +122,7 @@ def _add_handeye_parser(sub) -> None:
     h.add_argument("--camera", required=True,
                    help="known intrinsics: ViSP camera XML, cvsflow camera.yaml or OpenCV YAML")
     h.add_argument("--out", required=True, help="output folder")
+    h.add_argument("--force", action="store_true", help="replace an OUT/handeye.yaml (never otherwise)")
     h.add_argument("--eye-to-hand", action="store_true",
                    help="board on the carrier, camera fixed in the world")
     h.add_argument("--method", default="park",

@@ -25,8 +25,8 @@ def cmd_calibrate_rig(args) -> int:
     args : argparse.Namespace
         ``dirs`` (one stills folder per camera, camera 0 first), ``inner`` ((nx, ny) inner
         corners) with ``square_m`` (m), or ``target`` (a Kalibr target file: an AprilGrid's
-        views count with the corners they show), ``out`` (folder), ``subpix_window_px``,
-        ``min_images``, ``min_shared_views``.
+        views count with the corners they show), ``out`` (folder), ``force`` (replace files of
+        the same names there), ``subpix_window_px``, ``min_images``, ``min_shared_views``.
 
     Returns
     -------
@@ -37,7 +37,8 @@ def cmd_calibrate_rig(args) -> int:
     ------
     InputError
         Fewer than two folders, a folder without images, a missing ``--square-m``, an
-        unreadable target file.
+        unreadable target file, a file this command writes already in ``out`` without
+        ``--force`` (checked before anything is computed).
     ConfigError
         A target file of an unsupported type or with a missing or invalid key.
     CalibrationError
@@ -45,14 +46,19 @@ def cmd_calibrate_rig(args) -> int:
     """
     import cv2
 
-    from cvsflow.io.camera_formats import write_all_formats, write_kalibr_rig_camchain
-    from cvsflow.io.files import write_parquet, write_yaml
+    from cvsflow.io.camera_formats import FORMAT_FILES, write_all_formats, write_kalibr_rig_camchain
+    from cvsflow.io.files import refuse_overwrite, write_parquet, write_yaml
     from cvsflow.io.media import list_stills, read_gray
     from cvsflow.rig import calibrate_rig
 
     if len(args.dirs) < 2:
         raise InputError("calibrate-rig: give one stills folder per camera, two or more")
     board = board_from_args(args)
+    out = Path(args.out)
+    per_camera = ("camera.yaml", "calib_corners.parquet", *FORMAT_FILES.values())
+    refuse_overwrite([out / "rig.yaml", out / "camchain.yaml"]
+                     + [out / f"cam{i}" / n for i in range(len(args.dirs)) for n in per_camera],
+                     args.force, "cvsflow calibrate-rig")
     cv2.setNumThreads(1)
     stills = []
     for d in args.dirs:
@@ -63,7 +69,6 @@ def cmd_calibrate_rig(args) -> int:
     cameras, rig, corners = calibrate_rig(
         stills, board, min_shared_views=args.min_shared_views,
         subpix_window_px=args.subpix_window_px, min_images=args.min_images)
-    out = Path(args.out)
     for i, (camera, table) in enumerate(zip(cameras, corners, strict=True)):
         write_yaml(camera, out / f"cam{i}" / "camera.yaml")
         write_parquet(table, out / f"cam{i}" / "calib_corners.parquet")

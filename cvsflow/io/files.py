@@ -52,6 +52,37 @@ def atomic_output(path, suffix=None):
         raise
 
 
+def refuse_overwrite(paths, force: bool = False, command: str = "cvsflow") -> None:
+    """InputError naming the files of ``paths`` that exist, unless ``force``: a command that writes
+    into a folder the user names never replaces their files of the same names in silence.
+
+    Parameters
+    ----------
+    paths : iterable of str or Path
+        Every file the command may write; checked before it computes anything.
+    force : bool
+        The command's ``--force``: replace them.
+    command : str
+        The command, for the message.
+
+    Returns
+    -------
+    None
+
+    Raises
+    ------
+    InputError
+        Some of ``paths`` exist (all of them named) and ``force`` is False.
+    """
+    existing = [str(p) for p in paths if Path(p).exists()]
+    if existing and not force:
+        raise InputError(
+            f"{command}: {', '.join(existing)} {'exists' if len(existing) == 1 else 'exist'}; it "
+            "never overwrites a file: give another --out, or --force to replace "
+            f"{'it' if len(existing) == 1 else 'them'}"
+        )
+
+
 def read_text_lines(path, kind="CSV") -> list[str]:
     """The lines of a UTF-8 text export (a BOM is dropped); InputError naming ``path`` when it is
     missing or not text (``kind`` names what was expected, e.g. "CSV", "TSV").

@@ -54,6 +54,42 @@ def test_calibrate_real_opencv_stills(tmp_path, capsys):
     assert (tmp_path / "camchain.yaml").is_file() and (tmp_path / "camera_info.yaml").is_file()
 
 
+@pytest.mark.parametrize("argv, mine", [
+    (["calibrate", "STILLS", "--inner", "9x6", "--square-m", "0.025", "--out", "OUT"], "camera.yaml"),
+    (["calibrate", "STILLS", "--inner", "9x6", "--square-m", "0.025", "--out", "OUT"], "camchain.yaml"),
+    (["calibrate-rig", "STILLS", "STILLS", "--inner", "9x6", "--square-m", "0.025", "--out", "OUT"],
+     "cam1/camera_info.yaml"),
+    (["export", "camera", "SRC", "--format", "ros", "--out", "OUT/ci.yaml"], "ci.yaml"),
+    (["export", "trajectory", "SRC", "--out-dir", "OUT"], "vicon_T_C_B.tum"),
+    (["handeye", "--stills", "STILLS", "--poses", "p.yaml", "--inner", "9x6", "--square-m", "0.025",
+      "--camera", "cam.xml", "--out", "OUT"], "handeye.yaml"),
+], ids=["calibrate", "calibrate-formats", "calibrate-rig", "export-camera", "export-trajectory", "handeye"])
+def test_out_over_a_users_file_is_refused_without_force(tmp_path, capsys, argv, mine):
+    """--out into a folder holding a user's file of a name the command writes: before, replaced
+    in silence; now exit 1, one line naming the file and --force, before anything is read or
+    computed, the file untouched and nothing else written."""
+    out = tmp_path / "out"
+    (out / mine).parent.mkdir(parents=True)
+    (out / mine).write_text("the user's own\n")
+    subs = {"OUT": str(out), "STILLS": str(tmp_path / "none"), "SRC": str(tmp_path / "none")}
+    args = [subs.get(a, a.replace("OUT", str(out))) for a in argv]
+    assert cli.main(args) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out / mine} exists" in err and "--force" in err
+    assert (out / mine).read_text() == "the user's own\n"
+    assert sorted(p for p in out.rglob("*") if p.is_file()) == [out / mine]
+
+
+def test_force_replaces_the_files_of_the_same_names(tmp_path, capsys):
+    """With --force the command replaces its own files' names in OUT (export camera)."""
+    write_yaml(CAMERA, tmp_path / "camera.yaml")
+    (tmp_path / "ci.yaml").write_text("old\n")
+    argv = ["export", "camera", str(tmp_path), "--format", "ros", "--out", str(tmp_path / "ci.yaml")]
+    assert cli.main(argv) == 1
+    assert cli.main([*argv, "--force"]) == 0
+    assert yaml.safe_load((tmp_path / "ci.yaml").read_text())["image_width"] == 640
+
+
 def test_export_camera_and_missing_file_is_one_line(tmp_path, capsys):
     write_yaml(CAMERA, tmp_path / "camera.yaml")
     assert cli.main(["export", "camera", str(tmp_path), "--format", "ros", "--out", str(tmp_path / "ci.yaml")]) == 0
