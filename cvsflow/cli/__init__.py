@@ -102,18 +102,25 @@ def build_parser() -> argparse.ArgumentParser:
     ec.set_defaults(func=cmd_export_camera)
     et = esub.add_parser(
         "trajectory",
-        help="CVS and Vicon trajectories of a session as unaligned TUM files, for evo",
-        description="From pairs.parquet, on the video clock (s, m, quaternion xyzw), unaligned: "
-        "cvs_T_C_B.tum (PnP), vicon_T_Cm_Bm.tum (the Vicon, marker bodies) and, when the "
-        "session has an se3 result, vicon_T_C_B.tum = T_Cm_C^-1 T_Cm_Bm T_Bm_B (the Vicon in "
-        "the CVS frames). Compare with `evo_ape tum vicon_T_C_B.tum cvs_T_C_B.tum`, adding "
-        "evo's own -a/-s if wanted; vicon_T_Cm_Bm and cvs_T_C_B differ by transforms on both "
-        "sides, which evo's one-sided alignment cannot remove.",
+        help="a session's or a flight's trajectories as TUM, EuRoC/ASL or KITTI files, for evo",
+        description="A session (results/<session>): from pairs.parquet, on the video clock (m, "
+        "quaternion xyzw), unaligned: cvs_T_C_B (PnP), vicon_T_Cm_Bm (the Vicon, marker bodies) "
+        "and, when the session has an se3 result, vicon_T_C_B = T_Cm_C^-1 T_Cm_Bm T_Bm_B (the "
+        "Vicon in the CVS frames). Compare with `evo_ape tum vicon_T_C_B.tum cvs_T_C_B.tum`, "
+        "adding evo's own -a/-s if wanted; vicon_T_Cm_Bm and cvs_T_C_B differ by transforms on "
+        "both sides, which evo's one-sided alignment cannot remove. A flight "
+        "(results/flights/<flight>): its reference_aligned, onboard_aligned and "
+        "onboard_unaligned trajectories in the format asked. Times are exact nanoseconds in "
+        "every format (TUM and KITTI's times file: seconds with 9 decimals; asl: integer ns).",
     )
-    et.add_argument("results", help="results/<session> folder or its pairs.parquet")
+    et.add_argument("results", help="results/<session> folder or its pairs.parquet, or "
+                    "results/flights/<flight>")
     et.add_argument("--out-dir", required=True, help="output folder")
+    et.add_argument("--format", choices=("tum", "asl", "kitti"), default="tum",
+                    help="tum (.tum), asl (EuRoC/ASL CSV, .csv; evo's euroc) or kitti (.kitti and "
+                    ".times.txt); default tum")
     et.add_argument("--force", action="store_true",
-                    help="replace .tum files of the same names in OUT_DIR (never otherwise)")
+                    help="replace files of the names it writes in OUT_DIR (never otherwise)")
     et.add_argument("--se3", help="se3 result.yaml with the mountings "
                     "(default: RESULTS/se3/calib/result.yaml if present)")
     et.set_defaults(func=cmd_export_trajectory)

@@ -5,6 +5,7 @@ columns
 
 =============  ==============================================================================
 ``t_s``        sample time on the log's own clock, seconds (float64)
+``t_ns``       the same time in int64 nanoseconds, exact as the file gives it (last column)
 ``x_m y_m z_m`` position of the body in the log's world frame, metres (NaN where not valid)
 ``qx qy qz qw`` orientation of the body in the log's world frame, scalar-last unit quaternion
 ``pos_valid``  bool: the position of this row may be used
@@ -16,8 +17,9 @@ and ``df.attrs`` describing the source (``source``, ``path``, ``frames``, ``t_st
 quadcopter body frame Q into the estimator's local world frame L (flight frames are described
 in :mod:`cvsflow.flight`).
 
-Quaternion order crosses file formats here and only here: PX4 logs ``q[0..3]`` scalar-FIRST
-(w, x, y, z); TUM files and cvsflow are scalar-last (x, y, z, w).
+Quaternion order crosses file formats here and in :mod:`cvsflow.io.trajectory`: PX4 logs
+``q[0..3]`` scalar-FIRST (w, x, y, z); TUM files and cvsflow are scalar-last (x, y, z, w). TUM,
+EuRoC/ASL and KITTI logs are read and written by :mod:`cvsflow.io.trajectory` (exact times).
 """
 
 from __future__ import annotations
@@ -31,14 +33,14 @@ import pandas as pd
 from cvsflow.exceptions import InputError
 from cvsflow.flight import trajectory_frame
 from cvsflow.geometry import R_from_euler, quat_from_R
-from cvsflow.io.files import atomic_output
+from cvsflow.io import trajectory
+from cvsflow.io.mocap.streams import NS_PER, seconds_from_ns, time_to_ns
 
 log = logging.getLogger(__name__)
 
 POSE_COLS = ["x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"]
 TRAJ_COLS = ["t_s", *POSE_COLS, "pos_valid", "rot_valid"]
 
-_TIME_SCALE = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 _POS_SCALE = {"m": 1.0, "mm": 1e-3, "cm": 1e-2}
 _QUAT_NORM_TOL = 1e-2
 
@@ -87,8 +89,40 @@ def _finish(df, attrs):
 
 
 # --------------------------------------------------------------------------------------------
-# TUM
+# TUM, EuRoC/ASL and KITTI (cvsflow.io.trajectory)
 # --------------------------------------------------------------------------------------------
+
+
+def read_trajectory_log(path, fmt: str = "tum", times_path=None) -> pd.DataFrame:
+    """Read a TUM, EuRoC/ASL or KITTI trajectory into the common form, times exact.
+
+    Parameters
+    ----------
+    path : str or Path
+        The file (:func:`cvsflow.io.trajectory.read_trajectory`); metres, scalar-last
+        quaternion in the common form.
+    fmt : {"tum", "asl", "kitti"}
+        Its format.
+    times_path : str or Path, optional
+        KITTI's times file (default beside the poses file, ``<stem>.times.txt``).
+
+    Returns
+    -------
+    DataFrame
+        The common trajectory form (module docstring) with ``t_ns`` exact; quaternions
+        sign-normalised (qw >= 0); ``attrs``: the stream table's (``n_duplicates_dropped``:
+        rows repeating the time before them, dropped with a warning) and ``source``, the format.
+
+    Raises
+    ------
+    InputError
+        Missing file, a bad line (named), times out of order; the format reader's errors.
+    """
+    stream = trajectory.read_trajectory(path, fmt, times_path)
+    q, ok = _normalise_quats(stream[["qx", "qy", "qz", "qw"]].to_numpy(float), path, "quaternion")
+    df = trajectory_frame(stream["t_s"].to_numpy(float), stream[["x_m", "y_m", "z_m"]].to_numpy(float),
+                          q, True, ok, t_ns=stream["t_ns"].to_numpy(np.int64))  # fmt: skip
+    return _finish(df, {**stream.attrs, "source": fmt, "path": str(path), "frames": "as in the file"})
 
 
 def read_tum(path) -> pd.DataFrame:
@@ -102,41 +136,14 @@ def read_tum(path) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        The common trajectory form (module docstring); ``attrs['source'] = 'tum'``.
+        :func:`read_trajectory_log` with ``fmt="tum"``: the common form with exact ``t_ns``.
 
     Raises
     ------
     InputError
         Missing file, a line without 8 numbers (the message names the line), no pose at all.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found (expected a TUM trajectory file)")
-    rows = []
-    with open(path) as fh:
-        for lineno, line in enumerate(fh, start=1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            parts = s.replace(",", " ").split()
-            if len(parts) != 8:
-                raise InputError(
-                    f"{path}, line {lineno}: {len(parts)} fields; expected 8 "
-                    "(timestamp tx ty tz qx qy qz qw)"
-                )
-            try:
-                rows.append([float(p) for p in parts])
-            except ValueError as exc:
-                raise InputError(
-                    f"{path}, line {lineno}: not a number ({exc}); expected "
-                    "timestamp tx ty tz qx qy qz qw"
-                ) from exc
-    if not rows:
-        raise InputError(f"{path}: no pose lines (expected 'timestamp tx ty tz qx qy qz qw')")
-    a = np.asarray(rows, dtype=float)
-    q, ok = _normalise_quats(a[:, 4:8], path, "quaternion")
-    df = trajectory_frame(a[:, 0], a[:, 1:4], q, True, ok)
-    return _finish(df, {"source": "tum", "path": str(path), "frames": "as in the file"})
+    return read_trajectory_log(path, "tum")
 
 
 def write_tum(df: pd.DataFrame, path, only_valid: bool = True) -> None:
@@ -145,7 +152,8 @@ def write_tum(df: pd.DataFrame, path, only_valid: bool = True) -> None:
     Parameters
     ----------
     df : DataFrame
-        Common trajectory form (``t_s``, ``x_m..z_m`` metres, ``qx..qw`` scalar-last).
+        Common trajectory form (``t_ns`` or ``t_s``, ``x_m..z_m`` metres, ``qx..qw``
+        scalar-last).
     path : str or Path
         Output file; readable by evo (``evo_ape tum ref.txt est.txt``).
     only_valid : bool
@@ -154,19 +162,10 @@ def write_tum(df: pd.DataFrame, path, only_valid: bool = True) -> None:
     Returns
     -------
     None
-        One ``#`` header line, then one line per row, 9 decimals (s, m).
+        :func:`cvsflow.io.trajectory.write_tum`: times with 9 decimals from the exact ns,
+        values that read back bit-identical.
     """
-    d = df
-    if only_valid and {"pos_valid", "rot_valid"} <= set(df.columns):
-        d = df[df["pos_valid"].astype(bool) & df["rot_valid"].astype(bool)]
-    a = d[["t_s", *POSE_COLS]].to_numpy(dtype=float)
-    with atomic_output(path) as tmp, open(tmp, "w") as fh:
-        fh.write("# timestamp tx ty tz qx qy qz qw (s, m, scalar-last quaternion)\n")
-        for r in a:
-            fh.write(
-                f"{r[0]:.9f} {r[1]:.9f} {r[2]:.9f} {r[3]:.9f} "
-                f"{r[4]:.9f} {r[5]:.9f} {r[6]:.9f} {r[7]:.9f}\n"
-            )
+    trajectory.write_tum(df, path, only_valid)
 
 
 # --------------------------------------------------------------------------------------------
@@ -219,7 +218,7 @@ def read_csv_log(path, spec: dict | None = None) -> pd.DataFrame:
             f"{path}: unknown CSV spec keys {sorted(unknown)}; expected {list(CSV_DEFAULTS)}"
         )
     for key, choices in (
-        ("time_unit", _TIME_SCALE),
+        ("time_unit", NS_PER),
         ("pos_unit", _POS_SCALE),
         ("rot", ("quat_xyzw", "quat_wxyz", "euler_rpy")),
         ("angle_unit", ("rad", "deg")),
@@ -237,7 +236,8 @@ def read_csv_log(path, spec: dict | None = None) -> pd.DataFrame:
     if not path.is_file():
         raise InputError(f"{path}: file not found (expected a CSV pose log)")
     try:
-        raw = pd.read_csv(path, skipinitialspace=True)
+        # every cell as text: the times are converted exactly (time_to_ns), not through a float
+        raw = pd.read_csv(path, skipinitialspace=True, dtype=str)
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not a readable CSV ({exc})") from exc
     raw.columns = [str(c).strip() for c in raw.columns]
@@ -258,7 +258,8 @@ def read_csv_log(path, spec: dict | None = None) -> pd.DataFrame:
     if np.isnan(t).any():
         i = int(np.flatnonzero(np.isnan(t))[0])
         raise InputError(f"{path}, row {i + 2}, column {spec['time_col']}: empty time cell")
-    t_s = t * _TIME_SCALE[spec["time_unit"]]
+    t_ns = np.array([time_to_ns(s.strip(), spec["time_unit"]) for s in raw[spec["time_col"]]], np.int64)
+    t_s = seconds_from_ns(t_ns)
     p = np.column_stack([num[c] for c in spec["pos_cols"]]) * _POS_SCALE[spec["pos_unit"]]
     r = np.column_stack([num[c] for c in spec["rot_cols"]])
     if spec["rot"] == "euler_rpy":
@@ -278,7 +279,7 @@ def read_csv_log(path, spec: dict | None = None) -> pd.DataFrame:
     if spec["rot_valid_col"]:
         ok &= np.nan_to_num(num[spec["rot_valid_col"]]) != 0
     p = np.where(pos_valid[:, None], p, np.nan)
-    df = trajectory_frame(t_s, p, q, pos_valid, ok)
+    df = trajectory_frame(t_s, p, q, pos_valid, ok, t_ns=t_ns)
     n_bad = int((~pos_valid).sum())
     if n_bad:
         log.warning("%s: %d of %d rows have no valid position", path, n_bad, len(df))
@@ -431,7 +432,8 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
     if source == "local_position":
         att = _topic(ulog, path, "vehicle_attitude")
         lpos = _topic(ulog, path, "vehicle_local_position")
-        t_att = summary("vehicle_attitude", att) * 1e-6
+        us_att = summary("vehicle_attitude", att)
+        t_att = us_att * 1e-6
         t_pos = summary("vehicle_local_position", lpos) * 1e-6
         q_wxyz = np.column_stack([field(att, "vehicle_attitude", f"q[{k}]") for k in range(4)])
         q, rot_ok = _normalise_quats(q_wxyz[:, [1, 2, 3, 0]], path, "vehicle_attitude.q")
@@ -447,7 +449,7 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
         df = trajectory_frame(
             t_att, np.column_stack([x, y, z]), q,
             np.isfinite(x) & np.isfinite(y) & np.isfinite(z), rot_ok,
-            xy_valid=np.isfinite(x) & np.isfinite(y), z_valid=np.isfinite(z),
+            xy_valid=np.isfinite(x) & np.isfinite(y), z_valid=np.isfinite(z), t_ns=us_att * 1000,
         )  # fmt: skip
         xy_frac = float(xy_valid.mean()) if len(xy_valid) else 0.0
         z_frac = float(z_valid.mean()) if len(z_valid) else 0.0
@@ -466,7 +468,8 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
         extra = {"xy_valid_fraction": xy_frac, "z_valid_fraction": z_frac}
     else:
         odo = _topic(ulog, path, "vehicle_odometry")
-        t = summary("vehicle_odometry", odo) * 1e-6
+        us = summary("vehicle_odometry", odo)
+        t = us * 1e-6
         pf = (
             ("position[0]", "position[1]", "position[2]")
             if "position[0]" in odo
@@ -480,7 +483,7 @@ def read_ulog(path, source: str = "local_position", max_gap_s: float = 0.5) -> p
             frames_logged = sorted({int(v) for v in np.asarray(odo[frame_key])})
             topics["vehicle_odometry"][frame_key] = frames_logged
         pos_ok = np.isfinite(p).all(1)
-        df = trajectory_frame(t, p, q, pos_ok, rot_ok)
+        df = trajectory_frame(t, p, q, pos_ok, rot_ok, t_ns=us * 1000)
         if (~pos_ok).any():
             n_bad = int((~pos_ok).sum())
             msg = f"{path}: vehicle_odometry position NaN in {n_bad} of {len(t)} samples"
@@ -551,25 +554,27 @@ def write_flight_demo(demo, out_dir) -> None:
                out_dir / "truth.yaml")
 
 
-def read_flight_log(path, fmt, ulog_source="local_position", csv_spec=None) -> pd.DataFrame:
-    """An on-board log in the common form, by declared format: ``ulog``, ``csv`` or ``tum``.
+def read_flight_log(path, fmt, ulog_source="local_position", csv_spec=None, times_path=None) -> pd.DataFrame:
+    """An on-board log in the common form, by declared format.
 
     Parameters
     ----------
     path : str or Path
         The log file.
-    fmt : {"ulog", "csv", "tum"}
-        Its format (declared in the config, not guessed).
+    fmt : {"ulog", "csv", "tum", "asl", "kitti"}
+        Its format (declared in the config, not guessed); ``asl`` is an EuRoC/ASL pose CSV.
     ulog_source : {"local_position", "odometry"}, default "local_position"
         ULog only: see :func:`read_ulog`.
     csv_spec : dict, optional
         CSV only: the column/unit spec of :func:`read_csv_log`.
+    times_path : str or Path, optional
+        KITTI only: the times file (default ``<stem>.times.txt`` beside the poses).
 
     Returns
     -------
     DataFrame
         Common trajectory form ``t_s, x_m, y_m, z_m, qx, qy, qz, qw, pos_valid, rot_valid``
-        (T_L_Q, s and m), plus the reader's extra columns and ``attrs``.
+        (T_L_Q, s and m), plus the reader's extra columns (``t_ns``, exact) and ``attrs``.
 
     Raises
     ------
@@ -580,6 +585,7 @@ def read_flight_log(path, fmt, ulog_source="local_position", csv_spec=None) -> p
         return read_ulog(path, source=ulog_source)
     if fmt == "csv":
         return read_csv_log(path, csv_spec)
-    if fmt == "tum":
-        return read_tum(path)
-    raise InputError(f"{path}: unknown flight log format {fmt!r} (expected ulog, csv or tum)")
+    if fmt in trajectory.FORMATS:
+        return read_trajectory_log(path, fmt, times_path)
+    raise InputError(f"{path}: unknown flight log format {fmt!r} (expected ulog, csv, "
+                     f"{', '.join(trajectory.FORMATS)})")

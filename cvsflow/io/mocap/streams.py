@@ -7,7 +7,8 @@ The pose-stream formats (:mod:`cvsflow.io.mocap.asl`, :mod:`~cvsflow.io.mocap.tu
 =================  ===========================================================================
 ``t_ns``           int64, the file's time in nanoseconds, exact: integers as written, decimal
                    seconds converted with integer arithmetic (:func:`time_to_ns`)
-``t_s``            float64, ``t_ns / 1e9`` (absolute Unix seconds keep only ~0.2 us in a
+``t_s``            float64, ``t_ns / 1e9`` correctly rounded (:func:`seconds_from_ns`: the float a
+                   reader of the decimal text gets; absolute Unix seconds keep only ~0.2 us in a
                    float: do time arithmetic on ``t_ns``)
 ``x_m y_m z_m``    position of the body in the stream's world, metres
 ``qx qy qz qw``    unit quaternion, scalar last (renormalised; the file's sign kept: streams
@@ -94,6 +95,23 @@ def time_to_ns(text: str, unit: str) -> int:
     return int((d * scale).quantize(Decimal(1), rounding=ROUND_HALF_EVEN))
 
 
+def seconds_from_ns(t_ns) -> np.ndarray:
+    """Seconds of exact nanosecond times, each the float nearest to ``t_ns / 1e9``.
+
+    Parameters
+    ----------
+    t_ns : array_like of int, shape (N,)
+        Nanoseconds.
+
+    Returns
+    -------
+    ndarray of float64, shape (N,)
+        What parsing ``"<s>.<9 digits>"`` gives (numpy, evo). ``t_ns / 1e9`` in numpy rounds
+        twice (int64 to float64, then the division) and is one ulp off for some Unix times.
+    """
+    return np.array([n / 10**9 for n in np.asarray(t_ns, np.int64).tolist()], dtype=float)
+
+
 def format_time(t_ns: int, unit: str) -> str:
     """A time for a message, in the file's unit (``1491754402.090000000 s`` or ``... ns``).
 
@@ -170,7 +188,9 @@ def read_rows(path, layout: StreamLayout, columns: list[int], time_unit: str, wh
 
 
 def _unit_quaternions(path, q, line, quat_tol, quat_names):
-    """Rows of q renormalised; an error naming the first row off unit norm beyond quat_tol."""
+    """Rows of q off unit norm by over 1e-12 renormalised (the others kept bit for bit, so a file
+    written from unit quaternions reads back exactly); an error naming the first row off unit
+    norm beyond quat_tol."""
     norm = np.linalg.norm(q, axis=1)
     bad = ~np.isfinite(norm) | (np.abs(norm - 1.0) > quat_tol)
     if bad.any():
@@ -180,7 +200,9 @@ def _unit_quaternions(path, q, line, quat_tol, quat_names):
             f"norm {norm[k]:.6g}, off 1 by more than {quat_tol:g} ({int(bad.sum())} rows so, the "
             "first named); expected a unit quaternion (qx qy qz qw)"
         )
-    return q / norm[:, None], int((np.abs(norm - 1.0) > 1e-12).sum()), float(np.max(np.abs(norm - 1.0)))
+    off = np.abs(norm - 1.0) > 1e-12
+    q = np.where(off[:, None], q / norm[:, None], q)
+    return q, int(off.sum()), float(np.max(np.abs(norm - 1.0)))
 
 
 def _drop_repeated_stamps(path, t, p, q, line, time_unit):
@@ -269,7 +291,7 @@ def stream_table(path, fmt: str, t_ns, values, line, *, time_unit: str, position
                 "reset: fix the file's source)"
             )
         t, p, q, line, n_dup = _drop_repeated_stamps(path, t, p, q, line, time_unit)
-    df = pd.DataFrame({"t_ns": t, "t_s": t / 1e9, "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
+    df = pd.DataFrame({"t_ns": t, "t_s": seconds_from_ns(t), "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
                        "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3], "line": line})  # fmt: skip
     df.attrs = {"path": str(path), "format": fmt, "time_unit": time_unit, "n_rows_file": n_rows,
                 "n_duplicates_dropped": n_dup, "n_quats_renormalised": n_renorm,

@@ -2,6 +2,7 @@
 import os
 
 from cvsflow.io.mocap.formats import mocap_settings
+from cvsflow.io.trajectory import kitti_times_path
 from cvsflow.io.targets import read_target_board
 from cvsflow.workflow.sessions import (
     camera_session,
@@ -239,6 +240,9 @@ def flight_inputs(wildcards):
         "corners": f"results/{s}/corners.parquet",  # the reference's error model (T)
     }
     files["corners_summary"] = f"results/{s}/corners_summary.yaml"  # inter-coded video
+    # KITTI poses carry no times: their file is an input too
+    if f.get("format") == "kitti":
+        files["times"] = f.get("times") or str(kitti_times_path(f["log"]))
     if "calibration" in f:
         files["se3_result"] = f"results/{f['calibration']}/se3/calib/result.yaml"
         if f.get("error_model", "session") == "session":

@@ -68,7 +68,7 @@ with stage_logging(snakemake.log[0], "flight") as log:
             Sigma_ref, flip_ref, cal_factor = reference_covariance_from_pnp(
                 poses, p_B, calib["K"], calib["dist"], sigma_px), None, None
         onboard = read_flight_log(inp.onboard, cfg["format"], cfg.get("ulog_source", "local_position"),
-                                  cfg.get("csv"))
+                                  cfg.get("csv"), inp.times if hasattr(inp, "times") else None)
         T_Q_B = T_from_pose6(cfg["T_Q_B_pose6"]) if "T_Q_B_pose6" in cfg else None
     result = evaluate_flight(reference, onboard, T_Q_B, Sigma_ref,
                                 alignment=cfg.get("alignment", "se3"), k_sigma=cfg.get("k_sigma", 1.0),

@@ -100,11 +100,13 @@ def test_ulog_bad_inputs(px4, tmp_path):
 
 
 def test_tum_read_groundtruth(tmp_path):
-    """fr2_desk_groundtruth.txt: 3 comment lines skipped, 20957 poses, first and last stamps."""
+    """fr2_desk_groundtruth.txt: 3 comment lines skipped, 20957 poses of which one repeats the
+    stamp before it (dropped, counted), first and last stamps exact."""
     if not TUM.is_dir():
         pytest.skip(f"real data not found at {TUM}")
     df = read_tum(TUM / "fr2_desk_groundtruth.txt")
-    assert len(df) == 20957
+    assert len(df) == 20956 and df.attrs["n_duplicates_dropped"] == 1
+    assert df["t_ns"].iloc[0] == 1311868163869700000 and df["t_ns"].iloc[-1] == 1311868263234200000
     assert df["t_s"].iloc[0] == pytest.approx(1311868163.8697, abs=1e-6)
     assert df["t_s"].iloc[-1] == pytest.approx(1311868263.2342, abs=1e-6)
     assert df["x_m"].iloc[0] == -0.1357 and df["z_m"].iloc[0] == 1.4764
@@ -154,8 +156,8 @@ def test_tum_bad_line(tmp_path):
     p.write_text("# c\n1 0 0 0 0 0 0 1\n2 0 0 0 0 0 1\n")
     with pytest.raises(InputError, match=r"t.txt, line 3: 7 fields; expected 8"):
         read_tum(p)
-    p.write_text("1 0 0 0 0 0 0 x\n")
-    with pytest.raises(InputError, match="line 1: not a number"):
+    p.write_text("1 0 0 0 0 0 0 1\n2 0 0 0 0 0 0 x\n")
+    with pytest.raises(InputError, match="line 2: not a number"):
         read_tum(p)
 
 
