@@ -95,3 +95,46 @@ class FrameFolderError(InputError):
 
 class PosePairingError(ImplausibleError, InputError):
     """Carrier poses and camera views do not describe one motion (wrong pairing or wrong scale)."""
+
+
+class BagError(InputError):
+    """A ROS bag cannot be opened or read (missing, not a bag, not indexed, a message not deserialising)."""
+
+
+class TopicNotFoundError(BagError):
+    """A bag has no topic of the name given; the message lists the topics it has."""
+
+
+class TopicTypeError(BagError):
+    """A bag's topic is of a message type that cannot give what was asked (frames, poses)."""
+
+
+class ImageDecodeError(BagError):
+    """An image message OpenCV cannot decode; names the topic, the message index and the encoding.
+
+    Attributes
+    ----------
+    topic : str
+    index : int
+        0-based index of the message in its topic.
+    encoding : str
+        The raw image's ``encoding`` or the compressed image's ``format``.
+    reason : str
+        What is wrong, without the where.
+    """
+
+    def __init__(self, message: str, topic: str = "", index: int = -1, encoding: str = "", reason: str = ""):
+        super().__init__(message)
+        self.topic, self.index, self.encoding, self.reason = topic, index, encoding, reason or message
+
+
+class DamagedFrameError(ImageDecodeError):
+    """An image message's data is damaged (cut short, refused by the decoder): its frame is lost, no more."""
+
+
+class ZeroStampError(BagError):
+    """A message's header stamp is zero (its publisher never set it): read the bag's receive times."""
+
+
+class FrameIdError(BagError):
+    """A pose topic carries no pose between the frames named; the message lists the frames it has."""

@@ -194,7 +194,26 @@ def image_is_complete(path) -> bool:
         size = fh.tell()
         fh.seek(max(0, size - 4096))
         tail = fh.read()
-    if suffix == ".png":
+    return data_is_complete(tail, "png" if suffix == ".png" else "jpeg")
+
+
+def data_is_complete(tail: bytes, kind: str) -> bool:
+    """Whether encoded image data ends as its format requires (a file's, or a bag message's).
+
+    Parameters
+    ----------
+    tail : bytes
+        The data's last bytes (at least its last 16; the whole data will do).
+    kind : {"jpeg", "png"}
+        Its format.
+
+    Returns
+    -------
+    bool
+        JPEG: ends with the EOI marker FFD9 (trailing zero padding allowed); PNG: the IEND
+        chunk in the last 16 bytes.
+    """
+    if kind == "png":
         return b"IEND" in tail[-16:]
     return tail.rstrip(b"\x00").endswith(b"\xff\xd9")
 

@@ -187,7 +187,7 @@ def read_rows(path, layout: StreamLayout, columns: list[int], time_unit: str, wh
     return np.asarray(t_ns, np.int64), np.asarray(values, float), np.asarray(lines, np.int64)
 
 
-def _unit_quaternions(path, q, line, quat_tol, quat_names):
+def _unit_quaternions(path, q, line, quat_tol, quat_names, row_word="line"):
     """Rows of q off unit norm by over 1e-12 renormalised (the others kept bit for bit, so a file
     written from unit quaternions reads back exactly); an error naming the first row off unit
     norm beyond quat_tol."""
@@ -196,7 +196,7 @@ def _unit_quaternions(path, q, line, quat_tol, quat_names):
     if bad.any():
         k = int(np.flatnonzero(bad)[0])
         raise QuaternionNormError(
-            f"{path}, line {line[k]}: quaternion ({', '.join(quat_names)}) = {q[k].tolist()} has "
+            f"{path}, {row_word} {line[k]}: quaternion ({', '.join(quat_names)}) = {q[k].tolist()} has "
             f"norm {norm[k]:.6g}, off 1 by more than {quat_tol:g} ({int(bad.sum())} rows so, the "
             "first named); expected a unit quaternion (qx qy qz qw)"
         )
@@ -205,7 +205,7 @@ def _unit_quaternions(path, q, line, quat_tol, quat_names):
     return q, int(off.sum()), float(np.max(np.abs(norm - 1.0)))
 
 
-def _drop_repeated_stamps(path, t, p, q, line, time_unit):
+def _drop_repeated_stamps(path, t, p, q, line, time_unit, row_word="line"):
     """Keep the first row of each run of equal timestamps; a WARNING names the first pair."""
     same = np.diff(t) == 0
     if not same.any():
@@ -217,16 +217,17 @@ def _drop_repeated_stamps(path, t, p, q, line, time_unit):
     d_mm = 1e3 * np.linalg.norm(p[rep] - p[prev], axis=1)
     d_deg = np.degrees(rotation_angle(np.swapaxes(R_from_quat(q[prev]), 1, 2) @ R_from_quat(q[rep])))
     log.warning(
-        "%s, lines %d and %d: both at time %s; %d rows repeat the timestamp before them and are "
+        "%s, %ss %d and %d: both at time %s; %d rows repeat the timestamp before them and are "
         "dropped (the first of each kept; their poses differ from it by up to %.3g mm, %.3g deg)",
-        path, line[k], line[k + 1], format_time(t[k], time_unit), len(rep), d_mm.max(), d_deg.max(),
+        path, row_word, line[k], line[k + 1], format_time(t[k], time_unit), len(rep), d_mm.max(), d_deg.max(),
     )  # fmt: skip
     return t[keep], p[keep], q[keep], line[keep], len(rep)
 
 
 def stream_table(path, fmt: str, t_ns, values, line, *, time_unit: str, position_scale: float = 1.0,
                  quat_names=("qx", "qy", "qz", "qw"), quat_tol: float = QUAT_NORM_TOL,
-                 in_time_order: bool = True, attrs: dict | None = None) -> pd.DataFrame:  # fmt: skip
+                 in_time_order: bool = True, attrs: dict | None = None,
+                 row_word: str = "line") -> pd.DataFrame:  # fmt: skip
     """The stream table of parsed rows, after the quaternion and time-order checks.
 
     Parameters
@@ -254,6 +255,8 @@ def stream_table(path, fmt: str, t_ns, values, line, *, time_unit: str, position
         file order, every row kept.
     attrs : dict, optional
         More ``attrs`` (columns found, ignored columns, ...).
+    row_word : str
+        What ``line`` counts, in messages (``line`` in a file; ``message`` in a bag's topic).
 
     Returns
     -------
@@ -275,8 +278,9 @@ def stream_table(path, fmt: str, t_ns, values, line, *, time_unit: str, position
     finite = np.isfinite(p).all(axis=1)
     if not finite.all():
         k = int(np.flatnonzero(~finite)[0])
-        raise PoseStreamError(f"{path}, line {line[k]}: position {values[k, :3].tolist()} is not finite")
-    q, n_renorm, max_err = _unit_quaternions(path, values[:, 3:7], line, quat_tol, quat_names)
+        raise PoseStreamError(f"{path}, {row_word} {line[k]}: position {values[k, :3].tolist()} "
+                              "is not finite")  # fmt: skip
+    q, n_renorm, max_err = _unit_quaternions(path, values[:, 3:7], line, quat_tol, quat_names, row_word)
     t = np.asarray(t_ns, np.int64)
     n_rows = len(t)
     n_dup = 0
@@ -285,12 +289,12 @@ def stream_table(path, fmt: str, t_ns, values, line, *, time_unit: str, position
         if len(back):
             k = int(back[0])
             raise TimestampOrderError(
-                f"{path}, line {line[k + 1]}: time {format_time(t[k + 1], time_unit)} is earlier "
-                f"than line {line[k]}'s {format_time(t[k], time_unit)} ({len(back)} such steps); "
+                f"{path}, {row_word} {line[k + 1]}: time {format_time(t[k + 1], time_unit)} is earlier "
+                f"than {row_word} {line[k]}'s {format_time(t[k], time_unit)} ({len(back)} such steps); "
                 "expected the rows in time order (rows out of order are streams merged or a clock "
                 "reset: fix the file's source)"
             )
-        t, p, q, line, n_dup = _drop_repeated_stamps(path, t, p, q, line, time_unit)
+        t, p, q, line, n_dup = _drop_repeated_stamps(path, t, p, q, line, time_unit, row_word)
     df = pd.DataFrame({"t_ns": t, "t_s": seconds_from_ns(t), "x_m": p[:, 0], "y_m": p[:, 1], "z_m": p[:, 2],
                        "qx": q[:, 0], "qy": q[:, 1], "qz": q[:, 2], "qw": q[:, 3], "line": line})  # fmt: skip
     df.attrs = {"path": str(path), "format": fmt, "time_unit": time_unit, "n_rows_file": n_rows,
