@@ -6,8 +6,9 @@ error on renders against their truth, and the intrinsics the 30 yac frames give.
   pupil-apriltags) the tags kept per frame (min / median / total of 1080) and the wall time of
   ``detect_aprilgrid`` per frame (best of ``--repeat``);
 - renders (the yac grid through a radtan camera, 0.9-1.6 m, tilts to 45 deg, three junction
-  topologies: corner squares short of the tags, touching them, overlapping them): tags found of
-  those fully in view, and the refined corners' error against the truth (median, p95, max px);
+  topologies: corner squares short of the tags, touching them, overlapping them): tags found (a
+  tag cut by the border counts when its corners in view pass the checks) against those wholly in
+  view, and the refined corners' error against the truth (median, p95, max px);
   a wrong id or corner order would show as an error of a tag side (20 px or more);
 - ``calibrate_camera`` on the 30 yac frames: fx fy cx cy (px), RMS (px), corners used.
 
@@ -74,7 +75,7 @@ def bench_renders(n: int) -> None:
             found += len(np.unique(ids // 4))
             errors.append(np.linalg.norm(uv - truth[ids], axis=1))
         e = np.concatenate(errors)
-        print(f"renders, ink spread {spread:+.1f} bit: {found} tags of {visible} in view; corner error "
+        print(f"renders, ink spread {spread:+.1f} bit: {found} tags found ({visible} wholly in view); corner error "
               f"median {np.median(e):.3f} p95 {np.percentile(e, 95):.3f} max {e.max():.3f} px ({len(e)} corners)")
 
 

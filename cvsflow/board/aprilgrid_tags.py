@@ -11,7 +11,7 @@ Two backends, run as *passes* whose detections are merged (:func:`detect_tags`):
   AprilTag 3's segmentation merges into one blob.
 
 ``pupil-apriltags`` has wheels for Linux x86_64, macOS and Windows x86_64 but none for Linux
-aarch64. Where it cannot be imported, :func:`default_passes` falls back to ArUco alone (615 of
+aarch64. Where it cannot be imported, :func:`default_passes` falls back to ArUco alone (612 of
 the 1080 yac tags) with a warning logged once, and :func:`passes_name` says so in every
 summary that records the detector.
 """
@@ -94,7 +94,7 @@ class ArucoPass:
 #: squares touch them; ArUco reads the tags whose corner squares overlap them. Together 1013 of
 #: the 1080 yac tags (24-36 a frame; Kalibr's own detector 990).
 APRILTAG_PASSES = (AprilTagPass(), AprilTagPass(open_px=1), ArucoPass())
-#: The fallback without pupil-apriltags (615 of the 1080 yac tags).
+#: The fallback without pupil-apriltags (612 of the 1080 yac tags).
 ARUCO_PASSES = (ArucoPass(),)
 
 
@@ -112,7 +112,7 @@ def apriltag_available() -> bool:
 def _warn_fallback() -> None:
     log.warning("AprilGrid: pupil-apriltags is not installed (no wheel for this platform); "
                 "detecting tags with OpenCV's ArUco alone, which finds fewer small tags "
-                "(615 against 1013 of the 1080 tags of the yac test frames)")
+                "(612 against 1013 of the 1080 tags of the yac test frames)")
 
 
 def default_passes() -> tuple:
