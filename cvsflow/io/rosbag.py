@@ -11,7 +11,9 @@ The readers built on this module:
 - :mod:`cvsflow.io.rosbag_images`: an image topic as a frame source with the interface of
   :func:`cvsflow.io.frames.iter_frames_gray` (header stamps as exact int64 ns);
 - :mod:`cvsflow.io.rosbag_poses`: a pose topic, or ``/tf`` between two named frames, as the
-  pose-stream table of :mod:`cvsflow.io.mocap.streams`.
+  pose-stream table of :mod:`cvsflow.io.mocap.streams`;
+- :mod:`cvsflow.io.rosbag_session`: a session's ``bag`` block (the config keys, the readers the
+  workflow's rules call).
 
 Times: a header stamp is ``sec * 1_000_000_000 + nanosec`` in integers (exact); ``time="receive"``
 takes the bag's receive (log) time instead, for publishers that leave the stamp at zero (which is

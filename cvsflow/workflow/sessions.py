@@ -86,9 +86,9 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     Raises
     ------
     ConfigError
-        The session names a video without a camera, a Vicon export without markers, or
-        nothing to process; a ChArUco board without a usable marker_m or dictionary; an
-        AprilGrid with a missing or invalid key.
+        The session names a video without a camera, a Vicon export without markers, a bag
+        (not read by the stages yet), or nothing to process; a ChArUco board without a
+        usable marker_m or dictionary; an AprilGrid with a missing or invalid key.
     """
     s = sessions[name]
     where = f"config: sessions.{name}"
@@ -100,6 +100,13 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
                 aprilgrid_from_board(s["board"])
         except ConfigError as exc:
             raise ConfigError(f"{where}.{exc}") from exc
+    if "bag" in s:
+        # The bag block's keys and readers exist (cvsflow.io.rosbag_session); the stages do not
+        # read them yet, and a session must not name an input that nothing uses.
+        raise ConfigError(
+            f"{where}.bag: the workflow's stages do not read a bag yet (`cvsflow init BAG` lists its "
+            f"topics); expected video and vicon for a workflow run"
+        )
     synth = "synth" in s
     cam = camera_session(name, sessions)
     has_video = synth or "video" in s
