@@ -157,18 +157,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     i = sub.add_parser(
         "init",
-        help="write a session config from a recording folder, for you to check",
+        help="write a session config from a recording folder or a ROS bag, for you to check",
         description="Finds the stills folder, the video and the Nexus CSV / C3D export; lists "
         "the subjects and marker names in the export; tries common inner-corner sizes on the "
         "first stills; leaves TODO where it cannot know (square_m always) and layout_m out "
         "(learned from the take). Never overwrites. Run it with `cvsflow run FILE`. Two or more "
         "camera folders (DIR/<camera>/ with its stills "
         "and one video; shared views in DIR/<camera>/shared/ or DIR/shared/<camera>/, the same "
-        "file names in every camera) give a rig session (a cameras: list).",
+        "file names in every camera) give a rig session (a cameras: list). A ROS bag (ROS 1 .bag, "
+        "ROS 2 folder, .db3 or .mcap) instead: lists its topics (type, count, rate) and writes a "
+        "session whose bag block names the likely image topic and the camera and board bodies' "
+        "pose topics or TF frames, TODO where the bag cannot tell.",
     )
-    i.add_argument("dir", help="recording folder")
-    i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml)")
-    i.add_argument("--name", help="session name (default: the folder's name)")
+    i.add_argument("dir", help="recording folder, or a ROS bag")
+    i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml; for a bag "
+                   "BAG_session.yaml beside it)")  # fmt: skip
+    i.add_argument("--name", help="session name (default: the folder's or the bag's name)")
     lay = i.add_mutually_exclusive_group()
     lay.add_argument("--rig", dest="layout", action="store_const", const="rig",
                      help="a rig session, or an error saying what the camera folders lack")

@@ -11,6 +11,7 @@ import logging
 import re
 from pathlib import Path
 
+from cvsflow.cli.init_bag import build_bag_config, is_bag
 from cvsflow.exceptions import CvsflowError, InputError
 
 log = logging.getLogger(__name__)
@@ -517,8 +518,10 @@ def cmd_init(args) -> int:
     Parameters
     ----------
     args : argparse.Namespace
-        ``dir`` (recording folder), ``out`` (file to write, default
-        ``DIR/cvsflow_session.yaml``), ``name`` (session name, default the folder's name;
+        ``dir`` (recording folder, or a ROS bag: :func:`cvsflow.cli.init_bag.build_bag_config`,
+        whose topic listing is printed and written as comments), ``out`` (file to write, default
+        ``DIR/cvsflow_session.yaml``; for a bag ``<bag>_session.yaml`` beside it), ``name``
+        (session name, default the folder's or the bag's name;
         characters other than letters, digits, _ and - become _), ``layout`` (auto, rig or
         mono: :func:`build_session_config`). A folder of two or more camera folders gives a
         rig session (:func:`build_rig_config`) unless ``layout`` is mono.
@@ -538,18 +541,23 @@ def cmd_init(args) -> int:
     from cvsflow.io.files import atomic_output
 
     folder = Path(args.dir)
-    out = Path(args.out) if args.out else folder / "cvsflow_session.yaml"
+    bag = is_bag(folder)
+    default_out = folder.parent / f"{folder.stem}_session.yaml" if bag else folder / "cvsflow_session.yaml"
+    out = Path(args.out) if args.out else default_out
     if out.exists():
         raise InputError(f"{out}: exists; cvsflow init never overwrites a file (give --out)")
-    session, notes = build_session_config(folder, getattr(args, "layout", "auto"))
+    listing = ""
+    if bag:
+        session, notes, listing = build_bag_config(folder)
+        print(listing)
+    else:
+        session, notes = build_session_config(folder, getattr(args, "layout", "auto"))
     # A session name is a wildcard value: letters, digits, _ and - only (cvsflow/workflow/rules/common.smk).
-    name = re.sub(r"[^A-Za-z0-9_-]", "_", args.name or folder.resolve().name)
+    name = re.sub(r"[^A-Za-z0-9_-]", "_", args.name or (folder.stem if bag else folder.resolve().name))
     text = "# Session config written by `cvsflow init`: check every line, fill every TODO.\n"
-    text += "# Use: cvsflow run --configfile " + str(out) + "\n"
-    # A rig's own result is its joint fit; its cameras run as sessions <name>-<camera>.
-    target = f"results/{name}/rig/heldout.yaml" if "cameras" in session else f"results/{name}/comparison.yaml"
-    text += ("# It MERGES with config/config.yaml: the demo session and flight run too unless you\n"
-             "# name your targets (" + target + "); see the README.\n")
+    text += "".join(f"# {line}\n" for line in listing.splitlines())
+    # cvsflow run CONFIG runs that file's sessions alone; its paths are as init wrote them.
+    text += f"# Use: cvsflow run {out} (from the folder cvsflow init ran in: paths are relative to it)\n"
     text += "".join(f"# {n}\n" for n in notes)
     text += yaml.safe_dump({"sessions": {name: session}}, sort_keys=False, default_flow_style=None)
     with atomic_output(out) as tmp:

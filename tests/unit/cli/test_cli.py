@@ -197,7 +197,7 @@ def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
     assert cfg["markers"]["board"]["names"] == ["board:B1"]
     assert "layout_m" not in cfg["markers"]["camera"]  # learned from the take unless measured
     text = out.read_text()
-    assert "MERGES with config/config.yaml" in text and "a rigid body needs at least 3" in text
+    assert f"# Use: cvsflow run {out} " in text and "a rigid body needs at least 3" in text
     before = out.read_text()
     assert cli.main(["init", str(rec), "--out", str(out)]) == 1
     assert out.read_text() == before
