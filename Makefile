@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: install demo report test test-all slurm-up test-slurm clean
+.PHONY: install demo report test test-all docs slurm-up test-slurm clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -27,6 +27,10 @@ test: install
 test-all: install
 	$(BIN)/python -m pytest -n $(CORES) --dist loadfile
 
+docs: install
+	$(BIN)/python -m pip install --quiet -e ".[docs]"
+	NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 slurm-up:
 	cluster/slurm-localhost.sh start
 
@@ -35,4 +39,4 @@ test-slurm: install slurm-up
 	CVSFLOW_SLURM=1 $(BIN)/python -m pytest tests/workflow/test_slurm.py
 
 clean:
-	rm -rf results logs benchmarks .snakemake report.html
+	rm -rf results logs benchmarks .snakemake report.html site

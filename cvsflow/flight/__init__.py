@@ -1,7 +1,7 @@
 """Flight sessions: a quadcopter's on-board pose error measured against the camera reference.
 
-Frames (in addition to design.md's W, C, Cm, B, Bm)
----------------------------------------------------
+Frames (in addition to W, C, Cm, B, Bm of docs/methods.md)
+----------------------------------------------------------
 - ``L``: the on-board estimator's local world frame (PX4: NED; any right-handed frame).
 - ``Q``: the quadcopter body frame of the estimate (PX4: FRD).
 - ``C``: the camera optical frame, the reference's world; ``B``: the board, fixed on Q by the

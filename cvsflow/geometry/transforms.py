@@ -1,7 +1,7 @@
 """SO(3)/SE(3): the only place where rotation representations are converted.
 
-Conventions (design.md)
------------------------
+Conventions (docs/developer/conventions.md)
+-------------------------------------------
 - ``T_A_B`` is a 4x4 homogeneous transform with p_A = T_A_B @ p_B. Stacks have shape (N, 4, 4).
   Composition is the matrix product when the inner letters match: ``T_A_C = T_A_B @ T_B_C``.
 - Rotation vectors (OpenCV's Rodrigues vectors, axis times angle in radians) are the

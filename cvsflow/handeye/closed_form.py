@@ -1,6 +1,6 @@
 """The hand-eye problem ``A_i G = H B_i``: frames, the carrier chain and the closed-form solvers.
 
-Frames (design.md): ``W`` the pose source's world (robot base, motion-capture world), ``C`` the
+Frames (docs/methods.md): ``W`` the pose source's world (robot base, motion-capture world), ``C`` the
 camera optical frame, ``B`` the board (origin at inner corner 0, z into the board). The carrier
 X is what the pose source tracks: the robot end-effector or a marker body.
 

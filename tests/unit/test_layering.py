@@ -1,4 +1,4 @@
-"""Package layering (style.md section 4), read from the source with ``ast``.
+"""Package layering (docs/developer/conventions.md, "Package boundaries"), read from the source with ``ast``.
 
 Every module's imports are read, those inside functions too, so that an import hidden in a
 function cannot break a layer unseen. Three rules:
