@@ -25,7 +25,8 @@ import yaml
 REPO = Path(__file__).resolve().parents[2]
 SCHEMA = REPO / "cvsflow" / "workflow" / "schemas" / "config.schema.yaml"
 
-#: The shared definitions documented once, in this order, with the heading each gets.
+#: The shared definitions documented first, in this order, with the heading each gets (any other
+#: definition with properties follows under its own name).
 DEFS = (("board", "Board"), ("body", "Marker body"), ("rig_camera", "Rig camera"),
         ("synth", "Rendered session (synth)"))
 
@@ -48,8 +49,9 @@ def _type(node: dict) -> str:
         return "as " + node["$ref"].removeprefix("#/$defs/").replace("/properties/", ".")
     if "enum" in node:
         return "one of " + ", ".join(f"`{v}`" for v in node["enum"])
-    if "anyOf" in node and "type" not in node:
-        return " or ".join(_type(n) for n in node["anyOf"])
+    for key in ("anyOf", "oneOf"):
+        if key in node and "type" not in node:
+            return " or ".join(_type(n) for n in node[key])
     t = node.get("type", "")
     types = t if isinstance(t, list) else [t]
     out = []
@@ -133,8 +135,12 @@ def config_reference(schema_path: Path = SCHEMA) -> str:
         out += _table(rows) + [""]
     defs = schema.get("$defs", {})
     out += ["## Shared definitions", ""]
-    for name, title in DEFS:
+    titles = dict(DEFS)
+    for name in [n for n, _ in DEFS if n in defs] + sorted(set(defs) - set(titles)):
         node = defs[name]
+        if "properties" not in node:
+            continue  # pose6: spelled out where it is used
+        title = titles.get(name, name.replace("_", " ").capitalize())
         out += [f"### {title} {{#{name.replace('_', '-')}}}", ""]
         if node.get("description"):
             out += [_md(node["description"]), ""]
