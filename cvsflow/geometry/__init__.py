@@ -12,7 +12,7 @@ Pure numpy/scipy: nothing here imports I/O, plotting or another cvsflow stage.
 """
 
 from cvsflow.geometry.camera import INTRINSIC_NAMES, project_points, project_points_jac
-from cvsflow.geometry.interpolate import bracket, interpolate_quats, interpolate_T, slerp
+from cvsflow.geometry.interpolate import PoseCurve, bracket, interpolate_quats, interpolate_T, slerp
 from cvsflow.geometry.rigid import fit_rigid, fit_rigid_pair
 from cvsflow.geometry.transforms import (
     EULER_SEQ,
@@ -32,6 +32,7 @@ from cvsflow.geometry.transforms import (
     pose_error_left,
     project_SO3,
     quat_from_R,
+    right_jacobian_inv_SO3,
     right_jacobian_SO3,
     rotation_angle,
     rvec_from_R,
@@ -44,8 +45,9 @@ from cvsflow.geometry.transforms import (
 __all__ = [
     "block_mean_quats", "bracket", "euler_from_R", "euler_jacobian", "EULER_SEQ", "fit_rigid",
     "fit_rigid_pair", "interpolate_quats", "interpolate_T", "INTRINSIC_NAMES", "invert_T", "make_T",
-    "mean_rotation", "pose6_from_T", "pose_difference", "pose_error_left", "project_points",
-    "project_points_jac", "project_SO3", "quat_from_R", "R_from_euler", "R_from_quat", "R_from_rvec",
-    "right_jacobian_SO3", "rotation_angle", "rvec_from_R", "rvec_tvec_from_T", "skew", "slerp",
-    "T_from_pose6", "T_from_rvec_tvec", "transform_points", "wrap_angle"
+    "mean_rotation", "pose6_from_T", "PoseCurve", "pose_difference", "pose_error_left",
+    "project_points", "project_points_jac", "project_SO3", "quat_from_R", "R_from_euler",
+    "R_from_quat", "R_from_rvec", "right_jacobian_inv_SO3", "right_jacobian_SO3", "rotation_angle",
+    "rvec_from_R", "rvec_tvec_from_T", "skew", "slerp", "T_from_pose6", "T_from_rvec_tvec",
+    "transform_points", "wrap_angle"
 ]

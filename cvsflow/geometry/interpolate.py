@@ -120,3 +120,83 @@ def interpolate_quats(t_s, q_xyzw, valid, tq_s):
     i0, i1, f, ok = bracket(t_s, valid, tq_s)
     R0 = Rotation.from_quat(q_xyzw[i0])
     return slerp(R0, Rotation.from_quat(q_xyzw[i1]), f).as_quat(), ok
+
+
+class PoseCurve:
+    """A pose stream as a curve in time: linear position, SLERP rotation, and their rates.
+
+    Between samples k and k+1 the rotation is ``R_k exp(f w_k)`` with ``w_k = log(R_k^T
+    R_k+1)`` and ``f = (t - t_k) / (t_k+1 - t_k)``, the position ``p_k + f (p_k+1 - p_k)``: the
+    curve of :func:`interpolate_T` (SLERP on the shorter arc, so a quaternion sign flip
+    between rows does no harm). Its body angular rate ``w_k / (t_k+1 - t_k)`` and velocity
+    ``(p_k+1 - p_k) / (t_k+1 - t_k)`` are the time derivatives a time offset's Jacobian needs.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (M,)
+        Sample times, strictly increasing, s (any epoch).
+    T : ndarray, shape (M, 4, 4)
+        Poses ``T_A_X`` at the samples, m.
+    valid : ndarray of bool, shape (M,), optional
+        Usable samples (default: the finite ones).
+    max_gap_s : float, optional
+        Longest interval interpolated over; a longer one is a gap. Default 3 times the median
+        sample interval.
+
+    Raises
+    ------
+    MocapError
+        Fewer than two samples, poses of another shape, or times not strictly increasing.
+    """
+
+    def __init__(self, t_s, T, valid=None, max_gap_s=None):
+        self.t = np.asarray(t_s, float)
+        T = np.asarray(T, float)
+        if len(self.t) < 2 or T.shape != (len(self.t), 4, 4):
+            raise MocapError(f"pose curve: {len(self.t)} samples and poses of shape {T.shape}; expected "
+                             "at least 2 samples and (M, 4, 4) poses")  # fmt: skip
+        if np.any(np.diff(self.t) <= 0):
+            raise MocapError("pose curve: sample times not strictly increasing")
+        finite = np.isfinite(T).all(axis=(1, 2))
+        self.valid = finite if valid is None else (np.asarray(valid, bool) & finite)
+        self.R = np.where(self.valid[:, None, None], T[:, :3, :3], np.eye(3))
+        self.p = np.where(self.valid[:, None], T[:, :3, 3], 0.0)
+        self.h = np.diff(self.t)
+        self.max_gap_s = 3.0 * float(np.median(self.h)) if max_gap_s is None else float(max_gap_s)
+        self.w = Rotation.from_matrix(np.swapaxes(self.R[:-1], 1, 2) @ self.R[1:]).as_rotvec()
+        self.interval_ok = self.valid[:-1] & self.valid[1:] & (self.h <= self.max_gap_s)
+
+    def at(self, tq_s):
+        """The pose and its rates at query times.
+
+        Parameters
+        ----------
+        tq_s : ndarray, shape (K,)
+            Query times, s (the samples' clock).
+
+        Returns
+        -------
+        R : ndarray, shape (K, 3, 3)
+            R_A_X (identity where not ok).
+        p : ndarray, shape (K, 3)
+            p_A_X, m (0 where not ok).
+        omega : ndarray, shape (K, 3)
+            Body angular velocity (in X), rad/s.
+        v : ndarray, shape (K, 3)
+            Velocity in A, m/s.
+        status : ndarray of int, shape (K,)
+            0 ok; 1 outside the samples' span; 2 in a gap (an interval longer than
+            ``max_gap_s`` or next to an invalid sample).
+        """
+        tq = np.asarray(tq_s, float)
+        i0, _, _, inside = bracket(self.t, np.ones(len(self.t), bool), tq)
+        ok = inside & self.interval_ok[i0]
+        status = np.where(ok, 0, np.where(inside, 2, 1))
+        f = np.where(ok, (tq - self.t[i0]) / self.h[i0], 0.0)
+        R = self.R[i0] @ Rotation.from_rotvec(f[:, None] * self.w[i0]).as_matrix().reshape(-1, 3, 3)
+        p = self.p[i0] + f[:, None] * (self.p[i0 + 1] - self.p[i0])
+        omega = self.w[i0] / self.h[i0, None]
+        v = (self.p[i0 + 1] - self.p[i0]) / self.h[i0, None]
+        R[~ok] = np.eye(3)
+        p[~ok], omega[~ok], v[~ok] = 0.0, 0.0, 0.0
+        return R, p, omega, v, status

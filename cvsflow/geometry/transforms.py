@@ -152,6 +152,29 @@ def right_jacobian_SO3(w):
     return np.eye(3) - (1 - np.cos(th)) / th**2 * W + (th - np.sin(th)) / th**3 * (W @ W)
 
 
+def right_jacobian_inv_SO3(w):
+    """Inverse right Jacobian of SO(3) at rotation vectors: ``log(exp(w) exp(d)) = w + Jr^-1(w) d``.
+
+    Parameters
+    ----------
+    w : array_like, shape (..., 3)
+        Rotation vectors, rad (|w| < pi).
+
+    Returns
+    -------
+    Jr_inv : ndarray, shape (..., 3, 3)
+        ``I + [w]x / 2 + (1 / th^2 - (1 + cos th) / (2 th sin th)) [w]x^2``, th = |w|
+        (Chirikjian 2011, eq. 10.86); the series value 1/12 of the last factor below th = 1e-6.
+    """
+    w = np.asarray(w, float)
+    th = np.linalg.norm(w, axis=-1)
+    W = skew(w)
+    small = th < 1e-6
+    ths = np.where(small, 1.0, th)
+    c = np.where(small, 1.0 / 12.0, 1.0 / ths**2 - (1 + np.cos(ths)) / (2 * ths * np.sin(ths)))
+    return np.eye(3) + 0.5 * W + c[..., None, None] * (W @ W)
+
+
 def project_SO3(M):
     """Nearest rotation matrix (Frobenius norm) to a 3x3 matrix.
 

@@ -55,8 +55,10 @@ class _Model:
     then with ``pose_noise`` one [rho_i (3, rad), tau_i (3, m)] per still], with
     R_H = R0_H expm([w_H]x), R_G = R0_G expm([w_G]x) and the carrier pose of still i taken as
     R_W_X,i = expm([rho_i]x) R_W_X,i (a turn about the carrier's origin), t_W_X,i + tau_i.
-    Residuals: corner errors / sigma_px, then rho / sigma_rot_rad and tau / sigma_pos_m (the
-    carrier poses' errors as unknowns with zero-mean priors: errors in variables).
+    Residuals: corner errors / sigma_px of the corners each still shows (NaN in ``uv``: not
+    seen, an AprilGrid's or ChArUco's partial view), then rho / sigma_rot_rad and tau /
+    sigma_pos_m (the carrier poses' errors as unknowns with zero-mean priors: errors in
+    variables).
     """
 
     def __init__(self, T_W_X, mode, uv, p_B, T0_H, T0_G, intr0, free, pose_noise=False,
@@ -70,12 +72,14 @@ class _Model:
         self.k = 12 + int(self.free.sum())
         self.pose_noise = bool(pose_noise)
         self.sigma_px, self.sigma_pos_m, self.sigma_rot_rad = sigmas
-        n, P = len(uv), uv.shape[1]
+        n = len(uv)
+        self.seen = np.isfinite(uv).all(axis=2)  # (n, P)
+        m = 2 * int(self.seen.sum())
         # row groups of the residual vector: corners, rho priors, tau priors
-        self.groups = {"corners": slice(0, 2 * n * P)}
+        self.groups = {"corners": slice(0, m)}
         if self.pose_noise:
-            self.groups["rot"] = slice(2 * n * P, 2 * n * P + 3 * n)
-            self.groups["pos"] = slice(2 * n * P + 3 * n, 2 * n * P + 6 * n)
+            self.groups["rot"] = slice(m, m + 3 * n)
+            self.groups["pos"] = slice(m + 3 * n, m + 6 * n)
 
     def x0(self):
         delta = np.zeros(6 * len(self.uv)) if self.pose_noise else np.zeros(0)
@@ -110,7 +114,7 @@ class _Model:
         return self._project(carrier_chain(self.carrier(x), self.mode), T_H, T_G, intr)
 
     def residuals(self, x):
-        r = [(self.project(x) - self.uv).ravel() / self.sigma_px]
+        r = [(self.project(x) - self.uv)[self.seen].ravel() / self.sigma_px]
         if self.pose_noise:
             d = x[self.k:].reshape(-1, 6)
             r += [d[:, :3].ravel() / self.sigma_rot_rad, d[:, 3:].ravel() / self.sigma_pos_m]
@@ -153,7 +157,7 @@ class _Model:
             for j in range(3):
                 J[np.arange(n), :, :, cols + j] = (J_pA @ dA_drho[..., j : j + 1])[..., 0]
                 J[np.arange(n), :, :, cols + 3 + j] = (J_pA @ dA_dtau[..., j : j + 1])[..., 0]
-        J = J.reshape(-1, len(x)) / self.sigma_px
+        J = J[self.seen].reshape(-1, len(x)) / self.sigma_px
         if self.pose_noise:
             prior = np.zeros((6 * n, len(x)))
             k3 = np.arange(3 * n)
@@ -168,13 +172,13 @@ class _Model:
         T_H, T_G, intr = self.unpack(x)
         A = carrier_chain(self.carrier(x), self.mode)
         J_i = self._project(A, T_H, T_G, intr, want_jac=True)[3][..., ~self.free]
-        J = J_i.reshape(-1, int((~self.free).sum())) / self.sigma_px
+        J = J_i[self.seen].reshape(-1, int((~self.free).sum())) / self.sigma_px
         n_prior = 6 * len(self.uv) if self.pose_noise else 0
         return np.vstack([J, np.zeros((n_prior, J.shape[1]))])
 
     def still_rms(self, x):
-        e = self.project(x) - self.uv
-        return np.sqrt(np.mean(np.sum(e**2, axis=-1), axis=1))
+        e2 = np.sum((self.project(x) - self.uv) ** 2, axis=-1)  # NaN where not seen
+        return np.sqrt(np.nanmean(e2, axis=1))
 
 
 def _intrinsics_vector(camera):
@@ -201,7 +205,7 @@ def refine_hand_eye(uv_px, p_B, T_W_X, camera, T0_H, T0_G, mode="eye_in_hand",
     Parameters
     ----------
     uv_px : ndarray, shape (N, P, 2)
-        Corners of each still in board order, px.
+        Corners of each still in board order, px; NaN rows: corners the still does not show.
     p_B : ndarray, shape (P, 3)
         The corners in B, metres.
     T_W_X : ndarray, shape (N, 4, 4)
@@ -294,8 +298,8 @@ def refine_hand_eye(uv_px, p_B, T_W_X, camera, T0_H, T0_G, mode="eye_in_hand",
         sigma_px = sig["corners"]
     else:
         r = at.residuals(x_hat) * sig["corners"]  # px
-        clusters = np.repeat(np.arange(len(uv)), uv.shape[1] * 2)
-        cov, _, _, sigma2, _ = covariances(J * sig["corners"], r, "linear", 1.0, clusters)
+        clusters = np.repeat(np.nonzero(at.seen)[0], 2)
+        cov, _, _, sigma2, _, _ = covariances(J * sig["corners"], r, "linear", 1.0, clusters)
         sigma_px = float(np.sqrt(sigma2))
     # The fixed intrinsics are not exact: their calibration std (camera["std"], e.g. from
     # `cvsflow calibrate`) enters through the solution's sensitivity to them,

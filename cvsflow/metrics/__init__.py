@@ -11,9 +11,9 @@ from cvsflow.metrics.errors import (
     pose_errors,
     poses_from_table,
 )
-from cvsflow.metrics.sandwich import leverage_corrected_scores
+from cvsflow.metrics.sandwich import cluster_dof, leverage_corrected_scores
 
 __all__ = [
-    "error_columns", "ERROR_DIMS", "error_moments", "frame_errors", "FRAMES",
+    "cluster_dof", "error_columns", "ERROR_DIMS", "error_moments", "frame_errors", "FRAMES",
     "leverage_corrected_scores", "pose_errors", "poses_from_table"
 ]

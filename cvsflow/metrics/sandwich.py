@@ -10,8 +10,9 @@ and bootstrap methods for cluster-robust inference") undoes each cluster's lever
 CR2 (Bell and McCaffrey 2002; Pustejovsky and Tipton 2018) takes the square root of that
 correction and is unbiased for independent errors.
 
-Used by the se3 fit (CR2, :mod:`cvsflow.optimise.se3_cov`) and the flight clock (CR3,
-:mod:`cvsflow.flight.clock`).
+Used by the se3 fit (CR2, :mod:`cvsflow.optimise.se3_cov`), the flight clock (CR3,
+:mod:`cvsflow.flight.clock`) and the hand-eye from pose streams (CR2 with neighbouring blocks and
+:func:`cluster_dof`, :mod:`cvsflow.handeye.stream_fit`).
 """
 
 from __future__ import annotations
@@ -55,3 +56,38 @@ def leverage_corrected_scores(S, H_c, H=None, power=1.0):
         lev, U = np.linalg.eigh(H_mhalf @ H_c[c] @ H_mhalf)
         out[c] = H_half @ ((U / np.maximum(1 - lev, 1e-3) ** power) @ U.T) @ H_mhalf @ out[c]
     return out, lam, V
+
+
+def cluster_dof(H_inv, H_c, adjacent=None):
+    """Effective degrees of freedom of each parameter's cluster-robust variance (Satterthwaite).
+
+    Parameter p's sandwich variance is a sum over clusters of ``u_c^2``, ``u_c = a_p^T s_c``
+    with ``a_p`` row p of ``H^-1`` (plus ``2 u_c u_c+1`` over neighbouring time blocks when
+    their cross terms are in the meat). Under the working model the ``u_c`` are independent
+    with variances proportional to ``v_c = a_p^T H_c a_p`` (the cluster's share of the
+    information in that direction), so the sum has mean ``sum v_c`` and variance
+    ``2 (sum v_c^2 + 2 sum v_c v_c+1)``, and is about ``chi2(nu) / nu`` times its mean with
+    ``nu = (sum_c v_c)^2 / (sum_c v_c^2 + 2 sum_adjacent v_c v_c+1)`` (Satterthwaite 1946; the
+    working-model approximation of Bell and McCaffrey 2002, Pustejovsky and Tipton 2018). ``nu``
+    is the number of clusters when they inform the parameter alike (about a third of it with
+    the neighbours' cross terms) and falls towards 1 when a few clusters carry its information.
+
+    Parameters
+    ----------
+    H_inv : ndarray, shape (P, P)
+        Inverse of the whole curvature H.
+    H_c : ndarray, shape (C, P, P)
+        Each cluster's part of H.
+    adjacent : ndarray of int, optional
+        Indices c whose cluster c + 1 is its neighbour (their cross terms are in the meat).
+
+    Returns
+    -------
+    nu : ndarray, shape (P,)
+        Degrees of freedom per parameter, in [1, C].
+    """
+    v = np.clip(np.einsum("pi,cij,pj->cp", H_inv, H_c, H_inv, optimize=False), 0.0, None)
+    den = (v**2).sum(axis=0)
+    if adjacent is not None and len(adjacent):
+        den = den + 2.0 * (v[adjacent] * v[np.asarray(adjacent) + 1]).sum(axis=0)
+    return np.clip(v.sum(axis=0) ** 2 / np.maximum(den, 1e-300), 1.0, len(H_c))

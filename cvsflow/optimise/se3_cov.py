@@ -10,9 +10,11 @@ calibration uncertainty into the free estimates through the sensitivity
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
-from cvsflow.metrics import leverage_corrected_scores
+from cvsflow.metrics import cluster_dof, leverage_corrected_scores
 from cvsflow.optimise.se3_lm import gram, loss_weights
 
 #: 1-sigma of each intrinsic held fixed when camera.yaml has no ``std`` (px for fx..cy, then
@@ -23,7 +25,18 @@ DEFAULT_INTRINSIC_STD = {"fx": 1.0, "fy": 1.0, "cx": 1.0, "cy": 1.0, "k1": 0.01,
                          "p1": 5e-4, "p2": 5e-4, "k3": 0.1}  # fmt: skip
 
 
-def covariances(J, r, loss, f_scale, clusters):
+class SandwichCovariance(NamedTuple):
+    """:func:`covariances`' result (see there)."""
+
+    cov_gn: np.ndarray
+    cov_cl: np.ndarray
+    JtJ_inv: np.ndarray
+    sigma2: float
+    n_clusters: int
+    dof: np.ndarray
+
+
+def covariances(J, r, loss, f_scale, clusters, adjacent=False):
     """Gauss-Newton M-estimator covariance, cluster-robust sandwich, and (J^T J)^-1.
 
     Parameters
@@ -37,20 +50,23 @@ def covariances(J, r, loss, f_scale, clusters):
         Loss scale, px.
     clusters : array_like, shape (m,)
         Cluster label of each residual (e.g. its time block).
+    adjacent : bool
+        Clusters are consecutive time blocks (integer labels): add the cross terms of
+        neighbouring blocks to the meat, ``sum_c (g_c g_c+1^T + g_c+1 g_c^T)``, projected onto
+        the positive semi-definite cone. Errors correlated across a block boundary are missed by
+        the block sum alone: with AR(1) errors of correlation time tau it lacks about 2 tau / L
+        of the variance for blocks of length L.
 
     Returns
     -------
-    cov_gn : ndarray, shape (n, n)
-        ``sigma_eff^2 (J^T J)^-1``, sigma_eff^2 = m/(m-n) mean(psi^2) / mean(psi')^2.
-    cov_cl : ndarray, shape (n, n)
-        Cluster-robust sandwich ``H^-1 (sum_c g_c g_c^T) H^-1`` with each cluster's score
-        g_c corrected for its leverage (CR2,
-        :func:`cvsflow.metrics.sandwich.leverage_corrected_scores` with power 1/2).
-    JtJ_inv : ndarray, shape (n, n)
-        Pseudo-inverse of J^T J.
-    sigma2 : float
-        sigma_eff^2, px^2.
-    n_clusters : int
+    SandwichCovariance
+        ``cov_gn`` (n, n): ``sigma_eff^2 (J^T J)^-1``, sigma_eff^2 = m/(m-n) mean(psi^2) /
+        mean(psi')^2; ``cov_cl`` (n, n): the cluster-robust sandwich ``H^-1 (sum_c g_c g_c^T)
+        H^-1`` with each cluster's score g_c corrected for its leverage (CR2,
+        :func:`cvsflow.metrics.sandwich.leverage_corrected_scores` with power 1/2);
+        ``JtJ_inv`` (n, n): pseudo-inverse of J^T J; ``sigma2``: sigma_eff^2, px^2;
+        ``n_clusters``; ``dof`` (n,): the sandwich's degrees of freedom per parameter
+        (:func:`cvsflow.metrics.sandwich.cluster_dof`).
     """
     m, n = J.shape
     psi, dpsi = loss_weights(r, loss, f_scale)
@@ -74,9 +90,15 @@ def covariances(J, r, loss, f_scale, clusters):
     order = np.argsort(inv, kind="stable")
     bounds = np.searchsorted(inv[order], np.arange(G + 1))
     H_c = np.stack([gram(J[rows], dpsi[rows]) for rows in np.split(order, bounds[1:-1])])
-    meat = gram(leverage_corrected_scores(g_c, H_c, H, power=0.5)[0])
+    g_c = leverage_corrected_scores(g_c, H_c, H, power=0.5)[0]
+    meat = gram(g_c)
+    nb = np.flatnonzero(np.diff(labels) == 1) if adjacent else None
+    if adjacent:
+        cross = g_c[nb].T @ g_c[nb + 1]
+        lam, V = np.linalg.eigh(meat + cross + cross.T)
+        meat = (V * np.clip(lam, 0.0, None)) @ V.T
     cov_cl = H_inv @ meat @ H_inv
-    return cov_gn, cov_cl, JtJ_inv, float(sigma2), G
+    return SandwichCovariance(cov_gn, cov_cl, JtJ_inv, float(sigma2), G, cluster_dof(H_inv, H_c, nb))
 
 
 def fixed_intrinsic_std(camera, names):
@@ -183,7 +205,7 @@ def parameter_covariance(J, r, loss, f_scale, clusters, J_fixed, sd_fixed):
         from (J^T J)^-1), ``cov_data``, ``cov_fixed``, ``cov_total``, ``corr_total`` (n, n);
         ``S`` (n, k); ``sigma2`` (px^2), ``n_clusters``.
     """
-    cov_gn, cov_cl, JtJ_inv, sigma2, n_clusters = covariances(J, r, loss, f_scale, clusters)
+    cov_gn, cov_cl, JtJ_inv, sigma2, n_clusters, _ = covariances(J, r, loss, f_scale, clusters)
     se_gn = np.sqrt(np.diag(cov_gn))
     se_cl = np.sqrt(np.diag(cov_cl))
     se_data = np.maximum(se_gn, se_cl)

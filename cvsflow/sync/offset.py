@@ -49,8 +49,25 @@ SHORT_TAKE_MIN_QUALITY = 0.5
 # --------------------------------------------------------------------------- sync
 
 
-def _masked_ncc(c, mc, v, mv, min_overlap):
-    """Pearson correlation of c[j] with v[j + L] over jointly valid samples, for every lag L."""
+def masked_ncc(c, mc, v, mv, min_overlap):
+    """Pearson correlation of c[j] with v[j + L] over jointly valid samples, for every lag L.
+
+    Parameters
+    ----------
+    c, v : ndarray, shape (Nc,), (Nv,)
+        Two signals on one grid step.
+    mc, mv : ndarray of bool
+        Their valid samples.
+    min_overlap : float
+        Fewest jointly valid samples for a lag to count.
+
+    Returns
+    -------
+    lags : ndarray of int
+        Lags L in samples (``scipy.signal.correlation_lags(len(v), len(c))``).
+    r : ndarray
+        The correlation at each lag; NaN where the overlap is short or a signal constant.
+    """
     a = np.where(mc, c, 0.0)
     b = np.where(mv, v, 0.0)
     fc = mc.astype(float)
@@ -81,8 +98,21 @@ def _spans_text(video_span, take_span):
             f"{k0:.3f}..{k1:.3f} s ({k1 - k0:.3f} s, Vicon clock)")
 
 
-def _main_lobe(r, k):
-    """Indices [lo, hi] of the lobe around index k where r decreases monotonically away from k."""
+def main_lobe(r, k):
+    """Indices [lo, hi] of the lobe around index k where r decreases monotonically away from k.
+
+    Parameters
+    ----------
+    r : ndarray
+        A correlation curve (NaN ends a lobe).
+    k : int
+        Index of its peak.
+
+    Returns
+    -------
+    lo, hi : int
+        First and last index of the lobe.
+    """
     lo = k
     while lo > 0 and np.isfinite(r[lo - 1]) and r[lo - 1] <= r[lo]:
         lo -= 1
@@ -208,7 +238,7 @@ def sync_angular_speed(
     m_c = np.isfinite(s_c)
     # half the shorter stream: a take shorter than the video may lie wholly inside it
     min_overlap = max(OVERLAP_FLOOR * m_c.sum(), min_overlap_frac * min(m_c.sum(), m_v.sum()))
-    lags, r = _masked_ncc(s_c, m_c, s_v, m_v, min_overlap)
+    lags, r = masked_ncc(s_c, m_c, s_v, m_v, min_overlap)
     dt_lag = (g_v[0] - g_c[0]) + lags * step
     allowed = np.abs(dt_lag) <= max_offset_s
     r = np.where(allowed, r, np.nan)
@@ -235,7 +265,7 @@ def sync_angular_speed(
             f"inside the take, at the limit of the search ({need}), so no peak can be told from "
             f"the edge; {_spans_text(video_span, take_span)}"
         )
-    lo, hi = _main_lobe(r, k)
+    lo, hi = main_lobe(r, k)
     outside = r.copy()
     outside[lo : hi + 1] = np.nan
     r_2 = float(np.nanmax(outside)) if np.isfinite(outside).any() else 0.0

@@ -182,3 +182,34 @@ def test_euler_jacobian_against_finite_differences(side):
     np.testing.assert_allclose(geo.euler_jacobian(R[0], side=side), J[0])
     with pytest.raises(ValueError, match="side"):
         geo.euler_jacobian(R, side="middle")
+
+
+def test_pose_curve_is_interpolate_T_and_ignores_sign_flips():
+    """PoseCurve's poses are interpolate_T's (SLERP through rotation matrices: no quaternion
+    signs), its rates the segment's, and outside / gap queries are told apart."""
+    from cvsflow.geometry import PoseCurve, R_from_rvec, interpolate_T, make_T
+
+    rng = np.random.default_rng(0)
+    t = np.cumsum(rng.uniform(0.008, 0.012, 50))
+    T = make_T(R_from_rvec(np.cumsum(rng.normal(0, 0.05, (50, 3)), axis=0)), rng.normal(0, 1, (50, 3)))
+    tq = np.sort(rng.uniform(t[0] - 0.05, t[-1] + 0.05, 200))
+    R, p, _, _, status = PoseCurve(t, T, max_gap_s=1.0).at(tq)
+    T_ref, ok, _ = interpolate_T(t, T, np.ones(50, bool), tq)
+    assert np.array_equal(status == 0, ok) and set(np.unique(status[~ok])) == {1}
+    np.testing.assert_allclose(R[ok], T_ref[ok, :3, :3], atol=1e-12)
+    np.testing.assert_allclose(p[ok], T_ref[ok, :3, 3], atol=1e-12)
+    t2 = np.array([0.0, 0.01, 0.02, 0.5, 0.51])
+    T2 = make_T(R_from_rvec(np.outer(t2, [0, 0, 1.0])), np.outer(t2, [2.0, 0, 0]))
+    _, _, omega, v, status = PoseCurve(t2, T2).at(np.array([0.005, 0.2, 0.505, 0.6]))
+    assert status.tolist() == [0, 2, 0, 1]
+    np.testing.assert_allclose(omega[0], [0, 0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(v[0], [2.0, 0, 0], atol=1e-12)
+
+
+def test_right_jacobian_inverse_inverts_the_right_jacobian():
+    """Jr^-1(w) Jr(w) = I for rotations up to 3 rad and below the series threshold."""
+    from cvsflow.geometry import right_jacobian_inv_SO3, right_jacobian_SO3
+
+    rng = np.random.default_rng(2)
+    for w in [*rng.normal(0, 1.0, (5, 3)), np.array([1e-8, 0, 0]), np.array([0, 3.0, 0])]:
+        np.testing.assert_allclose(right_jacobian_inv_SO3(w) @ right_jacobian_SO3(w), np.eye(3), atol=1e-8)

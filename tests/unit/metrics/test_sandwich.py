@@ -1,6 +1,7 @@
 """The CR3 leverage correction (cvsflow.metrics.sandwich) against the exact delete-one-cluster refits."""
 
 import numpy as np
+import pytest
 
 from cvsflow.metrics.sandwich import leverage_corrected_scores
 
@@ -63,3 +64,17 @@ def test_cr3_sandwich_variance_holds_with_eight_clusters_where_cr1_is_short():
     ratio3 = np.mean(var3, axis=0) / np.mean(err2, axis=0)
     assert np.all((ratio3 > 0.9) & (ratio3 < 1.25)), ratio3
     assert np.all(ratio1 < 0.85), ratio1
+
+
+def test_cluster_dof_counts_equal_clusters_and_their_neighbours():
+    """Clusters that inform a parameter alike give nu = their number, a third of it with the
+    neighbours' cross terms, and about 1 when one cluster carries the information."""
+    from cvsflow.metrics.sandwich import cluster_dof
+
+    H_c = np.stack([np.eye(2)] * 30)
+    H_inv = np.linalg.inv(H_c.sum(axis=0))
+    np.testing.assert_allclose(cluster_dof(H_inv, H_c), 30.0)
+    np.testing.assert_allclose(cluster_dof(H_inv, H_c, np.arange(29)), 900 / (30 + 2 * 29))
+    H_c[0] = np.diag([1e6, 1.0])
+    nu = cluster_dof(np.linalg.inv(H_c.sum(axis=0)), H_c)
+    assert nu[0] < 1.01 and nu[1] == pytest.approx(30.0)
