@@ -45,7 +45,7 @@ def _parse_inner(text: str) -> tuple[int, int]:
     return _parse_grid(text, "--inner", "NXxNY, e.g. 9x6", 2, "inner corners")
 
 
-def add_board_args(parser, charuco: bool = False) -> None:
+def add_board_args(parser, charuco: bool = False, required: bool = True) -> None:
     """The board options of a command: ``--inner NXxNY`` with ``--square-m`` (a chessboard),
     ``--charuco SXxSY`` (when ``charuco``), or ``--target FILE`` (a Kalibr target file), one
     of them required.
@@ -56,12 +56,14 @@ def add_board_args(parser, charuco: bool = False) -> None:
         The subcommand's parser.
     charuco : bool
         Offer ``--charuco`` too.
+    required : bool
+        One of them is required (False: the command checks, e.g. when another input needs none).
 
     Returns
     -------
     None
     """
-    kind = parser.add_mutually_exclusive_group(required=True)
+    kind = parser.add_mutually_exclusive_group(required=required)
     kind.add_argument("--inner", type=_parse_inner, help="chessboard inner corners NXxNY, e.g. 9x6")
     if charuco:
         kind.add_argument("--charuco", type=_parse_squares, metavar="SXxSY",

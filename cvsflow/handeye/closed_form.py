@@ -53,6 +53,30 @@ MIN_STILLS = 3
 MIN_AXIS_SPREAD_DEG = 5.0
 
 
+#: Keys of a transform's standard errors in a result file: deg about the child axes, mm in the parent.
+POSE_STD_KEYS = ("rx_deg", "ry_deg", "rz_deg", "x_mm", "y_mm", "z_mm")
+
+
+def pose_std_record(std6) -> dict:
+    """A transform's standard errors for a result file: deg about the child axes, mm in the parent.
+
+    Parameters
+    ----------
+    std6 : array_like, shape (6,)
+        Rotation (rad, about the child frame's axes) then translation (m) standard errors.
+
+    Returns
+    -------
+    dict
+        :data:`POSE_STD_KEYS` plus ``rotation_deg`` and ``translation_mm`` (the norms).
+    """
+    s = np.asarray(std6, float)
+    out = {k: float(v) for k, v in zip(POSE_STD_KEYS, np.r_[np.degrees(s[:3]), 1e3 * s[3:]], strict=True)}
+    out["rotation_deg"] = float(np.degrees(np.linalg.norm(s[:3])))
+    out["translation_mm"] = float(1e3 * np.linalg.norm(s[3:]))
+    return out
+
+
 def _check_mode(mode):
     if mode not in MODES:
         raise InputError(f"hand-eye mode {mode!r}; expected one of {list(MODES)}")

@@ -148,19 +148,19 @@ def motion_scale(T_W_X, T_C_B, R_X, mode="eye_in_hand") -> float:
     return float(sol[3])
 
 
-def check_motion_scale(s, square_m=None, max_ratio=MAX_SCALE_RATIO, what="board") -> None:
+def check_motion_scale(s, size_m=None, size_name="square size", max_ratio=MAX_SCALE_RATIO) -> None:
     """An error when the camera's and the carrier's translations disagree in scale.
 
     Parameters
     ----------
     s : float
         :func:`motion_scale`.
-    square_m : float, optional
-        The board's square size given (m), for the message.
+    size_m : float, optional
+        The target's size given (a chessboard's square, an AprilGrid's tag), m, for the message.
+    size_name : str
+        What ``size_m`` is, for the message.
     max_ratio : float
         Largest accepted ``max(s, 1/s)``.
-    what : str
-        The target's name in the message.
 
     Returns
     -------
@@ -170,15 +170,15 @@ def check_motion_scale(s, square_m=None, max_ratio=MAX_SCALE_RATIO, what="board"
     ------
     ScaleMismatchError
         ``s`` outside ``[1 / max_ratio, max_ratio]`` (or not positive); the message gives the
-        factor and the square size that would agree.
+        factor and the size that would agree.
     """
     if s > 0 and 1.0 / max_ratio <= s <= max_ratio:
         return
-    hint = (f"; is the {what}'s square size right (given {square_m:g} m; {square_m * s:.4g} m would "
-            "agree)" if square_m and s > 0 else "")  # fmt: skip
+    hint = (f"; is the board's {size_name} right (given {size_m:g} m; {size_m * s:.4g} m would "
+            "agree)" if size_m and s > 0 else "")  # fmt: skip
     factor = f"{1 / s:.3g} times" if s > 0 else "not in proportion to"
     raise ScaleMismatchError(
-        f"hand-eye: the carrier's motion and the {what}'s motion disagree in scale: the camera's "
+        f"hand-eye: the carrier's motion and the board's motion disagree in scale: the camera's "
         f"translations by PnP are {factor} the carrier's (least-squares scale of the hand-eye "
         f"translation equation over every pair of views; expected within a factor {max_ratio:g} "
         f"of 1){hint}, or are the poses' lengths in the unit the format says (m)?"

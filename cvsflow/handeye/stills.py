@@ -42,8 +42,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from cvsflow.board import board_object_points, board_pattern, order_corners
-from cvsflow.calibration import find_board
+from cvsflow.board import board_name, board_object_points, board_record, board_type, order_corners
+from cvsflow.calibration import find_board, view_corners
 from cvsflow.exceptions import CalibrationError, InputError
 from cvsflow.geometry import transforms as tf
 from cvsflow.handeye.closed_form import (
@@ -53,6 +53,7 @@ from cvsflow.handeye.closed_form import (
     _check_mode,
     closed_form_hand_eye,
     motion_axis_spread_deg,
+    pose_std_record,
 )
 from cvsflow.handeye.consistency import (
     MAX_ANGLE_DISAGREEMENT_DEG,
@@ -72,19 +73,6 @@ from cvsflow.optimise import solve_pnp_frames
 log = logging.getLogger(__name__)
 
 
-POSE_STD_KEYS = ("rx_deg", "ry_deg", "rz_deg", "x_mm", "y_mm", "z_mm")
-
-
-def _pose_std(std6):
-    """Standard errors of one transform for the YAML: deg about the child axes, mm in the parent."""
-    s = np.asarray(std6, float)
-    out = {k: float(v) for k, v in zip(POSE_STD_KEYS, np.r_[np.degrees(s[:3]), 1e3 * s[3:]],
-                                       strict=True)}  # fmt: skip
-    out["rotation_deg"] = float(np.degrees(np.linalg.norm(s[:3])))
-    out["translation_mm"] = float(1e3 * np.linalg.norm(s[3:]))
-    return out
-
-
 # --------------------------------------------------------------------------- the session
 
 
@@ -96,24 +84,38 @@ def detect_still_corners(images, board, subpix_window_px=11):
     images : sequence of (str, ndarray)
         ``(name, gray)``: the still's name and its 8-bit grayscale image.
     board : dict
-        ``squares_x``, ``squares_y``, ``square_m``.
+        The board block: a chessboard (``squares_x``, ``squares_y``, ``square_m``), a ChArUco
+        board or an AprilGrid (``type``; corners found by :func:`cvsflow.calibration.view_corners`,
+        each still with the corners it shows).
 
     Returns
     -------
     list of dict
-        ``name``, ``uv_px`` ((P, 2) in board order, or None), ``order`` (how the 180-degree
-        ambiguity was decided), ``reason``.
+        ``name``, ``uv_px`` ((P, 2) in board order, NaN rows for corners not seen, or None),
+        ``order`` (how the 180-degree ambiguity was decided; ``ids`` for boards whose markers
+        name every corner), ``reason``.
     """
     out = []
+    kind = board_type(board)
+    n_points = len(board_object_points(board))
     for name, gray in images:
         gray = np.asarray(gray)
         if gray.ndim == 3:
             gray = cv2.cvtColor(gray, cv2.COLOR_BGR2GRAY)
+        if kind != "chessboard":
+            seen = view_corners([(name, gray)], board, subpix_window_px)
+            if seen.empty:
+                out.append({"name": name, "uv_px": None, "order": None,
+                            "reason": f"no {board_name(board)} found"})  # fmt: skip
+                continue
+            uv = np.full((n_points, 2), np.nan)
+            uv[seen["corner"].to_numpy()] = seen[["u_px", "v_px"]].to_numpy(float)
+            out.append({"name": name, "uv_px": uv, "order": "ids", "reason": "ok"})
+            continue
         corners = find_board(gray, board, subpix_window_px)
         if corners is None:
-            nx, ny = board_pattern(board)
             out.append({"name": name, "uv_px": None, "order": None,
-                        "reason": f"no {nx}x{ny} chessboard found"})  # fmt: skip
+                        "reason": f"no {board_name(board)} found"})  # fmt: skip
             continue
         uv, how = order_corners(corners, gray, board)
         out.append({"name": name, "uv_px": uv, "order": how, "reason": "ok"})
@@ -152,6 +154,7 @@ def calibrate_hand_eye(
     reject_factor: float = 4.0,
     reject_min_px: float = 1.0,
     pose_names: Sequence[str] | None = None,
+    detections: list | None = None,
 ) -> dict:
     """Hand-eye calibration of a session of stills with one carrier pose each.
 
@@ -184,6 +187,8 @@ def calibrate_hand_eye(
         it exceeds both ``reject_factor`` times the median and ``reject_min_px``.
     pose_names : sequence of str, optional
         Where each pose came from (named in the result).
+    detections : list of dict, optional
+        :func:`detect_still_corners` of ``images`` when the caller has it already.
 
     Returns
     -------
@@ -192,7 +197,10 @@ def calibrate_hand_eye(
         (``T_Cm_C`` and ``T_W_B``, or ``T_W_C`` and ``T_Bm_B``), ``std`` of each (deg about the
         child axes, mm in the parent; the larger of ``std_gauss_newton`` and
         ``std_jackknife``), ``closed_form``, ``rms_px``, ``sigma_px``, ``intrinsics``,
-        ``stills`` (name, pose, used, reason, rms_px) and ``n_used``.
+        ``stills`` (name, pose, used, reason, ``rms_px`` under the fit, ``chain_rms_px`` the
+        board's corners projected through the carrier pose as given, T_H, T_G and the
+        intrinsics of the fit that takes the carrier poses as exact, ``chain_rms_loo_px`` the
+        same under that fit without the still) and ``n_used``.
 
     Raises
     ------
@@ -218,7 +226,7 @@ def calibrate_hand_eye(
     K = np.asarray(camera["K"], float)
     dist = np.asarray(camera.get("dist", np.zeros(5)), float).ravel()
     cam = {"K": K, "dist": dist, "std": camera.get("std")}
-    det = detect_still_corners(images, board, subpix_window_px)
+    det = detections if detections is not None else detect_still_corners(images, board, subpix_window_px)
     records = [{"name": d["name"], "pose": pn, "used": False, "reason": d["reason"],
                 "rms_px": None} for d, pn in zip(det, pose_names, strict=True)]  # fmt: skip
     for rec, T in zip(records, T_W_X, strict=True):
@@ -229,7 +237,7 @@ def calibrate_hand_eye(
         raise CalibrationError(_too_few(records))
     uv = np.stack([det[i]["uv_px"] for i in idx])
     flipped = np.zeros(len(idx), bool)
-    if any(det[i]["order"] != "colour" for i in idx):
+    if any(det[i]["order"] not in ("colour", "ids") for i in idx):
         uv, flipped = _resolve_flips(uv, p_B, T_W_X[idx], cam)
     T_C_B, ok = solve_pnp_frames(uv, p_B, K, dist)
     for k, i in enumerate(idx):
@@ -264,14 +272,17 @@ def calibrate_hand_eye(
         records[i]["rms_px"] = float(rms[worst])
         log.warning("hand-eye: still %s rejected (%s)", records[i]["name"], records[i]["reason"])
         keep[list(idx).index(i)] = False
+    loo = rms
     fit = screen
     if pose_noise:
         fit = refine_hand_eye(uv[keep], p_B, T_W_X[sel], cam, T0_H, T0_G, mode,
                               free_intrinsics, **opts)  # fmt: skip
     rms = fit["still_rms_px"]
+    chain_rms = screen["still_rms_px"]  # the fit with the carrier poses as given
     d_X = fit["carrier_residuals"]
     for k, i in enumerate(sel):
-        records[i].update(used=True, reason="ok", rms_px=float(rms[k]))
+        records[i].update(used=True, reason="ok", rms_px=float(rms[k]), chain_rms_px=float(chain_rms[k]),
+                          chain_rms_loo_px=float(loo[k]))  # fmt: skip
         if pose_noise:  # the carrier pose's estimated own error at this still
             records[i]["carrier_error_mm"] = float(1e3 * np.linalg.norm(d_X[k, 3:]))
             records[i]["carrier_error_deg"] = float(np.degrees(np.linalg.norm(d_X[k, :3])))
@@ -288,15 +299,15 @@ def calibrate_hand_eye(
         "frames": _frames_note(mode),
         name_H: fit["T_H"].tolist(),
         name_G: fit["T_G"].tolist(),
-        "std": {name_H: _pose_std(std[:6]), name_G: _pose_std(std[6:12])},
+        "std": {name_H: pose_std_record(std[:6]), name_G: pose_std_record(std[6:12])},
         "std_method": ("larger of " if jk is not None else "") + (
             "the Gauss-Newton covariance with the carrier-pose errors modelled (variance "
             "components)" if pose_noise else "Gauss-Newton s^2 (J^T J)^-1 (poses as exact)")
         + (" and the delete-one-still jackknife" if jk is not None else
            " (too few stills for a jackknife)"),
-        "std_gauss_newton": {name_H: _pose_std(std_gn[:6]), name_G: _pose_std(std_gn[6:12])},
-        "std_jackknife": None if jk is None else {name_H: _pose_std(jk[:6]),
-                                                  name_G: _pose_std(jk[6:12])},
+        "std_gauss_newton": {name_H: pose_std_record(std_gn[:6]), name_G: pose_std_record(std_gn[6:12])},
+        "std_jackknife": None if jk is None else {name_H: pose_std_record(jk[:6]),
+                                                  name_G: pose_std_record(jk[6:12])},
         "rms_px": fit["rms_px"],
         "sigma_px": fit["sigma_px"],
         "closed_form": {"method": method, name_H: T0_H.tolist(), name_G: T0_G.tolist(),
@@ -316,7 +327,7 @@ def calibrate_hand_eye(
             else float(np.degrees(fit["sigma_rot_rad"])),
             "estimated": bool(pose_noise) and (pose_sigma_m is None or pose_sigma_rad is None),
         },
-        "board": {"inner": list(board_pattern(board)), "square_m": float(board["square_m"])},
+        "board": board_record(board),
         "n_stills": len(images),
         "n_used": int(len(sel)),
         "stills": records,
@@ -348,7 +359,9 @@ def _check_motions(records, idx, keep, T_W_X, T_C_B, mode, method, board):
     if len(sel) >= MIN_STILLS:
         T_H, T_G = closed_form_hand_eye(T_W_X[sel], T_C_B[keep], mode, method)
         R_X = (T_H if mode == "eye_in_hand" else T_G)[:3, :3]
-        check_motion_scale(motion_scale(T_W_X[sel], T_C_B[keep], R_X, mode), board["square_m"])
+        size = (("tag size", board["tag_size_m"]) if "tag_size_m" in board
+                else ("square size", board.get("square_m")))  # fmt: skip
+        check_motion_scale(motion_scale(T_W_X[sel], T_C_B[keep], R_X, mode), size[1], size[0])
 
 
 def _frames_note(mode):

@@ -41,7 +41,7 @@ def test_checkerboard_target_equals_inner(tmp_path):
 
 def test_board_option_errors_are_one_line(tmp_path, capsys):
     """--target with --square-m, --inner without --square-m, --target and --inner together, an
-    unsupported target type, and an AprilGrid for handeye: each a one-line error, nothing written."""
+    unsupported target type, and handeye without a board: each a one-line error, nothing written."""
     path = tmp_path / "t.yaml"
     path.write_text("target_type: aprilgrid\ntagCols: 6\ntagRows: 6\ntagSize: 0.088\ntagSpacing: 0.3\n")
     circles = tmp_path / "c.yaml"
@@ -55,8 +55,8 @@ def test_board_option_errors_are_one_line(tmp_path, capsys):
          "leave out --square-m"),
         (["calibrate", str(still.parent), "--inner", "9x6", "--out", out], "--square-m"),
         (["calibrate", str(still.parent), "--target", str(circles), "--out", out], "circlegrid"),
-        (["handeye", "--stills", str(still.parent), "--poses", "p.yaml", "--target", str(path),
-          "--camera", "c.yaml", "--out", out], "an AprilGrid"),
+        (["handeye", "--stills", str(still.parent), "--poses", "p.yaml", "--camera", "c.yaml", "--out", out],
+         "the board: give --inner NXxNY with --square-m, or --target FILE"),
         (["calibrate-rig", "a", "b", "--target", str(tmp_path / "none.yaml"), "--out", out], "file not found"),
     ]
     for argv, match in cases:

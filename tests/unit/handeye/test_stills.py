@@ -43,8 +43,8 @@ def test_rendered_session_end_to_end(mode):
     for name, T_true in ((name_H, s["T_H"]), (name_G, s["T_G"])):
         e = pose_errors(T_true, np.array(res[name]))
         sd = res["std"][name]
-        assert np.all(np.abs(np.degrees(e[:3])) < 3 * np.array([sd[k] for k in he.POSE_STD_KEYS[:3]]))
-        assert np.all(np.abs(1e3 * e[3:]) < 3 * np.array([sd[k] for k in he.POSE_STD_KEYS[3:]]))
+        assert np.all(np.abs(np.degrees(e[:3])) < 3 * np.array([sd[k] for k in hm.POSE_STD_KEYS[:3]]))
+        assert np.all(np.abs(1e3 * e[3:]) < 3 * np.array([sd[k] for k in hm.POSE_STD_KEYS[3:]]))
         assert sd["translation_mm"] < 3.0 and sd["rotation_deg"] < 0.3
     assert res["sigma_px"] < 0.3
 
@@ -145,8 +145,8 @@ def test_franka_matches_published_emc():
     assert np.linalg.norm(e[3:]) < 1e-3
     assert np.degrees(np.linalg.norm(e[:3])) < 0.1
     sd = res["std"]["T_Cm_C"]
-    assert np.all(np.abs(np.degrees(e[:3])) < 3 * np.array([sd[k] for k in he.POSE_STD_KEYS[:3]]))
-    assert np.all(np.abs(1e3 * e[3:]) < 3 * np.array([sd[k] for k in he.POSE_STD_KEYS[3:]]))
+    assert np.all(np.abs(np.degrees(e[:3])) < 3 * np.array([sd[k] for k in hm.POSE_STD_KEYS[:3]]))
+    assert np.all(np.abs(1e3 * e[3:]) < 3 * np.array([sd[k] for k in hm.POSE_STD_KEYS[3:]]))
     assert res["n_used"] == 8
     assert res["rms_px"] < 1.0  # with the robot's pose errors modelled, corners fit to PnP level
 
@@ -176,7 +176,7 @@ def test_cli_handeye_on_franka(tmp_path):
     T = np.array(res["T_Cm_C"])
     assert T.shape == (4, 4)
     assert np.linalg.norm(T[:3, 3] - VISP_EMC_T_M) < 1e-3
-    assert set(he.POSE_STD_KEYS) <= set(res["std"]["T_Cm_C"])
+    assert set(hm.POSE_STD_KEYS) <= set(res["std"]["T_Cm_C"])
     assert [r["name"] for r in res["stills"]] == [f"franka_image-{i}.png" for i in range(1, 9)]
     assert [r["pose"].endswith(f"franka_pose_rPe_{i}.yaml") for i, r in
             enumerate(res["stills"], start=1)] == [True] * 8  # fmt: skip
