@@ -10,6 +10,7 @@ import time
 from pathlib import Path
 
 from cvsflow.exceptions import CvsflowError
+from cvsflow.io.progress import console_handler
 
 #: Set (to anything but 0 or empty) to print a failed stage's traceback on the console too.
 DEBUG_ENV = "CVSFLOW_DEBUG"
@@ -54,11 +55,11 @@ def stage_logging(log_path, stage: str):
     """
     log_path = Path(log_path)
     log_path.parent.mkdir(parents=True, exist_ok=True)
-    fmt = logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s")
-    handlers = [logging.FileHandler(log_path, mode="w"), logging.StreamHandler(sys.stderr)]
+    fmt = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+    handlers = [logging.FileHandler(log_path, mode="w"), console_handler(sys.stderr, fmt)]
+    handlers[0].setFormatter(logging.Formatter(fmt))
     root = logging.getLogger()
     for h in handlers:
-        h.setFormatter(fmt)
         root.addHandler(h)
     root.setLevel(logging.INFO)
     log = logging.getLogger(f"cvsflow.stage.{stage}")
