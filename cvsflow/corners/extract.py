@@ -25,7 +25,8 @@ import logging
 import multiprocessing
 import time
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, wait
+from functools import partial
 
 import cv2
 import numpy as np
@@ -470,10 +471,38 @@ def _board_seen(corners: pd.DataFrame, board: dict) -> pd.DataFrame:
     return corners
 
 
+class _CountedSource:
+    """A frame source that reports each frame it has given: ``report(n)``, n frames so far."""
+
+    def __init__(self, source, report):
+        self.source, self.report = source, report
+
+    def __call__(self, start, stop):
+        for n, item in enumerate(self.source(start, stop), start=1):
+            yield item
+            self.report(n)
+
+
+#: A worker's counter of frames read, shared with the parent (set by ``_init_worker``).
+_FRAMES_READ = None
+
+
+def _init_worker(counter) -> None:
+    global _FRAMES_READ
+    _FRAMES_READ = counter
+
+
+def _count_one(counter, _n) -> None:
+    with counter.get_lock():
+        counter.value += 1
+
+
 def _run_chunk(args) -> pd.DataFrame:
-    """Worker: one chunk, on one OpenCV thread."""
+    """Worker: one chunk, on one OpenCV thread, its frames counted for the parent's progress."""
     source, start, stop, board, kwargs = args
     cv2.setNumThreads(1)
+    if _FRAMES_READ is not None:
+        source = _CountedSource(source, partial(_count_one, _FRAMES_READ))
     return extract_corners_range(source, start, stop, board, **kwargs)
 
 
@@ -482,6 +511,7 @@ def extract_corners_parallel(
     n_frames: int,
     board: dict,
     n_workers: int = 2,
+    progress: Callable[[int], None] | None = None,
     **kwargs,
 ) -> pd.DataFrame:
     """Corners of a whole video, its chunks on ``n_workers`` processes; same table as one pass.
@@ -495,6 +525,9 @@ def extract_corners_parallel(
     board : dict
     n_workers : int
         Processes (cores). 1 runs a single pass in this process.
+    progress : callable, optional
+        ``progress(n)``: n frames read so far over all workers (about every 0.5 s from several
+        workers; after every frame from one), e.g. a :class:`cvsflow.io.progress.Progress`.
     **kwargs
         Passed to ``extract_corners`` (``restart_every`` sets the cut points).
 
@@ -517,7 +550,8 @@ def extract_corners_parallel(
     restart_every = kwargs.get("restart_every", RESTART_EVERY_FRAMES)
     ranges = chunk_ranges(n_frames, n_workers, restart_every) if n_workers > 1 and restart_every else []
     if len(ranges) <= 1:
-        return _board_seen(extract_corners_range(source, 0, None, board, **kwargs), board)
+        counted = _CountedSource(source, progress) if progress else source
+        return _board_seen(extract_corners_range(counted, 0, None, board, **kwargs), board)
     methods = multiprocessing.get_all_start_methods()
     context = multiprocessing.get_context("fork" if "fork" in methods else None)
     jobs = [(source, a, b, board, kwargs) for a, b in ranges]
@@ -534,8 +568,15 @@ def extract_corners_parallel(
     gc.collect()
     gc.freeze()
     try:
-        with ProcessPoolExecutor(max_workers=min(n_workers, len(ranges)), mp_context=context) as ex:
-            chunks = list(ex.map(_run_chunk, jobs))
+        counter = context.Value("q", 0) if progress else None
+        with ProcessPoolExecutor(max_workers=min(n_workers, len(ranges)), mp_context=context,
+                                 initializer=_init_worker, initargs=(counter,)) as ex:
+            futures = [ex.submit(_run_chunk, job) for job in jobs]
+            while progress and wait(futures, timeout=0.5).not_done:
+                progress(counter.value)
+            chunks = [f.result() for f in futures]
+        if progress:
+            progress(counter.value)
     finally:
         gc.unfreeze()
         cv2.setNumThreads(n_threads)

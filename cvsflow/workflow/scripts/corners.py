@@ -8,6 +8,7 @@ from cvsflow.corners import extract_corners_parallel, summarise_corners
 from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import iter_video_gray, video_info, video_timing
+from cvsflow.io.progress import Progress
 
 # One OpenCV thread per worker process: the workers are the parallelism.
 cv2.setNumThreads(1)
@@ -16,15 +17,18 @@ with stage_logging(snakemake.log[0], "corners") as log:
     video = snakemake.input[0]
     info, timing = video_info(video), video_timing(video)
     log.info("video %s: %s; %d processes", video, info, snakemake.threads)
-    corners = extract_corners_parallel(
-        partial(iter_video_gray, video, undecodable=True),
-        info["n_frames"],
-        snakemake.params.board,
-        n_workers=snakemake.threads,
-        subpix_window_px=snakemake.params.corners["subpix_window_px"],
-        max_grid_deviation=snakemake.params.corners["max_grid_deviation"],
-        restart_every=snakemake.params.corners["restart_every_frames"],
-    )
+    with Progress("corners", info["n_frames"], "frames", log) as progress:
+        corners = extract_corners_parallel(
+            partial(iter_video_gray, video, undecodable=True),
+            info["n_frames"],
+            snakemake.params.board,
+            n_workers=snakemake.threads,
+            progress=progress,
+            log_every=0,  # the progress line instead of each chunk's own
+            subpix_window_px=snakemake.params.corners["subpix_window_px"],
+            max_grid_deviation=snakemake.params.corners["max_grid_deviation"],
+            restart_every=snakemake.params.corners["restart_every_frames"],
+        )
     write_parquet(corners, snakemake.output.corners)
     summary = summarise_corners(corners, timing)
     if summary["inter_coded"]:

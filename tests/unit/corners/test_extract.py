@@ -380,3 +380,27 @@ def test_a_hand_over_the_board_keeps_the_visible_corners_with_true_indices():
         visible = truths[i][:, 0] < hands[i][0, 0] - 20
         assert 0.8 * visible.sum() <= len(rows) < len(truths[i])
         assert (uv_true[:, 0] < hands[i][0, 0]).all()
+
+
+def test_progress_counts_every_frame_in_one_pass_and_across_workers(tmp_path):
+    """progress(n) sees every frame read: after each one in a single pass, the workers' shared
+    count (rising to the total) from several processes; the table is the same either way."""
+    import functools
+
+    from cvsflow.corners import extract_corners_parallel
+    from cvsflow.io.media import iter_video_gray
+    from tests.helpers.board_images import write_h264
+
+    path = tmp_path / "v.mp4"
+    write_h264(path, 90, gop=15)
+    source = functools.partial(iter_video_gray, path)
+    single, parallel = [], []
+    one = extract_corners_parallel(source, 90, BOARD, n_workers=1, restart_every=45, progress=single.append,
+                                   log_every=0)
+    two = extract_corners_parallel(source, 90, BOARD, n_workers=2, restart_every=45,
+                                   progress=parallel.append, log_every=0)
+    assert single == list(range(1, 91))
+    assert parallel[-1] == 90 and parallel == sorted(parallel)
+    plain = extract_corners_parallel(source, 90, BOARD, n_workers=2, restart_every=45, log_every=0)
+    pd.testing.assert_frame_equal(two, plain)
+    pd.testing.assert_frame_equal(one.reset_index(drop=True), plain.reset_index(drop=True))
