@@ -109,7 +109,7 @@ def heldout_blocks(corners, board, *, n_folds=5, block_s=5.0, seed=0):
 
 def cross_validate_se3(
     corners, bodies, camera, board, dt_offset_s, *, n_folds=5, block_s=5.0, seed=0,
-    frame="C", **se3_options,
+    frame="C", progress=None, **se3_options,
 ):  # fmt: skip
     """Fit se3 on all folds but one, score the held-out fold; every fold in turn.
 
@@ -125,6 +125,8 @@ def cross_validate_se3(
         Seed of the block-to-fold assignment.
     frame : {"C", "B"}
         Frame of the errors (:func:`pose_errors`).
+    progress : callable, optional
+        ``progress(k)`` after each fold, k folds done.
     **se3_options
         Passed to ``optimise_se3`` (free, loss, f_scale_px, ...).
 
@@ -151,6 +153,8 @@ def cross_validate_se3(
         scored["sigma_px"] = res["sigma_px"]
         parts.append(scored)
         log.info("cross-validation fold %d: %d train, %d test frames", k, len(train), len(test))
+        if progress:
+            progress(k + 1)
     heldout = pd.concat(parts, ignore_index=True).sort_values("frame", ignore_index=True)
     return heldout, fits
 

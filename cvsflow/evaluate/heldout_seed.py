@@ -21,7 +21,7 @@ log = logging.getLogger(__name__)
 
 
 def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.0, seed=0,
-                        folds=None, **seed_options):
+                        folds=None, progress=None, **seed_options):
     """Fit the chapter's method on all folds but one, score the held-out fold; every fold.
 
     The fit gives f and P̄ (eqs. 1.10-1.12) from the training frames only; the held-out
@@ -45,6 +45,8 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
         blocks :func:`cvsflow.evaluate.heldout.cross_validate_se3` uses): each pair frame takes the fold
         of the nearest of those frames in time, so that both methods are scored on the same
         held-out blocks.
+    progress : callable, optional
+        ``progress(k)`` as each fold starts and at the end, k folds done.
     **seed_options
         Passed to :func:`cvsflow.optimise.seed.optimise_seed`.
 
@@ -78,6 +80,8 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
     seed_options = {**seed_options, "pose_cache": cache}
     left_out = []
     for k in range(n_folds):
+        if progress:
+            progress(k)
         train, test = pairs[fold != k], pairs[fold == k]
         if len(test) == 0:
             continue
@@ -114,6 +118,8 @@ def cross_validate_seed(pairs, corners, K, dist, board, *, n_folds=5, block_s=5.
         parts.append(part)
         log.info("seed cross-validation fold %d: %d train, %d test frames, f = (%.1f, %.1f) px",
                  k, len(train), len(test), *f)
+    if progress:
+        progress(n_folds)
     log.info("seed cross-validation: %d (candidate, frame) PnP rows solved, %d shared by folds",
              cache.n_solved, cache.n_reused)
     if not parts:

@@ -122,7 +122,24 @@ def render_stills(session_cfg: dict) -> list:
     return list(_still_images(renderer, T_C_B_stills, rngs["images"]))
 
 
-def render_session(session_cfg: dict, out_dir) -> dict:
+def session_frame_count(session_cfg: dict) -> int:
+    """The video frames :func:`render_session` renders for a session (a realistic render's
+    dropped capture frames included: an upper bound there).
+
+    Parameters
+    ----------
+    session_cfg : dict
+        ``config["sessions"][name]``.
+
+    Returns
+    -------
+    int
+    """
+    spec = parse_session_config(session_cfg)
+    return int(round(spec.duration_s * (spec.effects.fps if spec.realistic else FPS)))
+
+
+def render_session(session_cfg: dict, out_dir, progress=None) -> dict:
     """Render a synthetic session with known ground truth into ``out_dir``.
 
     Parameters
@@ -131,6 +148,9 @@ def render_session(session_cfg: dict, out_dir) -> dict:
         ``config["sessions"][name]`` with its ``synth``, ``board`` and ``markers`` blocks.
     out_dir : str or Path
         Session folder (``data/{session}``); replaced as a whole only on success.
+    progress : callable, optional
+        ``progress(n)`` after each video frame rendered (e.g. a
+        :class:`cvsflow.io.progress.Progress` of ``session_frame_count`` frames).
 
     Returns
     -------
@@ -151,7 +171,8 @@ def render_session(session_cfg: dict, out_dir) -> dict:
         R_face_B=spec.board.R_face_B() if spec.board.kind == "aprilgrid" else None,
     )
     if spec.realistic:
-        return _render_realistic(spec, rngs, rig, renderer, T_C_B_stills, motion, out_dir, wall_start)
+        return _render_realistic(spec, rngs, rig, renderer, T_C_B_stills, motion, out_dir, wall_start,
+                                 progress)
     n_frames = int(round(spec.duration_s * FPS))
     exposure_s = exposure_times(rngs["lighting"], np.arange(n_frames) / FPS)
     lighting = Lighting(random_sine_sum(rngs["lighting"], 4, 3, 0.01, 0.1, std=[1.0] * 4))
@@ -178,6 +199,8 @@ def render_session(session_cfg: dict, out_dir) -> dict:
                         rngs["images"],
                     )
                 )
+                if progress:
+                    progress(k + 1)
         render_s = time.perf_counter() - render_start
         write_session_tables(
             tmp,
@@ -289,7 +312,7 @@ def realistic_truth(spec, rngs, motion):
     return truth, timeline, lighting, hand_textures
 
 
-def _render_realistic(spec, rngs, rig, renderer, T_C_B_stills, motion, out_dir, wall_start):
+def _render_realistic(spec, rngs, rig, renderer, T_C_B_stills, motion, out_dir, wall_start, progress):
     """``render_session`` with the realistic effects (see cvsflow.synth.effects)."""
     e = spec.effects
     truth, timeline, lighting, hand_textures = realistic_truth(spec, rngs, motion)
@@ -318,6 +341,8 @@ def _render_realistic(spec, rngs, rig, renderer, T_C_B_stills, motion, out_dir, 
                     rngs["images"], fx,
                 )
                 sink.write(image, timeline.pts[k])
+                if progress:
+                    progress(k + 1)
         render_s = time.perf_counter() - render_start
         extra = {
             "preset": e.preset,

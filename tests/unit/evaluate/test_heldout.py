@@ -138,11 +138,13 @@ def test_cross_validation_held_out_errors_match_pnp_noise():
     see it; their spread is below 2 mm in x and y, 15 mm in z and 1.5 deg in angle, and the
     mean error is within 3 standard errors of zero in x."""
     s = simulate_session(21, duration_s=20.0)
+    folds_done = []
     held, fits = ev.cross_validate_se3(
         s["corners"], s["bodies"], s["camera"], s["board"], s["truth"]["dt_offset_s"],
-        n_folds=4, block_s=2.5, seed=0,
+        n_folds=4, block_s=2.5, seed=0, progress=folds_done.append,
     )  # fmt: skip
     assert len(fits) == 4 and held["frame"].is_unique and len(held) == 600
+    assert folds_done == [1, 2, 3, 4]
     summ = ev.summarise_errors(held)
     std = dict(zip(summ["columns"], summ["std"], strict=True))
     assert std["err_x_m"] < 0.002 and std["err_y_m"] < 0.002 and std["err_z_m"] < 0.015

@@ -70,9 +70,12 @@ def test_cross_validate_seed_scores_each_frame_once_with_training_offset():
     so on a constant-offset synthetic session the held-out error is small and near zero mean."""
     s = simulate_session(8, duration_s=12.0, pixel_noise_px=0.2)
     pairs = _truth_pairs(s, offset=np.array([0.05, -0.02, 0.1, 0.01, 0.02, -0.03]))
+    folds_done = []
     held = cross_validate_seed(pairs, s["corners"], s["camera"]["K"], s["camera"]["dist"],
-                                  s["board"], n_folds=3, block_s=2.0, seed=1, k_iterations=1)
+                                  s["board"], n_folds=3, block_s=2.0, seed=1, k_iterations=1,
+                                  progress=folds_done.append)
     assert held["frame"].is_unique and len(held) == len(pairs)
+    assert folds_done == [0, 1, 2, 3]
     assert set(held["fold"]) == {0, 1, 2}
     assert np.abs(held["eps_x_m"]).median() < 0.01
 

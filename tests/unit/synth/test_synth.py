@@ -394,6 +394,17 @@ def test_missing_config_key_is_named():
         parse_session_config(cfg)
 
 
+def test_progress_counts_every_rendered_frame(tmp_path):
+    """render_session calls progress(n) after each video frame; session_frame_count is the total."""
+    from cvsflow.synth.render import session_frame_count
+
+    cfg = demo_cfg(duration_s=0.5, n_stills=1)
+    done = []
+    summary = render_session(cfg, tmp_path / "demo", progress=done.append)
+    assert session_frame_count(cfg) == summary["n_frames"] == 15
+    assert done == list(range(1, 16))
+
+
 def test_failure_leaves_no_output(tmp_path, monkeypatch):
     """A failure while rendering leaves neither the session folder nor temporary folders."""
 
