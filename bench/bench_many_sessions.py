@@ -76,8 +76,8 @@ def sessions_config(n_sessions: int, duration_s: float) -> dict:
         s = copy.deepcopy(demo)
         s["synth"]["seed"] = base_seed + k
         s["synth"]["duration_s"] = float(duration_s)
-        s["calib_dir"], s["video"], s["vicon"] = (f"data/{name}/calib", f"data/{name}/video.mp4",
-                                                  f"data/{name}/vicon.csv")
+        s["calib_dir"], s["video"] = f"data/{name}/calib", f"data/{name}/video.mp4"
+        s["mocap"] = {"file": f"data/{name}/vicon.csv"}
         sessions[name] = s
     config["sessions"] = sessions
     return config

@@ -74,7 +74,7 @@ def run_stages(seed, duration_s, work):
     poses = estimate_poses(corners, np.array(camera["K"]), np.array(camera["dist"]), session["board"], **cfg["pnp"])
     mk = session["markers"]
     markers = select_markers(read_markers(data / "vicon.csv"), mk["camera"]["names"] + mk["board"]["names"])
-    filled, _ = repair_markers(markers, mk, cfg["vicon"])
+    filled, _ = repair_markers(markers, mk, cfg["mocap"])
     bodies = fit_bodies(filled, mk)
     poses.to_parquet(f_poses)
     bodies.to_parquet(f_bodies)

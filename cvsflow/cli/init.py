@@ -99,13 +99,13 @@ def _videos(folder: Path) -> list[Path]:
 
 
 def _add_mocap(session: dict, notes: list, candidates) -> tuple[list[str], list[str]]:
-    """Set ``vicon`` (and ``mocap.format``) from the first readable export; its marker and body names."""
+    """Set ``mocap.file`` (and ``mocap.format``) from the first readable export; its marker and body names."""
     from cvsflow.io.mocap.formats import read_mocap
     from cvsflow.io.mocap.markers import marker_names
 
     names: list[str] = []
     system_bodies: list[str] = []
-    session["vicon"] = "TODO"
+    session["mocap"] = {"file": "TODO"}
     for p in candidates:
         try:
             export = read_mocap(p)
@@ -115,13 +115,12 @@ def _add_mocap(session: dict, notes: list, candidates) -> tuple[list[str], list[
         names = marker_names(export.markers)
         if export.bodies is not None and len(export.bodies):
             system_bodies = list(dict.fromkeys(export.bodies["body"]))
-        session["vicon"] = str(p)
-        session["mocap"] = {"format": export.format}
+        session["mocap"] = {"file": str(p), "format": export.format}
         solved = f", bodies solved by the system: {', '.join(system_bodies)}" if system_bodies else ""
         notes.append(f"motion capture: {p} ({export.format}), markers {', '.join(names) or 'none'}{solved}")
         break
-    if session["vicon"] == "TODO":
-        notes.append("no Nexus CSV, C3D, Motive CSV or QTM TSV export found: set vicon")
+    if session["mocap"]["file"] == "TODO":
+        notes.append("no Nexus CSV, C3D, Motive CSV or QTM TSV export found: set mocap.file")
     return names, system_bodies
 
 

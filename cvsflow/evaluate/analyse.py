@@ -161,7 +161,7 @@ def optimum_summary(result):
     }
 
 
-def vicon_vs_cvs(errors, result):
+def mocap_vs_cvs(errors, result):
     """Vicon against the original and improved CVS estimates over time (seed figure 1.8).
 
     Parameters

@@ -3,8 +3,8 @@
 One row per quantity, in report units (px, mm, deg, s, %), with its standard error where the
 source gives one, the truth of a rendered session, and the file and key it was read from, so
 a reader can check every number. Inputs are the stage outputs as loaded dicts (SI units):
-``camera.yaml``, ``corners_summary.yaml``, ``vicon_import.yaml`` (its warnings only),
-``vicon_repair.yaml``, ``sync.yaml``, the se3 and
+``camera.yaml``, ``corners_summary.yaml``, ``mocap_import.yaml`` (its warnings only),
+``mocap_repair.yaml``, ``sync.yaml``, the se3 and
 seed ``result.yaml``, ``comparison.yaml``, ``truth.yaml`` and a flight's ``stats.yaml``; any
 of them may be missing (a session that only calibrates, a config without the seed method).
 """
@@ -97,7 +97,7 @@ def _euler_std(T, std, correlation, name, corr_prefix=""):
 
 
 def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=None, seed=None,
-                     comparison=None, truth=None, corners=None, vicon_repair=None, vicon_import=None):
+                     comparison=None, truth=None, corners=None, mocap_repair=None, mocap_import=None):
     """The headline rows of one session (see the module docstring for the inputs).
 
     Parameters
@@ -138,12 +138,12 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
         r.add("data", "video frames dropped (timestamp gaps)", corners.get("n_dropped"), "",
               f"{src}: n_dropped", text=str(corners.get("n_dropped", "n/a")))
         warnings += [("corners", w, f"{src}: warnings") for w in corners.get("warnings") or []]
-    if vicon_import is not None:  # a take cut short: both counts
-        warnings += [("vicon", w, f"{base}/vicon_import.yaml: warnings")
-                     for w in vicon_import.get("warnings") or []]
-    if vicon_repair is not None:
-        src = f"{base}/vicon_repair.yaml"
-        tot = vicon_repair.get("total") or {}
+    if mocap_import is not None:  # a take cut short: both counts
+        warnings += [("vicon", w, f"{base}/mocap_import.yaml: warnings")
+                     for w in mocap_import.get("warnings") or []]
+    if mocap_repair is not None:
+        src = f"{base}/mocap_repair.yaml"
+        tot = mocap_repair.get("total") or {}
         n = sum(_num(tot.get(k, 0)) for k in ("measured", "rigid", "interp", "missing"))
         filled = _num(tot.get("rigid", 0)) + _num(tot.get("interp", 0))
         if n > 0:
@@ -151,7 +151,7 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
                   f"{src}: total", digits=3,
                   text=f"{_fmt(100 * filled / n, 3)} (rigid {tot.get('rigid', 0)}, interpolated "
                        f"{tot.get('interp', 0)}, left missing {tot.get('missing', 0)})")
-        warnings += [("vicon", w, f"{src}: warnings") for w in vicon_repair.get("warnings") or []]
+        warnings += [("vicon", w, f"{src}: warnings") for w in mocap_repair.get("warnings") or []]
 
     if sync is not None:
         src = f"{base}/sync.yaml"

@@ -1,4 +1,4 @@
-"""Rigid bodies from markers (rule ``vicon_bodies``) and their 30 Hz tables (rule ``vicon_resample``).
+"""Rigid bodies from markers (rule ``mocap_bodies``) and their 30 Hz tables (rule ``mocap_resample``).
 
 The chapter's "Data Processing" (seed section 1.3) made rigorous. Inputs are the repaired
 marker tables of :mod:`cvsflow.mocap.repair` and the body specs of :mod:`cvsflow.mocap.layout`

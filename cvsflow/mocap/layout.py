@@ -2,8 +2,8 @@
 
 Inputs are the wide marker tables of :mod:`cvsflow.io.mocap.vicon` (``frame``, ``t_s``,
 ``{marker}_{x,y,z}_m`` in the Vicon world W, NaN where unseen, ``attrs["rate_hz"]``). Shared
-by the gap repair (:mod:`cvsflow.mocap.repair`, rule ``vicon_repair``) and the rigid-body fit
-(:mod:`cvsflow.mocap.bodies`, rule ``vicon_bodies``).
+by the gap repair (:mod:`cvsflow.mocap.repair`, rule ``mocap_repair``) and the rigid-body fit
+(:mod:`cvsflow.mocap.bodies`, rule ``mocap_bodies``).
 
 A *body spec* describes one rigid body: ``{"names": [marker names], "layout_m": (M, 3) or
 None}``; ``layout_m`` is where each marker sits in the body's own frame (``Cm`` for the camera

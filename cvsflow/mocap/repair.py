@@ -1,4 +1,4 @@
-"""Marker repair (rule ``vicon_repair``): gap filling and the zero-lag low-pass filter.
+"""Marker repair (rule ``mocap_repair``): gap filling and the zero-lag low-pass filter.
 
 The chapter's "Data Processing" (seed section 1.3) made rigorous, on the wide marker tables of
 :mod:`cvsflow.io.mocap.vicon` (metres, W, NaN where unseen); output ``markers_filled`` of
@@ -59,7 +59,7 @@ def fill_marker_gaps(markers, body_specs, max_gap_s, method="cubic", refine_layo
         ``{"per_marker": {name: {"measured", "rigid", "interp", "missing"}}, "total": {...},
         "max_gap_s", "method", "warnings"}``: sample counts (plain ints, YAML ready);
         ``warnings`` (list of str) when a marker is never measured or over 20 % of the
-        marker samples stay missing (``vicon_repair.yaml``).
+        marker samples stay missing (``mocap_repair.yaml``).
 
     Notes
     -----

@@ -150,7 +150,7 @@ def simulate_session(
     t_vid_of_vicon = t_vicon - dt_offset_s
     T_W_Cm = T_W_Cm_at(t_vid_of_vicon)
     T_W_Bm = T_W_Cm @ T_Cm_C @ T_C_B_at(t_vid_of_vicon) @ tf.invert_T(T_Bm_B)
-    bodies = vicon_bodies(rng, t_vicon, T_W_Cm, T_W_Bm, marker_noise_m)
+    bodies = mocap_bodies(rng, t_vicon, T_W_Cm, T_W_Bm, marker_noise_m)
     truth = {
         "K": K,
         "dist": dist,
@@ -224,7 +224,7 @@ def hand_motion(rng, centre_B, speed=1.0, max_tilt_rad=0.7):
     return T_C_B_at
 
 
-def vicon_bodies(rng, t_vicon, T_W_Cm, T_W_Bm, marker_noise_m):
+def mocap_bodies(rng, t_vicon, T_W_Cm, T_W_Bm, marker_noise_m):
     """A bodies table (``camera``, ``board``) from true body poses: rigid fits of 4 noisy markers.
 
     Parameters
@@ -420,7 +420,7 @@ def simulate_rig_session(
     t_vicon = np.arange(0.0, duration_s + max(dt_offset_s) + 1.0, 1.0 / vicon_rate_hz)
     T_W_Cm_all = np.repeat(T_W_Cm[None], len(t_vicon), axis=0)
     T_W_Bm = T_W_Cm @ T_Cm_C0 @ T_C0_B_at(t_vicon - dt_offset_s[0]) @ tf.invert_T(T_Bm_B)
-    bodies = vicon_bodies(rng, t_vicon, T_W_Cm_all, T_W_Bm, marker_noise_m)
+    bodies = mocap_bodies(rng, t_vicon, T_W_Cm_all, T_W_Bm, marker_noise_m)
     return {
         "cameras": cams,
         "bodies": bodies,

@@ -209,7 +209,7 @@ def plot_vicon_vs_cvs(tracks, labels=SEED_LABELS, diverged_reason=None):
     Parameters
     ----------
     tracks : pandas.DataFrame
-        :func:`cvsflow.evaluate.analyse.vicon_vs_cvs` output (SI).
+        :func:`cvsflow.evaluate.analyse.mocap_vs_cvs` output (SI).
     labels : tuple of str
         Legend of the Vicon, original and improved tracks (``SEED_LABELS``, ``SE3_LABELS``).
     diverged_reason : str, optional

@@ -383,7 +383,7 @@ def _render_realistic(spec, rngs, rig, renderer, T_C_B_stills, motion, out_dir, 
     return summary
 
 
-def render_rig_mocap(session_cfg: dict, vicon_path, truth_path) -> dict:
+def render_rig_mocap(session_cfg: dict, mocap_path, truth_path) -> dict:
     """Render a rig session's Vicon export and the truth of every camera (``data/{rig}/``).
 
     Parameters
@@ -391,7 +391,7 @@ def render_rig_mocap(session_cfg: dict, vicon_path, truth_path) -> dict:
     session_cfg : dict
         ``config["sessions"][rig]`` with ``synth``, ``board``, ``markers`` and ``cameras``
         (:mod:`cvsflow.synth.rig_session`).
-    vicon_path, truth_path : str or Path
+    mocap_path, truth_path : str or Path
         Where ``vicon.csv`` (Nexus form, mm) and ``truth.yaml`` (:func:`rig_truth_document`)
         go.
 
@@ -407,7 +407,7 @@ def render_rig_mocap(session_cfg: dict, vicon_path, truth_path) -> dict:
     """
     truth = make_rig_truth(session_cfg)
     vicon_df, _, n_dropouts = rig_vicon_recording(truth)
-    write_nexus_csv(vicon_df, vicon_path, rate_hz=VICON_RATE_HZ)
+    write_nexus_csv(vicon_df, mocap_path, rate_hz=VICON_RATE_HZ)
     write_yaml(rig_truth_document(truth, shared_views(truth)), truth_path)
     return {"cameras": list(truth.names), "n_vicon_samples": len(vicon_df), "n_dropouts": n_dropouts,
             "dt_offset_s": [float(v) for v in truth.dt_offset_s]}

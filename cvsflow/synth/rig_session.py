@@ -55,7 +55,7 @@ def camera_session_config(session_cfg: dict, index: int) -> dict:
     ----------
     session_cfg : dict
         The rig session: ``synth`` (the mono keys shared by every camera: seed, duration,
-        ``T_Bm_B_pose6``, marker noise, ``vicon_lead_s``, ...; ``n_shared_stills``), ``board``,
+        ``T_Bm_B_pose6``, marker noise, ``mocap_lead_s``, ...; ``n_shared_stills``), ``board``,
         ``markers`` and ``cameras`` (per camera ``name`` and a ``synth`` block of
         ``RIG_CAMERA_SYNTH_KEYS``: ``camera`` intrinsics, ``T_Cm_C_pose6``, ``fps`` (Hz),
         ``image_size`` ([w, h] px), ``clock_offset_s`` (s), ``n_stills``, ...).
@@ -139,7 +139,7 @@ def make_rig_truth(session_cfg: dict) -> RigTruth:
     ------
     ConfigError
         A bad camera block, repeated camera names, cameras with different boards, or a
-        camera whose video would start before the Vicon take (``vicon_lead_s`` +
+        camera whose video would start before the Vicon take (``mocap_lead_s`` +
         ``clock_offset_s`` <= 0).
     """
     cams = _cameras(session_cfg)
@@ -173,7 +173,7 @@ def make_rig_truth(session_cfg: dict) -> RigTruth:
         if not dt > 0.0:
             raise ConfigError(
                 f"rig session config, cameras[{n}].synth.clock_offset_s: the video would start "
-                f"{-dt:.3f} s before the Vicon take; expected vicon_lead_s + clock_offset_s > 0"
+                f"{-dt:.3f} s before the Vicon take; expected mocap_lead_s + clock_offset_s > 0"
             )
     motion = make_hand_motion(
         rngs["motion"], spec0.K, spec0.image_size, spec0.board.center_B(), spec0.effects.distance_m,

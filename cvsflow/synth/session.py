@@ -35,14 +35,14 @@ def make_rig(spec: SynthSpec, rng) -> Rig:
     """Place the markers (with placement error), define the true bodies, set up the camera.
 
     The camera sits on a chair, optical axis horizontal, marker body roughly aligned with
-    the Vicon axes by hand (a few degrees off). The true time offset is ``vicon_lead_s``
+    the Vicon axes by hand (a few degrees off). The true time offset is ``mocap_lead_s``
     plus a random fraction of a Vicon sample, so it is never a whole number of samples.
 
     Parameters
     ----------
     spec : SynthSpec
         The designed mountings, marker layouts (m), placement error sigma (m) and
-        ``vicon_lead_s`` (s).
+        ``mocap_lead_s`` (s).
     rng : numpy.random.Generator
         The ``mounting`` stream: marker placement errors, camera position and yaw, the
         sub-sample part of the time offset.
@@ -69,7 +69,7 @@ def make_rig(spec: SynthSpec, rng) -> Rig:
     T_W_C[:3, 3] = t_W_C
     T_W_Cm = T_W_C @ invert_T(T_Cm_C)
     sub_sample_s = rng.uniform(0.2, 0.8) / VICON_RATE_HZ
-    return Rig(T_W_Cm, T_Cm_C, T_Bm_B, markers_Cm, markers_Bm, spec.vicon_lead_s + sub_sample_s)
+    return Rig(T_W_Cm, T_Cm_C, T_Bm_B, markers_Cm, markers_Bm, spec.mocap_lead_s + sub_sample_s)
 
 
 def _level_camera(T_Cm_C, yaw_rad):

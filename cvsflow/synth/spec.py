@@ -50,7 +50,7 @@ class SynthSpec:
     marker_noise_sigma_m: float
     dropout_rate_hz: float
     dropout_max_s: float
-    vicon_lead_s: float
+    mocap_lead_s: float
     image_noise_sigma: float
     video_quality: int
     effects: Effects
@@ -161,7 +161,7 @@ def parse_session_config(session_cfg) -> SynthSpec:
         marker_noise_sigma_m=float(synth.get("marker_noise_sigma_m", 0.0003)),
         dropout_rate_hz=float(synth.get("dropout_rate_hz", 0.5)),
         dropout_max_s=float(synth.get("dropout_max_s", 0.08)),
-        vicon_lead_s=float(synth.get("vicon_lead_s", 2.37)),
+        mocap_lead_s=float(synth.get("mocap_lead_s", 2.37)),
         image_noise_sigma=image_noise_sigma,
         video_quality=video_quality,
         effects=effects,

@@ -1,6 +1,6 @@
 """Which stages each configured session can run, or why it cannot run what it asks for.
 
-A session names its inputs (``calib_dir``, ``video``, ``vicon``, or a ``synth`` block that
+A session names its inputs (``calib_dir``, ``video``, ``mocap.file``, or a ``synth`` block that
 renders all three). Every input it names must be used: a video is turned into poses, which need
 the camera's intrinsics, from the session's own stills or, with ``camera: <other session>``,
 from another session's calibration. A session that names something it cannot use stops the
@@ -17,7 +17,71 @@ from cvsflow.exceptions import ConfigError, CvsflowError
 logger = logging.getLogger(__name__)
 
 #: Stages a session can run, in DAG order.
-STAGES = ("calibrate", "poses", "vicon", "pairs")
+STAGES = ("calibrate", "poses", "mocap", "pairs")
+
+def mocap_file(session: dict) -> str | None:
+    """The motion-capture export a session names.
+
+    Parameters
+    ----------
+    session : dict
+        One entry of ``config["sessions"]`` (after `upgrade_config`).
+
+    Returns
+    -------
+    str or None
+        ``mocap.file``, or None when the session names no export.
+    """
+    return (session.get("mocap") or {}).get("file")
+
+
+def _move(parent: dict, old: str, new_parent: dict, new: str, old_name: str, new_name: str) -> str:
+    if new in new_parent:
+        raise ConfigError(f"config: both {old_name} (deprecated) and {new_name} are given; keep {new_name}")
+    new_parent[new] = parent.pop(old)
+    return f"config: {old_name} is deprecated, use {new_name} (read as {new_name} this time)"
+
+
+def upgrade_config(config: dict) -> list[str]:
+    """Rename the deprecated keys of a config in place, before validation.
+
+    A config that uses an old name still runs, with a warning naming the new one: ``vicon``
+    (the top-level block) is ``mocap``; ``sessions.<s>.vicon`` (the export's path) is
+    ``sessions.<s>.mocap.file``; ``sessions.<s>.synth.vicon_lead_s`` is ``mocap_lead_s``.
+
+    Parameters
+    ----------
+    config : dict
+        The config as loaded (Snakemake's ``config``); changed in place.
+
+    Returns
+    -------
+    list of str
+        One deprecation warning per key renamed, naming the old and the new key.
+
+    Raises
+    ------
+    ConfigError
+        A deprecated key and its new name are both given.
+    """
+    notes = []
+    old, new = "sessions.{}.vicon", "sessions.{}.mocap.file"
+    old_lead, new_lead = "sessions.{}.synth.vicon_lead_s", "sessions.{}.synth.mocap_lead_s"
+    if "vicon" in config:
+        notes.append(_move(config, "vicon", config, "mocap", "vicon", "mocap"))
+    for name, s in (config.get("sessions") or {}).items():
+        if not isinstance(s, dict):
+            continue
+        if "vicon" in s:
+            mocap = s.setdefault("mocap", {})
+            if not isinstance(mocap, dict):
+                continue
+            notes.append(_move(s, "vicon", mocap, "file", old.format(name), new.format(name)))
+        synth = s.get("synth")
+        if isinstance(synth, dict) and "vicon_lead_s" in synth:
+            notes.append(_move(synth, "vicon_lead_s", synth, "mocap_lead_s", old_lead.format(name),
+                               new_lead.format(name)))
+    return notes
 
 
 def camera_session(name: str, sessions: dict) -> str | None:
@@ -80,7 +144,7 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     -------
     tuple of str
         A subset of `STAGES`, in DAG order: ``calibrate`` (own stills), ``poses`` (video and a
-        camera), ``vicon`` (Vicon export and markers), ``pairs`` (all of them: sync, pairs,
+        camera), ``mocap`` (motion-capture export and markers), ``pairs`` (all of them: sync, pairs,
         optimisers, held-out evaluation).
 
     Raises
@@ -110,7 +174,7 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     synth = "synth" in s
     cam = camera_session(name, sessions)
     has_video = synth or "video" in s
-    has_vicon = synth or "vicon" in s
+    has_mocap = synth or mocap_file(s) is not None
     stages = []
     if cam == name:
         stages.append("calibrate")
@@ -123,19 +187,19 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
                 f"same camera and settings"
             )
         stages.append("poses")
-    if has_vicon:
+    if has_mocap:
         if "markers" not in s:
             raise ConfigError(
-                f"{where}: names a Vicon export but no markers: expected markers.camera.names "
+                f"{where}: names a motion-capture export but no markers: expected markers.camera.names "
                 f"and markers.board.names (the marker names of each rigid body in the export)"
             )
-        stages.append("vicon")
-    if "poses" in stages and "vicon" in stages:
+        stages.append("mocap")
+    if "poses" in stages and "mocap" in stages:
         stages.append("pairs")
     if not stages:
         raise ConfigError(
             f"{where}: nothing to process; expected calib_dir, video (with calib_dir or "
-            f"camera), vicon (with markers) or a synth block"
+            f"camera), mocap.file (with markers) or a synth block"
         )
     logger.debug("session %s: stages %s", name, ", ".join(stages))
     return tuple(stages)
@@ -254,7 +318,7 @@ def expand_rig_sessions(sessions: dict) -> tuple[dict, dict]:
     """Split rig sessions (a ``cameras:`` list) into per-camera sessions and the rig's mocap.
 
     A rig session ``r`` with cameras ``a, b`` becomes three plain sessions, which the mono
-    rules run unchanged: ``r`` (the rig's motion-capture export and markers: the vicon
+    rules run unchanged: ``r`` (the rig's motion-capture export and markers: the mocap
     stages, bodies.parquet with the rig as the ``camera`` body) and ``r-a``, ``r-b`` (each
     camera's stills and video: calibrate, corners, poses). Rendered rigs (a ``synth`` block)
     get the paths the rig's synth rules write: ``data/r/vicon.csv``, ``data/r/<camera>/calib``,
@@ -299,10 +363,10 @@ def expand_rig_sessions(sessions: dict) -> tuple[dict, dict]:
         if "methods" in s:
             raise ConfigError(f"{where}.methods: a rig is fitted by optimise_se3_rig alone; "
                               "methods is for sessions with one camera")
-        if not synth and "vicon" not in s:
-            raise ConfigError(f"{where}: a rig needs its motion-capture export (vicon) or a synth block")
-        mocap = {k: s[k] for k in ("board", "markers", "mocap") if k in s}
-        plain[name] = {**mocap, "vicon": s.get("vicon", f"data/{name}/vicon.csv")}
+        if not synth and mocap_file(s) is None:
+            raise ConfigError(f"{where}: a rig needs its motion-capture export (mocap.file) or a synth block")
+        mocap = {k: s[k] for k in ("board", "markers") if k in s}
+        plain[name] = {**mocap, "mocap": {"file": f"data/{name}/vicon.csv", **(s.get("mocap") or {})}}
         entry = {"cameras": names, "sessions": [], "shared_dirs": [], "synth": synth}
         for c in cams:
             cam = rig_camera_session(name, c["name"])

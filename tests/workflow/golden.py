@@ -39,10 +39,10 @@ GOLDEN = REPO / "tests" / "golden"
 #: Relative tolerance of geometry, estimates and statistics.
 REL_TOL = 1e-9
 #: The tables kept, relative to results/. The raw marker tables (1.5 MB each) are left out:
-#: vicon_repair.yaml counts every repair and bodies_30hz.parquet holds the bodies fitted to them.
+#: mocap_repair.yaml counts every repair and bodies_30hz.parquet holds the bodies fitted to them.
 TABLES = (
     "demo/camera.yaml", "demo/calib_corners.parquet", "demo/corners.parquet",
-    "demo/corners_summary.yaml", "demo/poses_raw.parquet", "demo/vicon_repair.yaml",
+    "demo/corners_summary.yaml", "demo/poses_raw.parquet", "demo/mocap_repair.yaml",
     "demo/bodies_30hz.parquet", "demo/sync.yaml", "demo/pairs.parquet",
     "demo/se3/calib/result.yaml", "demo/se3/calib/iterations.parquet",
     "demo/se3/calib/errors.parquet", "demo/se3/calib/stats.json",

@@ -64,7 +64,7 @@ def test_plain_snakemake_applies_the_workstation_profile(tmp_path):
         assert re.search(r"(?<!cvsflow/)workflow/profiles", (REPO / doc).read_text()) is None, doc
 
 
-@pytest.mark.parametrize("inputs", [{"video": "v.mp4", "vicon": "x.csv"}, {"video": "v.mp4"}],
+@pytest.mark.parametrize("inputs", [{"video": "v.mp4", "mocap": {"file": "x.csv"}}, {"video": "v.mp4"}],
                          ids=["video+vicon", "video-only"])
 def test_video_without_stills_stops_before_any_job(tmp_path, inputs):
     """A session with a video but no calib_dir (with or without Vicon) is refused at parse

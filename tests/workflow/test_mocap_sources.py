@@ -64,12 +64,12 @@ def test_motive_and_qtm_sessions_match_the_vicon_path(tmp_path):
     base = {"video": "data/demo/video.mp4", "camera": "demo", "board": dict(demo["board"])}
     system_markers = {b: {"system_body": name} for b, name in SYSTEM.items()}
     sessions = {
-        "motive_markers": {"vicon": "data/motive.csv", "mocap": {"format": "motive_csv"},
+        "motive_markers": {"mocap": {"file": "data/motive.csv", "format": "motive_csv"},
                            "markers": copy.deepcopy(demo["markers"])},
-        "motive_system": {"vicon": "data/motive.csv", "mocap": {"bodies_from": "system"},
+        "motive_system": {"mocap": {"file": "data/motive.csv", "bodies_from": "system"},
                           "markers": copy.deepcopy(system_markers)},
-        "qtm_markers": {"vicon": "data/qtm.tsv", "markers": copy.deepcopy(demo["markers"])},
-        "qtm_system": {"vicon": "data/qtm_6d.tsv", "mocap": {"format": "qtm_tsv", "bodies_from": "system"},
+        "qtm_markers": {"mocap": {"file": "data/qtm.tsv"}, "markers": copy.deepcopy(demo["markers"])},
+        "qtm_system": {"mocap": {"file": "data/qtm_6d.tsv", "format": "qtm_tsv", "bodies_from": "system"},
                        "markers": copy.deepcopy(system_markers)},
     }
     for name, s in sessions.items():
@@ -78,7 +78,7 @@ def test_motive_and_qtm_sessions_match_the_vicon_path(tmp_path):
 
     # the system sessions read the export directly: no marker import or repair is scheduled
     jobs = dry_run_jobs(tmp_path, "results/motive_system/bodies.parquet", "results/qtm_system/bodies.parquet")
-    assert jobs == {"vicon_bodies"}
+    assert jobs == {"mocap_bodies"}
 
     targets = [f"results/{s}/bodies_30hz.parquet" for s in ["demo", *sessions]]
     snakemake(tmp_path, *targets)
@@ -107,8 +107,8 @@ def test_system_session_without_system_body_is_refused(tmp_path):
     """bodies_from: system without markers.<body>.system_body stops at parse time, naming the key."""
     config = demo_config()
     config["sessions"]["lab"] = {
-        "vicon": "data/lab/take.csv", "board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
-        "mocap": {"bodies_from": "system"},
+        "mocap": {"file": "data/lab/take.csv", "bodies_from": "system"},
+        "board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
         "markers": {"camera": {"system_body": "cam"}, "board": {"names": ["b1", "b2", "b3"]}},
     }
     write_config(tmp_path, config)

@@ -47,9 +47,9 @@ def test_default_dag_has_no_rig_job_and_the_stereo_dag_has_them(tmp_path):
     write_config(rig, stereo_config())
     jobs = dry_run_jobs(rig)
     assert jobs >= RIG_RULES
-    assert {"calibrate", "corners", "poses", "sync", "vicon_bodies"} <= jobs
+    assert {"calibrate", "corners", "poses", "sync", "mocap_bodies"} <= jobs
     # no mono synth, pairs or optimiser runs on a rig's sessions
-    assert not jobs & {"synth", "pairs", "optimise_se3", "optimise_seed", "vicon_resample"}
+    assert not jobs & {"synth", "pairs", "optimise_se3", "optimise_seed", "mocap_resample"}
 
 
 @pytest.fixture(scope="module")

@@ -68,7 +68,7 @@ def demo_config(duration_s: float = 6.0) -> dict:
     config["flights"]["flight_demo"]["synth"]["duration_s"] = 30.0
     # A calibration-only second session on the demo's stills: a session whose path changes.
     config["sessions"]["stills"] = {"calib_dir": "data/demo/calib", "board": dict(demo["board"])}
-    for key in ("calib_dir", "video", "vicon"):
+    for key in ("calib_dir", "video", "mocap"):
         demo.pop(key, None)
     return config
 
@@ -178,9 +178,9 @@ def test_demo_writes_every_table_with_its_schema(demo_run):
         df = pd.read_parquet(res / name)
         assert cols <= set(df.columns), f"{name} lacks {cols - set(df.columns)}"
         assert len(df) > 0, name
-    for fig in ("calibration_errors", "calibration_coverage", "poses_raw", "vicon_markers", "sync"):
+    for fig in ("calibration_errors", "calibration_coverage", "poses_raw", "mocap_markers", "sync"):
         assert (res / "figures" / f"{fig}.png").stat().st_size > 5000
-    for fig in ("convergence", "histograms", "qq", "vicon_vs_cvs", "covariance", "error_maps"):
+    for fig in ("convergence", "histograms", "qq", "mocap_vs_cvs", "covariance", "error_maps"):
         assert (res / "seed" / "calib" / "figures" / f"{fig}.png").stat().st_size > 5000
 
 
@@ -223,8 +223,8 @@ def test_changed_iteration_count_reruns_only_the_optimiser(demo_run):
 
 def test_changed_filter_cutoff_reruns_from_vicon_repair(demo_run):
     """Changing the Butterworth cut-off reruns the Vicon repair and what follows, not the camera half."""
-    jobs = _jobs_after_change(demo_run, lambda c: c["vicon"]["filter"].update(cutoff_hz=8.0))
-    assert jobs == {"vicon_repair", "vicon_bodies", "vicon_resample", "sync", "pairs",
+    jobs = _jobs_after_change(demo_run, lambda c: c["mocap"]["filter"].update(cutoff_hz=8.0))
+    assert jobs == {"mocap_repair", "mocap_bodies", "mocap_resample", "sync", "pairs",
                     "optimise_seed", "optimise_se3", "analyse", "heldout_seed", "heldout_se3",
                     "compare", "summary", "headline", "all"}
 
@@ -341,8 +341,8 @@ def test_alternative_methods_run_end_to_end(tmp_path):
     the chapter's gesture sync (within 10 ms of truth), the Butterworth filter and errors in the
     board frame."""
     config = demo_config(duration_s=8.0)
-    config["vicon"]["resample"] = "interp"
-    config["vicon"]["filter"]["enabled"] = True
+    config["mocap"]["resample"] = "interp"
+    config["mocap"]["filter"]["enabled"] = True
     config["sync"]["method"] = "gesture"
     config["evaluate"]["frame"] = "B"
     config["flights"] = {}
@@ -358,7 +358,7 @@ def test_alternative_methods_run_end_to_end(tmp_path):
     np.testing.assert_allclose(pairs["t_vicon_s"] - pairs["t_s"], sync["dt_offset_s"], atol=1e-9)
     comparison = yaml.safe_load((tmp_path / "results/demo/comparison.yaml").read_text())
     assert comparison["error_frame"] == "B"
-    repair = yaml.safe_load((tmp_path / "results/demo/vicon_repair.yaml").read_text())
+    repair = yaml.safe_load((tmp_path / "results/demo/mocap_repair.yaml").read_text())
     assert repair["filter"] is not None
 
 
@@ -403,7 +403,7 @@ def test_init_on_the_rendered_recording_gives_a_config_the_workflow_accepts(demo
     truth = yaml.safe_load((demo_run / "data/demo/truth.yaml").read_text())
     config = yaml.safe_load((demo_run / "config/config.yaml").read_text())["sessions"]["demo"]
     assert session["calib_dir"] == "data/demo/calib"
-    assert session["video"] == "data/demo/video.mp4" and session["vicon"] == "data/demo/vicon.csv"
+    assert session["video"] == "data/demo/video.mp4" and session["mocap"]["file"] == "data/demo/vicon.csv"
     assert session["board"]["squares_x"] == truth["board"]["squares_x"]
     assert session["board"]["squares_y"] == truth["board"]["squares_y"]
     assert session["markers"]["camera"]["names"] == config["markers"]["camera"]["names"]

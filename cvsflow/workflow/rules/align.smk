@@ -42,7 +42,7 @@ rule pairs:
         mem_mb=1000,
         runtime=10,
     params:
-        resample=config["vicon"]["resample"],
+        resample=config["mocap"]["resample"],
         min_overlap_share=config["sync"]["min_overlap_share"],
     script:
         "../scripts/pairs.py"

@@ -8,7 +8,7 @@ rule analyse:
         convergence=analysis_figure("convergence"),
         histograms=analysis_figure("histograms"),
         qq=analysis_figure("qq"),
-        vicon_vs_cvs=analysis_figure("vicon_vs_cvs"),
+        mocap_vs_cvs=analysis_figure("mocap_vs_cvs"),
         covariance=analysis_figure("covariance"),
         error_maps=analysis_figure("error_maps"),
     log:

@@ -43,7 +43,7 @@ METHODS = {
 
 # How each session's motion-capture export is read (format, bodies_from); checked here, at parse time.
 MOCAP = {
-    s: mocap_settings(s, SESSIONS[s]) for s in SESSIONS if "vicon" in SESSION_STAGES[s]
+    s: mocap_settings(s, SESSIONS[s]) for s in SESSIONS if "mocap" in SESSION_STAGES[s]
 }
 
 
@@ -60,10 +60,10 @@ def bodies_path(wildcards):
     return f"results/{RIG_OF_CAMERA.get(wildcards.session, wildcards.session)}/bodies.parquet"
 
 
-def vicon_bodies_input(wildcards):
+def mocap_bodies_input(wildcards):
     """The repaired markers, or the export itself when the system's own body poses are used."""
     if MOCAP[wildcards.session]["bodies_from"] == "system":
-        return {"export": vicon_path(wildcards)}
+        return {"export": mocap_path(wildcards)}
     return {"markers": f"results/{wildcards.session}/markers_filled.parquet"}
 
 
@@ -72,16 +72,20 @@ def is_synth(session):
 
 
 def _session_path(session, key, synth_name):
-    """The user's path, or where the synth rule renders it for a rendered session."""
+    """The user's path (key `a.b` for a nested one), or where the synth rule renders it for a
+    rendered session."""
     s = SESSIONS[session]
     if "synth" in s:
         return f"data/{session}/{synth_name}"
-    if key not in s:
+    value = s
+    for part in key.split("."):
+        value = value.get(part) if isinstance(value, dict) else None
+    if value is None:
         raise ValueError(
             f"config: sessions.{session}.{key} is missing (a path is needed unless the "
             f"session has a synth block)"
         )
-    return s[key]
+    return value
 
 
 def calib_dir(wildcards):
@@ -92,8 +96,8 @@ def video_path(wildcards):
     return _session_path(wildcards.session, "video", "video.mp4")
 
 
-def vicon_path(wildcards):
-    return _session_path(wildcards.session, "vicon", "vicon.csv")
+def mocap_path(wildcards):
+    return _session_path(wildcards.session, "mocap.file", "vicon.csv")
 
 
 def camera_yaml(wildcards):
@@ -118,7 +122,7 @@ def session_targets(session):
             f"results/{session}/poses_raw.parquet",
             f"results/{session}/figures/poses_raw.png",
         ]
-    if runs_stage(session, "vicon"):
+    if runs_stage(session, "mocap"):
         # A rig's mocap session has no video of its own to resample at.
         out.append(
             f"results/{session}/bodies_30hz.parquet"
@@ -126,7 +130,7 @@ def session_targets(session):
             else f"results/{session}/bodies.parquet"
         )
         if MOCAP[session]["bodies_from"] == "markers":
-            out.append(f"results/{session}/figures/vicon_markers.png")
+            out.append(f"results/{session}/figures/mocap_markers.png")
     if runs_stage(session, "pairs"):
         out += [
             f"results/{session}/sync.yaml",
@@ -284,10 +288,10 @@ def headline_inputs(wildcards):
             files[f"{session}/truth"] = f"data/{session}/truth.yaml"
         if runs_stage(session, "poses"):
             files[f"{session}/corners"] = f"results/{session}/corners_summary.yaml"
-        if runs_stage(session, "vicon") and MOCAP[session]["bodies_from"] == "markers":
-            files[f"{session}/vicon_import"] = f"results/{session}/vicon_import.yaml"
-        if runs_stage(session, "vicon"):
-            files[f"{session}/vicon_repair"] = f"results/{session}/vicon_repair.yaml"
+        if runs_stage(session, "mocap") and MOCAP[session]["bodies_from"] == "markers":
+            files[f"{session}/mocap_import"] = f"results/{session}/mocap_import.yaml"
+        if runs_stage(session, "mocap"):
+            files[f"{session}/mocap_repair"] = f"results/{session}/mocap_repair.yaml"
         if runs_stage(session, "pairs"):
             files[f"{session}/sync"] = f"results/{session}/sync.yaml"
             for method in METHODS[session]:

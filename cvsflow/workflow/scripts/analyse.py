@@ -32,8 +32,8 @@ with stage_logging(snakemake.log[0], "analyse") as log:
     save_figure(plots.mark_diverged(plots.plot_error_histograms(errors, tests), diverged), out.histograms)
     save_figure(plots.mark_diverged(plots.plot_qq(analyse.qq_data(errors)), diverged), out.qq)
     labels = plots.SE3_LABELS if snakemake.wildcards.method == "se3" else plots.SEED_LABELS
-    save_figure(plots.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(errors, result), labels, diverged),
-                out.vicon_vs_cvs)
+    save_figure(plots.plot_vicon_vs_cvs(analyse.mocap_vs_cvs(errors, result), labels, diverged),
+                out.mocap_vs_cvs)
     save_figure(plots.mark_diverged(plots.plot_covariance(Sigma, corr), diverged), out.covariance)
     maps = analyse.error_maps(errors, bins=cfg["contour_bins"], min_count=cfg["contour_min_count"])
     save_figure(plots.mark_diverged(plots.plot_error_maps(maps), diverged), out.error_maps)

@@ -18,8 +18,8 @@ with stage_logging(snakemake.log[0], "headline") as log:
             s, camera=load(f"{s}/camera"), camera_from=snakemake.params.camera_from.get(s),
             sync=load(f"{s}/sync"), se3=load(f"{s}/se3"), seed=load(f"{s}/seed"),
             comparison=load(f"{s}/comparison"), truth=load(f"{s}/truth"),
-            corners=load(f"{s}/corners"), vicon_repair=load(f"{s}/vicon_repair"),
-            vicon_import=load(f"{s}/vicon_import"),
+            corners=load(f"{s}/corners"), mocap_repair=load(f"{s}/mocap_repair"),
+            mocap_import=load(f"{s}/mocap_import"),
         )
     for f in snakemake.params.flights:
         rows += flight_headline(f, load(f"flight {f}/stats"))

@@ -321,7 +321,7 @@ def test_charuco_config_example_validates_and_leaves_the_demo_board_as_it_was():
     config = yaml.safe_load((REPO / "config" / "config.yaml").read_text())
     update_config(config, yaml.safe_load((REPO / "config" / "charuco.yaml").read_text()))
     validate(config, schema)
-    assert {"calibrate", "poses", "vicon", "pairs"} <= set(
+    assert {"calibrate", "poses", "mocap", "pairs"} <= set(
         check_sessions(config["sessions"])["charuco640"])
     assert "type" not in config["sessions"]["demo"]["board"]
     board = config["sessions"]["charuco640"]["board"]

@@ -191,7 +191,7 @@ def test_init_finds_recording_and_never_overwrites(tmp_path, capsys):
     assert cli.main(["init", str(rec), "--out", str(out), "--name", "s1"]) == 0
     cfg = yaml.safe_load(out.read_text())["sessions"]["s1"]
     assert cfg["calib_dir"].endswith("stills") and cfg["video"].endswith("take.mp4")
-    assert cfg["vicon"].endswith("take.csv")
+    assert cfg["mocap"]["file"].endswith("take.csv")
     assert cfg["board"]["squares_x"] == 6 and cfg["board"]["squares_y"] == 5  # 5x4 inner corners
     assert cfg["markers"]["camera"]["names"] == ["cam:C1", "cam:C2"]
     assert cfg["markers"]["board"]["names"] == ["board:B1"]
@@ -247,7 +247,7 @@ def test_init_on_a_6dof_only_qtm_export_uses_the_system_bodies(tmp_path):
     out = tmp_path / "s.yaml"
     assert cli.main(["init", str(rec), "--out", str(out), "--name", "q"]) == 0
     cfg = yaml.safe_load(out.read_text())["sessions"]["q"]
-    assert cfg["vicon"].endswith("take_6D.tsv")
+    assert cfg["mocap"]["file"].endswith("take_6D.tsv")
     assert cfg["mocap"] == {"format": "qtm_tsv", "bodies_from": "system"}
     assert cfg["markers"] == {"camera": {"system_body": "webcam rig"}, "board": {"system_body": "chessboard"}}
     # with the user's TODOs filled, the session passes the schema and the session checks
@@ -279,9 +279,9 @@ def test_init_names_a_session_as_a_wildcard_and_reports_what_is_missing(tmp_path
     cfg = yaml.safe_load((tmp_path / "s.yaml").read_text())
     (name, session), = cfg["sessions"].items()
     assert name == "lab_1__May_"
-    assert session["calib_dir"] == session["video"] == session["vicon"] == "TODO"
+    assert session["calib_dir"] == session["video"] == session["mocap"]["file"] == "TODO"
     out = capsys.readouterr().out
-    assert "set calib_dir" in out and "set video" in out and "set vicon" in out
+    assert "set calib_dir" in out and "set video" in out and "set mocap.file" in out
 
 
 def _readme_session_block():
@@ -305,7 +305,7 @@ def test_readme_session_config_validates_on_its_own():
     validate(config, str(SCHEMA))
     assert set(config["sessions"]) == {"lab1"} and config["flights"] == {}
     stages = check_sessions(config["sessions"])
-    assert {"calibrate", "poses", "vicon", "pairs"} <= set(stages["lab1"])
+    assert {"calibrate", "poses", "mocap", "pairs"} <= set(stages["lab1"])
     lab1 = config["sessions"]["lab1"]
     assert lab1["board"]["squares_x"] == 6 and len(lab1["markers"]["camera"]["layout_m"]) == 4
     # blocks left out entirely are filled to their last key

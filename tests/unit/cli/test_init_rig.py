@@ -70,7 +70,7 @@ def make_rig(rec, cameras=("cam_left", "cam_right"), shared="camera", shared_nam
 
 def assert_runnable_rig(name, session):
     """With square_m filled, the rig merged over config/config.yaml passes the schema and
-    expand_rig_sessions; its per-camera sessions calibrate and track, the rig's runs the vicon."""
+    expand_rig_sessions; its per-camera sessions calibrate and track, the rig's runs the mocap stages."""
     from snakemake.utils import update_config, validate
 
     from cvsflow.workflow.sessions import check_sessions, expand_rig_sessions
@@ -85,7 +85,7 @@ def assert_runnable_rig(name, session):
     assert rigs[name]["cameras"] == cams and not rigs[name]["synth"]
     assert rigs[name]["sessions"] == [f"{name}-{c}" for c in cams]
     stages = check_sessions(plain)
-    assert stages[name] == ("vicon",)
+    assert stages[name] == ("mocap",)
     for c in cams:
         assert stages[f"{name}-{c}"] == ("calibrate", "poses")
     return plain, rigs
@@ -103,7 +103,7 @@ def test_init_writes_a_rig_session_from_camera_folders(tmp_path, capsys):
         assert c["video"] == str(rec / c["name"] / "video.mp4")
         assert c["shared_dir"] == str(rec / c["name"] / "shared")
     assert "calib_dir" not in cfg and "video" not in cfg
-    assert cfg["vicon"] == str(rec / "take.csv") and cfg["mocap"] == {"format": "vicon_csv"}
+    assert cfg["mocap"] == {"file": str(rec / "take.csv"), "format": "vicon_csv"}
     assert cfg["board"] == {"squares_x": 6, "squares_y": 5, "square_m": "TODO"}  # 5x4 inner corners
     assert cfg["markers"]["camera"]["names"] == ["rig:R1", "rig:R2", "rig:R3"]
     assert cfg["markers"]["board"]["names"] == ["board:B1", "board:B2", "board:B3"]

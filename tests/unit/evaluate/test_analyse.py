@@ -104,7 +104,7 @@ def test_vicon_vs_cvs_differences_are_eps():
     """improved - vicon equals eps and original - vicon equals eps_orig (angles wrapped)."""
     df, eps, P_bar = _errors()
     P_bar0 = P_bar + 0.01
-    tr = analyse.vicon_vs_cvs(df, {"P_bar": P_bar.tolist(), "P_bar_init": P_bar0.tolist()})
+    tr = analyse.mocap_vs_cvs(df, {"P_bar": P_bar.tolist(), "P_bar_init": P_bar0.tolist()})
     for i, d in enumerate(DIMS):
         diff = tr[f"improved_{d}"] - tr[f"vicon_{d}"]
         diff0 = tr[f"original_{d}"] - tr[f"vicon_{d}"]
@@ -210,7 +210,7 @@ def test_vicon_vs_cvs_errors_in_mm_and_lines_broken_at_gaps():
     df, eps, P_bar = _errors(300)
     df = df.drop(index=range(100, 130)).reset_index(drop=True)  # 1 s without frames
     eps = np.delete(eps, range(100, 130), axis=0)
-    fig = pr.plot_vicon_vs_cvs(analyse.vicon_vs_cvs(df, {"P_bar": P_bar}), diverged_reason="fy at 5000 px")
+    fig = pr.plot_vicon_vs_cvs(analyse.mocap_vs_cvs(df, {"P_bar": P_bar}), diverged_reason="fy at 5000 px")
     assert len(fig.axes) == 12
     assert "DIVERGED: fy at 5000 px" in fig.get_suptitle()
     ax_x, ax_ex = fig.axes[0], fig.axes[3]

@@ -43,7 +43,7 @@ REPAIR = {"total": {"measured": 900, "rigid": 60, "interp": 40, "missing": 0},
 
 def full_rows(**over):
     kw = {"camera": CAMERA, "sync": SYNC, "se3": SE3, "seed": SEED, "comparison": COMPARISON,
-          "truth": TRUTH, "corners": CORNERS, "vicon_repair": REPAIR}
+          "truth": TRUTH, "corners": CORNERS, "mocap_repair": REPAIR}
     kw.update(over)
     return headline.session_headline("lab1", **kw)
 
@@ -117,14 +117,14 @@ def test_diverged_seed_shows_reason_and_no_numbers():
 
 
 def test_a_take_cut_short_is_a_headline_warning_with_its_source():
-    """vicon_import.yaml's warnings (a take cut short: both counts) reach the headline's
+    """mocap_import.yaml's warnings (a take cut short: both counts) reach the headline's
     warnings, naming the file they come from; a whole take adds nothing."""
     cut = ("vicon.csv: the file was cut short: 693 of the 1353 frames its header states "
            "(Total Exported Frames) were read")
-    rows = headline.session_headline("lab", vicon_import={"warnings": [cut]})
+    rows = headline.session_headline("lab", mocap_import={"warnings": [cut]})
     (row,) = [r for r in rows if r["group"] == "warnings"]
-    assert cut in row["text"] and row["source"] == "results/lab/vicon_import.yaml: warnings"
-    rows = headline.session_headline("lab", vicon_import={"n_frames": 10, "warnings": []})
+    assert cut in row["text"] and row["source"] == "results/lab/mocap_import.yaml: warnings"
+    rows = headline.session_headline("lab", mocap_import={"n_frames": 10, "warnings": []})
     assert [r["text"] for r in rows if r["group"] == "warnings"] == ["none"]
 
 
@@ -167,4 +167,4 @@ def test_data_quality_rows_from_corners_and_vicon_repair():
     assert rows[("data", "video frames with a board")]["text"] == "570 of 600"
     assert rows[("data", "Vicon marker samples filled")]["value"] == pytest.approx(10.0)
     assert rows[("warnings", "vicon")]["text"] == "board:B3 missing for 0.4 s"
-    assert rows[("warnings", "vicon")]["source"] == "results/lab1/vicon_repair.yaml: warnings"
+    assert rows[("warnings", "vicon")]["source"] == "results/lab1/mocap_repair.yaml: warnings"

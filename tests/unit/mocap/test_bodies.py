@@ -1,4 +1,4 @@
-"""Rigid-body fit (rule vicon_bodies) and 30 Hz tables (rule vicon_resample) against synthetic truth."""
+"""Rigid-body fit (rule mocap_bodies) and 30 Hz tables (rule mocap_resample) against synthetic truth."""
 
 import numpy as np
 import pandas as pd

@@ -1,4 +1,4 @@
-"""Marker gap repair and the low-pass filter (rule vicon_repair) against synthetic truth."""
+"""Marker gap repair and the low-pass filter (rule mocap_repair) against synthetic truth."""
 
 import numpy as np
 import pandas as pd
@@ -27,7 +27,7 @@ def test_rigid_fill_is_exact_and_flagged():
 
 
 def test_repair_summary_warns_of_markers_never_seen_and_long_gaps():
-    """vicon_repair.yaml's ``warnings``: none on a clean take; a marker never measured (here
+    """mocap_repair.yaml's ``warnings``: none on a clean take; a marker never measured (here
     refilled from its body every sample) is named; over 20 % of the samples missing is counted."""
     df, _, _ = synthetic_markers(duration_s=2.0)
     assert fill_marker_gaps(df, body_specs(), max_gap_s=0.1)[1]["warnings"] == []

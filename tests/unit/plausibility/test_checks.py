@@ -87,7 +87,7 @@ def poses_table(n=90, fps=30.0, moving=True, valid=True, seed=0):
 
 
 def test_units_row_m_on_mm_data_stops_vicon_import(tmp_path):
-    """Row 'units row says m on data in mm': vicon_import stops with a UnitsError naming the
+    """Row 'units row says m on data in mm': mocap_import stops with a UnitsError naming the
     file, the body, both spans and 'says m where the values are mm'; no markers.parquet."""
     csv = tmp_path / "vicon.csv"
     write_nexus_csv(markers_table(), csv, rate_hz=300.0)
@@ -97,12 +97,12 @@ def test_units_row_m_on_mm_data_stops_vicon_import(tmp_path):
     out = tmp_path / "markers.parquet"
     with pytest.raises(UnitsError, match=r"vicon\.csv: body 'camera'.*span 2\d\d(\.\d+)? m.*layout_m spans "
                        r"0\.2\d* m.*ratio 1\d\d\d.*says m where the values are mm"):
-        run_stage("vicon_import", tmp_path, {"csv": csv}, {"markers": out, "summary": tmp_path / "s.yaml"},
+        run_stage("mocap_import", tmp_path, {"csv": csv}, {"markers": out, "summary": tmp_path / "s.yaml"},
                   {"markers": SPECS, "max_scale_ratio": 3.0})
     assert not out.exists() and not (tmp_path / "s.yaml").exists()
-    assert "Traceback" not in (tmp_path / "logs" / "vicon_import.log").read_text()
-    assert "vicon_import failed (UnitsError)" in (tmp_path / "logs" / "vicon_import.log").read_text()
-    assert "vicon.csv: body 'camera'" in (tmp_path / "logs" / "vicon_import.log").read_text()
+    assert "Traceback" not in (tmp_path / "logs" / "mocap_import.log").read_text()
+    assert "mocap_import failed (UnitsError)" in (tmp_path / "logs" / "mocap_import.log").read_text()
+    assert "vicon.csv: body 'camera'" in (tmp_path / "logs" / "mocap_import.log").read_text()
 
 
 def test_marker_scale_right_units_pass_and_cm_named():
@@ -116,8 +116,8 @@ def test_marker_scale_right_units_pass_and_cm_named():
 
 
 def test_fit_rms_against_layout_scale_stops_vicon_bodies(tmp_path):
-    """Markers 1000x the layout (the units row past vicon_import): the rigid-body fit RMS is
-    hundreds of metres; vicon_bodies stops naming the body, the RMS and the limit, writes
+    """Markers 1000x the layout (the units row past mocap_import): the rigid-body fit RMS is
+    hundreds of metres; mocap_bodies stops naming the body, the RMS and the limit, writes
     nothing. Right units: a fit RMS of 0.3 mm passes without warnings."""
     good = markers_table()
     assert check_body_fits(fit_bodies(good, SPECS), SPECS, "markers_filled.parquet", **VICON_CFG) == []
@@ -125,10 +125,10 @@ def test_fit_rms_against_layout_scale_stops_vicon_bodies(tmp_path):
     bad[[c for c in good.columns if c.endswith("_m")]] *= 1000.0
     src = tmp_path / "markers_filled.parquet"
     write_parquet(bad, src)
-    outs = {"bodies": tmp_path / "bodies.parquet", "fig": tmp_path / "vicon_fit.png"}
+    outs = {"bodies": tmp_path / "bodies.parquet", "fig": tmp_path / "mocap_fit.png"}
     with pytest.raises(UnitsError, match=r"markers_filled\.parquet: body 'board': rigid-body fit RMS "
                        r"\d{3}(\.\d+)? m.*expected at most 0\.04\d* m"):
-        run_stage("vicon_bodies", tmp_path, {"m": src}, outs, {"markers": SPECS, **VICON_CFG})
+        run_stage("mocap_bodies", tmp_path, {"m": src}, outs, {"markers": SPECS, **VICON_CFG})
     assert not any(p.exists() for p in outs.values())
 
 

@@ -197,14 +197,14 @@ def test_rig_session_expands_into_plain_sessions():
     assert plain == {"demo": demo} and plain["demo"] is demo and rigs == {}
     plain, rigs = expand_rig_sessions({"demo": demo, "stereo": stereo_cfg()})
     assert list(plain) == ["demo", "stereo", "stereo-left", "stereo-right"]
-    assert plain["stereo"]["vicon"] == "data/stereo/vicon.csv" and "synth" not in plain["stereo"]
+    assert plain["stereo"]["mocap"]["file"] == "data/stereo/vicon.csv" and "synth" not in plain["stereo"]
     assert plain["stereo-right"] == {"board": demo["board"], "calib_dir": "data/stereo/right/calib",
                                      "video": "data/stereo/right/video.mp4"}
     assert rigs["stereo"]["sessions"] == ["stereo-left", "stereo-right"]
     assert rigs["stereo"]["shared_dirs"] == ["data/stereo/left/shared", "data/stereo/right/shared"]
     stages = check_sessions(plain)
-    assert stages["stereo"] == ("vicon",) and stages["stereo-left"] == ("calibrate", "poses")
-    real = {"vicon": "take.csv", "board": demo["board"], "markers": demo["markers"],
+    assert stages["stereo"] == ("mocap",) and stages["stereo-left"] == ("calibrate", "poses")
+    real = {"mocap": {"file": "take.csv"}, "board": demo["board"], "markers": demo["markers"],
             "cameras": [{"name": "a", "calib_dir": "ca", "video": "va.mp4"}, {"name": "b", "calib_dir": "cb"}]}
     with pytest.raises(ConfigError, match=r"cameras\[b\]: video is missing"):
         expand_rig_sessions({"r": real})

@@ -1,10 +1,20 @@
-"""resolve_targets: a session's Kalibr target file read into its board before any rule sees it."""
+"""cvsflow.workflow.sessions: what each session runs, a Kalibr target file read into its board, and the keys
+renamed since the first release."""
+
+import copy
 
 import pytest
 
 from cvsflow.exceptions import ConfigError
 from cvsflow.io.targets import read_target_board
-from cvsflow.workflow.sessions import expand_rig_sessions, resolve_targets, session_stages
+from cvsflow.workflow.sessions import (
+    check_sessions,
+    expand_rig_sessions,
+    mocap_file,
+    resolve_targets,
+    session_stages,
+    upgrade_config,
+)
 
 
 def test_target_file_becomes_the_board(tmp_path):
@@ -25,7 +35,7 @@ def test_rig_cameras_get_the_targets_board(tmp_path):
     path = tmp_path / "checker.yaml"
     path.write_text("target_type: checkerboard\ntargetCols: 9\ntargetRows: 6\n"
                     "rowSpacingMeters: 0.025\ncolSpacingMeters: 0.025\n")
-    rig = {"target": str(path), "vicon": "v.csv", "markers": {"camera": {}, "board": {}},
+    rig = {"target": str(path), "mocap": {"file": "v.csv"}, "markers": {"camera": {}, "board": {}},
            "cameras": [{"name": "a", "calib_dir": "a", "video": "a.mp4"},
                        {"name": "b", "calib_dir": "b", "video": "b.mp4"}]}
     plain, _ = expand_rig_sessions(resolve_targets({"r": rig}, read_target_board))
@@ -52,3 +62,52 @@ def test_aprilgrid_board_block_is_checked_with_the_session(tmp_path):
     board = {"type": "aprilgrid", "tag_cols": 6, "tag_rows": 6, "tag_size_m": 0.088, "tag_spacing": 3.0}
     with pytest.raises(ConfigError, match="sessions.s.board: AprilGrid: tag_spacing=3.0"):
         session_stages("s", {"s": {"calib_dir": "x", "board": board}})
+
+
+SESSION = {
+    "calib_dir": "rec/calib", "video": "rec/board.mp4", "mocap": {"file": "rec/take.csv"},
+    "board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
+    "markers": {"camera": {"names": ["c1", "c2", "c3"]}, "board": {"names": ["b1", "b2", "b3"]}},
+}
+
+
+def test_a_full_session_runs_every_stage():
+    """Stills, a video and a mocap export with markers run calibrate, poses, mocap and pairs."""
+    assert check_sessions({"lab": SESSION})["lab"] == ("calibrate", "poses", "mocap", "pairs")
+
+
+def test_an_export_without_markers_names_what_to_add():
+    """mocap.file without markers stops with a message naming markers.camera.names."""
+    s = copy.deepcopy(SESSION)
+    del s["markers"]
+    with pytest.raises(ConfigError, match=r"sessions\.lab: names a motion-capture export but no markers"):
+        check_sessions({"lab": s})
+
+
+def test_old_vicon_keys_are_read_as_the_new_ones_with_a_warning():
+    """sessions.<s>.vicon, the top-level vicon block and synth.vicon_lead_s become mocap.file,
+    mocap and synth.mocap_lead_s; each rename is one warning naming both keys."""
+    config = {"vicon": {"max_gap_s": 0.2},
+              "sessions": {"lab": {"vicon": "take.csv", "mocap": {"format": "motive_csv"}},
+                           "demo": {"synth": {"vicon_lead_s": 2.0}}}}
+    notes = upgrade_config(config)
+    assert config["mocap"] == {"max_gap_s": 0.2} and "vicon" not in config
+    assert config["sessions"]["lab"]["mocap"] == {"format": "motive_csv", "file": "take.csv"}
+    assert mocap_file(config["sessions"]["lab"]) == "take.csv"
+    assert config["sessions"]["demo"]["synth"] == {"mocap_lead_s": 2.0}
+    assert len(notes) == 3
+    assert any("sessions.lab.vicon is deprecated, use sessions.lab.mocap.file" in n for n in notes)
+
+
+def test_a_key_given_under_both_names_is_refused():
+    """vicon and mocap.file both set: the config says which to keep instead of picking one."""
+    config = {"sessions": {"lab": {"vicon": "a.csv", "mocap": {"file": "b.csv"}}}}
+    with pytest.raises(ConfigError, match=r"both sessions\.lab\.vicon \(deprecated\) and sessions\.lab\.mocap\.file"):
+        upgrade_config(config)
+
+
+def test_a_config_with_only_new_keys_is_left_as_it_is():
+    """No old key: nothing changes and nothing is said."""
+    config = {"mocap": {"max_gap_s": 0.1}, "sessions": {"lab": copy.deepcopy(SESSION)}}
+    before = copy.deepcopy(config)
+    assert upgrade_config(config) == [] and config == before

@@ -202,7 +202,7 @@ def test_file_cut_short(tmp_path, caplog):
 def test_real_export_cut_at_a_row_boundary_warns_with_both_counts(tmp_path, caplog):
     """The real 360 Hz Motive export cut after 693 of the 1353 rows its header states (at a
     row boundary, so every row is whole): read as far as it goes, the WARNING names the file
-    and both counts, and the marker table carries them for vicon_import's summary."""
+    and both counts, and the marker table carries them for mocap_import's summary."""
     lines = _need(UNLAB).read_text().splitlines(keepends=True)
     path = tmp_path / "cut.csv"
     path.write_text("".join(lines[: 7 + 693]))
@@ -215,11 +215,11 @@ def test_real_export_cut_at_a_row_boundary_warns_with_both_counts(tmp_path, capl
     assert msg in caplog.text
     whole = read_markers(_need(UNLAB))
     assert whole.attrs["n_frames_stated"] == 1353 and whole.attrs.get("warnings", []) == []
-    # the stage's summary (vicon_import.yaml, which the headline's warnings read) has both counts
+    # the stage's summary (mocap_import.yaml, which the headline's warnings read) has both counts
     names = marker_names(whole)
     specs = {"camera": {"names": names[:4]}, "board": {"names": names[4:8]}}
-    out = {"markers": tmp_path / "markers.parquet", "summary": tmp_path / "vicon_import.yaml"}
-    run_stage("vicon_import", tmp_path, {"export": path}, out, {"markers": specs, "max_scale_ratio": 3.0})
+    out = {"markers": tmp_path / "markers.parquet", "summary": tmp_path / "mocap_import.yaml"}
+    run_stage("mocap_import", tmp_path, {"export": path}, out, {"markers": specs, "max_scale_ratio": 3.0})
     summary = read_yaml(out["summary"])
     assert summary["format"] == "motive_csv" and summary["rate_hz"] == 360.0
     assert summary["n_frames"] == 693 and summary["n_frames_stated"] == 1353

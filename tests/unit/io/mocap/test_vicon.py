@@ -212,7 +212,7 @@ def test_file_cut_short_names_last_line(tmp_path, caplog):
 def test_real_c3d_cut_to_half_warns_with_both_counts(tmp_path, caplog):
     """The real C3D cut to half its bytes: ezc3d reads 288 frames and rewrites its header to
     them; the reader takes the count from the file's own header block (580) and warns with
-    both, and the marker table carries them for vicon_import's summary."""
+    both, and the marker table carries them for mocap_import's summary."""
     if not REAL_C3D.exists():
         pytest.skip(f"real Vicon export not available at {REAL_C3D}")
     raw = REAL_C3D.read_bytes()

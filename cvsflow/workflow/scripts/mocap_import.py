@@ -1,4 +1,4 @@
-"""Read the motion-capture export into a marker table in metres (rule vicon_import)."""
+"""Read the motion-capture export into a marker table in metres (rule mocap_import)."""
 
 from cvsflow.io.files import write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
@@ -6,7 +6,7 @@ from cvsflow.io.mocap.formats import read_markers
 from cvsflow.io.mocap.markers import import_summary
 from cvsflow.plausibility import check_marker_scale
 
-with stage_logging(snakemake.log[0], "vicon_import") as log:
+with stage_logging(snakemake.log[0], "mocap_import") as log:
     markers = snakemake.params.markers
     names = markers["camera"]["names"] + markers["board"]["names"]
     # mocap.format; absent in older callers of this script (tests/unit/test_plausibility.py)

@@ -1,11 +1,11 @@
-"""Fill short marker gaps, optionally low-pass, flag every repaired sample (rule vicon_repair)."""
+"""Fill short marker gaps, optionally low-pass, flag every repaired sample (rule mocap_repair)."""
 
 from cvsflow.io.files import read_parquet, save_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.mocap import repair_markers
 from cvsflow.plots import mocap as plots
 
-with stage_logging(snakemake.log[0], "vicon_repair") as log:
+with stage_logging(snakemake.log[0], "mocap_repair") as log:
     markers = read_parquet(snakemake.input[0])
     filled, summary = repair_markers(markers, snakemake.params.markers, snakemake.params.vicon)
     log.info("repair: %s", summary)

@@ -1,4 +1,4 @@
-"""Camera and board poses: fitted to their markers, or as the mocap system solved them (rule vicon_bodies)."""
+"""Camera and board poses: fitted to their markers, or as the mocap system solved them (rule mocap_bodies)."""
 
 from cvsflow.io.files import read_parquet, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
@@ -7,7 +7,7 @@ from cvsflow.mocap import fit_bodies, resolve_layouts
 from cvsflow.plausibility import check_body_fits
 from cvsflow.plots import mocap as plots
 
-with stage_logging(snakemake.log[0], "vicon_bodies") as log:
+with stage_logging(snakemake.log[0], "mocap_bodies") as log:
     specs = snakemake.params.markers
     if hasattr(snakemake.input, "export"):  # mocap.bodies_from: system
         source = snakemake.input.export
