@@ -248,7 +248,7 @@ def test_init_on_a_6dof_only_qtm_export_uses_the_system_bodies(tmp_path):
     assert cli.main(["init", str(rec), "--out", str(out), "--name", "q"]) == 0
     cfg = yaml.safe_load(out.read_text())["sessions"]["q"]
     assert cfg["mocap"]["file"].endswith("take_6D.tsv")
-    assert cfg["mocap"] == {"format": "qtm_tsv", "bodies_from": "system"}
+    assert cfg["mocap"] == {"file": cfg["mocap"]["file"], "format": "qtm_tsv", "bodies_from": "system"}
     assert cfg["markers"] == {"camera": {"system_body": "webcam rig"}, "board": {"system_body": "chessboard"}}
     # with the user's TODOs filled, the session passes the schema and the session checks
     import copy
@@ -311,7 +311,7 @@ def test_readme_session_config_validates_on_its_own():
     # blocks left out entirely are filled to their last key
     assert config["pnp"]["ransac_reproj_px"] == 3.0 and config["sync"]["method"] == "angular_speed"
     assert config["evaluate"]["n_folds"] == 5 and config["optimise"]["se3"]["loss"] == "soft_l1"
-    assert config["vicon"]["filter"]["enabled"] is False and config["corners"]["subpix_window_px"] == 5
+    assert config["mocap"]["filter"]["enabled"] is False and config["corners"]["subpix_window_px"] == 5
 
 
 def test_calibrate_rig_from_rendered_stereo_stills(tmp_path, capsys):
