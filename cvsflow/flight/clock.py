@@ -12,7 +12,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
-from scipy.signal import correlate, correlation_lags
 from scipy.spatial.transform import Rotation, Slerp
 
 from cvsflow.exceptions import SyncError
@@ -73,6 +72,10 @@ def _xcorr_offset(t_r, R_r, t_e, R_e, rate_hz, max_offset_s, baseline_s):
 
     Returns ``(dt0_s, quality)``; raises SyncError when no lag has enough overlap.
     """
+    # scipy.signal loads scipy.stats with it (~0.5 s of CPU per process): imported where it is
+    # used, so that jobs which only import this subpackage do not pay for it
+    from scipy.signal import correlate, correlation_lags
+
     if baseline_s is None:
         tm_r, w_r = angular_speed(t_r, R_r)
         tm_e, w_e = angular_speed(t_e, R_e)

@@ -13,7 +13,6 @@ import logging
 
 import numpy as np
 import pandas as pd
-from scipy.signal import butter, filtfilt
 
 from cvsflow.exceptions import MocapError
 from cvsflow.geometry import fit_rigid
@@ -242,6 +241,10 @@ def lowpass_markers(markers, cutoff_hz, order=2):
     MocapError
         A cut-off at or above the Nyquist rate.
     """
+    # scipy.signal loads scipy.stats with it (~0.5 s of CPU per process): imported where it is
+    # used, so that jobs which only import this subpackage do not pay for it
+    from scipy.signal import butter, filtfilt
+
     rate = _rate_hz(markers)
     if not 0 < cutoff_hz < rate / 2:
         raise MocapError(f"lowpass_markers: cutoff {cutoff_hz} Hz, expected 0 < f < {rate / 2} Hz")
