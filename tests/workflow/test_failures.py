@@ -117,6 +117,28 @@ def test_bad_camera_key_is_a_config_error(tmp_path, camera, message):
     assert f"sessions.lab2.camera: {message}" in proc.stdout + proc.stderr
 
 
+def test_a_real_sessions_inputs_under_data_of_another_name_need_no_synth_rule(tmp_path, real_data):
+    """A real session whose inputs live under data/<name>/, <name> not a session: before, the
+    synth rule claimed data/<name>/... ('InputFunctionException in rule synth ... KeyError');
+    now the whole DAG is planned without it, and calibrate runs on the files where they are."""
+    rec = tmp_path / "data" / "recordings"
+    (rec / "calib").mkdir(parents=True)
+    for p in sorted((real_data / "opencv-chessboard").glob("left*.jpg"))[:6]:
+        (rec / "calib" / p.name).write_bytes(p.read_bytes())
+    (rec / "video.mp4").write_bytes(b"x")
+    (rec / "vicon.csv").write_bytes(b"x")
+    session = {"calib_dir": "data/recordings/calib", "video": "data/recordings/video.mp4",
+               "vicon": "data/recordings/vicon.csv", "markers": MARKERS,
+               "board": {"squares_x": 10, "squares_y": 7, "square_m": 0.025}}
+    write_config(tmp_path, {"sessions": {"lab": session}})
+    jobs = dry_run_jobs(tmp_path)
+    assert "synth" not in jobs
+    assert {"calibrate", "corners", "vicon_import", "sync", "pairs"} <= jobs
+    proc = snakemake(tmp_path, "results/lab/camera.yaml")
+    assert proc.returncode == 0 and (tmp_path / "results/lab/camera.yaml").is_file()
+    assert not (tmp_path / "data" / "lab").exists()
+
+
 def test_calib_dir_that_is_a_file_says_so(tmp_path):
     """calib_dir pointing at a file: 'is a file, expected a folder of stills'; no camera.yaml."""
     still = tmp_path / "still.png"
