@@ -18,10 +18,14 @@ corners table.
 
 Bad input (:class:`~cvsflow.exceptions.FrameFolderError`, file or csv line named): a folder whose
 images carry no timestamp (names that are not ns integers, no ``data.csv``), a csv row naming an
-image that does not exist, a timestamp that is not an integer or goes back, two frames at one
-time, a folder without images. An image that cannot be decoded or is cut short (a JPEG without
-its end marker, a PNG without IEND) costs its frame: it is named in a WARNING and yielded as
-None (``undecodable=True``) or left out.
+image that does not exist, a timestamp that is missing, not an integer or goes back, two frames
+at one time, a folder without images, frames of two sizes. A ``data.csv`` cut short (its last
+row cut mid-row, or images in ``data/`` no row names) is read as far as it goes with a WARNING.
+An image that cannot be decoded or is cut short (a JPEG without its end marker, a PNG without
+IEND) costs its frame: it is named in a WARNING and yielded as None (``undecodable=True``) or
+left out. (Calibration stills are checked by Pillow's decoder instead,
+:func:`cvsflow.io.media.read_gray`: a phone's still may carry data after its JPEG's end marker, a
+motion photo its video, which the end-marker test would take for a cut file.)
 """
 
 from __future__ import annotations
@@ -71,6 +75,12 @@ def _image_for(data: Path, name: str, csv: Path, lineno: int) -> Path:
                            "expected every row's image in the data folder")  # fmt: skip
 
 
+def _named_image_exists(data: Path, name: str) -> bool:
+    """Whether ``data`` holds the image ``name`` or one of its stem with an image suffix."""
+    stem = Path(name).stem
+    return (data / name).is_file() or any((data / (stem + s)).is_file() for s in IMAGE_SUFFIXES)
+
+
 def _read_asl_csv(cam: Path) -> pd.DataFrame:
     """Rows of an ASL camera folder's data.csv: t_ns, path (in file order), line."""
     csv, data = cam / "data.csv", cam / "data"
@@ -81,8 +91,13 @@ def _read_asl_csv(cam: Path) -> pd.DataFrame:
     with open(csv, encoding="utf-8-sig", errors="replace") as fh:
         for lineno, raw in enumerate(fh, start=1):
             cells = [c.strip() for c in raw.strip().lstrip("#").split(",")]
-            if not cells[0] or (lineno == 1 and not cells[0].lstrip("+").isdigit()):
+            if not any(cells) or (lineno == 1 and not cells[0].lstrip("+").isdigit()):
                 continue  # blank, or the header line
+            cut = not raw.endswith("\n") and bool(rows)  # the file ends inside this row?
+            if cut and (len(cells) < 2 or not _named_image_exists(data, cells[1])):
+                log.warning("%s, line %d: the file ends inside this row (%r): cut short; the row is "
+                            "left out", csv, lineno, raw.strip()[:60])  # fmt: skip
+                break
             if len(cells) < 2 or not cells[0].lstrip("+").isdigit():
                 raise FrameFolderError(
                     f"{csv}, line {lineno}: {raw.strip()[:60]!r}; expected 'timestamp [ns],filename' "
@@ -92,6 +107,12 @@ def _read_asl_csv(cam: Path) -> pd.DataFrame:
     if not rows:
         raise FrameFolderError(f"{csv}: no frame rows; expected 'timestamp [ns],filename' rows")
     out = pd.DataFrame(rows, columns=["t_ns", "path", "line", "named"])
+    unnamed = sorted({p.name for p in data.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES}
+                     - {p.name for p in out["path"]})
+    if unnamed:  # a csv cut short at a row boundary says nothing else
+        log.warning("%s: %d of the %d images in %s are named by no row (e.g. %s; the csv cut "
+                    "short?); only the %d rows' frames are read", csv, len(unnamed),
+                    len(unnamed) + len(out), data, unnamed[0], len(out))  # fmt: skip
     renamed = int(sum(p.name != n for p, n in zip(out["path"], out["named"], strict=True)))
     if renamed:
         log.warning("%s: %d of %d rows name a file that is not there under that name but is with "
@@ -260,9 +281,11 @@ def iter_frames_gray(folder, start=0, stop=None, undecodable=False
     Raises
     ------
     FrameFolderError
-        As :func:`frame_list`; or not one frame of the folder decodes.
+        As :func:`frame_list`; a frame of another size than the folder's first (file and both
+        sizes named); or not one frame of the folder decodes.
     """
     frames = frame_list(folder)
+    size = _first_size(frames)  # every chunk checks against the folder's first frame
     bad = []
     n_ok = 0
     try:
@@ -273,6 +296,12 @@ def iter_frames_gray(folder, start=0, stop=None, undecodable=False
                 if undecodable:
                     yield int(frame), float(t_s), None
                 continue
+            if gray.shape != size:
+                raise FrameFolderError(
+                    f"{path}: frame {frame} is {gray.shape[1]}x{gray.shape[0]} px, the folder's first "
+                    f"frame {size[1]}x{size[0]} px; expected every frame at one size (one camera, "
+                    "one resolution)"
+                )
             n_ok += 1
             yield int(frame), float(t_s), gray
     finally:
@@ -281,6 +310,15 @@ def iter_frames_gray(folder, start=0, stop=None, undecodable=False
                         len(bad), ", ".join(bad[:10]) + (" ..." if len(bad) > 10 else ""))  # fmt: skip
     if bad and n_ok == 0 and start == 0 and stop is None:
         raise FrameFolderError(f"{folder}: not one of {len(bad)} frames decodes (the first: {bad[0]})")
+
+
+def _first_size(frames: pd.DataFrame) -> tuple[int, int] | None:
+    """(height, width) of the first frame that decodes, or None when none does."""
+    for path in frames["path"]:
+        gray = read_frame_gray(path)
+        if gray is not None:
+            return gray.shape
+    return None
 
 
 def frame_folder_info(folder) -> dict:

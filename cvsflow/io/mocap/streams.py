@@ -162,7 +162,8 @@ def read_rows(path, layout: StreamLayout, columns: list[int], time_unit: str, wh
     ------
     PoseFormatError
         A row with another number of fields, or a field that is not a number (line named);
-        no data row at all.
+        no data row at all. A last row the file ends inside (no line end: a file cut short) is
+        left out with a WARNING, as a motion-capture take cut short is read as far as it goes.
     """
     t_ns, values, lines = [], [], []
     with open(path, encoding="utf-8-sig", errors="replace") as fh:
@@ -171,6 +172,12 @@ def read_rows(path, layout: StreamLayout, columns: list[int], time_unit: str, wh
             if not s or s.startswith("#") or lineno == layout.header_line:
                 continue
             fields = split_fields(s, layout.separator)
+            if len(fields) < layout.n_fields and not raw.endswith("\n") and lines:
+                # the file ends inside this row (a copy or export interrupted): as a cut take
+                log.warning("%s, line %d: the file ends inside this row (%d of %d fields): cut short; "
+                            "the row is left out, the %d rows before it are read", path, lineno,
+                            len(fields), layout.n_fields, len(lines))  # fmt: skip
+                break
             if len(fields) != layout.n_fields:
                 raise PoseFormatError(
                     f"{path}, line {lineno}: {len(fields)} fields; expected {layout.n_fields} ({what})"

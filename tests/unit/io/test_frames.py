@@ -107,6 +107,47 @@ def test_csv_times_bad(tmp_path, rows, match):
         frame_list(cam)
 
 
+def test_csv_row_without_a_timestamp_is_named(tmp_path):
+    """A data.csv row ',name.png' (its time lost): before, skipped as a blank row, the frame gone
+    without a word; now the line is named."""
+    cam, t = _asl(tmp_path)
+    lines = (cam / "data.csv").read_text().splitlines()
+    lines[3] = "," + lines[3].split(",", 1)[1]
+    (cam / "data.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(FrameFolderError, match=rf"data\.csv, line 4: ',{t[2]}\.png'; expected 'timestamp"):
+        frame_list(cam)
+
+
+def test_csv_cut_short_is_read_as_far_as_it_goes_with_a_warning(tmp_path, caplog):
+    """data.csv cut at a row boundary (images in data/ no row names) or inside its last row: the
+    rows before are read, a WARNING names the line or the counts, as a cut motion-capture take."""
+    cam, t = _asl(tmp_path)
+    text = (cam / "data.csv").read_text()
+    (cam / "data.csv").write_text(text[: len(text) - 12])  # inside the last row's file name
+    with caplog.at_level(logging.WARNING):
+        f = frame_list(cam)
+    assert f["t_ns"].tolist() == t[:5]
+    assert "data.csv, line 7: the file ends inside this row" in caplog.text
+    assert "1 of the 6 images in" in caplog.text and "named by no row" in caplog.text
+    caplog.clear()
+    (cam / "data.csv").write_text("".join(text.splitlines(keepends=True)[:4]))  # header + 3 rows
+    with caplog.at_level(logging.WARNING):
+        assert len(frame_list(cam)) == 3
+    assert f"3 of the 6 images in {cam / 'data'} are named by no row" in caplog.text
+
+
+def test_a_frame_of_another_size_is_named(tmp_path):
+    """A frame folder mixing sizes (another camera's or a resized image): before, every frame was
+    used with the first one's intrinsics; now an error naming the frame and both sizes."""
+    cam, t = _asl(tmp_path)
+    cv2.imwrite(str(cam / "data" / f"{t[3]}.png"), cv2.resize(drifting_board_frame(3), (320, 240)))
+    with pytest.raises(FrameFolderError, match=rf"{t[3]}\.png: frame 3 is 320x240 px, the folder's first "
+                       r"frame 640x480 px"):
+        list(iter_frames_gray(cam))
+    with pytest.raises(FrameFolderError, match="frame 3 is 320x240 px"):
+        list(iter_frames_gray(cam, start=2, stop=5))  # a chunk checks against the folder's first
+
+
 def test_truncated_and_unreadable_frames_are_named(tmp_path, caplog):
     """A JPEG cut short (imread would decode it grey) and a garbage file: named, yielded as None."""
     cam, t = _asl(tmp_path, suffix=".jpg", named=".jpg")

@@ -105,6 +105,27 @@ def test_position_not_finite_is_named(tmp_path):
         read_pose_stream(p)
 
 
+@pytest.mark.parametrize("rel", ["yac-mocap-aprilgrid/body0/data.csv", "tum-fr2-desk/fr2_desk_groundtruth.txt"],
+                         ids=["asl", "tum"])
+def test_a_stream_cut_inside_its_last_row_is_read_as_far_as_it_goes(tmp_path, caplog, rel):
+    """A real pose stream cut in the middle of a row (a copy interrupted): before, 'line N: 4 fields;
+    expected 8', an error; now, as a motion-capture take cut short, the rows before it are read
+    with a WARNING naming the line. A short row that ends its line stays an error."""
+    text = need_real_file(rel).read_text()
+    whole = read_pose_stream(need_real_file(rel))
+    cut = text[: text.index("\n", len(text) // 2) + 9]  # 8 characters into a row
+    p = _write(tmp_path, "cut" + rel[-4:], cut)
+    with caplog.at_level(logging.WARNING):
+        s = read_pose_stream(p)
+    n_line = cut.count("\n") + 1
+    assert f"line {n_line}: the file ends inside this row" in caplog.text
+    np.testing.assert_array_equal(s["t_ns"].to_numpy(), whole["t_ns"].to_numpy()[: len(s)])
+    assert len(s) == len(whole[whole["t_ns"] <= s["t_ns"].iloc[-1]])
+    p.write_text(cut + "\n")
+    with pytest.raises(PoseFormatError, match=rf"line {n_line}: \d fields; expected 8"):
+        read_pose_stream(p)
+
+
 def test_export_of_a_stream_is_one_body_with_exact_times(tmp_path):
     """read_mocap of a pose stream: one body named by the file stem, t_ns beside t_s."""
     p = _write(tmp_path, "body0.csv", "timestamp [ns],x,y,z,qx,qy,qz,qw\n"
