@@ -312,3 +312,30 @@ def test_rendered_pnp_pose_errors(rendered_session):
     assert np.median(angle_deg) < 0.5
     assert np.percentile(angle_deg, 95) < 1.0
     assert p["reproj_rms_px"].median() < 0.3
+
+
+def test_squares_x_and_y_swapped_relabel_the_board_frame_consistently():
+    """docs/failures.md: squares_x and squares_y swapped (5x6 for the demo's 6x5 board) is no
+    error: the detector reads the same corners as the transposed grid, so every PnP pose is the
+    true one times one fixed T_B_B' (a quarter turn about the board normal plus a shift within
+    the board): a consistent result in a relabelled board frame, which se3 absorbs into T_Bm_B."""
+    swapped = {**BOARD, "squares_x": BOARD["squares_y"], "squares_y": BOARD["squares_x"]}
+    truth = random_board_poses(6, seed=3)
+    frames = [(k, k / 30.0, render_board(T, K_DEMO, seed=k)[0]) for k, T in enumerate(truth)]
+    poses = {}
+    for name, board in (("right", BOARD), ("swapped", swapped)):
+        corners = extract_corners(frames, board, track=False)
+        table = estimate_poses(corners, K_DEMO, np.zeros(5), board).set_index("frame")
+        poses[name] = {f: tf.T_from_rvec_tvec(r[["rvec_0", "rvec_1", "rvec_2"]].to_numpy(float),
+                                              r[["x_m", "y_m", "z_m"]].to_numpy(float))
+                       for f, r in table[table["valid"]].iterrows()}
+    both = sorted(set(poses["right"]) & set(poses["swapped"]))
+    assert len(both) >= 4 and set(poses["swapped"]) == set(poses["right"])  # found alike
+    T_B_Bs = np.array([tf.invert_T(poses["right"][f]) @ poses["swapped"][f] for f in both])
+    spread = tf.rotation_angle(np.swapaxes(T_B_Bs[0, :3, :3], 0, 1) @ T_B_Bs[:, :3, :3])
+    assert np.degrees(spread).max() < 0.5  # one fixed relabelling
+    assert np.abs(T_B_Bs[:, :3, 3] - T_B_Bs[0, :3, 3]).max() < 0.005
+    R = T_B_Bs[0, :3, :3]
+    assert abs(R[2, 2] - 1.0) < 1e-3  # about the board normal, z still into the board
+    assert abs(np.degrees(tf.rotation_angle(R)) - 90.0) < 0.5
+    assert abs(T_B_Bs[0, 2, 3]) < 1e-3  # a shift within the board's plane
