@@ -126,14 +126,14 @@ def test_a_real_sessions_inputs_under_data_of_another_name_need_no_synth_rule(tm
     for p in sorted((real_data / "opencv-chessboard").glob("left*.jpg"))[:6]:
         (rec / "calib" / p.name).write_bytes(p.read_bytes())
     (rec / "video.mp4").write_bytes(b"x")
-    (rec / "vicon.csv").write_bytes(b"x")
+    (rec / "take.csv").write_bytes(b"x")
     session = {"calib_dir": "data/recordings/calib", "video": "data/recordings/video.mp4",
-               "vicon": "data/recordings/vicon.csv", "markers": MARKERS,
+               "mocap": {"file": "data/recordings/take.csv"}, "markers": MARKERS,
                "board": {"squares_x": 10, "squares_y": 7, "square_m": 0.025}}
     write_config(tmp_path, {"sessions": {"lab": session}})
     jobs = dry_run_jobs(tmp_path)
     assert "synth" not in jobs
-    assert {"calibrate", "corners", "vicon_import", "sync", "pairs"} <= jobs
+    assert {"calibrate", "corners", "mocap_import", "sync", "pairs"} <= jobs
     proc = snakemake(tmp_path, "results/lab/camera.yaml")
     assert proc.returncode == 0 and (tmp_path / "results/lab/camera.yaml").is_file()
     assert not (tmp_path / "data" / "lab").exists()
