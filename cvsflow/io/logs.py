@@ -29,6 +29,42 @@ def _quiet_hook(exc: BaseException, log_path: Path, stage: str):
     return hook
 
 
+def process_cpu_s() -> float:
+    """User + system CPU seconds of this process and its finished children so far.
+
+    Returns
+    -------
+    float
+        Seconds, interpreter start-up included.
+    """
+    cpu = os.times()
+    return cpu.user + cpu.system + cpu.children_user + cpu.children_system
+
+
+@contextlib.contextmanager
+def cpu_section(log: logging.Logger, name: str):
+    """Log the process CPU seconds a block of a stage takes, as ``section NAME: CPU X s``.
+
+    bench/job_times.py reads these lines (an analyse job's numbers and figures, for instance).
+
+    Parameters
+    ----------
+    log : logging.Logger
+        The stage's logger.
+    name : str
+        The block's name, one word.
+
+    Returns
+    -------
+    contextmanager of None
+        Used as ``with cpu_section(log, "figures"):``; the line is logged when the block ends
+        without an exception.
+    """
+    cpu0 = process_cpu_s()
+    yield
+    log.info("section %s: CPU %.2f s", name, process_cpu_s() - cpu0)
+
+
 @contextlib.contextmanager
 def stage_logging(log_path, stage: str):
     """Send cvsflow's log records to ``log_path`` and stderr for one stage; log a failure's reason.
@@ -49,9 +85,10 @@ def stage_logging(log_path, stage: str):
     Returns
     -------
     contextmanager of logging.Logger
-        Used as ``with stage_logging(path, "sync") as log:``; yields the stage's logger. On
-        exit the handlers are removed and the elapsed wall time and the process's CPU time
-        (start-up included) are logged (on success).
+        Used as ``with stage_logging(path, "sync") as log:``; yields the stage's logger. The
+        first line gives the process's CPU time so far (start-up: interpreter, Snakemake's
+        preamble, the script's imports). On exit the handlers are removed and the elapsed wall
+        time and the process's CPU time (start-up included) are logged (on success).
     """
     log_path = Path(log_path)
     log_path.parent.mkdir(parents=True, exist_ok=True)
@@ -64,7 +101,7 @@ def stage_logging(log_path, stage: str):
     root.setLevel(logging.INFO)
     log = logging.getLogger(f"cvsflow.stage.{stage}")
     t0 = time.perf_counter()
-    log.info("stage %s started", stage)
+    log.info("stage %s started (start-up CPU %.2f s)", stage, process_cpu_s())
     try:
         yield log
     except CvsflowError as exc:
@@ -78,9 +115,8 @@ def stage_logging(log_path, stage: str):
     else:
         # The job's own CPU, start-up included: Snakemake's benchmark samples it, and misses
         # whatever a job spends after its last sample (a 34 s job was reported as 15 s).
-        cpu = os.times()
         log.info("stage %s done in %.2f s (process CPU %.2f s)", stage, time.perf_counter() - t0,
-                 cpu.user + cpu.system + cpu.children_user + cpu.children_system)
+                 process_cpu_s())
     finally:
         for h in handlers:
             root.removeHandler(h)

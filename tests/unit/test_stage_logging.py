@@ -9,7 +9,7 @@ import time
 import pytest
 
 from cvsflow.exceptions import InputError
-from cvsflow.io.logs import stage_logging
+from cvsflow.io.logs import cpu_section, stage_logging
 
 
 def test_a_stage_logs_its_process_cpu_time(tmp_path):
@@ -27,6 +27,21 @@ def test_a_stage_logs_its_process_cpu_time(tmp_path):
     assert wall_s >= 0.29 and cpu_s >= burned - 0.03  # os.times counts in clock ticks
 
 
+
+def test_a_stage_logs_its_start_up_and_a_section_cpu(tmp_path):
+    """The ``started`` line states the process's CPU so far (start-up: interpreter and imports)
+    and a ``cpu_section`` block its own CPU, both read by bench/job_times.py."""
+    log_path = tmp_path / "s.log"
+    with stage_logging(log_path, "s") as log, cpu_section(log, "figures"):
+        c0 = time.process_time()
+        while time.process_time() - c0 < 0.2:
+            pass
+    text = log_path.read_text()
+    startup = re.findall(r"stage s started \(start-up CPU ([0-9.]+) s\)", text)
+    figures = re.findall(r"section figures: CPU ([0-9.]+) s", text)
+    assert len(startup) == 1 and float(startup[0]) > 0
+    assert len(figures) == 1 and float(figures[0]) >= 0.17  # os.times counts in clock ticks
+
 def test_a_failed_stage_logs_its_reason_and_no_done_line(tmp_path):
     log_path = tmp_path / "s.log"
     with pytest.raises(InputError), stage_logging(log_path, "s"):
@@ -38,7 +53,7 @@ def test_a_failed_stage_logs_its_reason_and_no_done_line(tmp_path):
 
 SCRIPT = """
 from cvsflow.exceptions import InputError, ResultRangeError
-from cvsflow.io.logs import stage_logging
+from cvsflow.io.logs import cpu_section, stage_logging
 import sys
 with stage_logging(sys.argv[1], "s"):
     if sys.argv[2] == "named":
