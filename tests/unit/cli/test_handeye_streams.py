@@ -9,25 +9,9 @@ import pytest
 import yaml
 
 from cvsflow.cli import main
-from cvsflow.geometry import interpolate_T, invert_T, quat_from_R
 from cvsflow.handeye.stream_sim import simulate_streams
-from tests.helpers.board_images import render_board
-from tests.helpers.handeye_sim import BOARD, CAMERA, T_CM_C_TRUE, T_W_B_TRUE, K, board_views
+from tests.helpers.handeye_sim import BOARD, CAMERA, T0, T_CM_C_TRUE, K, frames_session, write_stream
 from tests.helpers.real_data import REAL_DATA
-
-T0 = 1_606_153_907_495_166_540
-
-
-def _write_stream(path, t_ns, T, fmt):
-    """A pose stream file: asl (ns, a header) or eth (s, comma separated)."""
-    q = quat_from_R(T[:, :3, :3])
-    rows = []
-    for t, p, qq in zip(t_ns, T[:, :3, 3], q, strict=True):
-        stamp = str(int(t)) if fmt == "asl" else f"{int(t) // 10**9}.{int(t) % 10**9:09d}"
-        rows.append(",".join([stamp, *(f"{v:.9f}" for v in (*p, *qq))]))
-    header = "timestamp [ns],x,y,z,qx,qy,qz,qw\n" if fmt == "asl" else ""
-    path.write_text(header + "\n".join(rows) + "\n")
-    return path
 
 
 def _run(*argv):
@@ -38,8 +22,8 @@ def test_camera_poses_gives_offset_mountings_and_split_half(tmp_path, capsys):
     """Simulated streams (ETH camera CSV, ASL motion capture) with a 30 ms offset: handeye.yaml
     holds dt within 4 of its std, T_Cm_C within 4 std, the split-half check and its rows."""
     sim = simulate_streams(21, duration_s=24.0)
-    cam = _write_stream(tmp_path / "cam.csv", sim["t_cam_ns"], sim["T_B_C"], "eth")
-    moc = _write_stream(tmp_path / "body.csv", sim["t_mocap_ns"], sim["T_W_Cm"], "asl")
+    cam = write_stream(tmp_path / "cam.csv", sim["t_cam_ns"], sim["T_B_C"], "eth")
+    moc = write_stream(tmp_path / "body.csv", sim["t_mocap_ns"], sim["T_W_Cm"], "asl")
     assert _run("--camera-poses", cam, "--poses", moc, "--out", tmp_path / "out") == 0
     res = yaml.safe_load((tmp_path / "out" / "handeye.yaml").read_text())
     assert res["camera_poses"]["format"] == "eth" and res["poses"]["format"] == "asl"
@@ -59,8 +43,8 @@ def test_camera_poses_of_still_views_say_dt_is_not_observable(tmp_path, capsys):
     sim = simulate_streams(17, duration_s=60.0, still=True, n_gaps=0, dt_offset_s=0.0)
     t = (sim["t_cam_ns"] - sim["t_cam_ns"][0]) / 1e9
     pick = np.searchsorted(t, (np.arange(30) + 0.5) * 2.0)
-    cam = _write_stream(tmp_path / "cam.csv", sim["t_cam_ns"][pick], sim["T_B_C"][pick], "asl")
-    moc = _write_stream(tmp_path / "body.csv", sim["t_mocap_ns"], sim["T_W_Cm"], "asl")
+    cam = write_stream(tmp_path / "cam.csv", sim["t_cam_ns"][pick], sim["T_B_C"][pick], "asl")
+    moc = write_stream(tmp_path / "body.csv", sim["t_mocap_ns"], sim["T_W_Cm"], "asl")
     assert _run("--camera-poses", cam, "--poses", moc, "--out", tmp_path / "out", "--no-split-half") == 0
     res = yaml.safe_load((tmp_path / "out" / "handeye.yaml").read_text())
     assert res["dt_offset_s"] is None and res["dt_offset_std_s"] is None
@@ -72,8 +56,8 @@ def test_camera_poses_bad_input_is_named(tmp_path, capsys):
     """A pose list where a stream is needed, and streams that do not overlap: one named line, no
     handeye.yaml."""
     sim = simulate_streams(23, duration_s=12.0)
-    cam = _write_stream(tmp_path / "cam.csv", sim["t_cam_ns"], sim["T_B_C"], "asl")
-    moc = _write_stream(tmp_path / "body.csv", sim["t_mocap_ns"] + 500 * 10**9, sim["T_W_Cm"], "asl")
+    cam = write_stream(tmp_path / "cam.csv", sim["t_cam_ns"], sim["T_B_C"], "asl")
+    moc = write_stream(tmp_path / "body.csv", sim["t_mocap_ns"] + 500 * 10**9, sim["T_W_Cm"], "asl")
     assert _run("--camera-poses", cam, "--poses", moc, "--pose-format", "visp", "--out", tmp_path / "o") == 1
     assert "--pose-format visp: the frames and camera-poses modes take a time-stamped pose stream" in (
         capsys.readouterr().err)
@@ -83,32 +67,11 @@ def test_camera_poses_bad_input_is_named(tmp_path, capsys):
     assert not (tmp_path / "o" / "handeye.yaml").exists()
 
 
-def _frames_session(tmp_path, n=14, extra_after_s=None):
-    """Rendered board frames named by ns (0.5 s apart), the carrier's stream at 100 Hz through
-    the same views (linear + SLERP between them), ASL; a frame after the stream's end if asked."""
-    rng = np.random.default_rng(31)
-    T_C_B = board_views(rng, n)
-    t_ns = T0 + np.arange(n) * 500_000_000
-    T_W_Cm_views = T_W_B_TRUE @ invert_T(T_C_B) @ invert_T(T_CM_C_TRUE)
-    tq = np.arange(-1.0, (n - 1) * 0.5 + 1.0, 0.01)
-    T_stream, ok, _ = interpolate_T(np.arange(n) * 0.5, T_W_Cm_views, np.ones(n, bool), np.clip(tq, 0, (n - 1) * 0.5))
-    assert ok.all()
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for t, T in zip(t_ns, T_C_B, strict=True):
-        cv2.imwrite(str(frames / f"{t}.png"), render_board(T, K, BOARD, pps=40, seed=int(t % 97))[0])
-    if extra_after_s is not None:
-        t_extra = T0 + int(((n - 1) * 0.5 + extra_after_s) * 1e9)
-        cv2.imwrite(str(frames / f"{t_extra}.png"), render_board(T_C_B[0], K, BOARD, pps=40)[0])
-    poses = _write_stream(tmp_path / "body.csv", T0 + np.round(tq * 1e9).astype(np.int64), T_stream, "asl")
-    return frames, poses
-
-
 def test_frames_with_a_pose_stream_and_intrinsics_from_the_frames(tmp_path):
     """Rendered frames named by ns + the carrier's ASL stream, no --camera: intrinsics calibrated
     from the frames (in handeye.yaml), T_Cm_C within 2 mm / 0.2 deg, the frame after the stream
     named and left out, the per-frame mocap-chain reprojection (and leave-one-out) recorded."""
-    frames, poses = _frames_session(tmp_path, extra_after_s=5.0)
+    frames, poses = frames_session(tmp_path, extra_after_s=5.0)
     assert _run("--frames", frames, "--poses", poses, "--inner", "9x6", "--square-m", BOARD["square_m"],
                 "--out", tmp_path / "out", "--exact-poses") == 0  # fmt: skip
     res = yaml.safe_load((tmp_path / "out" / "handeye.yaml").read_text())
@@ -125,7 +88,7 @@ def test_frames_with_a_pose_stream_and_intrinsics_from_the_frames(tmp_path):
 
 def test_frames_given_known_intrinsics_and_offset(tmp_path):
     """--camera and --dt-offset-s: the offset is held as given and said so."""
-    frames, poses = _frames_session(tmp_path, n=10)
+    frames, poses = frames_session(tmp_path, n=10)
     cam = tmp_path / "camera.yaml"
     cam.write_text(yaml.safe_dump({"K": K.tolist(), "dist": [0.0] * 5, "width": 640, "height": 480}))
     assert _run("--frames", frames, "--poses", poses, "--inner", "9x6", "--square-m", BOARD["square_m"],
@@ -141,7 +104,7 @@ def test_frames_without_timestamps_is_named(tmp_path, capsys):
     d = tmp_path / "frames"
     d.mkdir()
     cv2.imwrite(str(d / "0001.png"), np.zeros((48, 64), np.uint8))
-    poses = _write_stream(tmp_path / "body.csv", T0 + np.arange(3) * 10**7, np.stack([np.eye(4)] * 3), "asl")
+    poses = write_stream(tmp_path / "body.csv", T0 + np.arange(3) * 10**7, np.stack([np.eye(4)] * 3), "asl")
     assert _run("--frames", d, "--poses", poses, "--inner", "9x6", "--square-m", "0.02", "--out", tmp_path / "o") == 1
     assert "carry no timestamp in their name" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
