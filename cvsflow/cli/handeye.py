@@ -1,4 +1,9 @@
-"""``cvsflow handeye``: hand-eye calibration from stills, timestamped frames or a camera pose stream."""
+"""``cvsflow handeye``: hand-eye calibration from stills, timestamped frames or a camera pose stream.
+
+The frames and the carrier's pose stream may come from a ROS bag (``--bag`` with
+``--image-topic`` and ``--pose-topic``): the same images and poses as a frame folder and a pose
+file hold (:mod:`cvsflow.io.rosbag_images`, :mod:`cvsflow.io.rosbag_poses`), the same result.
+"""
 
 from __future__ import annotations
 
@@ -35,6 +40,37 @@ def _stream_format(args, option="--pose-format"):
     return fmt
 
 
+def _carrier_stream(args):
+    """The carrier's pose stream: ``--pose-topic`` of ``--bag``, else the ``--poses`` file."""
+    if args.pose_topic is not None:
+        from cvsflow.io.rosbag_poses import read_bag_pose_stream
+
+        return read_bag_pose_stream(args.bag, args.pose_topic, args.pose_parent, args.pose_child,
+                                    args.bag_time)
+    from cvsflow.io.mocap.formats import read_pose_stream
+
+    return read_pose_stream(args.poses, _stream_format(args), given_by="--pose-format")
+
+
+def _check_sources(args) -> None:
+    """One carrier pose source, the bag options only with a bag; a named InputError otherwise."""
+    if args.bag is None:
+        given = [o for o, v in (("--image-topic", args.image_topic), ("--pose-topic", args.pose_topic),
+                                ("--pose-parent", args.pose_parent), ("--pose-child", args.pose_child))
+                 if v is not None]  # fmt: skip
+        if given:
+            raise InputError(f"{', '.join(given)}: topics and frames of a ROS bag; expected --bag BAG "
+                             "with them")
+    elif args.image_topic is None:
+        raise InputError(f"--bag {args.bag}: expected --image-topic (the camera's Image or CompressedImage "
+                         "topic; `cvsflow init BAG` lists the topics)")  # fmt: skip
+    if args.poses is not None and args.pose_topic is not None:
+        raise InputError("--poses and --pose-topic: expected one source of the carrier's poses")
+    if args.poses is None and args.pose_topic is None:
+        raise InputError("--poses: the carrier's poses are required (a pose file or stream; with --bag, "
+                         "--pose-topic instead)")  # fmt: skip
+
+
 def _handeye_stills(args, board) -> dict:
     """Stills with one carrier pose each (paired by name, number or position)."""
     from cvsflow.handeye import calibrate_hand_eye, pair_stills_with_poses
@@ -64,14 +100,9 @@ def _handeye_stills(args, board) -> dict:
             "poses": str(args.poses), "pose_format": args.pose_format, "pairing": rule, **res}  # fmt: skip
 
 
-def _handeye_frames(args, board) -> dict:
-    """Timestamped frames and the carrier's pose stream (intrinsics from the frames without --camera)."""
-    from cvsflow.calibration import calibrate_camera
-    from cvsflow.handeye import calibrate_from_frames
+def _folder_frames(args):
+    """A frame folder's images (named by their files), exact times, undecodable names, record."""
     from cvsflow.io.frames import frame_list, read_frame_gray
-    from cvsflow.io.mocap.formats import read_pose_stream
-    from cvsflow.io.mocap.streams import stream_T
-    from cvsflow.io.visp import read_known_camera
 
     frames = frame_list(args.frames)
     images, t_ns, bad = [], [], []
@@ -82,10 +113,36 @@ def _handeye_frames(args, board) -> dict:
             continue
         images.append((path.name, gray))
         t_ns.append(int(t))
+    return images, t_ns, bad, {"frames_dir": str(args.frames), "frames_layout": frames.attrs["layout"]}
+
+
+def _bag_frames(args):
+    """A bag image topic's frames (named by their time in ns, as a folder's files), as _folder_frames."""
+    from cvsflow.io.rosbag_images import iter_bag_images
+
+    images, t_ns, bad = [], [], []
+    for k, t, gray in iter_bag_images(args.bag, args.image_topic, "gray", args.bag_time, undecodable=True):
+        if gray is None:
+            bad.append(f"message {k}")
+            continue
+        images.append((str(t), gray))
+        t_ns.append(int(t))
+    record = {"bag": str(args.bag), "image_topic": args.image_topic, "bag_time": args.bag_time}
+    return images, t_ns, bad, record
+
+
+def _handeye_frames(args, board) -> dict:
+    """Timestamped frames and the carrier's pose stream (intrinsics from the frames without --camera)."""
+    from cvsflow.calibration import calibrate_camera
+    from cvsflow.handeye import calibrate_from_frames
+    from cvsflow.io.mocap.streams import stream_T
+    from cvsflow.io.visp import read_known_camera
+
+    images, t_ns, bad, source = _bag_frames(args) if args.bag is not None else _folder_frames(args)
     if bad:
         log.warning("%s: %d frames cannot be decoded or are cut short (truncated?), left out: %s",
-                    args.frames, len(bad), ", ".join(bad[:10]))  # fmt: skip
-    stream = read_pose_stream(args.poses, _stream_format(args), given_by="--pose-format")
+                    args.bag or args.frames, len(bad), ", ".join(bad[:10]))  # fmt: skip
+    stream = _carrier_stream(args)
     if args.camera is not None:
         camera, calibration = read_known_camera(args.camera), {"source": str(args.camera)}
     else:
@@ -98,8 +155,8 @@ def _handeye_frames(args, board) -> dict:
                                 stream_T(stream), board, camera, dt_offset_s=args.dt_offset_s,
                                 max_frames=args.max_frames, **_hand_eye_options(args))  # fmt: skip
     res["intrinsics"]["calibration"] = calibration
-    return {"input": "frames", "frames_dir": str(args.frames), "frames_layout": frames.attrs["layout"],
-            "frames_undecodable": bad, "poses": str(args.poses), "pose_stream": _stream_info(stream), **res}
+    return {"input": "bag" if args.bag is not None else "frames", **source, "frames_undecodable": bad,
+            "poses": stream.attrs.get("path", str(args.poses)), "pose_stream": _stream_info(stream), **res}
 
 
 def _stream_info(stream) -> dict:
@@ -125,7 +182,7 @@ def _handeye_camera_poses(args) -> dict:
         raise InputError("--camera-poses with --eye-to-hand: a camera's pose stream is fitted eye-in-hand "
                          "(the camera on its marker body, the target fixed)")  # fmt: skip
     cam = read_pose_stream(args.camera_poses, args.camera_pose_format, given_by="--camera-pose-format")
-    moc = read_pose_stream(args.poses, _stream_format(args), given_by="--pose-format")
+    moc = _carrier_stream(args)
     streams = (cam["t_ns"].to_numpy(), stream_T(cam), moc["t_ns"].to_numpy(), stream_T(moc))
     options = StreamsOptions(estimate_dt=args.dt_offset_s is None, dt_init_s=args.dt_offset_s)
     res = estimate_streams(*streams, options)
@@ -157,13 +214,17 @@ def cmd_handeye(args) -> int:
     - ``--frames``: a timestamped frame folder and the carrier's pose stream
       (:func:`cvsflow.handeye.frame_stream.calibrate_from_frames`); intrinsics from the same
       frames when no ``--camera`` is given.
+    - ``--bag``: the same from a ROS bag's image topic and the carrier's pose topic (or
+      ``--poses``), named frames by their time in ns.
     - ``--camera-poses``: the camera's pose stream in the target frame and its marker body's
       (:func:`cvsflow.handeye.stream_fit.estimate_streams`, with the split-half check).
 
     Parameters
     ----------
     args : argparse.Namespace
-        ``stills`` | ``frames`` | ``camera_poses``, ``poses`` (file or glob), ``pose_format``,
+        ``stills`` | ``frames`` | ``bag`` | ``camera_poses``, ``poses`` (file or glob; None with
+        ``pose_topic``), ``image_topic``, ``pose_topic``, ``pose_parent``, ``pose_child`` and
+        ``bag_time`` (with ``bag``), ``pose_format``,
         ``camera_pose_format``, ``csv_spec``, ``inner`` with ``square_m`` (m) or ``target`` (a
         Kalibr target file), ``camera`` (known intrinsics file), ``out``, ``force`` (replace an
         ``OUT/handeye.yaml``), ``eye_to_hand``,
@@ -181,7 +242,10 @@ def cmd_handeye(args) -> int:
     InputError
         No images or frames, unreadable poses, camera or target file, stills and poses that
         cannot be paired, a missing board or ``--square-m``, a pose list where a stream is
-        needed, an ``OUT/handeye.yaml`` without ``--force``.
+        needed, an ``OUT/handeye.yaml`` without ``--force``; no ``--poses`` (nor ``--pose-topic``
+        with ``--bag``), both, bag options without ``--bag``, ``--bag`` without ``--image-topic``.
+    BagError, TopicNotFoundError, TopicTypeError, ImageDecodeError, ZeroStampError, FrameIdError
+        The bag, a topic, an image or a pose frame (:mod:`cvsflow.io.rosbag`).
     ConfigError
         A target file of an unsupported type, or with a missing or invalid key.
     CalibrationError
@@ -195,6 +259,7 @@ def cmd_handeye(args) -> int:
     from cvsflow.io.files import refuse_overwrite, write_yaml
 
     out = Path(args.out) / "handeye.yaml"
+    _check_sources(args)
     refuse_overwrite([out], args.force, "cvsflow handeye")
     cv2.setNumThreads(1)
     if args.camera_poses is not None:
@@ -202,7 +267,7 @@ def cmd_handeye(args) -> int:
     else:
         if args.inner is None and args.target is None:
             raise InputError("the board: give --inner NXxNY with --square-m, or --target FILE (a Kalibr "
-                             "target file), for --stills and --frames")  # fmt: skip
+                             "target file), for --stills, --frames and --bag")  # fmt: skip
         board = board_from_args(args)
         res = _handeye_stills(args, board) if args.stills is not None else _handeye_frames(args, board)
     write_yaml({"command": "cvsflow handeye", **res}, out)
@@ -254,10 +319,24 @@ def _add_handeye_parser(sub) -> None:
     what.add_argument("--stills", help="folder of stills (png, jpg, ...), one carrier pose each")
     what.add_argument("--frames", help="timestamped frame folder: ASL cam0/ (data.csv + data/) or images "
                       "named by integer ns")  # fmt: skip
+    what.add_argument("--bag", help="a ROS bag (ROS 1 .bag, ROS 2 folder, .db3 or .mcap): the frames of "
+                      "--image-topic (header stamps) with the carrier's --pose-topic, as --frames and "
+                      "--poses take them from files")  # fmt: skip
     what.add_argument("--camera-poses", metavar="FILE", help="the camera's pose in the target frame per "
                       "timestamp (a pose stream: asl, tum or eth), as a detector writes it")  # fmt: skip
-    h.add_argument("--poses", required=True, help="the carrier's poses: pose file(s) for --stills (a quoted "
-                   "glob for one file per still), a pose stream for --frames and --camera-poses")  # fmt: skip
+    h.add_argument("--poses", help="the carrier's poses: pose file(s) for --stills (a quoted glob for one "
+                   "file per still), a pose stream for --frames and --camera-poses (required, but for "
+                   "--bag with --pose-topic)")  # fmt: skip
+    h.add_argument("--image-topic", help="--bag: the camera's sensor_msgs Image or CompressedImage topic")
+    h.add_argument("--pose-topic", help="--bag: the carrier's poses (PoseStamped, TransformStamped, "
+                   "Odometry, or /tf with --pose-parent and --pose-child)")  # fmt: skip
+    h.add_argument("--pose-parent", help="--pose-topic: the frame the poses are in (header.frame_id; "
+                   "required for /tf)")  # fmt: skip
+    h.add_argument("--pose-child", help="--pose-topic: the frame whose pose it is (child_frame_id; required "
+                   "for /tf)")  # fmt: skip
+    h.add_argument("--bag-time", choices=("header", "receive"), default="header", help="--bag: frame and "
+                   "pose times from the header stamps (default) or the bag's receive times (for stamps "
+                   "left at zero)")  # fmt: skip
     h.add_argument("--pose-format", choices=("visp", "tum", "asl", "eth", "csv", "auto"), default="auto",
                    help="visp: vpPoseVector YAML (m, theta-u rad); tum: t tx ty tz qx qy qz qw (s); "
                    "asl: ASL/EuRoC CSV, a header naming the columns (timestamp [ns], x, y, z, qx, "

@@ -1,0 +1,95 @@
+"""`cvsflow handeye --bag`: the frames of an image topic and the carrier's pose topic of a ROS bag
+give the result the same frames and poses give from a frame folder and a pose file; bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from cvsflow.cli import main
+from tests.helpers.bags import JPEG_TOPIC, Msg, read_csv_rows, write_bag, yac_messages
+from tests.helpers.handeye_sim import BOARD, frames_session
+from tests.helpers.real_data import REAL_DATA
+
+#: What handeye.yaml records of its input (names, paths): the rest must be equal.
+INPUT_KEYS = {"input", "frames_dir", "frames_layout", "bag", "image_topic", "bag_time", "poses", "pose_stream",
+              "frames", "stills", "frames_undecodable"}  # fmt: skip
+
+
+def _run(*argv):
+    return main(["handeye", *map(str, argv)])
+
+
+def _bag_of(frames, poses, path, storage):
+    """The frame folder's PNG files as CompressedImage (bytes unchanged) and the ASL stream as
+    PoseStamped in frame world, header stamps the files' ns."""
+    msgs = [Msg(int(p.stem), "/cam/image/compressed", "sensor_msgs/msg/CompressedImage",
+                {"t_ns": int(p.stem), "frame_id": "cam", "format": "png", "data": p.read_bytes()})
+            for p in sorted(frames.glob("*.png"))]  # fmt: skip
+    msgs += [Msg(t, "/vicon/carrier/pose", "geometry_msgs/msg/PoseStamped", {"t_ns": t, "frame_id": "world", "v": v})
+             for t, v in read_csv_rows(poses)]  # fmt: skip
+    return write_bag(path, storage, msgs)
+
+
+def _same_result(a, b):
+    ra, rb = (yaml.safe_load((d / "handeye.yaml").read_text()) for d in (a, b))
+    assert {k: v for k, v in ra.items() if k not in INPUT_KEYS} == {k: v for k, v in rb.items() if k not in INPUT_KEYS}
+    assert [f["reason"] for f in ra["frames"]] == [f["reason"] for f in rb["frames"]]
+    return ra, rb
+
+
+@pytest.mark.parametrize("storage", ["ros1", "mcap"])
+def test_bag_gives_the_result_of_the_frame_folder_and_pose_file(tmp_path, storage, capsys):
+    """Rendered frames (PNG) and the carrier's 100 Hz stream, as files and as a bag: handeye.yaml
+    equal but for the input's record, T_Cm_C bit for bit; the bag's topics are recorded."""
+    frames, poses = frames_session(tmp_path, n=10, extra_after_s=5.0)
+    bag = _bag_of(frames, poses, tmp_path / "rec", storage)
+    board = ("--inner", "9x6", "--square-m", BOARD["square_m"], "--exact-poses")
+    assert _run("--frames", frames, "--poses", poses, *board, "--out", tmp_path / "files") == 0
+    assert _run("--bag", bag, "--image-topic", "/cam/image/compressed", "--pose-topic", "/vicon/carrier/pose",
+                "--pose-parent", "world", *board, "--out", tmp_path / "bag") == 0  # fmt: skip
+    files, from_bag = _same_result(tmp_path / "files", tmp_path / "bag")
+    assert files["T_Cm_C"] is not None and from_bag["input"] == "bag"
+    assert from_bag["image_topic"] == "/cam/image/compressed" and from_bag["bag_time"] == "header"
+    assert "/vicon/carrier/pose" in from_bag["poses"] and from_bag["pose_stream"]["format"] == "rosbag"
+    assert [f["name"] for f in from_bag["frames"]] == [p.stem for p in sorted(frames.glob("*.png"))]
+    out = capsys.readouterr().out
+    assert out.count("T_Cm_C: t = [") == 2
+
+
+def test_bag_bad_input_is_named_and_writes_nothing(tmp_path, capsys):
+    """Bag options without --bag, --bag without --image-topic, no pose source, both, a topic the
+    bag lacks (its topics listed): one named line each, no output folder."""
+    frames, poses = frames_session(tmp_path, n=3)
+    bag = _bag_of(frames, poses, tmp_path / "rec", "ros1")
+    board = ("--inner", "9x6", "--square-m", "0.0236", "--out", tmp_path / "o")
+    cases = [
+        (("--frames", frames, "--image-topic", "/c", "--poses", poses), "--image-topic: topics and frames of a ROS bag"),
+        (("--bag", bag, "--pose-topic", "/p"), f"--bag {bag}: expected --image-topic"),
+        (("--bag", bag, "--image-topic", "/c"), "--poses: the carrier's poses are required"),
+        (("--bag", bag, "--image-topic", "/c", "--pose-topic", "/p", "--poses", poses), "--poses and --pose-topic"),
+        (("--bag", bag, "--image-topic", "/cam/image", "--pose-topic", "/vicon/carrier/pose"),
+         "/cam/image/compressed"),
+    ]  # fmt: skip
+    for argv, message in cases:
+        assert _run(*argv, *board) == 1
+        err = capsys.readouterr().err
+        assert message in err, err
+        assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_yac_bag_gives_the_result_of_the_yac_files(tmp_path):
+    """yac: the 30 JPEG frames (bytes unchanged) and body0's stream written by rosbags (sqlite3)
+    give the --frames result from cam0/ and body0/data.csv."""
+    yac = REAL_DATA / "yac-mocap-aprilgrid"
+    if not (yac / "cam0" / "data.csv").is_file():
+        pytest.skip(f"real data not available ({yac})")
+    bag = write_bag(tmp_path / "yac", "sqlite3", yac_messages(yac, raw=False, tf=False))
+    target = ("--target", yac / "calib_mocap-intel_d435i.yaml")
+    assert _run("--frames", yac / "cam0", "--poses", yac / "body0" / "data.csv", *target, "--out", tmp_path / "f") == 0
+    assert _run("--bag", bag, "--image-topic", JPEG_TOPIC, "--pose-topic", "/mocap/body0/pose", *target,
+                "--out", tmp_path / "b") == 0  # fmt: skip
+    files, _ = _same_result(tmp_path / "f", tmp_path / "b")
+    assert files["frame_counts"]["n_frames"] == 30 and np.isfinite(np.array(files["T_W_B"], float)).all()
