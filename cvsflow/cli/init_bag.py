@@ -179,7 +179,7 @@ def build_bag_config(bag) -> tuple[dict, list[str], str]:
         block[key] = _pick_body(key, pattern, other, cands, tf_topics, notes)
     if not cands:
         notes.append("no PoseStamped, TransformStamped, Odometry or TF topic: the bodies' poses are TODO "
-                     "(or give a vicon export with markers instead)")  # fmt: skip
+                     "(or give mocap.file, an export, with markers instead)")  # fmt: skip
     notes.append("calib_dir: TODO (a folder of stills of the board), or camera: <session> to reuse another "
                  "session's calibration; board: TODO (its size), or target: a Kalibr target "
                  "file")  # fmt: skip

@@ -6,7 +6,7 @@ The config keys (``sessions.<name>.bag``, schema ``cvsflow/workflow/schemas/conf
       path: recordings/lab1.bag      # or [part0.bag, part1.bag], a ROS 2 bag folder, .db3, .mcap
       time: header                   # or receive (stamps left at zero); default header
       image_topic: /cam0/image_raw   # the camera input, instead of video
-      camera_body: {topic: /vicon/cam/pose, parent: world}          # T_W_Cm, instead of vicon
+      camera_body: {topic: /vicon/cam/pose, parent: world}          # T_W_Cm, instead of mocap.file
       board_body: {topic: /tf, parent: world, child: board, time: receive}   # T_W_Bm
 
 The three functions here are the interface the workflow's rules are to call; they do not yet
@@ -55,7 +55,7 @@ def bag_settings(session: str, cfg: dict) -> dict | None:
     Raises
     ------
     ConfigError
-        ``image_topic`` beside a ``video``; a body topic beside ``vicon``; one body's topic
+        ``image_topic`` beside a ``video``; a body topic beside ``mocap.file``; one body's topic
         without the other's; a block that names no topic.
     """
     block = cfg.get("bag")
@@ -76,10 +76,11 @@ def bag_settings(session: str, cfg: dict) -> dict | None:
             raise ConfigError(f"{where}: {named[0]}_body without {missing}_body; expected the poses of "
                               "both marker bodies from the bag (camera_body: T_W_Cm, board_body: "
                               "T_W_Bm)")  # fmt: skip
-        if "vicon" in cfg:
-            raise ConfigError(f"{where}: camera_body and board_body, and the session also names a vicon "
-                              f"export ({cfg['vicon']}); expected one motion capture: the bag's poses or "
-                              "the export")  # fmt: skip
+        export = (cfg.get("mocap") or {}).get("file")
+        if export is not None:
+            raise ConfigError(f"{where}: camera_body and board_body, and the session also names a "
+                              f"motion-capture export (mocap.file: {export}); expected one motion capture: "
+                              "the bag's poses or the export")  # fmt: skip
         for b in BODIES:
             spec = block[f"{b}_body"]
             out[f"{b}_body"] = {"topic": spec["topic"], "parent": spec.get("parent"),

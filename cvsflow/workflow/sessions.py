@@ -169,7 +169,7 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
         # read them yet, and a session must not name an input that nothing uses.
         raise ConfigError(
             f"{where}.bag: the workflow's stages do not read a bag yet (`cvsflow init BAG` lists its "
-            f"topics); expected video and vicon for a workflow run"
+            f"topics); expected video and mocap.file for a workflow run"
         )
     synth = "synth" in s
     cam = camera_session(name, sessions)

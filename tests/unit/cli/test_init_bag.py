@@ -97,8 +97,8 @@ def test_bag_settings_refuse_what_contradicts():
     body = {"topic": "/p", "parent": "world"}
     with pytest.raises(ConfigError, match="camera_body without board_body"):
         bag_settings("s", {"bag": {**base, "camera_body": body}})
-    with pytest.raises(ConfigError, match="also names a vicon export"):
-        bag_settings("s", {"bag": {**base, "camera_body": body, "board_body": body}, "vicon": "t.csv"})
+    with pytest.raises(ConfigError, match=r"also names a motion-capture export \(mocap.file: t.csv\)"):
+        bag_settings("s", {"bag": {**base, "camera_body": body, "board_body": body}, "mocap": {"file": "t.csv"}})
     with pytest.raises(ConfigError, match="names no topic"):
         bag_settings("s", {"bag": {"path": "x.bag"}})
     s = bag_settings("s", {"bag": {"path": "x.bag", "time": "receive", "camera_body": body,
