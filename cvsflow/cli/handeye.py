@@ -40,13 +40,18 @@ def _stream_format(args, option="--pose-format"):
     return fmt
 
 
+def _bag_time(args) -> str:
+    """The bag's time source: header stamps, or receive times with ``--receive-time``."""
+    return "receive" if args.receive_time else "header"
+
+
 def _carrier_stream(args):
     """The carrier's pose stream: ``--pose-topic`` of ``--bag``, else the ``--poses`` file."""
     if args.pose_topic is not None:
         from cvsflow.io.rosbag_poses import read_bag_pose_stream
 
         return read_bag_pose_stream(args.bag, args.pose_topic, args.pose_parent, args.pose_child,
-                                    args.bag_time)
+                                    _bag_time(args))
     from cvsflow.io.mocap.formats import read_pose_stream
 
     return read_pose_stream(args.poses, _stream_format(args), given_by="--pose-format")
@@ -121,13 +126,14 @@ def _bag_frames(args):
     from cvsflow.io.rosbag_images import iter_bag_images
 
     images, t_ns, bad = [], [], []
-    for k, t, gray in iter_bag_images(args.bag, args.image_topic, "gray", args.bag_time, undecodable=True):
+    for k, t, gray in iter_bag_images(args.bag, args.image_topic, "gray", _bag_time(args),
+                                      undecodable=True):
         if gray is None:
             bad.append(f"message {k}")
             continue
         images.append((str(t), gray))
         t_ns.append(int(t))
-    record = {"bag": str(args.bag), "image_topic": args.image_topic, "bag_time": args.bag_time}
+    record = {"bag": str(args.bag), "image_topic": args.image_topic, "bag_time": _bag_time(args)}
     return images, t_ns, bad, record
 
 
@@ -224,7 +230,7 @@ def cmd_handeye(args) -> int:
     args : argparse.Namespace
         ``stills`` | ``frames`` | ``bag`` | ``camera_poses``, ``poses`` (file or glob; None with
         ``pose_topic``), ``image_topic``, ``pose_topic``, ``pose_parent``, ``pose_child`` and
-        ``bag_time`` (with ``bag``), ``pose_format``,
+        ``receive_time`` (with ``bag``), ``pose_format``,
         ``camera_pose_format``, ``csv_spec``, ``inner`` with ``square_m`` (m) or ``target`` (a
         Kalibr target file), ``camera`` (known intrinsics file), ``out``, ``force`` (replace an
         ``OUT/handeye.yaml``), ``eye_to_hand``,
@@ -334,9 +340,9 @@ def _add_handeye_parser(sub) -> None:
                    "required for /tf)")  # fmt: skip
     h.add_argument("--pose-child", help="--pose-topic: the frame whose pose it is (child_frame_id; required "
                    "for /tf)")  # fmt: skip
-    h.add_argument("--bag-time", choices=("header", "receive"), default="header", help="--bag: frame and "
-                   "pose times from the header stamps (default) or the bag's receive times (for stamps "
-                   "left at zero)")  # fmt: skip
+    h.add_argument("--receive-time", action="store_true", help="--bag: frame and pose times from the bag's "
+                   "receive times (transport delay included), for publishers that leave their header "
+                   "stamps at zero; default the header stamps")  # fmt: skip
     h.add_argument("--pose-format", choices=("visp", "tum", "asl", "eth", "csv", "auto"), default="auto",
                    help="visp: vpPoseVector YAML (m, theta-u rad); tum: t tx ty tz qx qy qz qw (s); "
                    "asl: ASL/EuRoC CSV, a header naming the columns (timestamp [ns], x, y, z, qx, "

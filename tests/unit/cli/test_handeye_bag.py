@@ -58,6 +58,27 @@ def test_bag_gives_the_result_of_the_frame_folder_and_pose_file(tmp_path, storag
     assert out.count("T_Cm_C: t = [") == 2
 
 
+def test_zero_stamps_name_the_receive_time_flag_which_reads_them(tmp_path, capsys):
+    """A camera that leaves its header stamps at zero: the error names --receive-time; with it the
+    frames are read at their receive times (here the files' ns), the result as from the files."""
+    frames, poses = frames_session(tmp_path, n=10)
+    msgs = [Msg(int(p.stem), "/cam/image/compressed", "sensor_msgs/msg/CompressedImage",
+                {"t_ns": 0, "frame_id": "cam", "format": "png", "data": p.read_bytes()})
+            for p in sorted(frames.glob("*.png"))]  # fmt: skip
+    msgs += [Msg(t, "/carrier", "geometry_msgs/msg/PoseStamped", {"t_ns": t, "frame_id": "world", "v": v})
+             for t, v in read_csv_rows(poses)]  # fmt: skip
+    bag = write_bag(tmp_path / "zero", "sqlite3", msgs)
+    argv = ("--bag", bag, "--image-topic", "/cam/image/compressed", "--pose-topic", "/carrier", "--inner", "9x6",
+            "--square-m", BOARD["square_m"], "--exact-poses", "--dt-offset-s", "0")  # fmt: skip
+    assert _run(*argv, "--out", tmp_path / "header") == 1
+    err = capsys.readouterr().err
+    assert "/cam/image/compressed, message 0:" in err and "is zero" in err and "--receive-time" in err
+    assert not (tmp_path / "header").exists()
+    assert _run(*argv, "--receive-time", "--out", tmp_path / "receive") == 0
+    assert _run("--frames", frames, "--poses", poses, *argv[6:], "--out", tmp_path / "files") == 0
+    _same_result(tmp_path / "files", tmp_path / "receive")
+
+
 def test_bag_bad_input_is_named_and_writes_nothing(tmp_path, capsys):
     """Bag options without --bag, --bag without --image-topic, no pose source, both, a topic the
     bag lacks (its topics listed): one named line each, no output folder."""
