@@ -9,8 +9,9 @@ from cvsflow.mocap.bodies import (
 )
 from cvsflow.mocap.layout import resolve_layouts
 from cvsflow.mocap.repair import repair_markers
+from cvsflow.mocap.stream_bodies import bodies_from_streams
 
 __all__ = [
-    "bodies_from_poses", "body_poses", "downsample_bodies", "fit_bodies", "repair_markers",
-    "resolve_layouts", "select_system_bodies"
+    "bodies_from_poses", "bodies_from_streams", "body_poses", "downsample_bodies", "fit_bodies",
+    "repair_markers", "resolve_layouts", "select_system_bodies"
 ]

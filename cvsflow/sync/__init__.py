@@ -2,12 +2,12 @@
 frame pairs.
 """
 
-from cvsflow.sync.offset import main_lobe, masked_ncc, synchronise
+from cvsflow.sync.offset import given_offset, main_lobe, masked_ncc, synchronise
 from cvsflow.sync.offset_refine import refine_offset_rotations
 from cvsflow.sync.pairs import make_pairs
 from cvsflow.sync.streams import angular_speed_streams
 
 __all__ = [
-    "angular_speed_streams", "main_lobe", "make_pairs", "masked_ncc", "refine_offset_rotations",
-    "synchronise"
+    "angular_speed_streams", "given_offset", "main_lobe", "make_pairs", "masked_ncc",
+    "refine_offset_rotations", "synchronise"
 ]

@@ -377,3 +377,39 @@ def synchronise(poses_raw, bodies, method="angular_speed", max_offset_s=30.0, mi
     out["overlap_share"] = share
     out["warnings"] = warnings
     return out
+
+
+def given_offset(poses_raw, bodies, dt_offset_s, min_overlap_share=0.8):
+    """sync.yaml for a session that states its time offset (``dt_offset_s``): nothing searched.
+
+    Parameters
+    ----------
+    poses_raw : DataFrame
+        poses_raw.parquet (camera clock).
+    bodies : DataFrame
+        Native-rate bodies.parquet (mocap clock).
+    dt_offset_s : float
+        The stated offset, t_mocap = t_camera + dt_offset_s, s.
+    min_overlap_share : float
+        Share of frames inside the take below which a warning is given.
+
+    Returns
+    -------
+    sync : dict
+        As :func:`synchronise`: ``dt_offset_s``, ``method`` ``given``, ``quality`` None (no
+        search), ``details`` (``dt_sigma_s`` 0: held, not estimated), ``overlap_share``,
+        ``warnings``.
+
+    Raises
+    ------
+    OverlapError
+        Under 20 % (or 30 frames) of the frames inside the take at that offset.
+    """
+    _, take_span = _spans(poses_raw, bodies)
+    share, warnings = check_overlap(poses_raw["t_s"].to_numpy(float), float(dt_offset_s), take_span,
+                                    min_share=min_overlap_share, source="sync")
+    for w in warnings:
+        log.warning(w)
+    log.info("time offset %.6f s as the session states it (not estimated)", dt_offset_s)
+    return {"dt_offset_s": float(dt_offset_s), "method": "given", "quality": None,
+            "details": {"dt_sigma_s": 0.0}, "overlap_share": share, "warnings": warnings}

@@ -1,10 +1,11 @@
 """Which stages each configured session can run, or why it cannot run what it asks for.
 
-A session names its inputs (``calib_dir``, ``video``, ``mocap.file``, or a ``synth`` block that
-renders all three). Every input it names must be used: a video is turned into poses, which need
-the camera's intrinsics, from the session's own stills or, with ``camera: <other session>``,
-from another session's calibration. A session that names something it cannot use stops the
-run before any job starts, with a message that says what to add.
+A session names its inputs (``calib_dir``, ``video`` or a timestamped ``frames`` folder,
+``mocap.file`` or two ``pose_streams``, or a ``synth`` block that renders all three). Every input
+it names must be used: a video is turned into poses, which need the camera's intrinsics, from the
+session's own stills or, with ``camera: <other session>``, from another session's calibration.
+A session that names something it cannot use stops the run before any job starts, with a message
+that says what to add.
 """
 
 from __future__ import annotations
@@ -143,14 +144,15 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     Returns
     -------
     tuple of str
-        A subset of `STAGES`, in DAG order: ``calibrate`` (own stills), ``poses`` (video and a
-        camera), ``mocap`` (motion-capture export and markers), ``pairs`` (all of them: sync, pairs,
-        optimisers, held-out evaluation).
+        A subset of `STAGES`, in DAG order: ``calibrate`` (own stills), ``poses`` (video or
+        frame folder, and a camera), ``mocap`` (motion-capture export and markers, or pose
+        streams), ``pairs`` (all of them: sync, pairs, optimisers, held-out evaluation).
 
     Raises
     ------
     ConfigError
-        The session names a video without a camera, a Vicon export without markers, a bag
+        The session names a video without a camera, a Vicon export without markers, both a
+        video and a frame folder or both an export and pose streams, a bag
         (not read by the stages yet), or nothing to process; a ChArUco board without a
         usable marker_m or dictionary; an AprilGrid with a missing or invalid key.
     """
@@ -173,22 +175,26 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
         )
     synth = "synth" in s
     cam = camera_session(name, sessions)
-    has_video = synth or "video" in s
-    has_mocap = synth or mocap_file(s) is not None
+    for a, b, given in (("video", "frames", "video" in s), ("mocap.file", "pose_streams", mocap_file(s))):
+        if given and b in s:
+            raise ConfigError(f"{where}: names both {a} and {b}; expected one of the two")
+    has_video = synth or "video" in s or "frames" in s
+    has_mocap = synth or mocap_file(s) is not None or "pose_streams" in s
     stages = []
     if cam == name:
         stages.append("calibrate")
     if has_video:
         if cam is None:
             raise ConfigError(
-                f"{where}: names a video ({s['video']}) but no calib_dir: its poses need the "
+                f"{where}: names a {'frame folder' if 'frames' in s else 'video'} "
+                f"({s.get('video', s.get('frames'))}) but no calib_dir: its poses need the "
                 f"camera's intrinsics. Expected calib_dir (a folder of ~15 stills of the board) "
                 f"or camera: <session> to reuse the calibration of another session with the "
                 f"same camera and settings"
             )
         stages.append("poses")
     if has_mocap:
-        if "markers" not in s:
+        if "pose_streams" not in s and "markers" not in s:
             raise ConfigError(
                 f"{where}: names a motion-capture export but no markers: expected markers.camera.names "
                 f"and markers.board.names (the marker names of each rigid body in the export)"
@@ -198,8 +204,8 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
         stages.append("pairs")
     if not stages:
         raise ConfigError(
-            f"{where}: nothing to process; expected calib_dir, video (with calib_dir or "
-            f"camera), mocap.file (with markers) or a synth block"
+            f"{where}: nothing to process; expected calib_dir, video or frames (with calib_dir or "
+            f"camera), mocap.file (with markers) or pose_streams, or a synth block"
         )
     logger.debug("session %s: stages %s", name, ", ".join(stages))
     return tuple(stages)

@@ -21,6 +21,7 @@ rule sync:
         runtime=10,
     params:
         sync=config["sync"],
+        dt_offset_s=lambda wc: session_cfg(wc.session).get("dt_offset_s"),
     script:
         "../scripts/sync.py"
 
@@ -42,7 +43,7 @@ rule pairs:
         mem_mb=1000,
         runtime=10,
     params:
-        resample=config["mocap"]["resample"],
+        resample=lambda wc: resample_mode(wc.session),
         min_overlap_share=config["sync"]["min_overlap_share"],
     script:
         "../scripts/pairs.py"

@@ -42,8 +42,18 @@ METHODS = {
 
 
 # How each session's motion-capture export is read (format, bodies_from); checked here, at parse time.
+# A session with pose_streams reads two pose files instead (bodies_from: streams).
 MOCAP = {
-    s: mocap_settings(s, SESSIONS[s]) for s in SESSIONS if "mocap" in SESSION_STAGES[s]
+    s: (
+        {
+            "format": SESSIONS[s]["pose_streams"].get("format", "auto"),
+            "bodies_from": "streams",
+        }
+        if "pose_streams" in SESSIONS[s]
+        else mocap_settings(s, SESSIONS[s])
+    )
+    for s in SESSIONS
+    if "mocap" in SESSION_STAGES[s]
 }
 
 
@@ -61,7 +71,10 @@ def bodies_path(wildcards):
 
 
 def mocap_bodies_input(wildcards):
-    """The repaired markers, or the export itself when the system's own body poses are used."""
+    """The repaired markers, the export itself (the system's own body poses), or the pose streams."""
+    if MOCAP[wildcards.session]["bodies_from"] == "streams":
+        streams = SESSIONS[wildcards.session]["pose_streams"]
+        return {"camera_stream": streams["camera"], "board_stream": streams["board"]}
     if MOCAP[wildcards.session]["bodies_from"] == "system":
         return {"export": mocap_path(wildcards)}
     return {"markers": f"results/{wildcards.session}/markers_filled.parquet"}
@@ -93,7 +106,24 @@ def calib_dir(wildcards):
 
 
 def video_path(wildcards):
+    """The session's video, or its timestamped frame folder (frames)."""
+    if "frames" in SESSIONS[wildcards.session]:
+        return SESSIONS[wildcards.session]["frames"]
     return _session_path(wildcards.session, "video", "video.mp4")
+
+
+def resample_mode(session):
+    """mocap.resample, or interp for a frame folder (irregular frame times: each frame's own time)."""
+    if "frames" in SESSIONS[session]:
+        return "interp"
+    return config["mocap"]["resample"]
+
+
+def se3_settings(session):
+    """optimise.se3, with the time offset held where the session states it (dt_offset_s)."""
+    if "dt_offset_s" in SESSIONS[session]:
+        return {**config["optimise"]["se3"], "fit_dt": False}
+    return config["optimise"]["se3"]
 
 
 def mocap_path(wildcards):
@@ -290,7 +320,7 @@ def headline_inputs(wildcards):
             files[f"{session}/corners"] = f"results/{session}/corners_summary.yaml"
         if runs_stage(session, "mocap") and MOCAP[session]["bodies_from"] == "markers":
             files[f"{session}/mocap_import"] = f"results/{session}/mocap_import.yaml"
-        if runs_stage(session, "mocap"):
+        if runs_stage(session, "mocap") and MOCAP[session]["bodies_from"] != "streams":
             files[f"{session}/mocap_repair"] = f"results/{session}/mocap_repair.yaml"
         if runs_stage(session, "pairs"):
             files[f"{session}/sync"] = f"results/{session}/sync.yaml"

@@ -42,7 +42,7 @@ rule heldout_se3:
         runtime=30,
     params:
         board=lambda wc: session_cfg(wc.session)["board"],
-        se3=config["optimise"]["se3"],
+        se3=lambda wc: se3_settings(wc.session),
         evaluate=config["evaluate"],
     script:
         "../scripts/heldout_se3.py"

@@ -69,7 +69,7 @@ rule mocap_bodies:
         mem_mb=2000,
         runtime=10,
     params:
-        markers=lambda wc: session_cfg(wc.session)["markers"],
+        markers=lambda wc: session_cfg(wc.session).get("markers", {}),
         mocap=lambda wc: mocap_cfg(wc.session),
         max_fit_rms_m=config["mocap"]["max_fit_rms_m"],
         max_fit_rms_share=config["mocap"]["max_fit_rms_share"],
@@ -93,6 +93,6 @@ rule mocap_resample:
         mem_mb=1000,
         runtime=10,
     params:
-        resample=config["mocap"]["resample"],
+        resample=lambda wc: resample_mode(wc.session),
     script:
         "../scripts/mocap_resample.py"

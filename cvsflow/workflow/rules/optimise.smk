@@ -46,7 +46,7 @@ rule optimise_se3:
         runtime=30,
     params:
         board=lambda wc: session_cfg(wc.session)["board"],
-        se3=config["optimise"]["se3"],
+        se3=lambda wc: se3_settings(wc.session),
         frame=config["evaluate"]["frame"],
         f_init_px=lambda wc: f_init_px(wc.finit),
     script:

@@ -1,15 +1,28 @@
-"""Camera and board poses: fitted to their markers, or as the mocap system solved them (rule mocap_bodies)."""
+"""Camera and board poses: fitted to their markers, as the mocap system solved them, or two pose
+streams (rule mocap_bodies).
+"""
 
 from cvsflow.io.files import read_parquet, save_figure, write_parquet
 from cvsflow.io.logs import stage_logging
-from cvsflow.io.mocap.formats import read_system_bodies
-from cvsflow.mocap import fit_bodies, resolve_layouts
+from cvsflow.io.mocap.formats import read_pose_stream, read_system_bodies
+from cvsflow.io.mocap.streams import stream_T
+from cvsflow.mocap import bodies_from_streams, fit_bodies, resolve_layouts
 from cvsflow.plausibility import check_body_fits
 from cvsflow.plots import mocap as plots
 
 with stage_logging(snakemake.log[0], "mocap_bodies") as log:
     specs = snakemake.params.markers
-    if hasattr(snakemake.input, "export"):  # mocap.bodies_from: system
+    if hasattr(snakemake.input, "camera_stream"):  # pose_streams: one body per file
+        source = f"{snakemake.input.camera_stream} and {snakemake.input.board_stream}"
+        fmt = snakemake.params.mocap["format"]
+        cam, brd = (read_pose_stream(snakemake.input[k], fmt, given_by="pose_streams.format")
+                    for k in ("camera_stream", "board_stream"))  # fmt: skip
+        bodies = bodies_from_streams(cam["t_ns"].to_numpy(), stream_T(cam), brd["t_ns"].to_numpy(),
+                                     stream_T(brd), source=source)  # fmt: skip
+        log.info("bodies from pose streams: camera %d samples (%s), board %d", len(cam),
+                 cam.attrs.get("format"), len(brd))  # fmt: skip
+        specs = {}
+    elif hasattr(snakemake.input, "export"):  # mocap.bodies_from: system
         source = snakemake.input.export
         bodies = read_system_bodies(source, {b: s["system_body"] for b, s in specs.items()},
                                     snakemake.params.mocap["format"])

@@ -1,12 +1,16 @@
 """Vicon body poses at the video rate: the chapter's block mean or interpolation (rule mocap_resample)."""
 
+import os
+
 from cvsflow.io.files import read_parquet, write_parquet
+from cvsflow.io.frames import frame_folder_info
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import video_info
 from cvsflow.mocap import downsample_bodies
 
 with stage_logging(snakemake.log[0], "mocap_resample") as log:
-    fps = video_info(snakemake.input.video)["fps"]
+    video = snakemake.input.video
+    fps = (frame_folder_info(video) if os.path.isdir(video) else video_info(video))["fps"]
     bodies_30hz = downsample_bodies(
         read_parquet(snakemake.input.bodies), fps, mode=snakemake.params.resample
     )

@@ -1,10 +1,13 @@
-"""Board pose per video frame by RANSAC PnP + LM (rule poses)."""
+"""Board pose per video frame (or frame of a frame folder) by RANSAC PnP + LM (rule poses)."""
+
+import os
 
 import cv2
 import numpy as np
 
 from cvsflow.calibration import estimate_poses
 from cvsflow.io.files import read_parquet, read_yaml, save_figure, write_parquet
+from cvsflow.io.frames import frame_folder_info
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import video_size
 from cvsflow.plausibility import check_image_size, check_poses_found
@@ -15,7 +18,9 @@ cv2.setNumThreads(snakemake.threads)
 
 with stage_logging(snakemake.log[0], "poses") as log:
     camera = read_yaml(snakemake.input.camera)
-    size = video_size(snakemake.input.video)
+    video = snakemake.input.video
+    # a frame folder has no display rotation
+    size = {**frame_folder_info(video), "rotation_deg": 0} if os.path.isdir(video) else video_size(video)
     check_image_size(camera, size["width"], size["height"], snakemake.input.camera, snakemake.params.video,
                      size["rotation_deg"])
     corners = read_parquet(snakemake.input.corners)

@@ -4,14 +4,18 @@ from cvsflow.io.files import read_parquet, save_figure, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.plausibility import check_sync_inputs
 from cvsflow.plots import mocap as plots
-from cvsflow.sync import synchronise
+from cvsflow.sync import given_offset, synchronise
 
 with stage_logging(snakemake.log[0], "sync") as log:
     poses = read_parquet(snakemake.input.poses)
     bodies = read_parquet(snakemake.input.bodies)
     check_sync_inputs(poses, bodies, snakemake.params.sync.get("method", "angular_speed"),
                       snakemake.input.poses, snakemake.input.bodies)
-    result = synchronise(poses, bodies, **snakemake.params.sync)
+    given = getattr(snakemake.params, "dt_offset_s", None)
+    if given is not None:  # the session states it (one clock): nothing to search
+        result = given_offset(poses, bodies, given)
+    else:
+        result = synchronise(poses, bodies, **snakemake.params.sync)
     log.info("dt_offset_s = %.4f (%s, quality %.2f, overlap %.1f %%)", result["dt_offset_s"],
              result["method"], result["quality"], 100 * result["overlap_share"])
     write_yaml(result, snakemake.output.sync)

@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 from cvsflow.exceptions import InputError, OverlapError, SyncError
 from cvsflow.geometry.transforms import invert_T, make_T, rotation_angle
 from cvsflow.mocap.bodies import fit_bodies
-from cvsflow.sync.offset import sync_angular_speed, synchronise
+from cvsflow.sync.offset import given_offset, sync_angular_speed, synchronise
 from cvsflow.sync.offset_refine import refine_offset_rotations
 from cvsflow.sync.pairs import build_pairs
 from cvsflow.sync.streams import (
@@ -355,3 +355,14 @@ def test_rendered_session_sync_within_3ms(rendered):
     assert abs(out["dt_offset_s"] - truth["dt_offset_s"]) < 0.002, (out, truth["dt_offset_s"])
     pairs = build_pairs(poses, bodies, out["dt_offset_s"], mode="interp")
     assert len(pairs) == int(frames["in_view"].sum())
+
+
+def test_given_offset_is_written_not_searched(session):
+    """A session that states its offset gets it in sync.yaml as given (no quality, no search),
+    with the overlap checked at that offset."""
+    poses, bodies, _ = session
+    out = given_offset(poses, bodies, DT_OFFSET_S)
+    assert out["dt_offset_s"] == DT_OFFSET_S and out["method"] == "given" and out["quality"] is None
+    assert out["overlap_share"] == pytest.approx(1.0) and out["warnings"] == []
+    with pytest.raises(OverlapError, match="video frames"):
+        given_offset(poses, bodies, DT_OFFSET_S + 1e4)

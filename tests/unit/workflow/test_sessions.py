@@ -111,3 +111,19 @@ def test_a_config_with_only_new_keys_is_left_as_it_is():
     config = {"mocap": {"max_gap_s": 0.1}, "sessions": {"lab": copy.deepcopy(SESSION)}}
     before = copy.deepcopy(config)
     assert upgrade_config(config) == [] and config == before
+
+
+def test_frame_folder_and_pose_streams_run_every_stage():
+    """frames (instead of video) and pose_streams (instead of mocap.file + markers) give a
+    session all stages; naming both a video and frames, or an export and pose streams, is
+    refused; frames without a camera say what to add."""
+    board = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
+    streams = {"camera": "body0.csv", "board": "target0.csv"}
+    s = {"board": board, "calib_dir": "cam0/data", "frames": "cam0", "pose_streams": streams}
+    assert session_stages("s", {"s": s}) == ("calibrate", "poses", "mocap", "pairs")
+    with pytest.raises(ConfigError, match="sessions.s: names both video and frames"):
+        session_stages("s", {"s": {**s, "video": "v.mp4"}})
+    with pytest.raises(ConfigError, match="sessions.s: names both mocap.file and pose_streams"):
+        session_stages("s", {"s": {**s, "mocap": {"file": "v.csv"}}})
+    with pytest.raises(ConfigError, match=r"names a frame folder \(cam0\) but no calib_dir"):
+        session_stages("s", {"s": {"board": board, "frames": "cam0", "pose_streams": streams}})
