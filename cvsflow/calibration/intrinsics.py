@@ -37,6 +37,10 @@ from cvsflow.board import (
     order_corners,
     passes_name,
 )
+from cvsflow.calibration.assess import assess_fit
+from cvsflow.calibration.bundle import MIN_CORNERS_PER_STILL, StillView
+from cvsflow.calibration.lens import K_dist, lens_model
+from cvsflow.calibration.outliers import K_SIGMA, fit_with_outliers
 from cvsflow.calibration.still_corners import refine_still_corners
 from cvsflow.exceptions import CalibrationError, InputError
 
@@ -47,7 +51,7 @@ log = logging.getLogger(__name__)
 # images without a board, which a calibration set should not have.
 CALIB_FIND_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 
-CALIB_CORNER_COLUMNS = ["image", "corner", "u_px", "v_px", "X_m", "Y_m"]
+CALIB_CORNER_COLUMNS = ["image", "corner", "u_px", "v_px", "X_m", "Y_m", "used"]
 
 # camera.yaml's reason for a still without a board, by board type.
 NOT_FOUND = {"chessboard": "no chessboard found", "charuco": "no ChArUco corners found",
@@ -156,108 +160,97 @@ def _detect_view(gray: np.ndarray, board: dict, subpix_window_px: int | None, de
     return None, ordered, info
 
 
-def calibration_quality(
-    rvecs: Sequence[np.ndarray],
-    img_points: Sequence[np.ndarray],
-    size_wh: tuple[int, int],
-    K: np.ndarray,
-    std: dict,
-) -> dict:
-    """How well a set of views constrains the intrinsics: coverage, tilt, focal uncertainty.
+def _check_sizes(grays: list[tuple[str, np.ndarray]]) -> tuple[int, int]:
+    """The stills' common (width, height), px, or an InputError naming each size's files."""
+    by_size: dict = {}
+    for name, gray in grays:
+        by_size.setdefault((gray.shape[1], gray.shape[0]), []).append(name)
+    if len(by_size) > 1:
+        sizes = sorted(by_size.items(), key=lambda kv: -len(kv[1]))
+        listed = "; ".join(
+            f"{w}x{h} px: {', '.join(names[:5])}" + (f" and {len(names) - 5} more"
+                                                      if len(names) > 5 else "")
+            for (w, h), names in sizes)
+        raise InputError(f"calibration stills of {len(by_size)} sizes ({listed}); expected one "
+                         "size (all stills from the same camera mode)")
+    return next(iter(by_size))
 
-    Parameters
-    ----------
-    rvecs : sequence of ndarray, shape (3,)
-        ``rvec_C_B`` of each used view (calibrateCamera).
-    img_points : sequence of ndarray, shape (N, 2) or (N, 1, 2)
-        Each view's corners, pixels.
-    size_wh : (int, int)
-        Image width and height, pixels.
-    K : ndarray, shape (3, 3)
-        Calibrated camera matrix, pixels.
-    std : dict
-        ``fx``, ``fy``, ... standard deviations (px for fx, fy).
+
+def _detect_stills(grays, board: dict, subpix_window_px: int | None, duplicate_px: float):
+    """Each still's refined corners in board order, near-duplicates left out.
 
     Returns
     -------
-    dict
-        ``coverage_share`` (share of the image inside the union of the views' corner hulls),
-        ``tilt_min_deg``, ``tilt_max_deg`` (angle between the board normal and the optical
-        axis), ``normal_spread_deg`` (largest angle between two views' board normals),
-        ``rel_std_fx``, ``rel_std_fy`` (std of fx, fy over fx, fy).
-
-    Notes
-    -----
-    Zhang's method needs views of the plane in different orientations: with parallel board
-    normals the focal length trades off against distance, which ``normal_spread_deg`` and the
-    relative std of fx reveal. Corners over a small part of the image leave the distortion
-    unconstrained elsewhere (``coverage_share``).
+    views : list of StillView
+    records : list of dict
+        camera.yaml's ``images``: ``name``, ``used``, ``reason``, ``rms_px`` (None here), and
+        for a used still its refinement's ``window_px`` (min, max) and ``notes``.
+    duplicates : list of str
     """
-    w, h = size_wh
-    scale = 4  # the coverage mask at a quarter of the resolution is plenty for a share
-    mask = np.zeros((max(h // scale, 1), max(w // scale, 1)), np.uint8)
-    for uv in img_points:
-        hull = cv2.convexHull(np.asarray(uv, np.float32).reshape(-1, 2) / scale)
-        cv2.fillConvexPoly(mask, np.rint(hull).astype(np.int32), 1)
-    normals = np.array([cv2.Rodrigues(np.asarray(r, float))[0][:, 2] for r in rvecs])
-    tilt = np.degrees(np.arccos(np.clip(np.abs(normals[:, 2]), 0.0, 1.0)))
-    cosines = np.clip(np.abs(normals @ normals.T), 0.0, 1.0)
-    return {
-        "coverage_share": float(mask.mean()),
-        "tilt_min_deg": float(tilt.min()),
-        "tilt_max_deg": float(tilt.max()),
-        "normal_spread_deg": float(np.degrees(np.arccos(cosines.min()))),
-        "rel_std_fx": float(std["fx"] / K[0, 0]),
-        "rel_std_fy": float(std["fy"] / K[1, 1]),
-    }
+    p_B = board_object_points(board)
+    kind = board_type(board)
+    detector = make_detector(board) if kind == "charuco" else None
+    what = board_name(board)
+    views, records, kept, duplicates = [], [], [], []
+    for name, gray in grays:
+        view = _detect_view(gray, board, subpix_window_px, detector)
+        if view is None:
+            log.warning("%s: no %s found; skipped", name, what)
+            records.append({"name": name, "used": False, "reason": NOT_FOUND[kind],
+                            "rms_px": None})
+            continue
+        ids, ordered, info = view
+        dup = _duplicate_of(ordered, kept, duplicate_px, ids)
+        if dup is not None:
+            log.warning("%s: near-duplicate of %s (corners within %.3f px RMS); skipped",
+                        name, *dup)
+            records.append({"name": name, "used": False, "rms_px": None, "reason":
+                            f"near-duplicate of {dup[0]} (corners within {dup[1]:.3f} px RMS)"})
+            duplicates.append(f"{name} (of {dup[0]})")
+            continue
+        kept.append((name, ordered if ids is None else (ids, ordered)))
+        ids = np.arange(len(p_B)) if ids is None else np.asarray(ids, dtype=np.int64)
+        views.append(StillView(name, ids, p_B[ids], np.asarray(ordered, np.float64)))
+        records.append({"name": name, "used": True, "reason": "ok", "rms_px": None, **info})
+        for note in info["notes"]:
+            log.warning("%s: %s", name, note)
+    return views, records, duplicates
 
 
-def quality_warnings(
-    quality: dict,
-    used_names: Sequence[str],
-    min_coverage: float = 0.3,
-    min_normal_spread_deg: float = 10.0,
-    max_rel_std_f: float = 0.01,
-) -> list[str]:
-    """Plain-language warnings for a calibration that ran but may not be trusted.
+def _too_few_error(records, views, n_images, min_images, duplicates, duplicate_px, board,
+                   unreadable=()):
+    """The CalibrationError of too few usable, distinct stills (each kind of still named)."""
+    what = board_name(board)
+    skipped = [r["name"] for r in records if r["reason"] == NOT_FOUND[board_type(board)]]
+    dup_text = (f"; near-duplicates removed: {', '.join(duplicates)}, within {duplicate_px:g} px"
+                if duplicates else "")
+    if unreadable:
+        dup_text += (f"; {len(unreadable)} cannot be decoded: "
+                     f"{', '.join(n for n, _ in unreadable)}")
+    return CalibrationError(
+        f"calibration: {len(views)} of {n_images} stills have a usable and distinct {what} "
+        f"view; at least {min_images} needed (used: {[v.name for v in views]}; no board found "
+        f"in: {skipped}{dup_text})")
 
-    Parameters
-    ----------
-    quality : dict
-        `calibration_quality` of the used views.
-    used_names : sequence of str
-        The stills used, named in the warnings.
-    min_coverage, min_normal_spread_deg, max_rel_std_f : float
-        Thresholds: share of the image, degrees, std of fx or fy over its value.
 
-    Returns
-    -------
-    list of str
-    """
-    names = ", ".join(used_names)
-    out = []
-    if quality["coverage_share"] < min_coverage:
-        out.append(
-            f"the board covers {100 * quality['coverage_share']:.0f} % of the image over all "
-            f"stills (expected at least {100 * min_coverage:.0f} %): distortion is "
-            f"extrapolated elsewhere; add stills with the board near the edges and corners"
-        )
-    if quality["normal_spread_deg"] < min_normal_spread_deg:
-        out.append(
-            f"the board normals of the stills ({names}) differ by at most "
-            f"{quality['normal_spread_deg']:.1f} deg (tilt {quality['tilt_min_deg']:.1f} to "
-            f"{quality['tilt_max_deg']:.1f} deg; expected a spread of at least "
-            f"{min_normal_spread_deg:g} deg): the focal length trades off against distance; "
-            f"add stills with the board tilted 20 to 45 deg in different directions"
-        )
-    worst = max(quality["rel_std_fx"], quality["rel_std_fy"])
-    if worst > max_rel_std_f:
-        out.append(
-            f"the focal length is uncertain: std of fx {100 * quality['rel_std_fx']:.2f} %, "
-            f"fy {100 * quality['rel_std_fy']:.2f} % (expected at most "
-            f"{100 * max_rel_std_f:.2f} %)"
-        )
-    return out
+def _fit_stills(views, size_wh, model, reject, k_sigma, min_images):
+    """The fit with its outliers, or a CalibrationError when rejection leaves too little."""
+    try:
+        fit, rejected = fit_with_outliers(views, size_wh, model, k_sigma=k_sigma, reject=reject)
+    except (cv2.error, np.linalg.LinAlgError) as exc:
+        raise CalibrationError(f"calibration: the {model.name} fit failed on {len(views)} stills "
+                               f"({exc})") from exc
+    lost = [f"{v.name} ({int(m.sum())} of {len(v.ids)} corners kept)"
+            for v, m in zip(views, fit.inlier, strict=True) if m.sum() < MIN_CORNERS_PER_STILL]
+    if len(views) - len(lost) < min_images:
+        raise CalibrationError(
+            f"calibration: after outlier rejection {len(views) - len(lost)} stills keep a pose; "
+            f"at least {min_images} needed (lost: {', '.join(lost[:4])}"
+            + (f" and {len(lost) - 4} more" if len(lost) > 4 else "") + ")")
+    if lost:
+        log.warning("calibration: stills without a pose after outlier rejection: %s",
+                    ", ".join(lost))
+    return fit, rejected
 
 
 def calibrate_camera(
@@ -269,9 +262,13 @@ def calibrate_camera(
     min_coverage: float = 0.3,
     min_normal_spread_deg: float = 10.0,
     max_rel_std_f: float = 0.01,
+    model: str = "opencv5",
+    reject_outliers: bool = True,
+    k_sigma: float = K_SIGMA,
+    cross_validation: bool = True,
     unreadable: Sequence[tuple[str, str]] = (),
 ) -> tuple[dict, pd.DataFrame]:
-    """Intrinsics and distortion of a camera from chessboard (or ChArUco) stills.
+    """Intrinsics and distortion of a camera from chessboard (or ChArUco) stills, judged.
 
     Parameters
     ----------
@@ -290,14 +287,25 @@ def calibrate_camera(
         (:mod:`cvsflow.calibration.still_corners`).
     min_images : int
         Fewest *distinct* views (stills with a detected board, near-duplicates removed)
-        needed to calibrate.
+        needed to calibrate, and fewest stills keeping a pose after outlier rejection.
     duplicate_px : float
         A still whose ordered corners are within this RMS distance (px) of an earlier used
         still's is a near-duplicate: listed unused with the still it repeats. It would add
         no information and shrink the reported standard deviations.
     min_coverage, min_normal_spread_deg, max_rel_std_f : float
-        Thresholds of the warnings (`quality_warnings`): share of the image covered by the
-        board, spread of the board normals (deg), std of fx or fy over its value.
+        Warn boundaries of the quality verdicts (:mod:`cvsflow.calibration.quality`): share
+        of the image covered by the board, spread of the board normals (deg), std of fx or fy
+        over its value.
+    model : {"opencv5", "opencv8", "fisheye4"}
+        Lens model (:mod:`cvsflow.calibration.lens`): OpenCV's 5 terms, the 8-term rational
+        model, the 4-term fisheye (Kannala-Brandt).
+    reject_outliers : bool
+        Leave out corners beyond ``k_sigma`` fitted corner sigmas (:mod:`.outliers`); they are
+        named in ``outliers`` either way.
+    k_sigma : float
+        The rejection threshold, in sigmas of the fitted corner noise.
+    cross_validation : bool
+        Fit two interleaved halves of the stills and compare (:mod:`.cross_validation`).
     unreadable : sequence of (str, str)
         ``(name, reason)`` of the stills that could not be decoded (an empty or truncated
         file: ``cvsflow.io.media.read_stills``): listed unused with their reason after the
@@ -306,179 +314,102 @@ def calibrate_camera(
     Returns
     -------
     camera : dict
-        camera.yaml content: ``K`` (3x3 list, px), ``dist`` ([k1, k2, p1, p2, k3]),
-        ``std`` (1-sigma of each intrinsic: ``fx, fy, cx, cy`` in px, ``k1, k2, p1, p2, k3``
-        unitless, OpenCV's ``stdDeviationsIntrinsics``),
-        ``width``, ``height`` (px), ``rms_px`` (overall reprojection RMS), ``images`` (list of
-        ``{name, used, reason, rms_px}``; ``rms_px`` is None for unused stills), ``n_used``,
-        ``board``, ``quality`` (`calibration_quality`) and ``warnings`` (list of str, empty
-        when the views constrain the intrinsics well).
+        camera.yaml content: ``model``; ``K`` (3x3 list, px), ``dist`` (the model's terms in
+        OpenCV's order: k1 k2 p1 p2 k3 [k4 k5 k6], or the fisheye's k1..k4); ``std`` (1-sigma
+        of each intrinsic, ``fx, fy, cx, cy`` px, the terms unitless: ``s^2 (J^T J)^-1``, which
+        is OpenCV's ``stdDeviationsIntrinsics``), ``std_jackknife`` (leave-one-still-out);
+        ``width``, ``height`` (px); ``rms_px`` (reprojection RMS of the kept corners, OpenCV's
+        definition), ``sigma_px`` (fitted corner noise per coordinate); ``subpix_window_px``;
+        ``images`` (per still ``name, used, reason, rms_px`` and for a used still
+        ``window_px``, ``notes``, ``n_rejected``, ``chi2_ratio``, ``influence_sigma``,
+        ``named``, ``reasons``); ``n_used``; ``board``; ``outliers``;
+        ``projection_uncertainty``; ``cross_validation``; ``quality`` (the stills' geometry,
+        ``verdicts`` and their ``summary`` line) and ``warnings`` (list of str).
     calib_corners : DataFrame
-        ``image, corner, u_px, v_px, X_m, Y_m``: refined corners in board order (see
+        ``image, corner, u_px, v_px, X_m, Y_m, used``: refined corners in board order (see
         ``order_corners``; a ChArUco still only the corners it shows) with their board-frame
-        positions (m, Z = 0).
+        positions (m, Z = 0), ``used`` False for a corner left out of the fit.
 
     Raises
     ------
     InputError
-        A still that is not an 8-bit grayscale image, or whose size differs from the first.
+        A still that is not an 8-bit grayscale image, or stills of different sizes (each size
+        and its files named).
     CalibrationError
         Fewer than ``min_images`` distinct stills with a board (the near-duplicates named),
-        or calibrateCamera failing.
+        every still losing its corners to the outlier rejection, fewer than ``min_images``
+        stills keeping a pose after it (each named with its corners kept), or the fit failing.
+    ConfigError
+        An unknown ``model``.
 
     Notes
     -----
-    OpenCV ``findChessboardCorners``, ``cornerSubPix`` (criteria EPS + MAX_ITER, 30, 0.001)
-    and ``calibrateCamera`` with default flags (k1, k2, p1, p2, k3), as the seed describes.
-    The overall RMS is ``sqrt(sum of squared point errors / number of points)``, as OpenCV
-    reports it; per-image RMS values use the same definition over that still's corners.
-    ``std`` comes from ``calibrateCameraExtended``: the Gauss-Newton covariance
-    ``s^2 (J^T J)^-1`` of the calibration (``s^2`` the residual variance per coordinate), i.e.
-    the data-only uncertainty of the stills; downstream fits that hold some intrinsics fixed
-    (``optimise_se3``) propagate it into their own standard errors.
+    Corners: OpenCV ``findChessboardCorners``, then cornerSubPix per corner
+    (:mod:`.still_corners`). The fit (:mod:`.bundle`) is OpenCV's problem solved by
+    Levenberg-Marquardt from ``calibrateCamera``'s answer, so that corners can be left out by
+    name and the covariance of every parameter kept; on the same corners it is OpenCV's
+    minimum. The overall RMS is ``sqrt(sum of squared point errors / number of points)``, as
+    OpenCV reports it; per-still RMS values use the same definition over that still's kept
+    corners. The intrinsics' ``std`` is the data-only uncertainty of the stills; downstream
+    fits that hold some intrinsics fixed (``optimise_se3``) propagate it into their own
+    standard errors.
     """
     if len(images) == 0:
         bad = "".join(f"; {n}: {r}" for n, r in unreadable)
         raise CalibrationError(f"calibration: no stills given; expected at least one image{bad}")
-    p_B = board_object_points(board).astype(np.float32)
-    kind = board_type(board)
-    detector = make_detector(board) if kind == "charuco" else None
-    what = board_name(board)
-    size_wh = None
-    first_name = None
-    records = []
-    obj_points, img_points, used_names, view_ids = [], [], [], []
-    kept, duplicates = [], []
-    for name, img in images:
-        gray = _check_gray(name, img)
-        h, w = gray.shape
-        if size_wh is None:
-            size_wh, first_name = (w, h), name
-        elif (w, h) != size_wh:
-            raise InputError(
-                f"{name}: image is {w}x{h} px; expected {size_wh[0]}x{size_wh[1]} px like "
-                f"{first_name} (all calibration stills must have the same size)"
-            )
-        view = _detect_view(gray, board, subpix_window_px, detector)
-        if view is None:
-            log.warning("%s: no %s found; skipped", name, what)
-            records.append(
-                {"name": name, "used": False, "reason": NOT_FOUND[kind], "rms_px": None}
-            )
-            continue
-        ids, ordered, info = view
-        dup = _duplicate_of(ordered, kept, duplicate_px, ids)
-        if dup is not None:
-            log.warning("%s: near-duplicate of %s (corners within %.3f px RMS); skipped",
-                        name, *dup)
-            records.append(
-                {
-                    "name": name,
-                    "used": False,
-                    "reason": f"near-duplicate of {dup[0]} (corners within {dup[1]:.3f} px RMS)",
-                    "rms_px": None,
-                }
-            )
-            duplicates.append(f"{name} (of {dup[0]})")
-            continue
-        kept.append((name, ordered if ids is None else (ids, ordered)))
-        # A ChArUco view has the corners it saw; calibrateCamera takes each view's own subset.
-        obj_points.append(p_B if ids is None else p_B[ids])
-        img_points.append(ordered.astype(np.float32).reshape(-1, 1, 2))
-        view_ids.append(np.arange(len(p_B)) if ids is None else ids)
-        used_names.append(name)
-        records.append({"name": name, "used": True, "reason": "ok", "rms_px": None, **info})
-        for note in info["notes"]:
-            log.warning("%s: %s", name, note)
-
+    lm = lens_model(model)
+    grays = [(name, _check_gray(name, img)) for name, img in images]
+    size_wh = _check_sizes(grays)
+    views, records, duplicates = _detect_stills(grays, board, subpix_window_px, duplicate_px)
     records += [{"name": n, "used": False, "reason": r, "rms_px": None} for n, r in unreadable]
-    bad_text = f"; {len(unreadable)} cannot be decoded: {', '.join(n for n, _ in unreadable)}" \
-        if unreadable else ""
-    if len(used_names) < min_images:
-        skipped = [r["name"] for r in records if r["reason"] == NOT_FOUND[kind]]
-        dup_text = (
-            f"; near-duplicates removed: {', '.join(duplicates)}, within {duplicate_px:g} px"
-            if duplicates
-            else ""
-        )
-        raise CalibrationError(
-            f"calibration: {len(used_names)} of {len(images) + len(unreadable)} stills have a "
-            f"usable and distinct {what} view; "
-            f"at least {min_images} needed (used: {used_names}; no board found in: "
-            f"{skipped}{dup_text}{bad_text})"
-        )
-
-    try:
-        # calibrateCameraExtended is calibrateCamera plus the standard deviations (the same
-        # solver and flags: K, dist and the RMS are identical); std_intr holds fx, fy, cx, cy,
-        # k1, k2, p1, p2, k3, then the terms of richer models (zero here).
-        rms_px, K, dist, rvecs, tvecs, std_intr, _, _ = cv2.calibrateCameraExtended(
-            obj_points, img_points, size_wh, None, None
-        )
-    except cv2.error as exc:
-        raise CalibrationError(
-            f"calibration: calibrateCamera failed on {len(used_names)} stills ({exc})"
-        ) from exc
-
-    rms_by_name = {}
-    rows = []
-    for name, p_obj, p_img, ids, rvec, tvec in zip(used_names, obj_points, img_points, view_ids,
-                                                   rvecs, tvecs, strict=True):
-        proj, _ = cv2.projectPoints(p_obj, rvec, tvec, K, dist)
-        err = proj.reshape(-1, 2) - p_img.reshape(-1, 2)
-        rms_by_name[name] = float(np.sqrt(np.mean(np.sum(err**2, axis=1))))
-        uv = p_img.reshape(-1, 2).astype(np.float64)
-        rows.append(
-            pd.DataFrame(
-                {
-                    "image": name,
-                    "corner": np.asarray(ids, dtype=np.int64),
-                    "u_px": uv[:, 0],
-                    "v_px": uv[:, 1],
-                    "X_m": p_obj[:, 0].astype(np.float64),
-                    "Y_m": p_obj[:, 1].astype(np.float64),
-                }
-            )
-        )
+    if len(views) < min_images:
+        raise _too_few_error(records, views, len(images) + len(unreadable), min_images,
+                             duplicates, duplicate_px, board, unreadable)
+    fit, rejected = _fit_stills(views, size_wh, lm, reject_outliers, k_sigma, min_images)
+    judged = assess_fit(views, fit, rejected, k_sigma=k_sigma, reject=reject_outliers,
+                        cross_validation=cross_validation, min_coverage=min_coverage,
+                        min_normal_spread_deg=min_normal_spread_deg, max_rel_std_f=max_rel_std_f)
+    by_name = {s["name"]: s for s in judged["stills"]}
     for rec in records:
         if rec["used"]:
-            rec["rms_px"] = rms_by_name[rec["name"]]
-
-    std_intr = np.asarray(std_intr, dtype=float).ravel()
-    std = {n: float(v) for n, v in zip(INTRINSIC_STD_NAMES, std_intr[:9], strict=True)}
-    quality = calibration_quality(rvecs, img_points, size_wh, K, std)
-    warnings = quality_warnings(
-        quality, used_names, min_coverage, min_normal_spread_deg, max_rel_std_f
-    )
-    for text in warnings:
+            s = by_name[rec["name"]]
+            rec.update({"rms_px": s["rms_px"], "n_rejected": s["n_rejected"],
+                        "chi2_ratio": s["chi2_ratio"], "influence_sigma": s["influence_sigma"],
+                        "named": s["named"], "reasons": s["reasons"]})
+    for text in judged["warnings"]:
         log.warning("calibration: %s", text)
-    warnings += [f"{n}: {r}; left out" for n, r in unreadable]  # logged when read
+    judged["warnings"] += [f"{n}: {r}; left out" for n, r in unreadable]  # logged when read
+    K, dist = K_dist(fit.theta, lm)
+    names = lm.param_names
     camera = {
-        "K": np.asarray(K, dtype=float).tolist(),
-        "dist": np.asarray(dist, dtype=float).ravel()[:5].tolist(),
-        "std": std,
-        "width": int(size_wh[0]),
-        "height": int(size_wh[1]),
-        "rms_px": float(rms_px),
-        "images": records,
-        "n_used": len(used_names),
-        "board": board_record(board),
-        "quality": quality,
-        "warnings": warnings,
+        "model": lm.name, "K": K.tolist(), "dist": dist.tolist(),
+        "std": dict(zip(names, map(float, fit.theta_std), strict=True)),
+        "std_jackknife": dict(zip(names, map(float, judged["std_jackknife"]), strict=True)),
+        "width": int(size_wh[0]), "height": int(size_wh[1]),
+        "rms_px": fit.rms_px, "sigma_px": fit.sigma_px,
+        "subpix_window_px": None if subpix_window_px is None else int(subpix_window_px),
+        "images": records, "n_used": len(views), "board": board_record(board),
+        "outliers": judged["outliers"],
+        "projection_uncertainty": judged["projection_uncertainty"],
+        "cross_validation": judged["cross_validation"],
+        "quality": judged["quality"], "warnings": judged["warnings"],
     }
-    if kind == "aprilgrid":  # which tag detector found the corners (pupil-apriltags may be missing)
+    if board_type(board) == "aprilgrid":  # the tag detector that ran (pupil-apriltags or not)
         camera["detector"] = passes_name(default_passes())
-    log.info(
-        "calibrated on %d of %d stills: rms %.3f px, fx %.2f, fy %.2f px",
-        len(used_names),
-        len(images) + len(unreadable),
-        rms_px,
-        K[0, 0],
-        K[1, 1],
-    )
-    calib_corners = pd.concat(rows, ignore_index=True)[CALIB_CORNER_COLUMNS]
-    return camera, calib_corners
+    log.info("calibrated on %d of %d stills (%s): rms %.3f px, fx %.2f, fy %.2f px; %s",
+             len(views), len(images) + len(unreadable), lm.name, fit.rms_px, K[0, 0], K[1, 1],
+             judged["quality"]["summary"])
+    return camera, _corner_table(views, fit)
 
+
+def _corner_table(views, fit) -> pd.DataFrame:
+    """calib_corners: every still's corners with their board points and whether the fit used them."""
+    rows = [pd.DataFrame({"image": v.name, "corner": v.ids.astype(np.int64),
+                          "u_px": v.uv_px[:, 0], "v_px": v.uv_px[:, 1],
+                          "X_m": v.p_B[:, 0].astype(np.float64),
+                          "Y_m": v.p_B[:, 1].astype(np.float64), "used": m.copy()})
+            for v, m in zip(views, fit.inlier, strict=True)]
+    return pd.concat(rows, ignore_index=True)[CALIB_CORNER_COLUMNS]
 
 def view_corners(images: Sequence[tuple[str, np.ndarray]], board: dict,
                  subpix_window_px: int | None = None) -> pd.DataFrame:
@@ -502,8 +433,8 @@ def view_corners(images: Sequence[tuple[str, np.ndarray]], board: dict,
     Returns
     -------
     corners : DataFrame
-        ``image, corner, u_px, v_px, X_m, Y_m`` (``CALIB_CORNER_COLUMNS``), px and m; empty
-        when no still shows the board.
+        ``image, corner, u_px, v_px, X_m, Y_m, used`` (``CALIB_CORNER_COLUMNS``; ``used`` True),
+        px and m; empty when no still shows the board.
 
     Raises
     ------
@@ -522,7 +453,8 @@ def view_corners(images: Sequence[tuple[str, np.ndarray]], board: dict,
         ids = np.arange(len(p_B)) if ids is None else np.asarray(ids, dtype=np.int64)
         uv = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
         rows.append(pd.DataFrame({"image": name, "corner": ids.astype(np.int64), "u_px": uv[:, 0],
-                                  "v_px": uv[:, 1], "X_m": p_B[ids, 0], "Y_m": p_B[ids, 1]}))
+                                  "v_px": uv[:, 1], "X_m": p_B[ids, 0], "Y_m": p_B[ids, 1],
+                                  "used": True}))
     if not rows:
         return pd.DataFrame({c: [] for c in CALIB_CORNER_COLUMNS})
     return pd.concat(rows, ignore_index=True)[CALIB_CORNER_COLUMNS]

@@ -64,6 +64,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="one cornerSubPix half window for every corner (px; 11 = OpenCV's sample); "
                    "default: each corner its own, sized to its squares")
     c.add_argument("--min-images", type=int, default=5, help="fewest stills with a board")
+    c.add_argument("--model", choices=("opencv5", "opencv8", "fisheye4"), default="opencv5",
+                   help="lens model: OpenCV's 5 terms (default), the 8-term rational model, the "
+                   "4-term fisheye (Kannala-Brandt); camera.yaml's cross_validation says whether a "
+                   "richer one is needed")
+    c.add_argument("--no-outlier-rejection", action="store_true",
+                   help="fit every corner (those beyond 4 sigma are still named in camera.yaml)")
     c.set_defaults(func=cmd_calibrate)
 
     cr = sub.add_parser(
@@ -96,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
         "that causes is written in the file and warned about above 0.1 px.",
     )
     ec.add_argument("src", help="results/<session> folder or a camera.yaml")
-    ec.add_argument("--format", choices=("opencv", "kalibr", "ros"), required=True)
+    ec.add_argument("--format", choices=("opencv", "kalibr", "ros", "mrcal"), required=True)
     ec.add_argument("--out", required=True, help="output file")
     ec.add_argument("--force", action="store_true", help="replace OUT if it exists (never otherwise)")
     ec.set_defaults(func=cmd_export_camera)

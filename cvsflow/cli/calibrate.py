@@ -34,8 +34,11 @@ def _board_from_args(args) -> dict:
 def cmd_calibrate(args) -> int:
     """``cvsflow calibrate``: calibrate a camera from a folder of chessboard stills.
 
-    Writes ``camera.yaml``, ``calib_corners.parquet`` (docs/contracts.md) and the OpenCV,
-    Kalibr and ROS camera files into ``args.out``, and prints the intrinsics (px) and RMS.
+    Writes ``camera.yaml``, ``calib_corners.parquet`` (docs/contracts.md), the
+    projection-uncertainty map (``projection_uncertainty.png``) and the OpenCV, Kalibr, ROS and
+    mrcal camera files its lens model allows into ``args.out``; prints the intrinsics (px), the
+    RMS, the corners left out, the projection uncertainty, the quality verdicts and warnings,
+    and why a format was not written.
 
     Parameters
     ----------
@@ -44,7 +47,9 @@ def cmd_calibrate(args) -> int:
         ``charuco`` ((sx, sy) squares, with ``marker_m`` (m) and ``dictionary``) or ``target``
         (a Kalibr target file: an AprilGrid or a checkerboard), ``square_m`` (square side, m;
         not with ``target``), ``out`` (output folder), ``force`` (replace files of the same
-        names there), ``subpix_window_px``, ``min_images``.
+        names there), ``subpix_window_px`` (None: per corner),
+        ``min_images``, ``model`` (``opencv5``, ``opencv8``, ``fisheye4``),
+        ``no_outlier_rejection``.
 
     Returns
     -------
@@ -62,18 +67,21 @@ def cmd_calibrate(args) -> int:
         A ChArUco marker not smaller than its square, an unknown dictionary, or a target file
         of an unsupported type or with a missing or invalid key.
     CalibrationError
-        Too few stills with a board, or the calibration failed.
+        Too few stills with a board (or left after the outlier rejection), or the calibration
+        failed.
     """
     import cv2
 
-    from cvsflow.calibration import calibrate_camera
+    from cvsflow.calibration import calibrate_camera, uncertainty_map_of
     from cvsflow.io.camera_formats import FORMAT_FILES, write_all_formats
-    from cvsflow.io.files import refuse_overwrite, write_parquet, write_yaml
+    from cvsflow.io.files import refuse_overwrite, save_figure, write_parquet, write_yaml
     from cvsflow.io.media import list_stills, read_stills
+    from cvsflow.plots.camera import plot_projection_uncertainty
 
     board = _board_from_args(args)
     out = Path(args.out)
-    refuse_overwrite([out / n for n in ("camera.yaml", "calib_corners.parquet", *FORMAT_FILES.values())],
+    refuse_overwrite([out / n for n in ("camera.yaml", "calib_corners.parquet",
+                                        "projection_uncertainty.png", *FORMAT_FILES.values())],
                      args.force, "cvsflow calibrate")
     cv2.setNumThreads(1)
     paths = list_stills(args.dir)
@@ -83,14 +91,38 @@ def cmd_calibrate(args) -> int:
     camera, corners = calibrate_camera(
         images, board, subpix_window_px=args.subpix_window_px, min_images=args.min_images,
         unreadable=unreadable,
+        model=args.model, reject_outliers=not args.no_outlier_rejection,
     )
     write_yaml(camera, out / "camera.yaml")
     write_parquet(corners, out / "calib_corners.parquet")
     files = write_all_formats(camera, out)
-    K = np.asarray(camera["K"])
-    print(
-        f"calibrated on {camera['n_used']} of {len(paths)} stills: fx {K[0, 0]:.5f} fy {K[1, 1]:.5f} "
-        f"cx {K[0, 2]:.5f} cy {K[1, 2]:.5f} px, RMS {camera['rms_px']:.6f} px"
-    )
-    print(f"wrote {out / 'camera.yaml'}, " + ", ".join(str(p) for p in files.values()))
+    maps = [uncertainty_map_of(camera, corners, d)
+            for d in (camera["projection_uncertainty"]["distance_m"], float("inf"))]
+    figure = out / "projection_uncertainty.png"
+    save_figure(plot_projection_uncertainty(maps, camera), figure)
+    print(_summary_line(camera, len(paths)))
+    print(f"quality: {camera['quality']['summary']}")
+    for text in camera["warnings"]:
+        print(f"warning: {text}")
+    written = [str(p) for p in files.values() if isinstance(p, Path)]
+    print(f"wrote {out / 'camera.yaml'}, {figure}, " + ", ".join(written))
+    for reason in (r for r in files.values() if not isinstance(r, Path)):
+        print(reason)
     return 0
+
+
+def _summary_line(camera: dict, n_stills: int) -> str:
+    """The CLI's one-line summary: intrinsics, RMS, corners left out, projection uncertainty."""
+    K = np.asarray(camera["K"])
+    out = camera["outliers"]
+    inf = camera["projection_uncertainty"]["at_infinity"]
+    named = [s["name"] for s in out["named_stills"]]
+    return (
+        f"calibrated on {camera['n_used']} of {n_stills} stills ({camera['model']}): "
+        f"fx {K[0, 0]:.5f} fy {K[1, 1]:.5f} cx {K[0, 2]:.5f} cy {K[1, 2]:.5f} px, RMS "
+        f"{camera['rms_px']:.6f} px; {out['n_rejected']} of {out['n_corners']} corners left out"
+        + (f", stills named: {', '.join(named)}" if named else "")
+        + f"; projection uncertainty at infinity {inf['centre']:.3f} px at the centre, "
+        f"{inf['worst_covered']:.3f} px worst where the stills were, {inf['worst_image']:.2f} px "
+        "over the image"
+    )

@@ -128,6 +128,15 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
         r.add("calibration", "reprojection RMS", camera.get("rms_px"), "px", f"{src}: rms_px")
         r.add("calibration", "stills used", camera.get("n_used"), "", f"{src}: n_used",
               text=str(camera.get("n_used", "n/a")))
+        inf = (camera.get("projection_uncertainty") or {}).get("at_infinity")
+        if inf:
+            for name, key in (("centre", "centre"), ("worst where the stills were", "worst_covered"),
+                              ("worst over the image", "worst_image")):
+                r.add("calibration", f"projection uncertainty at infinity, {name}", inf[key], "px",
+                      f"{src}: projection_uncertainty.at_infinity.{key}")
+        summary = (camera.get("quality") or {}).get("summary")
+        if summary:
+            r.note("calibration", "verdicts", summary, f"{src}: quality.verdicts")
         warnings += [("calibration", w, f"{src}: warnings") for w in camera.get("warnings") or []]
 
     if corners is not None:

@@ -76,6 +76,58 @@ def plot_calibration_coverage(calib_corners: pd.DataFrame, camera: dict) -> Figu
     return fig
 
 
+def plot_projection_uncertainty(maps: list[dict], camera: dict) -> Figure:
+    """Projection uncertainty over the image: pixels coloured by it, the stills' corners on top.
+
+    Parameters
+    ----------
+    maps : list of dict
+        :func:`cvsflow.calibration.projection_uncertainty.uncertainty_map_of` at one or more
+        distances (one panel each): ``u_px``, ``v_px``, ``sigma_px`` (nv, nu; NaN where the
+        model does not invert), ``covered``, ``corners_uv_px``, ``distance_m``.
+    camera : dict
+        camera.yaml content (``width``, ``height``, ``model``; ``quality.summary`` when present).
+
+    Returns
+    -------
+    Figure
+        One panel per distance: the worst-direction 1-sigma (px, logarithmic colours, contours
+        at 0.1, 0.3, 1, 3, 10 px), the area the stills covered outlined, the used corners as
+        dots.
+    """
+    from matplotlib.colors import LogNorm
+
+    w, h = camera["width"], camera["height"]
+    finite = np.concatenate([m["sigma_px"][np.isfinite(m["sigma_px"])] for m in maps])
+    lo = max(float(finite.min()), 1e-3) if finite.size else 1e-3
+    hi = max(float(finite.max()), lo * 10) if finite.size else 1.0
+    fig, axes = plt.subplots(1, len(maps), figsize=(6.0 * len(maps), 5.2 * h / w + 1.2),
+                             layout="constrained", squeeze=False)
+    for ax, m in zip(axes[0], maps, strict=True):
+        mesh = ax.pcolormesh(m["u_px"], m["v_px"], m["sigma_px"], norm=LogNorm(lo, hi),
+                             cmap="viridis", shading="nearest")
+        levels = [x for x in (0.1, 0.3, 1.0, 3.0, 10.0) if lo < x < hi]
+        if levels:
+            cs = ax.contour(m["u_px"], m["v_px"], m["sigma_px"], levels=levels, colors="white",
+                            linewidths=0.7)
+            ax.clabel(cs, fmt="%g px", fontsize=7)
+        ax.contour(m["u_px"], m["v_px"], m["covered"].astype(float), levels=[0.5],
+                   colors="tab:red", linewidths=1.2)
+        uv = m["corners_uv_px"]
+        ax.scatter(uv[:, 0], uv[:, 1], s=2, color="black", alpha=0.5)
+        ax.set_xlim(0, w)
+        ax.set_ylim(h, 0)
+        ax.set_aspect("equal")
+        ax.set_xlabel("u (px)")
+        ax.set_ylabel("v (px)")
+        d = m["distance_m"]
+        ax.set_title(f"at {'infinity' if not np.isfinite(d) else f'{d:.2f} m'}", fontsize=10)
+        fig.colorbar(mesh, ax=ax, shrink=0.8, label="projection 1-sigma, worst direction (px)")
+    fig.suptitle(f"Projection uncertainty of the calibration ({camera.get('model', 'opencv5')}); "
+                 "red: area the stills covered, dots: their corners", fontsize=10)
+    return fig
+
+
 def plot_pose_timeseries(poses: pd.DataFrame) -> Figure:
     """The six pose dimensions of T_C_B over time (mm and degrees), from poses_raw.
 

@@ -103,7 +103,7 @@ def test_opencv_samples_calibrate_through_the_rule(tmp_path, real_data):
                 "board": {"squares_x": 10, "squares_y": 7, "square_m": 1.0},
             }
         },
-        "calibrate": {"subpix_window_px": 11},  # OpenCV's sample's window
+        "calibrate": {"subpix_window_px": 11, "reject_outliers": False},  # OpenCV's sample
     }
     write_config(tmp_path, config)
     snakemake(tmp_path)

@@ -21,6 +21,13 @@ rule calibrate:
             subcategory="camera",
             labels={"session": "{session}", "figure": "calibration coverage"},
         ),
+        fig_uncertainty=report(
+            "results/{session}/figures/projection_uncertainty.png",
+            caption="../report/projection_uncertainty.rst",
+            category="{session}",
+            subcategory="camera",
+            labels={"session": "{session}", "figure": "projection uncertainty"},
+        ),
     log:
         "logs/{session}/calibrate.log",
     benchmark:

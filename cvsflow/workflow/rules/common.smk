@@ -146,6 +146,7 @@ def session_targets(session):
             f"results/{session}/camera.yaml",
             f"results/{session}/figures/calibration_errors.png",
             f"results/{session}/figures/calibration_coverage.png",
+            f"results/{session}/figures/projection_uncertainty.png",
         ]
     if runs_stage(session, "poses"):
         out += [

@@ -2,7 +2,7 @@
 
 import cv2
 
-from cvsflow.calibration import calibrate_camera
+from cvsflow.calibration import calibrate_camera, uncertainty_map_of
 from cvsflow.io.camera_formats import write_camera_format
 from cvsflow.io.files import save_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
@@ -25,3 +25,7 @@ with stage_logging(snakemake.log[0], "calibrate") as log:
         write_camera_format(camera, fmt, snakemake.output[fmt])
     save_figure(plots.plot_calibration_errors(camera), snakemake.output.fig_errors)
     save_figure(plots.plot_calibration_coverage(calib_corners, camera), snakemake.output.fig_coverage)
+    maps = [uncertainty_map_of(camera, calib_corners, d)
+            for d in (camera["projection_uncertainty"]["distance_m"], float("inf"))]
+    save_figure(plots.plot_projection_uncertainty(maps, camera), snakemake.output.fig_uncertainty)
+    log.info("calibration verdicts: %s", camera["quality"]["summary"])

@@ -272,7 +272,7 @@ def test_calibration_from_charuco_stills_recovers_fx(tmp_path):
     assert (per_still.loc[["cut_0.png", "cut_1.png"], "size"] < 20).all()
     p_B = board_object_points(BOARD)
     np.testing.assert_array_equal(corners[["X_m", "Y_m"]].to_numpy(),
-                                  p_B[corners.corner.to_numpy(), :2].astype(np.float32))
+                                  p_B[corners.corner.to_numpy(), :2])
 
 
 def test_rendered_charuco_session_end_to_end(tmp_path):

@@ -38,9 +38,10 @@ def test_help_lists_every_subcommand(capsys):
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="OpenCV sample stills not on this machine")
 def test_calibrate_real_opencv_stills(tmp_path, capsys):
-    """--subpix-window-px 11 is OpenCV's sample's refinement: its published result, exactly."""
+    """--subpix-window-px 11 --no-outlier-rejection is OpenCV's sample: its published result,
+    exactly; left02, whose near squares the 11 px window overreaches, is named."""
     rc = cli.main(["calibrate", str(REAL), "--inner", "9x6", "--square-m", "0.025", "--out", str(tmp_path),
-                   "--subpix-window-px", "11"])
+                   "--subpix-window-px", "11", "--no-outlier-rejection"])
     assert rc == 0
     cam = yaml.safe_load((tmp_path / "camera.yaml").read_text())
     K = np.asarray(cam["K"])
@@ -52,6 +53,35 @@ def test_calibrate_real_opencv_stills(tmp_path, capsys):
     np.testing.assert_allclose(fs.getNode("camera_matrix").mat(), K)
     fs.release()
     assert (tmp_path / "camchain.yaml").is_file() and (tmp_path / "camera_info.yaml").is_file()
+    assert [s["name"] for s in cam["outliers"]["named_stills"]] == ["left02.jpg"]
+    assert "stills named: left02.jpg" in capsys.readouterr().out
+
+
+@pytest.mark.skipif(not REAL.is_dir(), reason="OpenCV sample stills not on this machine")
+def test_calibrate_real_opencv_stills_default_and_models(tmp_path, capsys):
+    """The default lands on the three-route consensus (fx 533.2-533.9, cy 233.8-233.9) with
+    the summary line, verdicts, the uncertainty map and every export; the rational model's
+    Kalibr file is refused with its reason, the fisheye's mrcal file too."""
+    rc = cli.main(["calibrate", str(REAL), "--inner", "9x6", "--square-m", "0.025", "--out",
+                   str(tmp_path / "default")])
+    assert rc == 0
+    cam = yaml.safe_load((tmp_path / "default" / "camera.yaml").read_text())
+    K = np.asarray(cam["K"])
+    assert abs(K[0, 0] - 533.55) < 1.4 and abs(K[1, 2] - 233.85) < 1.1
+    out = capsys.readouterr().out
+    assert "0 of 702 corners left out" in out and "projection uncertainty at infinity" in out
+    assert "quality: coverage WARN" in out and "cross_validation ok" in out
+    for name in ("projection_uncertainty.png", "camera.cameramodel", "camchain.yaml"):
+        assert (tmp_path / "default" / name).is_file()
+    assert "LENSMODEL_OPENCV5" in (tmp_path / "default" / "camera.cameramodel").read_text()
+    for model, refused, missing in (("opencv8", "as kalibr", "camchain.yaml"),
+                                    ("fisheye4", "as mrcal", "camera.cameramodel")):
+        assert cli.main(["calibrate", str(REAL), "--inner", "9x6", "--square-m", "0.025", "--out",
+                         str(tmp_path / model), "--model", model]) == 0
+        out = capsys.readouterr().out
+        assert f"({model})" in out and refused in out
+        assert not (tmp_path / model / missing).exists()
+        assert yaml.safe_load((tmp_path / model / "camera.yaml").read_text())["model"] == model
 
 
 @pytest.mark.parametrize("argv, mine", [
