@@ -10,12 +10,15 @@ calibration uncertainty into the free estimates through the sensitivity
 
 from __future__ import annotations
 
+import logging
 from typing import NamedTuple
 
 import numpy as np
 
 from cvsflow.metrics import cluster_dof, leverage_corrected_scores
 from cvsflow.optimise.se3_lm import gram, loss_weights
+
+log = logging.getLogger(__name__)
 
 #: 1-sigma of each intrinsic held fixed when camera.yaml has no ``std`` (px for fx..cy, then
 #: unitless): a 15-still 640 x 480 calibration at 0.1-0.4 px RMS, rounded up (the demo's stills
@@ -225,3 +228,46 @@ def parameter_covariance(J, r, loss, f_scale, clusters, J_fixed, sd_fixed):
         "cov_fixed": cov_fixed, "cov_total": cov_total, "corr_total": correlation(cov_total),
         "S": S, "sigma2": sigma2, "n_clusters": n_clusters,
     }  # fmt: skip
+
+
+#: The video's principal point and the stills' disagree when they differ by more than this
+#: many combined standard errors.
+PRINCIPAL_POINT_Z_WARN = 3.0
+
+
+def principal_point_warnings(camera: dict, names, x, se) -> list[str]:
+    """Warnings (logged) where the fit's free cx or cy disagrees with the stills' calibration.
+
+    Parameters
+    ----------
+    camera : dict
+        camera.yaml content: ``K`` (the stills' cx, cy) and ``std`` (their 1-sigma, px).
+    names : sequence of str
+        The fit's parameter names (``cx``, ``cy`` among them when free).
+    x, se : ndarray, shape (n,)
+        The estimates and their standard errors, in the order of ``names``.
+
+    Returns
+    -------
+    list of str
+        One per disagreeing coordinate: both values, their sigmas and the z.
+    """
+    K = np.asarray(camera["K"], float)
+    std = camera.get("std") or {}
+    out = []
+    for name, stills in (("cx", K[0, 2]), ("cy", K[1, 2])):
+        if name not in names or std.get(name) is None:
+            continue
+        k = list(names).index(name)
+        sd = float(np.hypot(se[k], std[name]))
+        z = (x[k] - stills) / sd
+        if abs(z) > PRINCIPAL_POINT_Z_WARN:
+            msg = (f"se3: the video puts {name} at {x[k]:.2f} +- {se[k]:.2f} px, the stills' "
+                   f"calibration at {stills:.2f} +- {std[name]:.2f} px ({z:+.1f} combined sigma, "
+                   f"warned above {PRINCIPAL_POINT_Z_WARN:g}): the stills' principal point is "
+                   "off (look at camera.yaml's outliers and cross_validation) or the lens moved "
+                   "between the stills and the video")
+            out.append(msg)
+            log.warning(msg)
+    return out
+
