@@ -1,5 +1,5 @@
-"""Held-out evaluation, method comparison, seed scoring, per-run analysis, the summary and the headline
-table.
+"""Held-out evaluation, method comparison, seed scoring, per-run analysis, the summary, the headline
+table and the report's verdict.
 """
 
 from cvsflow.evaluate.headline import (
@@ -18,9 +18,11 @@ from cvsflow.evaluate.heldout import (
 )
 from cvsflow.evaluate.heldout_seed import cross_validate_seed
 from cvsflow.evaluate.summary import summary_row
+from cvsflow.evaluate.verdict import flight_verdict, median_distance_m, session_verdict, verdict_rst
 
 __all__ = [
     "compare_heldout", "cross_validate_se3", "cross_validate_seed", "flight_headline", "headline_rst",
     "headline_table", "heldout_blocks", "make_time_blocks", "rig_headline", "se3_run_tables",
-    "session_headline", "summary_row"
+    "session_headline", "session_verdict", "flight_verdict", "median_distance_m", "summary_row",
+    "verdict_rst",
 ]

@@ -363,7 +363,7 @@ def _rst_cell(text):
     return str(text).replace("\n", " ").replace("*", "\\*").replace("|", "\\|") or " "
 
 
-def headline_rst(rows):
+def headline_rst(rows, preambles=None):
     """The rows as reStructuredText: one section and one list-table per session.
 
     Columns: quantity, value (± standard error), truth (rendered sessions only), unit,
@@ -373,6 +373,10 @@ def headline_rst(rows):
     ----------
     rows : list of dict
         Rows of :func:`session_headline` / :func:`flight_headline`, in display order.
+    preambles : dict, optional
+        Session (as in the rows) -> reStructuredText put between the section's title and its
+        table (the verdict, stage checks and figure of :func:`cvsflow.evaluate.verdict_rst`);
+        the table then gets the subtitle "Detailed table".
 
     Returns
     -------
@@ -385,6 +389,8 @@ def headline_rst(rows):
     for session, block in table.groupby("session", sort=False):
         title = f"Session {session}" if not session.startswith("flight ") else session.capitalize()
         out += [title, "-" * len(title), ""]
+        if (preambles or {}).get(session):
+            out += [preambles[session], "Detailed table", "~" * len("Detailed table"), ""]
         has_truth = bool(np.isfinite(block["truth"].to_numpy(float)).any())
         header = ["quantity", "value ± std. error"] + (["truth"] if has_truth else [])
         header += ["unit", "file: key"]

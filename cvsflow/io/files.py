@@ -415,3 +415,23 @@ def save_figure(fig, path, dpi: int = 120) -> None:
         fig.savefig(tmp, dpi=dpi, bbox_inches=None if constrained else "tight",
                     format=Path(path).suffix.lstrip(".") or "png")
     plt.close(fig)
+
+
+def image_data_uri(path) -> str:
+    """An image file as a ``data:`` URI, to embed it in a self-contained HTML page.
+
+    Parameters
+    ----------
+    path : str or Path
+        A PNG, JPEG or SVG file.
+
+    Returns
+    -------
+    str
+        ``data:<mime>;base64,<the file's bytes>``.
+    """
+    import base64
+    import mimetypes
+
+    mime = mimetypes.guess_type(str(path))[0] or "application/octet-stream"
+    return f"data:{mime};base64,{base64.b64encode(Path(path).read_bytes()).decode('ascii')}"

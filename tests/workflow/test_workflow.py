@@ -389,6 +389,16 @@ def test_demo_report_opens_on_the_headline_table(demo_run):
                 ("demo", "held-out RMS (se3, frame C)", "z"),
                 ("demo", "error model (se3, held-out)", "inside the 95 % band")):
         assert rows.loc[key, "text"] in desc
+    # It answers first: the verdict of this run's files, the stage checks, the figure, then the table.
+    from cvsflow.evaluate import median_distance_m, session_verdict
+
+    heldout = pd.read_parquet(demo_run / "results/demo/heldout/se3.parquet")
+    verdict = session_verdict("demo", comparison=comparison, distance_m=median_distance_m(heldout))
+    demo = desc[desc.index("Session demo"):desc.index("Session stills")]
+    assert verdict["text"].split(";")[0].replace("/", "") in demo.replace("/", "")
+    order = [demo.index(s) for s in ("Verdict.", "Stage checks", 'src="data:image/png;base64,', "Detailed table")]
+    assert order == sorted(order)
+    assert "Verdict." in desc[desc.index("Flight flight_demo"):]
 
 
 def test_init_on_the_rendered_recording_gives_a_config_the_workflow_accepts(demo_run):

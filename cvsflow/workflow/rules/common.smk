@@ -332,8 +332,14 @@ def headline_inputs(wildcards):
                 )
             if "se3" in METHODS[session]:
                 files[f"{session}/comparison"] = f"results/{session}/comparison.yaml"
+                # the verdict's distance and figure (outputs of the jobs comparison.yaml needs)
+                files[f"{session}/heldout"] = f"results/{session}/heldout/se3.parquet"
+                files[f"{session}/bands"] = f"results/{session}/figures/error_bands.png"
     for flight in FLIGHTS:
         files[f"flight {flight}/stats"] = f"results/flights/{flight}/stats.yaml"
+        files[f"flight {flight}/errors"] = (
+            f"results/flights/{flight}/figures/errors.png"
+        )
     # none in a config without a rig session: the inputs are as they were
     for rig in RIGS:
         files[f"rig {rig}/result"] = f"results/{rig}/rig/result.yaml"
