@@ -12,6 +12,7 @@ import re
 from pathlib import Path
 
 from cvsflow.cli.init_bag import build_bag_config, is_bag
+from cvsflow.cli.init_frames import add_frame_session, find_frames
 from cvsflow.exceptions import CvsflowError, InputError
 
 log = logging.getLogger(__name__)
@@ -442,7 +443,8 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
     ----------
     folder : str or Path
         The recording folder, searched recursively for a stills folder (3 or more images),
-        a video (``VIDEO_SUFFIXES``) and a motion-capture export (``MOCAP_SUFFIXES``). When it
+        a video (``VIDEO_SUFFIXES``) and a motion-capture export (``MOCAP_SUFFIXES``), or a
+        timestamped frame folder and pose streams (:mod:`cvsflow.cli.init_frames`). When it
         holds two or more camera folders (:func:`camera_folders`), a rig session is built
         instead (:func:`build_rig_config`).
     layout : {"auto", "rig", "mono"}
@@ -453,10 +455,12 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
     Returns
     -------
     session : dict
-        ``calib_dir``, ``video``, ``vicon``, ``board``, ``markers`` (entries marked TODO where
-        nothing was found); for a rig ``cameras`` instead of ``calib_dir`` and ``video``; a
-        Kalibr target file in the folder (:func:`cvsflow.io.targets.read_target_board`) gives
-        ``target`` (its path) instead of ``board``.
+        ``calib_dir``, ``video``, ``mocap``, ``board``, ``markers`` (entries marked TODO where
+        nothing was found), or for a frame folder ``frames``, ``pose_streams`` and, for one
+        clock, ``dt_offset_s`` instead of ``video``, ``mocap`` and ``markers``; for a rig
+        ``cameras`` instead of ``calib_dir`` and ``video``; a Kalibr target file in the folder
+        (:func:`cvsflow.io.targets.read_target_board`) gives ``target`` (its path) instead of
+        ``board``.
     notes : list of str
         What was found and what the user must check.
     """
@@ -488,6 +492,23 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
         if found:
             inner = max(set(found), key=found.count)
             notes.append(f"board found on {found.count(inner)} of the first {tried} stills")
+    frames = find_frames(folder)
+    if frames is not None:  # timestamped frames and pose streams (ASL/EuRoC): no video, no export
+        add_frame_session(session, notes, folder, *frames)
+    else:
+        names, system_bodies = _add_video_and_mocap(session, notes, folder)
+    if target is not None:
+        session["target"] = str(target)
+    else:
+        _add_board(session, notes, inner, None if stills is None else stills[0])
+    if frames is None:
+        _add_markers(session, notes, names, system_bodies)
+    return session, notes
+
+
+def _add_video_and_mocap(session: dict, notes: list, folder: Path) -> tuple[list[str], list[str]]:
+    """Set ``video`` and ``mocap`` of a session from a recording folder; the export's marker and body
+    names."""
     videos = _videos(folder)
     session["video"] = str(videos[0]) if videos else "TODO"
     notes.append(f"video: {videos[0]}" if videos else "no video found: set video")
@@ -499,13 +520,7 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
     if len(videos) > 1:
         notes.append(f"{len(videos)} videos found; took the first, check")
     mocap = sorted(p for p in folder.rglob("*") if p.suffix.lower() in MOCAP_SUFFIXES)
-    names, system_bodies = _add_mocap(session, notes, mocap)
-    if target is not None:
-        session["target"] = str(target)
-    else:
-        _add_board(session, notes, inner, None if stills is None else stills[0])
-    _add_markers(session, notes, names, system_bodies)
-    return session, notes
+    return _add_mocap(session, notes, mocap)
 
 
 def cmd_init(args) -> int:

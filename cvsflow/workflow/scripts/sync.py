@@ -16,7 +16,8 @@ with stage_logging(snakemake.log[0], "sync") as log:
         result = given_offset(poses, bodies, given)
     else:
         result = synchronise(poses, bodies, **snakemake.params.sync)
-    log.info("dt_offset_s = %.4f (%s, quality %.2f, overlap %.1f %%)", result["dt_offset_s"],
-             result["method"], result["quality"], 100 * result["overlap_share"])
+    log.info("dt_offset_s = %.4f (%s, quality %s, overlap %.1f %%)", result["dt_offset_s"],
+             result["method"], "n/a" if result["quality"] is None else f"{result['quality']:.2f}",
+             100 * result["overlap_share"])
     write_yaml(result, snakemake.output.sync)
     save_figure(plots.plot_sync(poses, bodies, result), snakemake.output.fig)
