@@ -57,6 +57,8 @@ def main() -> None:
                         help="checkout whose workflow and package to run (default: this one)")
     parser.add_argument("--out", type=Path, help="write every run's per-job table here (CSV)")
     parser.add_argument("--before", type=Path, help="an --out table to print beside this run's")
+    parser.add_argument("--no-figures", action="store_true",
+                        help="run with `figures: false` (a sweep's setting; rendering unchanged)")
     parser.add_argument("--imports", action="store_true",
                         help="only time each workflow script's imports")
     args = parser.parse_args()
@@ -78,6 +80,8 @@ def main() -> None:
         run(repo, cache, args.cores, "data/demo/truth.yaml")
         print(f"rendered in {time.perf_counter() - t0:.1f} s")
 
+    if args.no_figures:
+        config["figures"] = False
     tables = []
     for k in range(args.repeat):
         table, wall = run_once(repo, config, cache, args.cores, args.keep)

@@ -386,6 +386,31 @@ def read_csv_table(path, columns=()) -> pd.DataFrame:
     return table
 
 
+def draw_figure(output, name: str, make) -> bool:
+    """Draw and save a job's figure when its rule declares it (the config's ``figures``).
+
+    Parameters
+    ----------
+    output : snakemake.io.Namedlist or mapping
+        The job's outputs; with ``figures: false`` its rule declares no figure.
+    name : str
+        The figure's output name.
+    make : callable
+        Called without arguments, returns the matplotlib Figure; not called when the figure is
+        not an output.
+
+    Returns
+    -------
+    bool
+        Whether the figure was drawn.
+    """
+    path = output.get(name)
+    if not path:
+        return False
+    save_figure(make(), path)
+    return True
+
+
 def save_figure(fig, path, dpi: int = 120) -> None:
     """Save a matplotlib Figure atomically and release its memory.
 

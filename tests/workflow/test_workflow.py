@@ -442,6 +442,18 @@ def test_stage_scaling_figure_only_when_its_benchmark_exists(tmp_path):
     assert "stage stage_scaling done" in (tmp_path / "logs/stage_scaling.log").read_text()
 
 
+def test_figures_false_runs_the_same_jobs_without_a_figure(tmp_path):
+    """`figures: false` (a sweep): the same jobs, and none of them declares a figure."""
+    config = demo_config()
+    write_config(tmp_path, config)
+    with_figures = snakemake(tmp_path, "-n").stdout
+    config["figures"] = False
+    write_config(tmp_path, config)
+    without = snakemake(tmp_path, "-n").stdout
+    assert "figures/" in with_figures and "figures/" not in without
+    assert jobs_in(without) == jobs_in(with_figures)
+
+
 def test_a_session_with_se3_alone_still_gets_its_comparison(tmp_path):
     """methods: [se3] on the demo session: no seed job of any kind, and compare (the error
     model) and the headline still run, from se3's held-out table alone."""

@@ -3,14 +3,16 @@ rule sync:
         poses="results/{session}/poses_raw.parquet",
         bodies=bodies_path,  # a rig camera's session: its rig's bodies
     output:
-        sync="results/{session}/sync.yaml",
-        fig=report(
-            "results/{session}/figures/sync.png",
-            caption="../report/sync.rst",
-            category="{session}",
-            subcategory="synchronisation",
-            labels={"session": "{session}", "figure": "sync"},
+        **figures(
+            fig=report(
+                "results/{session}/figures/sync.png",
+                caption="../report/sync.rst",
+                category="{session}",
+                subcategory="synchronisation",
+                labels={"session": "{session}", "figure": "sync"},
+            ),
         ),
+        sync="results/{session}/sync.yaml",
     log:
         "logs/{session}/sync.log",
     benchmark:

@@ -4,13 +4,15 @@ rule analyse:
         errors="results/{session}/{method}/{finit}/errors.parquet",
         result="results/{session}/{method}/{finit}/result.yaml",
     output:
+        **figures(
+            convergence=analysis_figure("convergence"),
+            histograms=analysis_figure("histograms"),
+            qq=analysis_figure("qq"),
+            mocap_vs_cvs=analysis_figure("mocap_vs_cvs"),
+            covariance=analysis_figure("covariance"),
+            error_maps=analysis_figure("error_maps"),
+        ),
         stats="results/{session}/{method}/{finit}/stats.json",
-        convergence=analysis_figure("convergence"),
-        histograms=analysis_figure("histograms"),
-        qq=analysis_figure("qq"),
-        mocap_vs_cvs=analysis_figure("mocap_vs_cvs"),
-        covariance=analysis_figure("covariance"),
-        error_maps=analysis_figure("error_maps"),
     log:
         "logs/{session}/analyse.{method}.{finit}.log",
     benchmark:

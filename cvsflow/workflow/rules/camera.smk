@@ -2,32 +2,34 @@ rule calibrate:
     input:
         calib_dir,
     output:
+        **figures(
+            fig_errors=report(
+                "results/{session}/figures/calibration_errors.png",
+                caption="../report/calibration_errors.rst",
+                category="{session}",
+                subcategory="camera",
+                labels={"session": "{session}", "figure": "calibration errors"},
+            ),
+            fig_coverage=report(
+                "results/{session}/figures/calibration_coverage.png",
+                caption="../report/calibration_coverage.rst",
+                category="{session}",
+                subcategory="camera",
+                labels={"session": "{session}", "figure": "calibration coverage"},
+            ),
+            fig_uncertainty=report(
+                "results/{session}/figures/projection_uncertainty.png",
+                caption="../report/projection_uncertainty.rst",
+                category="{session}",
+                subcategory="camera",
+                labels={"session": "{session}", "figure": "projection uncertainty"},
+            ),
+        ),
         camera="results/{session}/camera.yaml",
         corners="results/{session}/calib_corners.parquet",
         opencv="results/{session}/camera_opencv.yaml",
         kalibr="results/{session}/camchain.yaml",
         ros="results/{session}/camera_info.yaml",
-        fig_errors=report(
-            "results/{session}/figures/calibration_errors.png",
-            caption="../report/calibration_errors.rst",
-            category="{session}",
-            subcategory="camera",
-            labels={"session": "{session}", "figure": "calibration errors"},
-        ),
-        fig_coverage=report(
-            "results/{session}/figures/calibration_coverage.png",
-            caption="../report/calibration_coverage.rst",
-            category="{session}",
-            subcategory="camera",
-            labels={"session": "{session}", "figure": "calibration coverage"},
-        ),
-        fig_uncertainty=report(
-            "results/{session}/figures/projection_uncertainty.png",
-            caption="../report/projection_uncertainty.rst",
-            category="{session}",
-            subcategory="camera",
-            labels={"session": "{session}", "figure": "projection uncertainty"},
-        ),
     log:
         "logs/{session}/calibrate.log",
     benchmark:
@@ -70,14 +72,16 @@ rule poses:
         camera=camera_yaml,
         video=video_path,  # its frame size is checked against the camera's
     output:
-        poses="results/{session}/poses_raw.parquet",
-        fig=report(
-            "results/{session}/figures/poses_raw.png",
-            caption="../report/poses_raw.rst",
-            category="{session}",
-            subcategory="camera",
-            labels={"session": "{session}", "figure": "raw poses"},
+        **figures(
+            fig=report(
+                "results/{session}/figures/poses_raw.png",
+                caption="../report/poses_raw.rst",
+                category="{session}",
+                subcategory="camera",
+                labels={"session": "{session}", "figure": "raw poses"},
+            ),
         ),
+        poses="results/{session}/poses_raw.parquet",
     log:
         "logs/{session}/poses.log",
     benchmark:

@@ -57,6 +57,12 @@ MOCAP = {
 }
 
 
+def figures(**outputs):
+    """A rule's figure outputs, or none when the config says `figures: false` (a sweep): the
+    jobs then neither draw nor save them."""
+    return outputs if config["figures"] else {}
+
+
 def session_cfg(session):
     return SESSIONS[session]
 
@@ -184,7 +190,11 @@ def all_targets():
     scaling = config["analyse"].get("scaling_benchmark")
     if scaling and os.path.isfile(scaling):
         targets.append("results/figures/stage_scaling.png")
-    return targets + flight_targets() + rig_targets()
+    targets += flight_targets() + rig_targets()
+    # `figures: false`: no rule declares its figures (see figures()), so none is a target
+    return (
+        targets if config["figures"] else [t for t in targets if "/figures/" not in t]
+    )
 
 
 wildcard_constraints:
@@ -334,12 +344,16 @@ def headline_inputs(wildcards):
                 files[f"{session}/comparison"] = f"results/{session}/comparison.yaml"
                 # the verdict's distance and figure (outputs of the jobs comparison.yaml needs)
                 files[f"{session}/heldout"] = f"results/{session}/heldout/se3.parquet"
-                files[f"{session}/bands"] = f"results/{session}/figures/error_bands.png"
+                if config["figures"]:
+                    files[f"{session}/bands"] = (
+                        f"results/{session}/figures/error_bands.png"
+                    )
     for flight in FLIGHTS:
         files[f"flight {flight}/stats"] = f"results/flights/{flight}/stats.yaml"
-        files[f"flight {flight}/errors"] = (
-            f"results/flights/{flight}/figures/errors.png"
-        )
+        if config["figures"]:
+            files[f"flight {flight}/errors"] = (
+                f"results/flights/{flight}/figures/errors.png"
+            )
     # none in a config without a rig session: the inputs are as they were
     for rig in RIGS:
         files[f"rig {rig}/result"] = f"results/{rig}/rig/result.yaml"

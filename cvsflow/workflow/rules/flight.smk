@@ -23,32 +23,34 @@ rule flight:
     input:
         unpack(flight_inputs),
     output:
+        **figures(
+            fig_errors=report(
+                "results/flights/{flight}/figures/errors.png",
+                caption="../report/flight_errors.rst",
+                category="flight {flight}",
+                subcategory="on-board vs camera reference",
+                labels={"flight": "{flight}", "figure": "on-board error"},
+            ),
+            fig_trajectories=report(
+                "results/flights/{flight}/figures/trajectories.png",
+                caption="../report/flight_trajectories.rst",
+                category="flight {flight}",
+                subcategory="on-board vs camera reference",
+                labels={"flight": "{flight}", "figure": "trajectories"},
+            ),
+            fig_ape=report(
+                "results/flights/{flight}/figures/ape.png",
+                caption="../report/flight_ape.rst",
+                category="flight {flight}",
+                subcategory="on-board vs camera reference",
+                labels={"flight": "{flight}", "figure": "absolute pose error"},
+            ),
+        ),
         errors="results/flights/{flight}/errors.parquet",
         stats="results/flights/{flight}/stats.yaml",
         reference_tum="results/flights/{flight}/reference_aligned.tum",
         onboard_tum="results/flights/{flight}/onboard_aligned.tum",
         onboard_unaligned_tum="results/flights/{flight}/onboard_unaligned.tum",
-        fig_errors=report(
-            "results/flights/{flight}/figures/errors.png",
-            caption="../report/flight_errors.rst",
-            category="flight {flight}",
-            subcategory="on-board vs camera reference",
-            labels={"flight": "{flight}", "figure": "on-board error"},
-        ),
-        fig_trajectories=report(
-            "results/flights/{flight}/figures/trajectories.png",
-            caption="../report/flight_trajectories.rst",
-            category="flight {flight}",
-            subcategory="on-board vs camera reference",
-            labels={"flight": "{flight}", "figure": "trajectories"},
-        ),
-        fig_ape=report(
-            "results/flights/{flight}/figures/ape.png",
-            caption="../report/flight_ape.rst",
-            category="flight {flight}",
-            subcategory="on-board vs camera reference",
-            labels={"flight": "{flight}", "figure": "absolute pose error"},
-        ),
     log:
         "logs/flights/{flight}/flight.log",
     benchmark:

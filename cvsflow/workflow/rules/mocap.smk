@@ -24,15 +24,17 @@ rule mocap_repair:
     input:
         "results/{session}/markers.parquet",
     output:
+        **figures(
+            fig=report(
+                "results/{session}/figures/mocap_markers.png",
+                caption="../report/mocap_markers.rst",
+                category="{session}",
+                subcategory="Vicon",
+                labels={"session": "{session}", "figure": "marker gaps"},
+            ),
+        ),
         markers="results/{session}/markers_filled.parquet",
         summary="results/{session}/mocap_repair.yaml",
-        fig=report(
-            "results/{session}/figures/mocap_markers.png",
-            caption="../report/mocap_markers.rst",
-            category="{session}",
-            subcategory="Vicon",
-            labels={"session": "{session}", "figure": "marker gaps"},
-        ),
     log:
         "logs/{session}/mocap_repair.log",
     benchmark:
@@ -52,14 +54,16 @@ rule mocap_bodies:
     input:
         unpack(mocap_bodies_input),
     output:
-        bodies="results/{session}/bodies.parquet",
-        fig=report(
-            "results/{session}/figures/mocap_fit.png",
-            caption="../report/mocap_fit.rst",
-            category="{session}",
-            subcategory="Vicon",
-            labels={"session": "{session}", "figure": "rigid-body fit"},
+        **figures(
+            fig=report(
+                "results/{session}/figures/mocap_fit.png",
+                caption="../report/mocap_fit.rst",
+                category="{session}",
+                subcategory="Vicon",
+                labels={"session": "{session}", "figure": "rigid-body fit"},
+            ),
         ),
+        bodies="results/{session}/bodies.parquet",
     log:
         "logs/{session}/mocap_bodies.log",
     benchmark:

@@ -2,26 +2,28 @@ rule summary:
     input:
         unpack(summary_inputs),
     output:
+        **figures(
+            sweep=report(
+                "results/figures/sweep.png",
+                caption="../report/sweep.rst",
+                category="Summary",
+                subcategory="all sessions",
+                labels={"figure": "focal initialisation sweep"},
+            ),
+            sessions=report(
+                "results/figures/sessions.png",
+                caption="../report/sessions.rst",
+                category="Summary",
+                subcategory="all sessions",
+                labels={"figure": "sessions compared"},
+            ),
+        ),
         table=report(
             "results/summary.csv",
             caption="../report/summary.rst",
             category="Summary",
             subcategory="all sessions",
             labels={"figure": "optimiser runs (table)"},
-        ),
-        sweep=report(
-            "results/figures/sweep.png",
-            caption="../report/sweep.rst",
-            category="Summary",
-            subcategory="all sessions",
-            labels={"figure": "focal initialisation sweep"},
-        ),
-        sessions=report(
-            "results/figures/sessions.png",
-            caption="../report/sessions.rst",
-            category="Summary",
-            subcategory="all sessions",
-            labels={"figure": "sessions compared"},
         ),
     log:
         "logs/summary.log",

@@ -4,7 +4,7 @@ import cv2
 
 from cvsflow.calibration import calibrate_camera, uncertainty_map_of
 from cvsflow.io.camera_formats import write_camera_format
-from cvsflow.io.files import save_figure, write_parquet, write_yaml
+from cvsflow.io.files import draw_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import list_stills, read_stills
 from cvsflow.plots import camera as plots
@@ -23,9 +23,10 @@ with stage_logging(snakemake.log[0], "calibrate") as log:
     # Interchange copies beside camera.yaml (OpenCV FileStorage, Kalibr camchain, ROS camera_info).
     for fmt in ("opencv", "kalibr", "ros"):
         write_camera_format(camera, fmt, snakemake.output[fmt])
-    save_figure(plots.plot_calibration_errors(camera), snakemake.output.fig_errors)
-    save_figure(plots.plot_calibration_coverage(calib_corners, camera), snakemake.output.fig_coverage)
-    maps = [uncertainty_map_of(camera, calib_corners, d)
-            for d in (camera["projection_uncertainty"]["distance_m"], float("inf"))]
-    save_figure(plots.plot_projection_uncertainty(maps, camera), snakemake.output.fig_uncertainty)
+    out = snakemake.output
+    draw_figure(out, "fig_errors", lambda: plots.plot_calibration_errors(camera))
+    draw_figure(out, "fig_coverage", lambda: plots.plot_calibration_coverage(calib_corners, camera))
+    draw_figure(out, "fig_uncertainty", lambda: plots.plot_projection_uncertainty(
+        [uncertainty_map_of(camera, calib_corners, d)
+         for d in (camera["projection_uncertainty"]["distance_m"], float("inf"))], camera))
     log.info("calibration verdicts: %s", camera["quality"]["summary"])

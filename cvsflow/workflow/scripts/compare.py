@@ -3,8 +3,8 @@
 import numpy as np
 
 from cvsflow.evaluate import compare_heldout
-from cvsflow.io.files import read_parquet, read_yaml, save_figure, write_parquet, write_yaml
-from cvsflow.io.logs import stage_logging
+from cvsflow.io.files import draw_figure, read_parquet, read_yaml, write_parquet, write_yaml
+from cvsflow.io.logs import cpu_section, stage_logging
 from cvsflow.plots import se3 as plots
 from cvsflow.plots import uncertainty as uplots
 
@@ -36,8 +36,10 @@ with stage_logging(snakemake.log[0], "compare") as log:
              {d: round(v, 2) for d, v in comparison["cramer_rao"]["error_over_crb"].items()})
     write_yaml(comparison, snakemake.output.comparison)
     write_parquet(se3, snakemake.output.se3_scored)
-    save_figure(uplots.plot_calibration_table(comparison), snakemake.output.calibration_table)
-    save_figure(uplots.plot_nees_histogram(se3), snakemake.output.nees)
-    save_figure(plots.plot_heldout_errors(se3), snakemake.output.heldout)
-    save_figure(plots.plot_error_bands(se3, sigma, np.nanmean(mu, axis=0)), snakemake.output.bands)
-    save_figure(plots.plot_parameter_correlation(result), snakemake.output.correlation)
+    out = snakemake.output
+    with cpu_section(log, "figures"):
+        draw_figure(out, "calibration_table", lambda: uplots.plot_calibration_table(comparison))
+        draw_figure(out, "nees", lambda: uplots.plot_nees_histogram(se3))
+        draw_figure(out, "heldout", lambda: plots.plot_heldout_errors(se3))
+        draw_figure(out, "bands", lambda: plots.plot_error_bands(se3, sigma, np.nanmean(mu, axis=0)))
+        draw_figure(out, "correlation", lambda: plots.plot_parameter_correlation(result))

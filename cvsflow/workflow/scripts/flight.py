@@ -18,7 +18,7 @@ from cvsflow.flight import (
     sigma_from_columns,
 )
 from cvsflow.geometry import T_from_pose6
-from cvsflow.io.files import read_parquet, read_yaml, save_figure, write_parquet, write_yaml
+from cvsflow.io.files import draw_figure, read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.flightlog import read_flight_log, read_tum, write_tum
 from cvsflow.io.logs import stage_logging
 from cvsflow.plots import flight as plots
@@ -92,7 +92,8 @@ with stage_logging(snakemake.log[0], "flight") as log:
     write_tum(result.est_aligned, snakemake.output.onboard_tum)
     write_tum(result.est_unaligned, snakemake.output.onboard_unaligned_tum)
     k = cfg.get("k_sigma", 1.0)
-    save_figure(plots.plot_flight_errors(result.errors, k_sigma=max(2.0, k)), snakemake.output.fig_errors)
-    save_figure(plots.plot_flight_trajectories(result.ref_aligned, result.est_aligned),
-                snakemake.output.fig_trajectories)
-    save_figure(plots.plot_ape(result.errors, stats), snakemake.output.fig_ape)
+    out = snakemake.output
+    draw_figure(out, "fig_errors", lambda: plots.plot_flight_errors(result.errors, k_sigma=max(2.0, k)))
+    draw_figure(out, "fig_trajectories",
+                lambda: plots.plot_flight_trajectories(result.ref_aligned, result.est_aligned))
+    draw_figure(out, "fig_ape", lambda: plots.plot_ape(result.errors, stats))

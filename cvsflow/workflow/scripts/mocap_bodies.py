@@ -2,7 +2,7 @@
 streams (rule mocap_bodies).
 """
 
-from cvsflow.io.files import read_parquet, save_figure, write_parquet
+from cvsflow.io.files import draw_figure, read_parquet, write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.mocap.formats import read_pose_stream, read_system_bodies
 from cvsflow.io.mocap.streams import stream_T
@@ -40,4 +40,4 @@ with stage_logging(snakemake.log[0], "mocap_bodies") as log:
                                        snakemake.params.max_fit_rms_share):
             log.warning(warning)
     write_parquet(bodies, snakemake.output.bodies)
-    save_figure(plots.plot_fit_residuals(bodies), snakemake.output.fig)
+    draw_figure(snakemake.output, "fig", lambda: plots.plot_fit_residuals(bodies))

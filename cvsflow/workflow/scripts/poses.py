@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from cvsflow.calibration import estimate_poses
-from cvsflow.io.files import read_parquet, read_yaml, save_figure, write_parquet
+from cvsflow.io.files import draw_figure, read_parquet, read_yaml, write_parquet
 from cvsflow.io.frames import frame_folder_info
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import video_size
@@ -35,4 +35,4 @@ with stage_logging(snakemake.log[0], "poses") as log:
     for warning in check_poses_found(poses, corners, snakemake.params.video, snakemake.input.corners):
         log.warning(warning)
     write_parquet(poses, snakemake.output.poses)
-    save_figure(plots.plot_pose_timeseries(poses), snakemake.output.fig)
+    draw_figure(snakemake.output, "fig", lambda: plots.plot_pose_timeseries(poses))

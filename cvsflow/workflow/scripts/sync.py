@@ -1,6 +1,6 @@
 """Time offset between the video and the Vicon take (rule sync)."""
 
-from cvsflow.io.files import read_parquet, save_figure, write_yaml
+from cvsflow.io.files import draw_figure, read_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.plausibility import check_sync_inputs
 from cvsflow.plots import mocap as plots
@@ -20,4 +20,4 @@ with stage_logging(snakemake.log[0], "sync") as log:
              result["method"], "n/a" if result["quality"] is None else f"{result['quality']:.2f}",
              100 * result["overlap_share"])
     write_yaml(result, snakemake.output.sync)
-    save_figure(plots.plot_sync(poses, bodies, result), snakemake.output.fig)
+    draw_figure(snakemake.output, "fig", lambda: plots.plot_sync(poses, bodies, result))
