@@ -37,7 +37,7 @@ import yaml
 from cvsflow.board import board_object_points
 from cvsflow.calibration import INTRINSIC_STD_NAMES, calibrate_camera
 from cvsflow.exceptions import ConfigError
-from cvsflow.synth.imaging import project_points
+from cvsflow.synth.imaging import project_in_view
 from cvsflow.synth.render import render_stills
 
 REPO = Path(__file__).resolve().parents[1]
@@ -87,7 +87,7 @@ def one_set(cfg, seed, window=None, reject=True):
     for name, g in table.groupby("image", sort=False):
         k = g["corner"].to_numpy()
         uv = g[["u_px", "v_px"]].to_numpy(float)
-        uv_true = project_points(T_by_name[name], p_B[k], K_true, d_true).reshape(-1, 2)
+        uv_true = project_in_view(T_by_name[name], p_B[k], K_true, d_true).reshape(-1, 2)
         obj.append(p_B[k].astype(np.float32).reshape(-1, 1, 3))
         img.append(uv.astype(np.float32).reshape(-1, 1, 2))
         true_uv.append(uv_true)

@@ -37,7 +37,7 @@ from cvsflow.rig import (
     rig_camera_entries,
     rig_fit_options,
 )
-from cvsflow.synth.imaging import project_points
+from cvsflow.synth.imaging import project_in_view
 from cvsflow.synth.motion import board_poses
 from cvsflow.synth.rig_session import make_rig_truth, true_board_poses_C0
 
@@ -109,7 +109,7 @@ def main(workdir: Path) -> None:
     spec, view = truth.specs[i], truth.view(i)
 
     def true_uv(t):
-        return project_points(board_poses(view, t), spec.board.corners_B(), spec.K, spec.dist)
+        return project_in_view(board_poses(view, t), spec.board.corners_B(), spec.K, spec.dist)
 
     t_true = target - dt[0] + truth.dt_offset_s[0] - truth.dt_offset_s[i]
     own = np.where(np.isfinite(uv), true_uv(tv), np.nan)

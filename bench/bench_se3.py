@@ -58,13 +58,13 @@ def main(seed: int = 0) -> None:
         corners, s["bodies"], cam, s["board"], dt0, n_folds=5, block_s=5.0, seed=seed
     )
     print(f"\n5-fold held-out cross-validation: {time.perf_counter() - t0:.2f} s")
-    summ = ev.summarise_errors(held)
+    summ = metrics.axis_statistics(held[metrics.error_columns()].to_numpy(float))
     scale = [1e3] * 3 + [np.degrees(1.0)] * 3
     print("  held-out std (mm, deg):",
-          np.round(np.array(summ["std"]) * scale, 3).tolist())
+          np.round(np.array([summ[d]["std"] for d in metrics.ERROR_DIMS]) * scale, 3).tolist())
     d6 = held[[f"d6_{d}" for d in metrics.ERROR_DIMS]].std().to_numpy()
     print("  same errors as 6-vector differences, std (mm, deg):", np.round(d6 * scale, 3).tolist())
-    b = ev.bootstrap_error_stats(held[metrics.error_columns()], block_len=60, n_boot=1000, seed=seed)
+    b = metrics.bootstrap_error_stats(held[metrics.error_columns()], block_len=60, n_boot=1000, seed=seed)
     print("  95 % block-bootstrap CI of std, lo:", np.round(b["std_lo"] * scale, 3).tolist())
     print("                                  hi:", np.round(b["std_hi"] * scale, 3).tolist())
 

@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from cvsflow.geometry import transforms as tf
 from cvsflow.io.files import read_parquet, read_yaml
-from cvsflow.optimise import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
+from cvsflow.optimise import CAMERA_MOVING_SMOOTH_S, BodyTrack
 
 REPO = Path(__file__).resolve().parents[1]
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3")
@@ -69,9 +69,9 @@ def effective_truth(session_dir: Path, results_dir: Path) -> dict:
     T_Bm_B = np.asarray(truth["T_Bm_B"], float)
     T_W_Cm = np.asarray(truth["T_W_Cm"], float)
     t_q = frames["t_s"].to_numpy() + dt
-    cam = BodyTrack(*body_track(bodies, "camera"), smooth_s=1.0, static_tol=(0.002, 0.002),
+    cam = BodyTrack.from_bodies(bodies, "camera", smooth_s=1.0, static_tol=(0.002, 0.002),
                     moving_smooth_s=CAMERA_MOVING_SMOOTH_S)
-    brd = BodyTrack(*body_track(bodies, "board"), smooth_s=0.01)
+    brd = BodyTrack.from_bodies(bodies, "board", smooth_s=0.01)
     q = frames[["qx", "qy", "qz", "qw"]].to_numpy()
     T_C_B = tf.make_T(Rotation.from_quat(q).as_matrix(), frames[["x_m", "y_m", "z_m"]].to_numpy())
     T_W_Bm_true = T_W_Cm @ T_Cm_C @ T_C_B @ tf.invert_T(T_Bm_B)

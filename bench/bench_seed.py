@@ -53,7 +53,8 @@ from cvsflow.board import board_object_points
 from cvsflow.evaluate import cross_validate_seed
 from cvsflow.geometry import T_from_pose6, rvec_tvec_from_T
 from cvsflow.io.files import read_parquet, read_yaml, write_parquet, write_yaml
-from cvsflow.optimise import POSE_DIMS, optimise_seed
+from cvsflow.metrics import ERROR_DIMS
+from cvsflow.optimise import optimise_seed
 
 REPO = Path(__file__).resolve().parents[1]
 #: The package before the Jacobian planes and the folds' shared PnP rows (issue 20, third round;
@@ -86,7 +87,7 @@ def synthesise(n_frames, seed, noise_px=0.2):
                             "corner": np.tile(np.arange(n_c), n_frames),
                             "u_px": uv[..., 0].ravel(), "v_px": uv[..., 1].ravel()})
     pairs = pd.DataFrame({"frame": frames, "t_s": t_s})
-    for i, d in enumerate(POSE_DIMS):
+    for i, d in enumerate(ERROR_DIMS):
         pairs[f"cvs_{d}"] = pose[:, i]
         pairs[f"vic_{d}"] = pose[:, i] - OFFSET[i]
     for i in range(3):

@@ -32,12 +32,13 @@ import numpy as np
 from cvsflow import flight as F
 from cvsflow.board import board_object_points
 from cvsflow.geometry import R_from_rvec, invert_T, pose_error_left
+from cvsflow.metrics import ERROR_DIMS
 from cvsflow.optimise import K_from_intrinsics
 from cvsflow.rig import board_pose_starts, fused_board_pose, fused_board_pose_best
 from cvsflow.synth.flight_demo import render_flight
 from cvsflow.synth.flight_reference import BOARD_DEFAULT, CAMERA_DEMO, observe_rig, stereo_rig
 
-AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+AXES = ERROR_DIMS
 #: --design: a 1080p camera and a board of twice the side (8 x 6 squares of 12.5 cm).
 FHD = {"fx_px": 1400.0, "fy_px": 1400.0, "cx_px": 959.5, "cy_px": 539.5, "dist": [0.0] * 5,
        "width_px": 1920, "height_px": 1080}

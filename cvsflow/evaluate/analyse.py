@@ -15,10 +15,7 @@ import pandas as pd
 from scipy import stats
 
 from cvsflow.exceptions import InputError
-from cvsflow.metrics import ERROR_DIMS, error_moments
-
-#: The six pose dimensions, in the chapter's order (:data:`cvsflow.metrics.errors.ERROR_DIMS`).
-POSE_DIMS = ERROR_DIMS
+from cvsflow.metrics import ERROR_DIMS, STATISTICS, error_statistics
 
 
 def _require(df, cols, where):
@@ -30,7 +27,7 @@ def _require(df, cols, where):
 
 def _eps(errors, prefix="eps"):
     """(N, 6) array of an error block, after checking its columns."""
-    cols = [f"{prefix}_{d}" for d in POSE_DIMS]
+    cols = [f"{prefix}_{d}" for d in ERROR_DIMS]
     _require(errors, cols, "errors table")
     e = errors[cols].to_numpy(dtype=float)
     if len(e) < 3:
@@ -49,11 +46,11 @@ def convergence(iterations):
     Returns
     -------
     pandas.DataFrame
-        ``iteration, fx_px, fy_px, norm_normalised`` and ``eps_rms_*``, ``eps_std_*`` per
+        ``iteration, fx_px, fy_px, norm_normalised`` and ``eps_rmse_*``, ``eps_std_*`` per
         dimension (metres, radians).
     """
     cols = ["iteration", "fx_px", "fy_px", "norm_normalised"]
-    cols += [f"eps_{s}_{d}" for s in ("rms", "std") for d in POSE_DIMS]
+    cols += [f"eps_{s}_{d}" for s in ("rmse", "std") for d in ERROR_DIMS]
     _require(iterations, cols, "iterations table")
     return iterations[cols].reset_index(drop=True)
 
@@ -71,7 +68,8 @@ def normality_tests(errors, prefix="eps"):
     Returns
     -------
     pandas.DataFrame
-        Index: dimension. Columns ``n, mean, std`` (ddof=1), ``rms, min, max, skew,
+        Index: dimension. Columns ``n`` and the statistics of :data:`cvsflow.metrics.STATISTICS`
+        (``rmse, mean, median, std`` (ddof 1), ``min, max, sse``), ``skew,
         kurtosis`` (excess), ``dagostino_k2, dagostino_p`` (scipy.stats.normaltest),
         ``anderson_stat, anderson_p`` (scipy.stats.anderson, dist="norm", p-value
         interpolated from its tables, so clipped to [0.01, 0.15]) and
@@ -85,14 +83,12 @@ def normality_tests(errors, prefix="eps"):
     """
     e = _eps(errors, prefix)
     rows = []
-    for i, d in enumerate(POSE_DIMS):
+    for i, d in enumerate(ERROR_DIMS):
         x = e[:, i]
         k2, p = stats.normaltest(x)
         ad = stats.anderson(x, dist="norm", method="interpolate")
-        mean, std, rms = error_moments(x)
         rows.append({
-            "dim": d, "n": int(x.size), "mean": mean, "std": std,
-            "rms": rms, "min": float(x.min()), "max": float(x.max()),
+            "dim": d, **error_statistics(x),
             "skew": float(stats.skew(x)), "kurtosis": float(stats.kurtosis(x)),
             "dagostino_k2": float(k2), "dagostino_p": float(p),
             "anderson_stat": float(ad.statistic), "anderson_p": float(ad.pvalue),
@@ -120,7 +116,7 @@ def qq_data(errors, prefix="eps"):
     """
     e = _eps(errors, prefix)
     out = {}
-    for i, d in enumerate(POSE_DIMS):
+    for i, d in enumerate(ERROR_DIMS):
         (osm, osr), (slope, intercept, _) = stats.probplot(e[:, i], dist="norm")
         out[d] = {"theoretical": osm, "ordered": osr, "slope": float(slope),
                   "intercept": float(intercept)}
@@ -186,7 +182,7 @@ def mocap_vs_cvs(errors, result):
     impr = _eps(errors, "cvs")
     out = pd.DataFrame({"t_s": errors["t_s"].to_numpy(dtype=float)
                         if "t_s" in errors else np.arange(len(errors), dtype=float)})
-    for i, d in enumerate(POSE_DIMS):
+    for i, d in enumerate(ERROR_DIMS):
         wrap = (lambda a: np.angle(np.exp(1j * a))) if i >= 3 else (lambda a: a)
         out[f"vicon_{d}"] = wrap(vic[:, i])
         out[f"original_{d}"] = wrap(orig[:, i])
@@ -250,8 +246,8 @@ def binned_error_map(errors, pose_dim_a, pose_dim_b, error_dim, bins=12, min_cou
         dimension names. SI units.
     """
     for d in (pose_dim_a, pose_dim_b, error_dim):
-        if d not in POSE_DIMS:
-            raise InputError(f"binned_error_map: dimension {d!r}, expected one of {POSE_DIMS}")
+        if d not in ERROR_DIMS:
+            raise InputError(f"binned_error_map: dimension {d!r}, expected one of {ERROR_DIMS}")
     cols = [f"{pose_prefix}_{pose_dim_a}", f"{pose_prefix}_{pose_dim_b}", f"eps_{error_dim}"]
     _require(errors, cols, "errors table")
     a, b, e = (errors[c].to_numpy(dtype=float) for c in cols)
@@ -290,10 +286,10 @@ def error_maps(errors, pairs=CONTOUR_PAIRS, bins=12, min_count=3):
         len(pairs) * 6 maps, pair-major.
     """
     return [binned_error_map(errors, a, b, d, bins=bins, min_count=min_count)
-            for a, b in pairs for d in POSE_DIMS]
+            for a, b in pairs for d in ERROR_DIMS]
 
 
-def error_statistics(errors, prefix="eps"):
+def run_statistics(errors, prefix="eps"):
     """``stats.json``-ready summary of eps: plain floats and lists, SI units.
 
     Parameters
@@ -306,20 +302,21 @@ def error_statistics(errors, prefix="eps"):
     Returns
     -------
     dict
-        ``n``, ``dims``, ``per_dim`` (dimension -> mean, std, rms, min, max, skew, kurtosis,
-        dagostino_k2, dagostino_p, anderson_stat, anderson_p, normal_at_5pct), ``Sigma`` (6x6, SI, eq. 1.14),
+        ``n``, ``dims``, ``per_dim`` (dimension -> the statistics of
+        :data:`cvsflow.metrics.STATISTICS`, skew, kurtosis, dagostino_k2, dagostino_p,
+        anderson_stat, anderson_p, normal_at_5pct), ``Sigma`` (6x6, SI, eq. 1.14),
         ``corr`` (6x6) and ``units``.
     """
     tests = normality_tests(errors, prefix)
     Sigma, corr = sample_error_covariance(errors, prefix)
-    keys = ["mean", "std", "rms", "min", "max", "skew", "kurtosis", "dagostino_k2",
-            "dagostino_p", "anderson_stat", "anderson_p"]
-    per_dim = {d: {k: float(tests.loc[d, k]) for k in keys} for d in POSE_DIMS}
-    for d in POSE_DIMS:
+    keys = [*STATISTICS, "skew", "kurtosis", "dagostino_k2", "dagostino_p", "anderson_stat",
+            "anderson_p"]
+    per_dim = {d: {k: float(tests.loc[d, k]) for k in keys} for d in ERROR_DIMS}
+    for d in ERROR_DIMS:
         per_dim[d]["normal_at_5pct"] = bool(tests.loc[d, "normal_at_5pct"])
     return {
         "n": int(tests["n"].iloc[0]),
-        "dims": list(POSE_DIMS),
+        "dims": list(ERROR_DIMS),
         "per_dim": per_dim,
         "Sigma": Sigma.tolist(),
         "corr": corr.tolist(),

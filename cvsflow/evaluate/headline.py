@@ -17,13 +17,12 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.geometry import euler_jacobian, pose6_from_T
+from cvsflow.metrics import ERROR_DIMS, REPORT_UNITS
 
 #: Columns of headline.csv.
 COLUMNS = ["session", "group", "quantity", "value", "std", "truth", "unit", "text", "source"]
-#: Display name, unit and SI-to-display factor of the error dimensions.
-DIMS = (("x_m", "x", "mm", 1e3), ("y_m", "y", "mm", 1e3), ("z_m", "z", "mm", 1e3),
-        ("roll_rad", "roll", "deg", 180 / math.pi), ("pitch_rad", "pitch", "deg", 180 / math.pi),
-        ("yaw_rad", "yaw", "deg", 180 / math.pi))
+#: Error dimension, display name, unit and SI-to-display factor (:data:`cvsflow.metrics.REPORT_UNITS`).
+DIMS = tuple((d, *REPORT_UNITS[d]) for d in ERROR_DIMS)
 NAN = float("nan")
 
 
@@ -208,8 +207,8 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
         for d, name, unit, k in DIMS:
             s = (se3_cmp.get("per_dim") or {}).get(d)
             if s is not None:
-                r.add(f"held-out RMS (se3, frame {frame})", name, k * _num(s.get("rms")), unit,
-                      f"{src}: se3.per_dim.{d}.rms")
+                r.add(f"held-out RMS (se3, frame {frame})", name, k * _num(s.get("rmse")), unit,
+                      f"{src}: se3.per_dim.{d}.rmse")
         seed_cmp = comparison.get("seed") or {}
         if seed_cmp.get("diverged"):
             r.note(f"held-out RMS (seed, frame {frame})", "all axes",
@@ -219,8 +218,8 @@ def session_headline(session, *, camera=None, camera_from=None, sync=None, se3=N
             for d, name, unit, k in DIMS:
                 s = seed_cmp["per_dim"].get(d)
                 if s is not None:
-                    r.add(f"held-out RMS (seed, frame {frame})", name, k * _num(s.get("rms")),
-                          unit, f"{src}: seed.per_dim.{d}.rms")
+                    r.add(f"held-out RMS (seed, frame {frame})", name, k * _num(s.get("rmse")),
+                          unit, f"{src}: seed.per_dim.{d}.rmse")
         em = comparison.get("error_model") or {}
         if em:
             r.add("error model (se3, held-out)", "inside the 68 % band", 100 * _num(em.get("inside_68_all")),

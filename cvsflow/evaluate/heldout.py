@@ -1,9 +1,10 @@
-"""Held-out time blocks and block bootstrap over the composed SE(3) errors of :mod:`cvsflow.metrics`.
+"""Held-out time blocks over the composed SE(3) errors of :mod:`cvsflow.metrics`, and the comparison.
 
 - :func:`make_time_blocks`, :func:`heldout_blocks` and :func:`cross_validate_se3`: fit on some
   contiguous time blocks, score on the others; the held-out figures are the ones to state.
-- :func:`bootstrap_error_stats`: moving-block bootstrap confidence intervals of the mean,
-  standard deviation and covariance Sigma of autocorrelated per-frame errors.
+- :func:`compare_methods`, :func:`compare_heldout`: the methods' held-out statistics
+  (:func:`cvsflow.metrics.axis_statistics`) side by side, with moving-block bootstrap intervals
+  (:func:`cvsflow.metrics.bootstrap_error_stats`).
 
 Errors are ``estimate - reference``: the CVS pose (PnP) against the Vicon reference.
 """
@@ -21,8 +22,9 @@ from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
 from cvsflow.metrics import (
     ERROR_DIMS,
+    axis_statistics,
+    bootstrap_error_stats,
     error_columns,
-    error_moments,
     frame_errors,
     poses_from_table,
 )
@@ -157,111 +159,6 @@ def cross_validate_se3(
             progress(k + 1)
     heldout = pd.concat(parts, ignore_index=True).sort_values("frame", ignore_index=True)
     return heldout, fits
-
-
-def summarise_errors(errors, columns=None):
-    """Mean, standard deviation, RMS and covariance Sigma of per-frame errors.
-
-    Parameters
-    ----------
-    errors : DataFrame
-        Per-frame errors.
-    columns : list of str, optional
-        Columns to summarise; default the six ``err_`` columns.
-
-    Returns
-    -------
-    summary : dict
-        ``columns``, ``n``, ``mean``, ``std`` (ddof 1), ``rms`` (lists, SI units) and
-        ``Sigma`` (covariance, list of lists).
-    """
-    cols = list(columns or error_columns())
-    E = errors[cols].to_numpy(float)
-    return {
-        "columns": cols,
-        "n": int(len(E)),
-        "mean": E.mean(axis=0).tolist(),
-        "std": E.std(axis=0, ddof=1).tolist(),
-        "rms": np.sqrt(np.mean(E**2, axis=0)).tolist(),
-        "Sigma": np.cov(E, rowvar=False).tolist(),
-    }
-
-
-#: Memory of one chunk of bootstrap resamples (the resampled errors and their deviations).
-BOOTSTRAP_CHUNK_BYTES = 32 * 2**20
-
-
-def bootstrap_error_stats(errors, block_len, n_boot=1000, seed=0, level=0.95):
-    """Moving-block bootstrap confidence intervals of the mean, std and Sigma of errors.
-
-    Parameters
-    ----------
-    errors : ndarray, shape (N, d), or DataFrame
-        Per-frame errors in time order (SI units).
-    block_len : int
-        Block length in frames (longer than the errors' autocorrelation; e.g. 1-2 s of
-        frames). 1 gives the ordinary iid bootstrap.
-    n_boot : int
-        Bootstrap resamples.
-    seed : int
-        Seed of the resampling.
-    level : float
-        Confidence level of the percentile intervals, in (0, 1).
-
-    Returns
-    -------
-    stats : dict
-        For each of ``mean``, ``std`` (shape (d,)) and ``Sigma`` (shape (d, d)): the estimate
-        and its interval ``{name}_lo``, ``{name}_hi`` (ndarrays), plus ``block_len``,
-        ``n_boot``, ``level``.
-
-    Raises
-    ------
-    OptimiseError
-        Fewer than 2 rows, block_len out of [1, N], or level not in (0, 1).
-
-    Notes
-    -----
-    Künsch (1989), "The jackknife and the bootstrap for general stationary observations":
-    ceil(N / L) blocks of L consecutive frames drawn with replacement from the N - L + 1
-    overlapping blocks, concatenated and cut to N. Percentile intervals.
-    """
-    E = np.asarray(errors.to_numpy(float) if isinstance(errors, pd.DataFrame) else errors, float)
-    if E.ndim == 1:
-        E = E[:, None]
-    n, d = E.shape
-    L = int(block_len)
-    if n < 2 or not 1 <= L <= n:
-        raise OptimiseError(
-            f"bootstrap: {n} rows and block_len {block_len}; need N >= 2 and 1 <= block_len <= N"
-        )
-    if not 0 < level < 1:
-        raise OptimiseError(f"bootstrap: level {level}; expected in (0, 1)")
-    rng = np.random.default_rng(seed)
-    n_blocks = -(-n // L)
-    starts = rng.integers(0, n - L + 1, size=(n_boot, n_blocks))
-    means = np.empty((n_boot, d))
-    sigmas = np.empty((n_boot, d, d))
-    # Resamples a chunk at a time: all at once held n_boot x N x d values twice (0.9 GB for
-    # a 5-minute session, 1000 resamples); each resample's arithmetic is its own, so the
-    # chunking changes no bit of the result.
-    chunk = max(1, BOOTSTRAP_CHUNK_BYTES // (16 * n * d))
-    for b0 in range(0, n_boot, chunk):
-        b1 = min(n_boot, b0 + chunk)
-        idx = (starts[b0:b1, :, None] + np.arange(L)[None, None, :]).reshape(b1 - b0, -1)[:, :n]
-        S = E[idx]  # (chunk, n, d)
-        means[b0:b1] = S.mean(axis=1)
-        C = S - means[b0:b1, None, :]
-        sigmas[b0:b1] = np.einsum("bni,bnj->bij", C, C, optimize=False) / (n - 1)
-    stds = np.sqrt(np.einsum("bii->bi", sigmas))
-    a = (1.0 - level) / 2.0
-    out = {"block_len": L, "n_boot": int(n_boot), "level": float(level)}
-    est = {"mean": E.mean(axis=0), "std": E.std(axis=0, ddof=1), "Sigma": np.cov(E, rowvar=False)}
-    for name, boot in (("mean", means), ("std", stds), ("Sigma", sigmas)):
-        out[name] = np.atleast_1d(est[name]) if name != "Sigma" else np.atleast_2d(est[name])
-        out[f"{name}_lo"] = np.quantile(boot, a, axis=0)
-        out[f"{name}_hi"] = np.quantile(boot, 1.0 - a, axis=0)
-    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -407,13 +304,14 @@ def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, lev
     Returns
     -------
     dict
-        Per method: ``n`` and per dimension ``mean``, ``std``, ``rms`` with ``*_lo``, ``*_hi``
-        intervals of mean and std (SI); and, when both ``seed`` and ``se3`` are given,
-        ``rms_ratio_se3_to_seed`` per dimension.
+        Per method: ``n`` and per dimension the statistics of
+        :data:`cvsflow.metrics.STATISTICS` (SI) with ``mean_lo``, ``mean_hi``, ``std_lo``,
+        ``std_hi`` (block-bootstrap intervals); and, when both ``seed`` and ``se3`` are given,
+        ``rmse_ratio_se3_to_seed`` per dimension.
     """
     out = {}
     for method, table in heldout_by_method.items():
-        E = table[[f"eps_{d}" for d in ERROR_DIMS]].to_numpy(float)
+        E = table[error_columns("eps")].to_numpy(float)
         finite = np.isfinite(E).all(axis=1)
         if finite.sum() < 3:
             raise OptimiseError(f"compare_methods: {method} has {int(finite.sum())} held-out frames "
@@ -423,20 +321,15 @@ def compare_methods(heldout_by_method, *, block_len=30, n_boot=1000, seed=0, lev
                         method, int((~finite).sum()), len(E))
             E = E[finite]
         boot = bootstrap_error_stats(E, min(block_len, len(E)), n_boot=n_boot, seed=seed, level=level)
-        per_dim = {}
+        per_dim = axis_statistics(E)
         for j, d in enumerate(ERROR_DIMS):
-            mean, std, rms = error_moments(E[:, j])
-            per_dim[d] = {
-                "mean": mean, "mean_lo": float(boot["mean_lo"][j]),
-                "mean_hi": float(boot["mean_hi"][j]),
-                "std": std, "std_lo": float(boot["std_lo"][j]),
-                "std_hi": float(boot["std_hi"][j]),
-                "rms": rms,
-            }
+            for name in ("mean", "std"):
+                per_dim[d][f"{name}_lo"] = float(boot[f"{name}_lo"][j])
+                per_dim[d][f"{name}_hi"] = float(boot[f"{name}_hi"][j])
         out[method] = {"n": int(len(E)), "per_dim": per_dim}
     if {"seed", "se3"} <= set(out):
-        out["rms_ratio_se3_to_seed"] = {
-            d: out["se3"]["per_dim"][d]["rms"] / out["seed"]["per_dim"][d]["rms"] for d in ERROR_DIMS
+        out["rmse_ratio_se3_to_seed"] = {
+            d: out["se3"]["per_dim"][d]["rmse"] / out["seed"]["per_dim"][d]["rmse"] for d in ERROR_DIMS
         }
     return out
 
@@ -451,7 +344,7 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     seed_heldout : DataFrame or None
         :func:`cvsflow.evaluate.heldout_seed.cross_validate_seed` output (``eps_*``, 6-vector errors);
         None for a session that runs se3 alone: the comparison then has no ``seed`` section
-        and no ``rms_ratio_se3_to_seed``, and the error model is scored as with both.
+        and no ``rmse_ratio_se3_to_seed``, and the error model is scored as with both.
     se3_heldout : DataFrame
         :func:`cross_validate_se3` output (``err_*`` composed errors, ``fold``, ``sigma_px``).
     se3_result : dict
@@ -501,7 +394,7 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     se3["t_s"] = se3["t_s"].astype(float)
     for d in ERROR_DIMS:
         se3[f"eps_{d}"] = se3[f"err_{d}"]
-    fps = 1.0 / np.median(np.diff(np.sort(se3["t_s"].to_numpy())))
+    fps = 1.0 / geo.sample_period(se3["t_s"])
     by_method = {"se3": se3} if seed_heldout is None else {"seed": seed_heldout, "se3": se3}
     comparison = compare_methods(by_method,
                                  block_len=max(1, int(round(boot_block_s * fps))),
@@ -551,8 +444,8 @@ def mark_seed_divergence(comparison, seed_heldout):
     """Move a diverged seed's statistics under a key that says they are not measurements.
 
     The seed section becomes ``{diverged: true, diverged_reason, n,
-    statistics_not_measurements: {per_dim}}`` and ``rms_ratio_se3_to_seed`` moves to
-    ``rms_ratio_se3_to_seed_not_measurements`` (the top-level key is None), when any fold's fit
+    statistics_not_measurements: {per_dim}}`` and ``rmse_ratio_se3_to_seed`` moves to
+    ``rmse_ratio_se3_to_seed_not_measurements`` (the top-level key is None), when any fold's fit
     diverged (``diverged`` column of :func:`cvsflow.evaluate.heldout_seed.cross_validate_seed`) or a
     held-out translation error std exceeds ``cvsflow.optimise.seed.DIVERGED_EPS_STD_M``.
     Otherwise the section gets ``diverged: false``.
@@ -590,6 +483,6 @@ def mark_seed_divergence(comparison, seed_heldout):
         "n": sec["n"],
         "statistics_not_measurements": {"per_dim": sec["per_dim"]},
     }
-    comparison["rms_ratio_se3_to_seed_not_measurements"] = comparison.get("rms_ratio_se3_to_seed")
-    comparison["rms_ratio_se3_to_seed"] = None
+    comparison["rmse_ratio_se3_to_seed_not_measurements"] = comparison.get("rmse_ratio_se3_to_seed")
+    comparison["rmse_ratio_se3_to_seed"] = None
     return comparison

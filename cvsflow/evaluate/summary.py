@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.metrics import ERROR_DIMS as POSE_DIMS
+from cvsflow.metrics import ERROR_DIMS, REPORT_UNITS, report_name
 from cvsflow.optimise import compute_p_bar
 
 
@@ -23,7 +23,7 @@ def summary_row(session, method, finit, result, stats, truth=None, pairs=None, t
     result : dict
         The optimiser's ``result.yaml``.
     stats : dict
-        The run's ``stats.json`` (``error_statistics`` plus ``optimum``).
+        The run's ``stats.json`` (``run_statistics`` plus ``optimum``).
     truth : dict, optional
         ``truth.yaml`` of a rendered session: adds the true focal lengths.
     pairs, truth_frames : DataFrame, optional
@@ -46,24 +46,18 @@ def summary_row(session, method, finit, result, stats, truth=None, pairs=None, t
     if truth is not None:
         K = np.asarray(truth["camera"]["K"], dtype=float)
         row["fx_true_px"], row["fy_true_px"] = float(K[0, 0]), float(K[1, 1])
-    scale = {"x_m": 1e3, "y_m": 1e3, "z_m": 1e3}
-    for d, v in zip(POSE_DIMS, result.get("P_bar", [np.nan] * 6), strict=True):
-        row[f"P_bar_{_display_name(d)}"] = float(v) * scale.get(d, np.degrees(1.0))
+    scale = {d: k for d, (_, _, k) in REPORT_UNITS.items()}
+    for d, v in zip(ERROR_DIMS, result.get("P_bar", [np.nan] * 6), strict=True):
+        row[f"P_bar_{report_name(d)}"] = float(v) * scale[d]
     if truth is not None and pairs is not None and truth_frames is not None:
         true = truth_frames.set_index("frame").loc[pairs["frame"].to_numpy()]
-        F_true = true[list(POSE_DIMS)].to_numpy(float)
-        P_star = pairs[[f"vic_{d}" for d in POSE_DIMS]].to_numpy(float)
-        for d, v in zip(POSE_DIMS, compute_p_bar(F_true, P_star), strict=True):
-            row[f"P_bar_true_{_display_name(d)}"] = float(v) * scale.get(d, np.degrees(1.0))
+        F_true = true[list(ERROR_DIMS)].to_numpy(float)
+        P_star = pairs[[f"vic_{d}" for d in ERROR_DIMS]].to_numpy(float)
+        for d, v in zip(ERROR_DIMS, compute_p_bar(F_true, P_star), strict=True):
+            row[f"P_bar_true_{report_name(d)}"] = float(v) * scale[d]
     opt = stats.get("optimum", {})
     row["norm_init_mm"] = 1e3 * float(opt.get("norm_normalised_init_m", np.nan))
     row["norm_final_mm"] = 1e3 * float(opt.get("norm_normalised_final_m", np.nan))
-    for d in POSE_DIMS:
-        row[f"std_{_display_name(d)}"] = stats["per_dim"][d]["std"] * scale.get(d, np.degrees(1.0))
+    for d in ERROR_DIMS:
+        row[f"std_{report_name(d)}"] = stats["per_dim"][d]["std"] * scale[d]
     return row
-
-
-def _display_name(dim):
-    """'x_m' -> 'x_mm', 'roll_rad' -> 'roll_deg': the report's units."""
-    name, unit = dim.rsplit("_", 1)
-    return f"{name}_{'mm' if unit == 'm' else 'deg'}"

@@ -16,6 +16,8 @@ import math
 import numpy as np
 import pandas as pd
 
+from cvsflow.metrics import ERROR_DIMS, REPORT_UNITS
+
 #: The image diagonal (px) at which the pixel thresholds hold as written: 640x480.
 REFERENCE_DIAGONAL_PX = 800.0
 #: Pass / warn limits of each check, in the units of its value. A value beyond the warn limit fails.
@@ -38,9 +40,7 @@ THRESHOLDS = {
 NEES_PASS, NEES_WARN = (4.5, 7.5), (3.0, 12.0)
 INSIDE_95_PASS, INSIDE_95_WARN = (0.93, 0.97), (0.88, 0.99)
 #: Error dimensions (SI) with display name, unit and factor.
-DIMS = (("x_m", "x", "mm", 1e3), ("y_m", "y", "mm", 1e3), ("z_m", "z", "mm", 1e3),
-        ("roll_rad", "roll", "deg", 180 / math.pi), ("pitch_rad", "pitch", "deg", 180 / math.pi),
-        ("yaw_rad", "yaw", "deg", 180 / math.pi))
+DIMS = tuple((d, *REPORT_UNITS[d]) for d in ERROR_DIMS)
 
 
 def _num(v):
@@ -197,7 +197,7 @@ def _sync_check(sync):
 
 
 def _heldout_checks(per_dim, distance_m):
-    rms = {d: _num((per_dim.get(d) or {}).get("rms")) for d, *_ in DIMS}
+    rms = {d: _num((per_dim.get(d) or {}).get("rmse")) for d, *_ in DIMS}
     trans = math.sqrt(sum(rms[d] ** 2 for d in ("x_m", "y_m", "z_m")))
     rot = math.sqrt(sum(rms[d] ** 2 for d in ("roll_rad", "pitch_rad", "yaw_rad")))
     ok, warn = THRESHOLDS["heldout_trans_share"]
@@ -228,7 +228,7 @@ def _error_model_check(em):
 
 
 def _verdict_text(per_dim, em, n, distance_m, frame):
-    vals = [k * _num((per_dim.get(d) or {}).get("rms")) for d, _, _, k in DIMS]
+    vals = [k * _num((per_dim.get(d) or {}).get("rmse")) for d, _, _, k in DIMS]
     text = (f"Held-out pose error x/y/z {'/'.join(_g(v) for v in vals[:3])} mm, "
             f"roll/pitch/yaw {'/'.join(_g(v) for v in vals[3:])} deg RMS")
     extra = [f"{int(n)} frames" if n else None,
@@ -270,9 +270,8 @@ def flight_verdict(flight, stats):
     rpe_t, rpe_r = stats.get("rpe_trans") or {}, stats.get("rpe_rot") or {}
     axes = stats.get("axes") or {}
     vals = []
-    for name, k in (("x", 1e3), ("y", 1e3), ("z", 1e3), ("roll", 180 / math.pi),
-                    ("pitch", 180 / math.pi), ("yaw", 180 / math.pi)):
-        vals.append(k * _num((axes.get(name) or {}).get("rmse")))
+    for d, _, _, k in DIMS:
+        vals.append(k * _num((axes.get(d) or {}).get("rmse")))
     unresolved = [_num((axes.get(a) or {}).get("unresolved_fraction")) for a in axes]
     clock = stats.get("clock") or {}
     text = (f"On-board pose error against the camera reference: APE "

@@ -27,7 +27,8 @@ Reference uncertainty: ``Sigma_ref`` (N, 6, 6) is the covariance of the referenc
 
 Modules, bottom to top: :mod:`~cvsflow.flight.trajectory` (the common form, the reference from
 PnP poses, resampling, association), :mod:`~cvsflow.flight.alignment` (Umeyama, yaw-only,
-hand-eye rotations), :mod:`~cvsflow.flight.trajectory_errors` (APE/RPE, per-axis errors and statistics),
+hand-eye rotations), :mod:`~cvsflow.flight.trajectory_errors` (APE/RPE, per-axis errors, the share the
+reference cannot resolve; statistics from :mod:`cvsflow.metrics`),
 :mod:`~cvsflow.flight.clock` (:func:`estimate_clock`), :mod:`~cvsflow.flight.reference` (the
 reference's covariance) and :mod:`~cvsflow.flight.comparison` (:func:`evaluate_flight`). The
 names below are re-exported for existing callers.
@@ -39,7 +40,7 @@ from cvsflow.flight.alignment import (
     align_weighted,
     align_yaw,
     rotation_alignment,
-    umeyama,
+    umeyama_alignment,
 )
 from cvsflow.flight.clock import Clock, angular_speed, estimate_clock
 from cvsflow.flight.comparison import FlightResult, check_against_truth, evaluate_flight
@@ -70,28 +71,24 @@ from cvsflow.flight.trajectory import (
     trajectory_frame,
 )
 from cvsflow.flight.trajectory_errors import (
-    AXES,
     ERR_COLS,
     SIG_COLS,
     ape_rotation,
     ape_translation,
     axis_errors,
     axis_stats,
-    error_stats,
     rpe,
 )
 
 __all__ = [
-    "AXES", "Alignment", "Clock", "ERR_COLS", "FlightResult", "SIG_COLS", "TRAJ_COLS",
-    "T_from_traj", "align_trajectories", "align_weighted", "align_yaw", "angular_speed",
+    "align_trajectories", "align_weighted", "align_yaw", "Alignment", "angular_speed",
     "ape_rotation", "ape_translation", "associate", "axis_errors", "axis_stats",
-    "check_against_truth", "check_trajectory", "corner_noise_per_axis",
-    "correct_rolling_shutter", "error_stats",
-    "factor_columns", "factor_from_columns", "flip_columns", "flip_from_columns",
-    "estimate_clock", "evaluate_flight", "interpolate_trajectory", "pnp_flip_term",
-    "propagate_reference_sigma", "reference_covariance_from_pnp", "reference_covariance_model",
-    "reference_covariance_transfer", "reference_from_poses",
-    "rotation_alignment", "rpe",
-    "session_error_model", "sigma_columns", "sigma_from_columns", "traj_from_T",
-    "trajectory_frame", "umeyama",
+    "check_against_truth", "check_trajectory", "Clock", "corner_noise_per_axis",
+    "correct_rolling_shutter", "ERR_COLS", "estimate_clock", "evaluate_flight", "factor_columns",
+    "factor_from_columns", "FlightResult", "flip_columns", "flip_from_columns",
+    "interpolate_trajectory", "pnp_flip_term", "propagate_reference_sigma",
+    "reference_covariance_from_pnp", "reference_covariance_model", "reference_covariance_transfer",
+    "reference_from_poses", "rotation_alignment", "rpe", "session_error_model", "SIG_COLS",
+    "sigma_columns", "sigma_from_columns", "T_from_traj", "TRAJ_COLS", "traj_from_T",
+    "trajectory_frame", "umeyama_alignment"
 ]  # fmt: skip

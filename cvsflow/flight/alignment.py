@@ -11,7 +11,7 @@ from scipy.optimize import least_squares
 from scipy.spatial.transform import Rotation
 
 from cvsflow.exceptions import InputError, OptimiseError
-from cvsflow.geometry import make_T, mean_rotation, rotation_angle
+from cvsflow.geometry import make_T, mean_rotation, project_SO3, rotation_angle, umeyama
 
 # --------------------------------------------------------------------------------------------
 # Frame alignment
@@ -68,7 +68,7 @@ def _check_points(p_ref, p_est, n_min):
     return p_ref, p_est
 
 
-def umeyama(p_ref, p_est, with_scale: bool = False) -> Alignment:
+def umeyama_alignment(p_ref, p_est, with_scale: bool = False) -> Alignment:
     """Least-squares similarity (or rigid) transform from estimate to reference points.
 
     Parameters
@@ -81,35 +81,17 @@ def umeyama(p_ref, p_est, with_scale: bool = False) -> Alignment:
     Returns
     -------
     Alignment
-        ``p_ref ≈ s R p_est + t``.
+        ``p_ref ≈ s R p_est + t``: :func:`cvsflow.geometry.umeyama` (evo's
+        ``umeyama_alignment``).
 
     Raises
     ------
     OptimiseError
         Fewer than 3 pairs, non-finite values, or points all on one spot.
-
-    Notes
-    -----
-    Umeyama, "Least-squares estimation of transformation parameters between two point
-    patterns", IEEE TPAMI 13(4), 1991, eqs. 38-42; the same formulae as evo's
-    ``core.geometry.umeyama_alignment``.
     """
     y, x = _check_points(p_ref, p_est, 3)
-    n = len(x)
-    mx, my = x.mean(0), y.mean(0)
-    xc, yc = x - mx, y - my
-    sigma_x = np.sum(xc**2) / n  # eq. 36
-    if sigma_x <= 0:
-        raise OptimiseError("alignment: all estimate points coincide; nothing to align")
-    cov = yc.T @ xc / n  # eq. 38
-    U, d, Vt = np.linalg.svd(cov)
-    S = np.eye(3)
-    if np.linalg.det(U) * np.linalg.det(Vt) < 0:  # eq. 39
-        S[2, 2] = -1
-    R = U @ S @ Vt  # eq. 40
-    s = float(np.trace(np.diag(d) @ S) / sigma_x) if with_scale else 1.0  # eq. 42
-    t = my - s * R @ mx  # eq. 41
-    return Alignment(make_T(R, t), s, "sim3" if with_scale else "se3")
+    T, s = umeyama(x, y, with_scale)
+    return Alignment(T, s, "sim3" if with_scale else "se3")
 
 
 def _R_between(a, b):
@@ -178,7 +160,7 @@ def align_weighted(p_ref, p_est, Sigma_ref_p, n_iter: int = 3, floor_m2=None) ->
     shifts the alignment, while ``s^2``, the variance per axis the reference does not explain
     (the on-board error, estimated from the residuals as
     ``max(mean |e|^2 - mean tr Sigma, 0) / 3``), keeps the near frames from taking all the
-    weight. Started from :func:`umeyama`; ``s^2`` and (R, t) alternate ``n_iter`` times.
+    weight. Started from :func:`umeyama_alignment`; ``s^2`` and (R, t) alternate ``n_iter`` times.
 
     Parameters
     ----------
@@ -209,7 +191,7 @@ def align_weighted(p_ref, p_est, Sigma_ref_p, n_iter: int = 3, floor_m2=None) ->
             f"weighted alignment: covariance of shape {S.shape} (finite: "
             f"{bool(np.isfinite(S).all())}); expected ({len(y)}, 3, 3), finite"
         )
-    al = umeyama(y, x)
+    al = umeyama_alignment(y, x)
     tr = float(np.mean(np.trace(S, axis1=1, axis2=2)))
     for _ in range(n_iter if floor_m2 is None else 1):
         R0, t0 = al.T_ref_est[:3, :3], al.T_ref_est[:3, 3]
@@ -231,7 +213,7 @@ def align_weighted(p_ref, p_est, Sigma_ref_p, n_iter: int = 3, floor_m2=None) ->
 
 
 def align_trajectories(p_ref, p_est, method: str = "se3", z_est_in_ref=(0.0, 0.0, 1.0)):
-    """Dispatch to :func:`umeyama` (``se3``, ``sim3``) or :func:`align_yaw` (``yaw``).
+    """Dispatch to :func:`umeyama_alignment` (``se3``, ``sim3``) or :func:`align_yaw` (``yaw``).
 
     Parameters
     ----------
@@ -255,9 +237,9 @@ def align_trajectories(p_ref, p_est, method: str = "se3", z_est_in_ref=(0.0, 0.0
         Too few pairs or degenerate points (from the solvers).
     """
     if method == "se3":
-        return umeyama(p_ref, p_est, False)
+        return umeyama_alignment(p_ref, p_est, False)
     if method == "sim3":
-        return umeyama(p_ref, p_est, True)
+        return umeyama_alignment(p_ref, p_est, True)
     if method == "yaw":
         return align_yaw(p_ref, p_est, z_est_in_ref)
     raise InputError(f"alignment method {method!r}; expected 'se3', 'sim3' or 'yaw'")
@@ -278,9 +260,7 @@ def _hand_eye_rotation(R_ref_C_B, R_est_L_Q, lags=(3, 10, 30)):
     if not vB:
         return np.eye(3)
     vB, vQ = np.concatenate(vB), np.concatenate(vQ)
-    U, _, Vt = np.linalg.svd(vQ.T @ vB)  # Kabsch: min sum |vQ - X vB|^2
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
-    return U @ D @ Vt
+    return project_SO3(vQ.T @ vB)  # Kabsch: min sum |vQ - X vB|^2
 
 
 def rotation_alignment(R_ref_C_B, R_est_L_Q, R_Q_B=None, weights=None, n_iter: int = 10):

@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from cvsflow.exceptions import SyncError
 from cvsflow.flight.alignment import rotation_alignment
-from cvsflow.geometry import R_from_quat, rotation_angle
+from cvsflow.geometry import PoseInterpolant, R_from_quat, make_T, rotation_angle, sample_period
 from cvsflow.metrics import leverage_corrected_scores
 
 log = logging.getLogger(__name__)
@@ -79,11 +79,11 @@ def _xcorr_offset(t_r, R_r, t_e, R_e, rate_hz, max_offset_s, baseline_s):
     if baseline_s is None:
         tm_r, w_r = angular_speed(t_r, R_r)
         tm_e, w_e = angular_speed(t_e, R_e)
-        gap_r = np.diff(t_r) < 2.5 * np.median(np.diff(t_r))  # missed frames give no speed
+        gap_r = np.diff(t_r) < 2.5 * sample_period(t_r)  # missed frames give no speed
     else:
         tm_r, w_r, span_r = angular_speed(t_r, R_r, baseline_s)
         tm_e, w_e, _ = angular_speed(t_e, R_e, baseline_s)
-        gap_r = span_r < baseline_s + 2.5 * np.median(np.diff(t_r))
+        gap_r = span_r < baseline_s + 2.5 * sample_period(t_r)
     tm_r, w_r = tm_r[gap_r], w_r[gap_r]
     if len(tm_r) < 10 or len(tm_e) < 10:
         raise SyncError(
@@ -240,7 +240,7 @@ def estimate_clock(
         else np.maximum(np.asarray(sigma_rot_rad, float)[m_r], 1e-9)
     )  # fmt: skip
     w = np.ones(len(t_r))  # the residuals' weights, set by fine() below
-    slerp = Slerp(t_e, Rotation.from_matrix(R_e))
+    log_track = PoseInterpolant(t_e, make_T(R_e, np.zeros((len(R_e), 3))))
     t_c = 0.5 * (t_r[0] + t_r[-1])
     state = {"R_Q_B": R_Q_B}
 
@@ -250,7 +250,7 @@ def estimate_clock(
         inside = (tau >= t_e[0]) & (tau <= t_e[-1])
         if inside.sum() < 10:
             return np.full(3 * len(t_r), 1e3)
-        Re = slerp(np.clip(tau, t_e[0], t_e[-1])).as_matrix()
+        Re = log_track(np.clip(tau, t_e[0], t_e[-1]))[:, :3, :3]
         R_CL, R_QB = rotation_alignment(R_r[inside], Re[inside], R_Q_B, w[inside] ** 2, n_iter=3)
         state["R_Q_B"] = R_QB
         r = Rotation.from_matrix(np.swapaxes(R_r, -1, -2) @ R_CL @ Re @ R_QB).as_rotvec()

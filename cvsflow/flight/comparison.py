@@ -16,17 +16,16 @@ from cvsflow.flight.clock import Clock, estimate_clock
 from cvsflow.flight.reference import propagate_reference_sigma
 from cvsflow.flight.trajectory import T_from_traj, check_trajectory, interpolate_trajectory, traj_from_T
 from cvsflow.flight.trajectory_errors import (
-    AXES,
     ERR_COLS,
     SIG_COLS,
     ape_rotation,
     ape_translation,
     axis_errors,
     axis_stats,
-    error_stats,
     rpe,
 )
 from cvsflow.geometry import invert_T, make_T, skew, wrap_angle
+from cvsflow.metrics import ERROR_DIMS, axis_statistics, error_statistics
 
 log = logging.getLogger(__name__)
 
@@ -43,12 +42,12 @@ class FlightResult:
     Attributes
     ----------
     errors : DataFrame
-        Per associated reference frame: ``t_s`` (reference clock), ``t_log_s``, ``ex_m ..
-        eyaw_rad`` (on-board minus reference, axes of L), ``sx_m .. syaw_rad`` (reference
+        Per associated reference frame: ``t_s`` (reference clock), ``t_log_s``, ``err_x_m ..
+        err_yaw_rad`` (on-board minus reference, axes of L), ``sigma_x_m .. sigma_yaw_rad`` (reference
         standard deviations), ``ape_m`` (position error norm), ``ape_rot_rad``.
     stats : dict
         ``axes`` (:func:`axis_stats`), ``ape_trans`` / ``ape_rot`` / ``rpe_trans`` /
-        ``rpe_rot`` (:func:`error_stats`), ``clock``, ``alignment``, ``n_pairs``.
+        ``rpe_rot`` (:func:`cvsflow.metrics.error_statistics`), ``clock``, ``alignment``, ``n_pairs``.
     clock : Clock
     alignment : Alignment
     ref_aligned, est_aligned : DataFrame
@@ -250,8 +249,8 @@ def evaluate_flight(
         "n_pairs": n,
         "n_reference": int(len(reference)),
         "axes": axis_stats(e, sigma if Sigma_ref is not None else None, k_sigma),
-        "ape_trans": error_stats(ape_t),
-        "ape_rot": error_stats(ape_r),
+        "ape_trans": error_statistics(ape_t),
+        "ape_rot": error_statistics(ape_r),
         "clock": {"dt_offset_s": clock.dt_offset_s, "skew": clock.skew, "quality": clock.quality},
         "alignment": {"method": al.method, "scale": al.scale, "T_C_L": al.T_ref_est.tolist()}
         | ({"floor_m2": al.floor_m2} if al.method == "se3w" else {}),
@@ -260,8 +259,8 @@ def evaluate_flight(
     }
     if n > rpe_delta:
         r = rpe(T_C_Q, T_est_C, rpe_delta)
-        stats["rpe_trans"] = error_stats(r["trans_m"])
-        stats["rpe_rot"] = error_stats(r["rot_rad"])
+        stats["rpe_trans"] = error_statistics(r["trans_m"])
+        stats["rpe_rot"] = error_statistics(r["rot_rad"])
     ref_aligned = traj_from_T(t_ref[use], T_C_Q, attrs={"frames": "T_C_Q (reference)"})
     est_aligned = traj_from_T(t_ref[use], T_est_C, attrs={"frames": "T_C_Q (on-board, aligned)"})
     est_unaligned = traj_from_T(t_ref[use], T_L_Q, attrs={"frames": "T_L_Q (on-board, unaligned)"})
@@ -341,8 +340,8 @@ def check_against_truth(result, onboard, truth, T_L_C, clock, max_gap_s=0.05):
     ok = np.isfinite(z).all(axis=1)
     out = {
         "n": int(ok.sum()),
-        "z_rms": {a: float(np.sqrt(np.mean(z[ok, i] ** 2))) for i, a in enumerate(AXES)},
-        "inside_3sigma": {a: float(np.mean(np.abs(z[ok, i]) < 3.0)) for i, a in enumerate(AXES)},
+        "z_rms": _z_rms(z[ok]),
+        "inside_3sigma": {a: float(np.mean(np.abs(z[ok, i]) < 3.0)) for i, a in enumerate(ERROR_DIMS)},
     }
     if al.method == "se3w":
         fin = np.isfinite(T_est[:, :3, 3]).all(axis=1)
@@ -355,6 +354,10 @@ def check_against_truth(result, onboard, truth, T_L_C, clock, max_gap_s=0.05):
     if al.method != "given":
         z_t = (rec - axis_errors(T_true_C_Q, T_est, al_true)) / sig
         ok_t = np.isfinite(z_t).all(axis=1)
-        out["z_rms_truth_alignment"] = {a: float(np.sqrt(np.mean(z_t[ok_t, i] ** 2)))
-                                        for i, a in enumerate(AXES)}  # fmt: skip
+        out["z_rms_truth_alignment"] = _z_rms(z_t[ok_t])
     return out
+
+
+def _z_rms(z):
+    """RMS of each axis's standardised errors z (N, 6), keyed by ERROR_DIMS: 1 when sigma is right."""
+    return {a: s["rmse"] for a, s in axis_statistics(z, names=("rmse",)).items()}

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from cvsflow.exceptions import InputError, SyncError
-from cvsflow.geometry import R_from_quat, make_T, quat_from_R
+from cvsflow.geometry import R_from_quat, interpolate_quats, make_T, quat_from_R
 
 TRAJ_COLS = ["t_s", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"]
 
@@ -251,8 +251,7 @@ def interpolate_trajectory(df: pd.DataFrame, t_s, max_gap_s: float = 0.1) -> pd.
             pos_ok = ok
         else:
             q = df[["qx", "qy", "qz", "qw"]].to_numpy(dtype=float)[valid]
-            slerp = Slerp(tv, Rotation.from_quat(q))
-            qq = slerp(np.clip(t_q[ok], tv[0], tv[-1])).as_quat()
+            qq, _ = interpolate_quats(tv, q, np.ones(len(tv), bool), np.clip(t_q[ok], tv[0], tv[-1]))
             out[ok, 3:7] = np.where(qq[:, 3:4] < 0, -qq, qq)
             rot_ok = ok
     res = pd.DataFrame(out, columns=TRAJ_COLS[1:])

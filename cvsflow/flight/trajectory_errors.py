@@ -1,4 +1,5 @@
-"""Flight error measures: evo's APE/RPE and their statistics, per-axis errors in the axes of L.
+"""Flight error measures: evo's APE/RPE, per-axis errors in the axes of L, the share of them the
+reference cannot resolve. Their statistics are :mod:`cvsflow.metrics.statistics`'.
 """
 
 from __future__ import annotations
@@ -8,49 +9,16 @@ import numpy as np
 from cvsflow.exceptions import InputError
 from cvsflow.flight.alignment import Alignment
 from cvsflow.geometry import euler_from_R, invert_T, rotation_angle, wrap_angle
-from cvsflow.metrics import error_moments
+from cvsflow.metrics import ERROR_DIMS, error_columns, error_statistics
 
-AXES = ["x", "y", "z", "roll", "pitch", "yaw"]
-ERR_COLS = ["ex_m", "ey_m", "ez_m", "eroll_rad", "epitch_rad", "eyaw_rad"]
-SIG_COLS = ["sx_m", "sy_m", "sz_m", "sroll_rad", "spitch_rad", "syaw_rad"]
+#: Columns of a flight's per-axis errors and of the reference's standard deviations (axes of L).
+ERR_COLS = error_columns("err")
+SIG_COLS = error_columns("sigma")
 
 
 # --------------------------------------------------------------------------------------------
 # Absolute and relative pose error
 # --------------------------------------------------------------------------------------------
-
-
-def error_stats(e) -> dict:
-    """evo's statistics of an error series: rmse, mean, median, std, min, max, sse (and n).
-
-    Parameters
-    ----------
-    e : array_like
-        Errors (any unit); non-finite values are left out.
-
-    Returns
-    -------
-    dict
-        ``rmse, mean, median, std`` (population, ddof 0), ``min, max, sse`` as floats in the
-        unit of ``e``, and ``n`` the finite count; all NaN with ``n`` 0 when none is finite.
-    """
-    e = np.asarray(e, dtype=float)
-    e = e[np.isfinite(e)]
-    if len(e) == 0:
-        return {k: float("nan") for k in ("rmse", "mean", "median", "std", "min", "max", "sse")} | {
-            "n": 0
-        }
-    mean, std, rmse = error_moments(e, ddof=0)
-    return {
-        "rmse": rmse,
-        "mean": mean,
-        "median": float(np.median(e)),
-        "std": std,
-        "min": float(np.min(e)),
-        "max": float(np.max(e)),
-        "sse": float(np.sum(e**2)),
-        "n": int(len(e)),
-    }
 
 
 def ape_translation(p_ref, p_est_aligned) -> np.ndarray:
@@ -149,7 +117,7 @@ def axis_errors(T_ref_C_Q, T_est_L_Q, alignment: Alignment) -> np.ndarray:
 
 
 def axis_stats(e, sigma=None, k_sigma: float = 1.0) -> dict:
-    """RMSE, mean, std and max |e| per axis, and the share the reference cannot resolve.
+    """The statistics of each axis's error, and the share the reference cannot resolve.
 
     Parameters
     ----------
@@ -164,39 +132,24 @@ def axis_stats(e, sigma=None, k_sigma: float = 1.0) -> dict:
     Returns
     -------
     dict
-        Per axis name (x..yaw): ``rmse, mean, std, max_abs, n``; with sigma also
-        ``ref_rms`` (RMS of sigma), ``unresolved_fraction`` (share of samples unresolved),
-        ``ref_variance_share`` (mean sigma^2 / mean e^2, capped at 1: the share of the
-        measured mean-square error the reference's noise accounts for) and
-        ``rmse_corrected`` (sqrt(max(mean e^2 - mean sigma^2, 0)), the on-board RMSE with the
-        reference's own noise removed).
+        Per axis (:data:`~cvsflow.metrics.errors.ERROR_DIMS`): ``n`` and the statistics of
+        :data:`cvsflow.metrics.STATISTICS`; with sigma also ``ref_rms`` (RMS of sigma),
+        ``unresolved_fraction`` (share of samples unresolved), ``ref_variance_share`` (mean
+        sigma^2 / mean e^2, capped at 1: the share of the measured mean-square error the
+        reference's noise accounts for) and ``rmse_corrected`` (sqrt(max(mean e^2 - mean
+        sigma^2, 0)), the on-board RMSE with the reference's own noise removed).
     """
     e = np.asarray(e, float)
     out = {}
-    for k, name in enumerate(AXES):
+    for k, name in enumerate(ERROR_DIMS):
         ek = e[:, k]
         m = np.isfinite(ek)
         if sigma is not None:
             m &= np.isfinite(sigma[:, k])
         ek = ek[m]
-        st = {"n": int(m.sum())}
-        if st["n"] == 0:
-            out[name] = st | {
-                "rmse": float("nan"),
-                "mean": float("nan"),
-                "std": float("nan"),
-                "max_abs": float("nan"),
-            }
-            continue
-        ms = float(np.mean(ek**2))
-        mean, std, rmse = error_moments(ek, ddof=0)
-        st |= {
-            "rmse": rmse,
-            "mean": mean,
-            "std": std,
-            "max_abs": float(np.abs(ek).max()),
-        }
-        if sigma is not None:
+        st = error_statistics(ek)
+        if sigma is not None and st["n"]:
+            ms = float(np.mean(ek**2))
             sk = sigma[m, k]
             s2 = float(np.mean(sk**2))
             st |= {

@@ -1,4 +1,9 @@
-"""Pose interpolation in time: linear in position, SLERP in rotation."""
+"""Poses in time: the sample period of a stream, interpolation (linear in position, SLERP in rotation).
+
+The one SLERP of the package is :func:`slerp` (scipy's quaternion product): :class:`PoseInterpolant`
+(poses and their rates, the se3 solver's tracks), :func:`interpolate_T` and :func:`interpolate_quats`
+use it, and so do the flight's trajectories and clock.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +12,30 @@ from scipy.spatial.transform import Rotation
 
 from cvsflow.exceptions import MocapError
 from cvsflow.geometry.transforms import make_T
+
+
+def sample_period(t_s, default=float("nan")):
+    """The sample period of a time series: the median spacing of its sample times.
+
+    The frame period of a video, the sample period of a motion-capture stream: the median
+    stays the nominal period when frames are dropped or a timestamp jitters.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (N,)
+        Sample times, seconds (sorted here; a sorted series gives the same bits).
+    default : float
+        Returned when there are fewer than two samples.
+
+    Returns
+    -------
+    float
+        Median of the sorted times' differences, seconds.
+    """
+    t = np.asarray(t_s, dtype=float)
+    if t.size < 2:
+        return float(default)
+    return float(np.median(np.diff(np.sort(t))))
 
 
 def bracket(t_s, valid, tq_s):
@@ -39,26 +68,91 @@ def bracket(t_s, valid, tq_s):
     return i0, i1, frac, ok
 
 
-def slerp(R0, R1, frac):
-    """Spherical linear interpolation between rotations, R0 exp(frac log(R0^-1 R1)).
+def slerp(R0, R1, frac, rotvec_01=None):
+    """Spherical linear interpolation between rotations, R0 exp(frac log(R0^-1 R1)): the one SLERP.
 
     Parameters
     ----------
     R0, R1 : scipy.spatial.transform.Rotation, length K
-        Rotations at the start and the end of each interval.
+        Rotations at the start and the end of each interval (``R1`` unused with ``rotvec_01``).
     frac : ndarray, shape (K,)
-        Fraction of the way from R0 to R1, in [0, 1].
+        Fraction of the way from R0 to R1, in [0, 1] (beyond it: extrapolation on the same arc).
+    rotvec_01 : ndarray, shape (K, 3), optional
+        log(R0^-1 R1) when the caller has it already (rad, in R0's frame).
 
     Returns
     -------
     R : scipy.spatial.transform.Rotation, length K
         Equals ``scipy.spatial.transform.Slerp`` over the shorter arc.
     """
-    return R0 * Rotation.from_rotvec(frac[:, None] * (R0.inv() * R1).as_rotvec())
+    w = (R0.inv() * R1).as_rotvec() if rotvec_01 is None else rotvec_01
+    return R0 * Rotation.from_rotvec(frac[:, None] * w)
+
+
+class PoseInterpolant:
+    """Poses between samples: linear in position, SLERP in rotation; with the rates.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (N,)
+        Sample times, increasing, seconds; N >= 2.
+    T : ndarray, shape (N, 4, 4)
+        Transforms T_A_X at the samples, metres (anything where invalid; NaN is taken as
+        the identity).
+    valid : ndarray of bool, shape (N,), optional
+        Samples :meth:`ok` may use; default all.
+
+    Raises
+    ------
+    MocapError
+        Fewer than two samples.
+    """
+
+    def __init__(self, t_s, T, valid=None):
+        self.t = np.asarray(t_s, dtype=float)
+        if len(self.t) < 2:
+            raise MocapError(f"interpolation needs at least 2 samples, got {len(self.t)}")
+        T = np.asarray(T, dtype=float)
+        self.valid = np.ones(len(self.t), bool) if valid is None else np.asarray(valid, bool)
+        # an invalid sample keeps its value (a smoothed track's estimate there) unless not finite
+        T = np.where(np.isfinite(T).all(axis=(1, 2))[:, None, None], T, np.eye(4))
+        self.rot = Rotation.from_matrix(T[:, :3, :3])
+        self.p = T[:, :3, 3]
+        # each interval's rotation, log(R_i^-1 R_i+1), in the earlier sample's frame (rad)
+        self.w = (self.rot[:-1].inv() * self.rot[1:]).as_rotvec()
+
+    def locate(self, tq_s):
+        """Interval index i0 (K,) and fraction (tq - t[i0]) / (t[i0 + 1] - t[i0]) (K,), not clipped."""
+        tq = np.asarray(tq_s, dtype=float)
+        i0 = np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self.t) - 2)
+        return i0, (tq - self.t[i0]) / (self.t[i0 + 1] - self.t[i0])
+
+    def ok(self, tq_s):
+        """True where a query lies inside the samples between two valid ones, shape (K,)."""
+        tq = np.asarray(tq_s, dtype=float)
+        i0, _ = self.locate(tq)
+        inside = (tq >= self.t[0]) & (tq <= self.t[-1])
+        return inside & self.valid[i0] & self.valid[i0 + 1]
+
+    def __call__(self, tq_s, rates=False):
+        """T_A_X at query times (K,), shape (K, 4, 4); outside the samples the end intervals go on.
+
+        With ``rates``, also the velocity v_A (K, 3), m/s, and the angular velocity omega_X
+        (K, 3), rad/s, in the interpolated frame (dR/dt = R [omega_X]x): constant over an
+        interval.
+        """
+        i0, frac = self.locate(tq_s)
+        R = slerp(self.rot[i0], None, frac, self.w[i0]).as_matrix()
+        p0, p1 = self.p[i0], self.p[i0 + 1]
+        T = make_T(R, (1.0 - frac)[:, None] * p0 + frac[:, None] * p1)
+        if not rates:
+            return T
+        h = (self.t[i0 + 1] - self.t[i0])[:, None]
+        return T, (p1 - p0) / h, self.w[i0] / h
 
 
 def interpolate_T(t_s, T, valid, tq_s):
-    """Transforms at query times: linear in translation, SLERP in rotation.
+    """Transforms at query times: linear in translation, SLERP in rotation (:class:`PoseInterpolant`).
 
     Parameters
     ----------
@@ -83,15 +177,9 @@ def interpolate_T(t_s, T, valid, tq_s):
     MocapError
         Fewer than two samples.
     """
-    n = len(t_s)
-    if n < 2:
-        raise MocapError(f"interpolation needs at least 2 samples, got {n}")
-    i0, i1, frac, ok = bracket(t_s, valid, tq_s)
-    R0 = Rotation.from_matrix(np.where(ok[:, None, None], T[i0, :3, :3], np.eye(3)))
-    R1 = Rotation.from_matrix(np.where(ok[:, None, None], T[i1, :3, :3], np.eye(3)))
-    R = slerp(R0, R1, frac)
-    p = (1.0 - frac)[:, None] * T[i0, :3, 3] + frac[:, None] * T[i1, :3, 3]
-    out = make_T(R.as_matrix(), p)
+    track = PoseInterpolant(t_s, T, valid)
+    i0, i1, frac, ok = bracket(track.t, track.valid, np.asarray(tq_s, dtype=float))
+    out = track(tq_s)
     out[~ok] = np.nan
     near = np.where(frac < 0.5, i0, i1)
     return out, ok, near
@@ -162,7 +250,7 @@ class PoseCurve:
         self.R = np.where(self.valid[:, None, None], T[:, :3, :3], np.eye(3))
         self.p = np.where(self.valid[:, None], T[:, :3, 3], 0.0)
         self.h = np.diff(self.t)
-        self.max_gap_s = 3.0 * float(np.median(self.h)) if max_gap_s is None else float(max_gap_s)
+        self.max_gap_s = 3.0 * sample_period(self.t) if max_gap_s is None else float(max_gap_s)
         self.w = Rotation.from_matrix(np.swapaxes(self.R[:-1], 1, 2) @ self.R[1:]).as_rotvec()
         self.interval_ok = self.valid[:-1] & self.valid[1:] & (self.h <= self.max_gap_s)
 

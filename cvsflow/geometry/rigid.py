@@ -1,10 +1,12 @@
-"""Least-squares rigid fits of corresponding point sets (Kabsch/Umeyama, no scale)."""
+"""Least-squares rigid fits of corresponding point sets: batched and weighted (:func:`fit_rigid`),
+or one set with scale (:func:`umeyama`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.geometry.transforms import make_T
+from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry.transforms import make_T, project_SO3
 
 
 def fit_rigid(P_body, Q_world, weights=None):
@@ -66,30 +68,48 @@ def fit_rigid(P_body, Q_world, weights=None):
     return T, rms, n_used
 
 
-def fit_rigid_pair(p_src, p_dst):
-    """Least-squares rigid transform T_dst_src with p_dst ~ T_dst_src p_src, one point set.
+def umeyama(p_src, p_dst, with_scale=False):
+    """Least-squares similarity (or rigid) transform of one point set: p_dst ~ s R p_src + t.
 
     Parameters
     ----------
     p_src, p_dst : ndarray, shape (M, 3)
         Corresponding points in frames src and dst, metres; M >= 3, not collinear, all finite.
+    with_scale : bool
+        Sim(3) (s fitted) when True, SE(3) (s = 1) otherwise.
 
     Returns
     -------
     T_dst_src : ndarray, shape (4, 4)
+        The rigid part (R, t), metres.
+    scale : float
+        s (1.0 without ``with_scale``).
+
+    Raises
+    ------
+    OptimiseError
+        All source points on one spot.
 
     Notes
     -----
-    The same Kabsch/Umeyama solution as :func:`fit_rigid` for one unweighted point set,
-    without its checks. The two differ only in summation order (this one's cross-covariance
-    and translation are plain matrix products, :func:`fit_rigid`'s are einsums), i.e. in the
-    last bits (~5e-16 on unit-sized points). The rendered demo's truth (``synth.markers``) was
-    made with this one; folding it into :func:`fit_rigid` changes the rendered truth in its
-    last bits, so it waits for a change that may alter the demo's tables.
+    Umeyama, "Least-squares estimation of transformation parameters between two point
+    patterns", IEEE TPAMI 13(4), 1991, eqs. 36-42 (evo's ``core.geometry.umeyama_alignment``):
+    the rotation is the nearest rotation (:func:`cvsflow.geometry.project_SO3`, eqs. 39-40) to
+    the cross-covariance. :func:`fit_rigid` is the batched, weighted form without scale.
     """
-    c_src, c_dst = p_src.mean(axis=0), p_dst.mean(axis=0)
-    H = (p_src - c_src).T @ (p_dst - c_dst)
-    U, _, Vt = np.linalg.svd(H)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return make_T(R, c_dst - R @ c_src)
+    x = np.asarray(p_src, dtype=float)
+    y = np.asarray(p_dst, dtype=float)
+    n = len(x)
+    mx, my = x.mean(0), y.mean(0)
+    xc, yc = x - mx, y - my
+    sigma_x = np.sum(xc**2) / n  # eq. 36
+    if not sigma_x > 0:
+        raise OptimiseError(f"umeyama: all {n} source points coincide; nothing to fit")
+    cov = yc.T @ xc / n  # eq. 38
+    R = project_SO3(cov)  # eqs. 39, 40
+    s = 1.0
+    if with_scale:  # eq. 42: trace(D S) / sigma_x, the smallest value signed as the reflection test
+        d = np.linalg.svd(cov, compute_uv=False)
+        s = float((d[0] + d[1] + (d[2] if np.linalg.det(cov) >= 0 else -d[2])) / sigma_x)
+    t = my - s * R @ mx  # eq. 41
+    return make_T(R, t), s

@@ -176,19 +176,22 @@ def right_jacobian_inv_SO3(w):
 
 
 def project_SO3(M):
-    """Nearest rotation matrix (Frobenius norm) to a 3x3 matrix.
+    """Nearest rotation matrix (Frobenius norm) to a 3x3 matrix or a stack of them.
 
     Parameters
     ----------
-    M : array_like, shape (3, 3)
+    M : array_like, shape (3, 3) or (N, 3, 3)
 
     Returns
     -------
-    R : ndarray, shape (3, 3)
-        ``U diag(1, 1, sign det(U V^T)) V^T`` from the SVD M = U S V^T (det R = +1).
+    R : ndarray, shape of M
+        ``U diag(1, 1, sign det(U V^T)) V^T`` from the SVD M = U S V^T (det R = +1): the
+        rotation maximising trace(R^T M), i.e. Kabsch's solution for a cross-covariance M.
     """
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
+    U, _, Vt = np.linalg.svd(np.asarray(M, dtype=float))
+    D = np.zeros(U.shape)
+    D[..., 0, 0] = D[..., 1, 1] = 1.0
+    D[..., 2, 2] = np.where(np.linalg.det(U @ Vt) < 0, -1.0, 1.0)
     return U @ D @ Vt
 
 

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from cvsflow.exceptions import OptimiseError, OverlapError
-from cvsflow.geometry import PoseCurve, invert_T, make_T
+from cvsflow.geometry import PoseCurve, invert_T, make_T, sample_period
 from cvsflow.handeye.closed_form import MIN_AXIS_SPREAD_DEG, closed_form_hand_eye, motion_axis_spread_deg
 from cvsflow.handeye.stream_model import PARAM_NAMES, RESIDUAL_NAMES, StreamProblem, robust_scatter
 from cvsflow.handeye.stream_offset import best_coarse_offset, frame_motion, refine_offset
@@ -210,7 +210,7 @@ def block_length(r_w, t_s, min_block_s=1.0, max_frac=0.1, factor=2.0, level=0.05
     acf = np.array([np.mean((x[:-k] * x[k:]).sum(axis=0) / var) for k in lags])
     below = acf < level
     L = next((int(lags[i]) for i in range(len(lags) - run + 1) if below[i : i + run].all()), len(lags))
-    corr_len_s = L * float(np.median(np.diff(t_s)))
+    corr_len_s = L * sample_period(t_s)
     span = float(t_s[-1] - t_s[0])
     return float(min(max(min_block_s, factor * corr_len_s), max(max_frac * span, min_block_s))), corr_len_s
 

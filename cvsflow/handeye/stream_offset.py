@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from cvsflow.flight import angular_speed
-from cvsflow.geometry import PoseCurve, rvec_from_R
+from cvsflow.geometry import PoseCurve, rvec_from_R, sample_period
 from cvsflow.sync import main_lobe, masked_ncc, refine_offset_rotations
 
 #: Fewest camera frame pairs one baseline apart for a speed stream.
@@ -63,7 +63,7 @@ def coarse_offset(t_cam_s, R_B_C, curve: PoseCurve, *, baseline_s=0.1, max_offse
         out["reason"] = f"{len(t)} camera frames"
         return out
     # a pair across a detection gap gives no speed; nor do stills seconds apart
-    tol = min(1.5 * float(np.median(np.diff(t))), baseline_s)
+    tol = min(1.5 * sample_period(t), baseline_s)
     tm, w, span = angular_speed(t, R_B_C, baseline_s)
     keep = span <= baseline_s + tol
     tm, w = tm[keep], w[keep]

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from cvsflow.exceptions import InputError
+from cvsflow.geometry import sample_period
 
 log = logging.getLogger(__name__)
 
@@ -189,7 +190,7 @@ def remux_with_times(src, dst, fps=None, timestamps_s=None) -> dict:
         raise InputError(f"{src}: could not be written as {dst} ({exc})") from exc
     finally:
         inp.close()
-    period = float(np.median(np.diff(t_s)))
+    period = sample_period(t_s)
     log.info("%s: %d frames over %.3f s (median period %.6f s, from %s) written to %s", src,
              n_packets, t_s[-1], period, source, dst)
     return {"n_frames": int(n_packets), "duration_s": float(t_s[-1]), "period_s": period,

@@ -1,7 +1,8 @@
 """Error definitions: the one place that says what a pose error is.
 
-Everything that scores a pose (``analyse``, ``evaluate``, ``uncertainty``, plots) takes its
-error dimensions and composed errors from here. Bottom level: imports only
+Everything that scores a pose (``analyse``, ``evaluate``, ``uncertainty``, ``flight``, plots) takes
+its error dimensions and composed errors from here; their statistics are
+:mod:`cvsflow.metrics.statistics`. Bottom level: imports only
 :mod:`cvsflow.geometry` and :mod:`cvsflow.exceptions`.
 
 Errors are ``estimate - reference``: the CVS pose (PnP) against the Vicon reference.
@@ -21,38 +22,46 @@ ERROR_DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 FRAMES = ("C", "B")
 
 
-def error_columns():
-    """Names of the six per-axis error columns written by :func:`pose_errors`.
+#: Each error dimension as figures and report tables show it: label, unit, factor from SI.
+REPORT_UNITS = {
+    "x_m": ("x", "mm", 1e3), "y_m": ("y", "mm", 1e3), "z_m": ("z", "mm", 1e3),
+    "roll_rad": ("roll", "deg", 180.0 / np.pi), "pitch_rad": ("pitch", "deg", 180.0 / np.pi),
+    "yaw_rad": ("yaw", "deg", 180.0 / np.pi),
+}
+
+
+def error_columns(prefix="err"):
+    """Names of the six per-axis columns of a table, in :data:`ERROR_DIMS` order.
+
+    Parameters
+    ----------
+    prefix : str
+        ``err`` (default: the errors :func:`pose_errors` writes), ``eps`` (an optimiser's
+        errors), ``sigma`` (their stated standard deviations), ...
 
     Returns
     -------
     columns : list of str
-        ``err_x_m .. err_yaw_rad``, in :data:`ERROR_DIMS` order.
+        ``{prefix}_x_m .. {prefix}_yaw_rad``.
     """
-    return [f"err_{d}" for d in ERROR_DIMS]
+    return [f"{prefix}_{d}" for d in ERROR_DIMS]
 
 
-def error_moments(x, ddof=1):
-    """Mean, standard deviation and RMS of one error dimension: the one definition.
+def report_name(dim):
+    """An error dimension in report units: ``x_m`` -> ``x_mm``, ``roll_rad`` -> ``roll_deg``.
 
     Parameters
     ----------
-    x : ndarray, shape (N,)
-        Per-frame errors of one dimension (m or rad), N > ``ddof``.
-    ddof : int, default 1
-        Delta degrees of freedom of the standard deviation: 1 the sample one, 0 the
-        population one (evo's statistics, :func:`cvsflow.flight.trajectory_errors.error_stats`).
+    dim : str
+        One of :data:`ERROR_DIMS`.
 
     Returns
     -------
-    mean : float
-        Same unit as ``x``.
-    std : float
-        Standard deviation (ddof ``ddof``).
-    rms : float
-        sqrt(mean(x^2)): the error about zero, not about the mean.
+    str
+        The label of :data:`REPORT_UNITS` and its unit.
     """
-    return float(x.mean()), float(x.std(ddof=ddof)), float(np.sqrt(np.mean(x * x)))
+    label, unit, _ = REPORT_UNITS[dim]
+    return f"{label}_{unit}"
 
 
 def poses_from_table(frames, prefix):

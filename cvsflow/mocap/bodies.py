@@ -15,7 +15,17 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from cvsflow.exceptions import MocapError
-from cvsflow.geometry import block_mean_quats, euler_from_R, fit_rigid, interpolate_T, make_T, quat_from_R
+from cvsflow.geometry import (
+    R_from_quat,
+    block_mean_quats,
+    euler_from_R,
+    fit_rigid,
+    interpolate_T,
+    make_T,
+    project_SO3,
+    quat_from_R,
+    sample_period,
+)
 from cvsflow.mocap.layout import _rate_hz, _xyz, resolve_layouts
 
 log = logging.getLogger(__name__)
@@ -127,42 +137,75 @@ def _body_frame(frame, t_s, body, T, rms, n_markers, n_filled):
     )
 
 
-def body_poses(bodies, body):
-    """Times, transforms and validity of one body from a bodies table.
+#: The columns of a bodies table (:data:`BODY_COLUMNS`) :func:`body_poses` reads.
+POSE_COLUMNS = ("t_s", "body", "valid", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw")
+
+
+def body_poses(bodies, body, *, invalid="nan", min_valid=0, track=False):
+    """Times, transforms and validity of one body from a bodies table: the one reader of it.
 
     Parameters
     ----------
     bodies : DataFrame
-        bodies.parquet (long): ``frame, t_s, body, valid, x_m .. qw``.
+        bodies.parquet (long): ``t_s, body, valid, x_m, y_m, z_m, qx, qy, qz, qw``
+        (:data:`POSE_COLUMNS`; ``frame`` and the fit's columns are not needed).
     body : str
         ``"camera"`` (T_W_Cm) or ``"board"`` (T_W_Bm).
+    invalid : {"nan", "identity"}
+        What an invalid sample's transform is: NaN, or the identity (for smoothing, which
+        weights samples and must not meet a NaN).
+    min_valid : int
+        Fewest valid samples accepted.
+    track : bool
+        The rows are a track to interpolate: their times must increase strictly.
 
     Returns
     -------
     t_s : ndarray, shape (N,)
-        Sample times, seconds, in frame order.
+        Sample times (mocap clock), seconds, in ``frame`` order (time order without one).
     T_W_body : ndarray, shape (N, 4, 4)
-        NaN where invalid; metres.
+        Body pose in the mocap world W, metres.
     valid : ndarray of bool, shape (N,)
+        The table's ``valid`` flag and a finite pose with a quaternion of norm above 0.5.
 
     Raises
     ------
     MocapError
-        The body is not in the table.
+        Missing columns, no such body, fewer than ``min_valid`` valid samples, or a track
+        whose times do not increase.
     """
-    sub = bodies[bodies["body"] == body].sort_values("frame", kind="stable")
+    missing = set(POSE_COLUMNS) - set(bodies.columns)
+    if missing:
+        raise MocapError(f"bodies table lacks columns {sorted(missing)} (docs/contracts.md bodies.parquet)")
+    sub = bodies[bodies["body"] == body].sort_values(_order(bodies), kind="stable")
     if sub.empty:
         raise MocapError(f"bodies table has no body {body!r} (has {sorted(set(bodies['body']))})")
-    valid = sub["valid"].to_numpy(bool)
+    t = sub["t_s"].to_numpy(float)
     q = sub[["qx", "qy", "qz", "qw"]].to_numpy(float, copy=True)
+    p = sub[["x_m", "y_m", "z_m"]].to_numpy(float, copy=True)
+    valid = sub["valid"].to_numpy(bool) & np.isfinite(q).all(axis=1) & np.isfinite(p).all(axis=1)
+    valid &= np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1) > 0.5
+    if valid.sum() < min_valid:
+        raise MocapError(f"body {body!r} has {int(valid.sum())} valid samples; need >= {min_valid}")
+    if track and np.any(np.diff(t) <= 0):
+        i = int(np.argmax(np.diff(t) <= 0))
+        raise MocapError(f"body {body!r}: t_s not strictly increasing at row {i + 1} ({t[i]} -> {t[i + 1]})")
     q[~valid] = [0.0, 0.0, 0.0, 1.0]
-    T = make_T(Rotation.from_quat(q).as_matrix(), sub[["x_m", "y_m", "z_m"]].to_numpy(float))
-    T[~valid] = np.nan
-    return sub["t_s"].to_numpy(float), T, valid
+    p[~valid] = 0.0
+    T = make_T(R_from_quat(q), p)
+    if invalid == "nan":
+        T[~valid] = np.nan
+    return t, T, valid
+
+
+def _order(bodies):
+    """The column a body's rows are read in: ``frame`` when the table has one, else ``t_s``."""
+    return "frame" if "frame" in bodies.columns else "t_s"
 
 
 def _body_aux(bodies, body):
-    sub = bodies[bodies["body"] == body].sort_values("frame", kind="stable")
+    """Fit RMS, marker count and filled count of one body, in :func:`body_poses`' order."""
+    sub = bodies[bodies["body"] == body].sort_values(_order(bodies), kind="stable")
     return (
         sub["fit_rms_m"].to_numpy(float),
         sub["n_markers"].to_numpy(np.int64),
@@ -282,8 +325,7 @@ def downsample_bodies(bodies, fps, mode="block", rate_hz=None):
     if rate_hz is None:
         rate_hz = bodies.attrs.get("rate_hz")
     if rate_hz is None:
-        t = np.sort(pd.unique(bodies["t_s"].to_numpy(float)))
-        rate_hz = 1.0 / float(np.median(np.diff(t)))
+        rate_hz = 1.0 / sample_period(pd.unique(bodies["t_s"].to_numpy(float)))
     rate_hz = float(rate_hz)
     if mode == "block":
         factor = int(round(rate_hz / fps))
@@ -344,8 +386,7 @@ def bodies_from_poses(frame, t_s, body, T_W_body, residual_m, n_markers):
                 f"orthonormal (|R^T R - I| = {err[i]:.3g}, expected below 1e-2)"
             )
         # nearest rotation (polar decomposition), so rounding in the export does not bias
-        U, _, Vt = np.linalg.svd(R)
-        T[valid, :3, :3] = U @ Vt
+        T[valid, :3, :3] = project_SO3(R)
     T[~valid] = np.nan
     residual = np.where(valid, np.asarray(residual_m, dtype=float), np.nan)
     out = _body_frame(frame, t_s, body, T, residual, np.asarray(n_markers, dtype=np.int64),

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.exceptions import InputError, MocapError
-from cvsflow.geometry import fit_rigid, transform_points
+from cvsflow.geometry import fit_rigid, sample_period, transform_points
 
 log = logging.getLogger(__name__)
 
@@ -37,7 +37,7 @@ def _rate_hz(markers, where="marker table"):
         t = markers["t_s"].to_numpy(float)
         if len(t) < 2:
             raise InputError(f"{where}: no rate_hz attribute and fewer than 2 samples")
-        rate = 1.0 / float(np.median(np.diff(t)))
+        rate = 1.0 / sample_period(t)
     return float(rate)
 
 

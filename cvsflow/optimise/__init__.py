@@ -1,7 +1,7 @@
 """Focal-length and offset optimisers: ``seed`` (the chapter, eqs. 1.5-1.12) and ``se3`` (the joint
 SE(3) fit), each returning an :class:`OptimiseResult`."""
 
-from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track, smooth_track_local
+from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, smooth_track_local
 from cvsflow.optimise.result import OptimiseResult
 from cvsflow.optimise.se3 import (
     DEFAULT_FREE,
@@ -25,7 +25,6 @@ from cvsflow.optimise.se3_start import corner_arrays, solve_hand_eye, solve_pnp_
 from cvsflow.optimise.seed import (
     DIVERGED_EPS_STD_M,
     MIN_PAIRS,
-    POSE_DIMS,
     SE3_ALONE,
     compute_eps,
     compute_p_bar,
@@ -34,11 +33,11 @@ from cvsflow.optimise.seed import (
 from cvsflow.optimise.seed_cache import SeedPoseCache
 
 __all__ = [
-    "apply_se3", "body_track", "BodyTrack", "CAMERA_MOVING_SMOOTH_S", "camera_start", "compute_eps",
+    "apply_se3", "BodyTrack", "CAMERA_MOVING_SMOOTH_S", "camera_start", "compute_eps",
     "compute_p_bar", "corner_arrays", "correlation_warnings", "covariances", "DEFAULT_FREE",
     "DEFAULT_INTRINSIC_STD", "DIVERGED_EPS_STD_M", "fixed_intrinsic_std", "jacobian_fd",
     "K_from_intrinsics", "levenberg_marquardt", "LOSSES", "MIN_FRAMES", "MIN_PAIRS", "optimise_se3",
-    "optimise_seed", "OptimiseResult", "parameter_covariance", "pose_columns", "POSE_DIMS",
+    "optimise_seed", "OptimiseResult", "parameter_covariance", "pose_columns",
     "refuse_implausible_fit", "robust_cost", "SE3_ALONE", "Se3Model", "SeedPoseCache",
     "simulate_rig_session", "simulate_session", "smooth_track_local", "solve_hand_eye",
     "solve_pnp_frames", "tracks_from_params", "usable_frames"

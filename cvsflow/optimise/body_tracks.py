@@ -1,19 +1,19 @@
-"""Vicon body tracks for the ``se3`` method: one body's samples, smoothing, the static test,
-and the linear/SLERP interpolant the solver evaluates (with its rates, for the time offset).
+"""Mocap body tracks for the ``se3`` method: smoothing, the static test, and the interpolant the
+solver evaluates (with its rates, for the time offset).
 
-The interpolant :class:`BodyTrack` is the same curve as
-:func:`cvsflow.geometry.interpolate.interpolate_T` (linear position, SLERP rotation) but
-computed with matrices (``R0 exp(frac w)``) instead of scipy's quaternion composition, so the
-two differ in their last bits (4e-16 on a 3 s take); the se3 tables were made with this one,
-and it also returns the velocities the Jacobian in dt needs.
+A track is one body of the bodies table as :func:`cvsflow.mocap.body_poses` reads it
+(``invalid="identity"``, at least two valid samples). :class:`BodyTrack` interpolates it with
+:func:`cvsflow.geometry.interpolate_T` (linear position, SLERP rotation) and adds the rates
+the Jacobian in dt needs.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import PoseInterpolant
 from cvsflow.geometry import transforms as tf
+from cvsflow.mocap import body_poses
 
 #: Share of a take's smoothed camera samples that must lie within the static tolerance
 #: (:func:`is_static`): robust to the short bumps a bridged marker dropout leaves.
@@ -22,57 +22,6 @@ STATIC_QUANTILE = 0.95
 #: (:func:`smooth_track_local`): flat response to ~20 Hz at 300 Hz, neighbouring samples
 #: nearly fully correlated (see its Notes).
 CAMERA_MOVING_SMOOTH_S = 0.1
-
-
-def body_track(bodies, body):
-    """One rigid body of a bodies table as arrays, sorted by time.
-
-    Parameters
-    ----------
-    bodies : DataFrame
-        bodies.parquet (long): ``t_s, body, valid, x_m, y_m, z_m, qx, qy, qz, qw``.
-    body : str
-        ``"camera"`` (T_W_Cm) or ``"board"`` (T_W_Bm).
-
-    Returns
-    -------
-    t_s : ndarray, shape (N,)
-        Vicon-clock times, s.
-    T_W_X : ndarray, shape (N, 4, 4)
-        Body pose in the Vicon world W, metres; identity where invalid.
-    valid : ndarray of bool, shape (N,)
-
-    Raises
-    ------
-    OptimiseError
-        Missing columns, no such body, or fewer than two valid samples.
-    """
-    need = {"t_s", "body", "valid", "x_m", "y_m", "z_m", "qx", "qy", "qz", "qw"}
-    missing = need - set(bodies.columns)
-    if missing:
-        raise OptimiseError(
-            f"se3: bodies table lacks columns {sorted(missing)} (docs/contracts.md bodies.parquet)"
-        )
-    sub = bodies[bodies["body"] == body].sort_values("t_s", kind="stable")
-    if sub.empty:
-        raise OptimiseError(
-            f"se3: bodies table has no body {body!r} (has {sorted(set(bodies['body']))})"
-        )
-    t = sub["t_s"].to_numpy(float)
-    q = sub[["qx", "qy", "qz", "qw"]].to_numpy(float, copy=True)
-    p = sub[["x_m", "y_m", "z_m"]].to_numpy(float, copy=True)
-    valid = sub["valid"].to_numpy(bool) & np.isfinite(q).all(axis=1) & np.isfinite(p).all(axis=1)
-    valid &= np.linalg.norm(np.where(np.isfinite(q), q, 0.0), axis=1) > 0.5
-    if valid.sum() < 2:
-        raise OptimiseError(f"se3: body {body!r} has {int(valid.sum())} valid samples; need >= 2")
-    if np.any(np.diff(t) <= 0):
-        i = int(np.argmax(np.diff(t) <= 0))
-        raise OptimiseError(
-            f"se3: body {body!r}: t_s not strictly increasing at row {i + 1} ({t[i]} -> {t[i + 1]})"
-        )
-    q[~valid] = [0.0, 0.0, 0.0, 1.0]
-    p[~valid] = 0.0
-    return t, tf.make_T(tf.R_from_quat(q), p), valid
 
 
 def smooth_track(t_s, T_W_X, valid, window_s):
@@ -245,12 +194,14 @@ def is_static(T_W_X, tol_m, tol_rad, quantile=STATIC_QUANTILE):
 
 
 class BodyTrack:
-    """Linear/SLERP interpolant of one body track, vectorised over query times.
+    """One body track as the solver evaluates it: smoothed or held static, then interpolated
+    (:class:`cvsflow.geometry.PoseInterpolant`: linear position, SLERP rotation, with rates).
 
     Parameters
     ----------
     t_s, T_W_X, valid
-        One body's samples (:func:`body_track`).
+        One body's samples (:func:`cvsflow.mocap.body_poses` with ``invalid="identity"``,
+        ``track=True``; :meth:`from_bodies` reads them).
     smooth_s : float
         Window (s) of the centred moving average (:func:`smooth_track`); 0: none.
     static_tol : (float, float) or None
@@ -278,20 +229,30 @@ class BodyTrack:
                 # a centred box has no lag but flattens every curve of the path (a 1 s box
                 # keeps 64 % of a 0.5 Hz sway): a moving camera gets a local quadratic instead
                 T_W_X = smooth_track_local(self.t, T_raw, self.valid, moving_smooth_s)
-        self.R = T_W_X[:, :3, :3]
-        self.p = T_W_X[:, :3, 3]
-        # relative rotation of each sample interval, as a rotation vector in the earlier sample
-        self.w = tf.rvec_from_R(np.swapaxes(self.R[:-1], 1, 2) @ self.R[1:])
+        self._track = PoseInterpolant(self.t, T_W_X, self.valid)
 
-    def _index(self, tq):
-        return np.clip(np.searchsorted(self.t, tq, side="right") - 1, 0, len(self.t) - 2)
+    @classmethod
+    def from_bodies(cls, bodies, body, **options):
+        """The track of one body of a bodies table (:func:`cvsflow.mocap.body_poses`).
+
+        Parameters
+        ----------
+        bodies : DataFrame
+            bodies.parquet.
+        body : str
+            ``"camera"`` (T_W_Cm) or ``"board"`` (T_W_Bm).
+        **options
+            ``smooth_s``, ``static_tol``, ``moving_smooth_s`` as the class takes them.
+
+        Returns
+        -------
+        BodyTrack
+        """
+        return cls(*body_poses(bodies, body, invalid="identity", min_valid=2, track=True), **options)
 
     def ok(self, tq):
         """True where tq lies inside the take between two valid samples."""
-        tq = np.asarray(tq, float)
-        i0 = self._index(tq)
-        inside = (tq >= self.t[0]) & (tq <= self.t[-1])
-        return inside & self.valid[i0] & self.valid[i0 + 1]
+        return self._track.ok(tq)
 
     def __call__(self, tq, rates=False):
         """T_W_X at times tq (K,), shape (K, 4, 4): linear position, SLERP rotation.
@@ -299,14 +260,4 @@ class BodyTrack:
         With ``rates``, also the velocity v_W (K, 3), m/s, and the body-frame angular
         velocity omega_X (K, 3), rad/s, of the interpolant (dR/dt = R [omega_X]x).
         """
-        tq = np.asarray(tq, float)
-        i0 = self._index(tq)
-        h = self.t[i0 + 1] - self.t[i0]
-        frac = (tq - self.t[i0]) / h
-        R = self.R[i0] @ tf.R_from_rvec(frac[:, None] * self.w[i0])  # SLERP
-        dp = self.p[i0 + 1] - self.p[i0]
-        T = tf.make_T(R, self.p[i0] + frac[:, None] * dp)
-        if not rates:
-            return T
-        return T, dp / h[:, None], self.w[i0] / h[:, None]
-
+        return self._track(tq, rates)

@@ -69,7 +69,7 @@ from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
 from cvsflow.geometry import INTRINSIC_NAMES
 from cvsflow.geometry import transforms as tf
-from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
+from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack
 from cvsflow.optimise.result import OptimiseResult
 from cvsflow.optimise.se3_apply import apply_se3
 from cvsflow.optimise.se3_cov import (
@@ -301,11 +301,11 @@ def optimise_se3(
         frame, t_video, uv = frame[sel], t_video[sel], uv[sel]
     if camera_moving_smooth_s is None:
         camera_moving_smooth_s = CAMERA_MOVING_SMOOTH_S
-    cam = BodyTrack(
-        *body_track(bodies, "camera"), smooth_s=camera_smooth_s, static_tol=camera_static_tol,
+    cam = BodyTrack.from_bodies(
+        bodies, "camera", smooth_s=camera_smooth_s, static_tol=camera_static_tol,
         moving_smooth_s=camera_moving_smooth_s,
     )
-    brd = BodyTrack(*body_track(bodies, "board"), smooth_s=board_smooth_s)
+    brd = BodyTrack.from_bodies(bodies, "board", smooth_s=board_smooth_s)
     log.info("se3: camera body %s", "static (mean pose used)" if cam.static else "moving")
     usable = usable_frames(t_video, dt_offset_s, cam, brd)
     n_skip = int((~usable).sum())

@@ -11,7 +11,7 @@ import pandas as pd
 from cvsflow.board import board_object_points
 from cvsflow.geometry import project_points
 from cvsflow.geometry import transforms as tf
-from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
+from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack
 from cvsflow.optimise.se3_start import corner_arrays, solve_pnp_frames
 
 
@@ -65,13 +65,13 @@ def tracks_from_params(params, bodies):
     """
     board_smooth_s = float(params.get("board_smooth_s", 0.0))
     moving_smooth_s = params.get("camera_moving_smooth_s")
-    cam = BodyTrack(
-        *body_track(bodies, "camera"),
+    cam = BodyTrack.from_bodies(
+        bodies, "camera",
         smooth_s=float(params.get("camera_smooth_s", 0.0)),
         static_tol=params.get("camera_static_tol"),
         moving_smooth_s=CAMERA_MOVING_SMOOTH_S if moving_smooth_s is None else float(moving_smooth_s),
     )
-    brd = BodyTrack(*body_track(bodies, "board"), smooth_s=board_smooth_s)
+    brd = BodyTrack.from_bodies(bodies, "board", smooth_s=board_smooth_s)
     return cam, brd
 
 
@@ -89,7 +89,7 @@ def apply_se3(params, corners, bodies, board, frames=None):
     corners : DataFrame
         corners.parquet (``frame, t_s, found, corner, u_px, v_px``).
     bodies : DataFrame
-        bodies.parquet (see :func:`cvsflow.optimise.body_tracks.body_track`).
+        bodies.parquet (see :func:`cvsflow.mocap.body_poses`).
     board : dict
         ``squares_x``, ``squares_y``, ``square_m``.
     frames : array_like of int, optional

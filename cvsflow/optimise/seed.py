@@ -54,13 +54,14 @@ import pandas as pd
 from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError, WholeBoardError
 from cvsflow.geometry import R_from_rvec, euler_from_R, wrap_angle
+from cvsflow.metrics import ERROR_DIMS, axis_statistics
 from cvsflow.optimise.result import OptimiseResult
 from cvsflow.optimise.seed_pnp import dist5, focal_sensitivity, solve_rows
 
 log = logging.getLogger(__name__)
 
-#: Suffixes of the six pose dimensions, in the chapter's order [x y z roll pitch yaw].
-POSE_DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
+#: The statistics of eps each row of ``iterations`` holds (keys of :data:`cvsflow.metrics.STATISTICS`).
+ITERATION_STATISTICS = ("mean", "std", "rmse")
 #: The objectives of step c) (eq. 1.12 and its variants; see the module docstring).
 OBJECTIVES = ("summed", "sum_abs", "sum_squares")
 #: Fewest pairs the optimiser accepts (6 unknowns of P_bar, 2 focal lengths).
@@ -238,11 +239,6 @@ def _grid(centre, half_width, n_points):
     return np.stack([gx.ravel(), gy.ravel()], axis=1)
 
 
-def _eps_stats(eps):
-    """Per-dimension mean, std (ddof=0) and RMS of eps (N, 6)."""
-    return eps.mean(axis=0), eps.std(axis=0), np.sqrt(np.mean(eps * eps, axis=0))
-
-
 #: A seed result is flagged ``diverged`` beyond these (module docstring of :func:`seed_divergence`).
 DIVERGED_EPS_STD_M = 1.0
 DIVERGED_F_RATIO = (0.25, 4.0)
@@ -352,7 +348,7 @@ def optimise_seed(
     -------
     OptimiseResult
         ``iterations``: rows 0..k; row j holds the state at the start of iteration j
-        (``fx_px, fy_px``, ``P_bar_*`` of eq. 1.10, ``eps_mean_*/eps_std_*/eps_rms_*`` of
+        (``fx_px, fy_px``, ``P_bar_*`` of eq. 1.10, ``eps_mean_*/eps_std_*/eps_rmse_*`` of
         eq. 1.11, ``objective`` at the current f with that P_bar, ``norm_normalised``)
         and the grid minimum ``objective_grid_min`` that chose row j+1's f (NaN on row k).
         ``errors``: per frame ``frame, t_s``, ``vic_*`` (P*), ``cvs_orig_*`` (F(f_init)),
@@ -390,8 +386,8 @@ def optimise_seed(
             f"seed grid: levels {grid_levels}, half width {grid_half_width_px} px, "
             f"k {k_iterations}: expected levels >= 1, half width > 0, k >= 0"
         )
-    cvs_cols = [f"cvs_{d}" for d in POSE_DIMS] + [f"cvs_rvec_{i}" for i in range(3)]
-    vic_cols = [f"vic_{d}" for d in POSE_DIMS]
+    cvs_cols = [f"cvs_{d}" for d in ERROR_DIMS] + [f"cvs_rvec_{i}" for i in range(3)]
+    vic_cols = [f"vic_{d}" for d in ERROR_DIMS]
     missing = {"frame", *cvs_cols, *vic_cols} - set(pairs.columns)
     if missing:
         raise OptimiseError(f"pairs.parquet: missing columns {sorted(missing)}")
@@ -444,7 +440,7 @@ def optimise_seed(
         bad = int(frames[np.argmax(~np.isfinite(P_star).all(axis=1))])
         raise OptimiseError(f"pairs.parquet: frame {bad}: non-finite Vicon pose vic_*")
     R0 = R_from_rvec(pairs[[f"cvs_rvec_{i}" for i in range(3)]].to_numpy(dtype=float))
-    t0 = pairs[[f"cvs_{d}" for d in POSE_DIMS[:3]]].to_numpy(dtype=float)
+    t0 = pairs[[f"cvs_{d}" for d in ERROR_DIMS[:3]]].to_numpy(dtype=float)
 
     pool = ThreadPoolExecutor(max_workers=int(n_workers)) if int(n_workers) > 1 else None
     n_frames = len(frames)
@@ -483,16 +479,16 @@ def optimise_seed(
             eps = compute_eps(F, P_star, P_bar)  # step b), eq. 1.11
             if F_init is None:
                 F_init, eps_init, P_bar_init = F, eps, P_bar
-            mean, std, rms = _eps_stats(eps)
+            eps_stats = axis_statistics(eps, names=ITERATION_STATISTICS)
             row = {"iteration": j, "fx_px": f[0], "fy_px": f[1],
                    "objective": objective_value(eps[:, :3], objective),
                    "objective_grid_min": np.nan,
                    "norm_normalised": normalised_error_norm(eps[:, :3])}
-            for i, d in enumerate(POSE_DIMS):
+            for i, d in enumerate(ERROR_DIMS):
                 row[f"P_bar_{d}"] = P_bar[i]
-            for name, vals in (("mean", mean), ("std", std), ("rms", rms)):
-                for i, d in enumerate(POSE_DIMS):
-                    row[f"eps_{name}_{d}"] = vals[i]
+            for name in ITERATION_STATISTICS:
+                for d in ERROR_DIMS:
+                    row[f"eps_{name}_{d}"] = eps_stats[d][name]
             if j == int(k_iterations):
                 rows.append(row)
                 break
@@ -563,12 +559,12 @@ def optimise_seed(
     errors["t_s"] = pairs["t_s"].to_numpy(dtype=float) if "t_s" in pairs else np.nan
     for prefix, arr in (("vic", P_star), ("cvs_orig", F_init), ("cvs", F),
                         ("eps_orig", eps_init), ("eps", eps)):
-        for i, d in enumerate(POSE_DIMS):
+        for i, d in enumerate(ERROR_DIMS):
             errors[f"{prefix}_{d}"] = arr[:, i]
     last = iterations.iloc[-1]
     reason = seed_divergence(f, (K[0, 0], K[1, 1]), f_bounds_px,
                              2.0 * float(grid_half_width_px) / (int(grid_points) - 1),
-                             np.std(eps[:, :3], axis=0))
+                             [eps_stats[d]["std"] for d in ERROR_DIMS[:3]])
     if reason is not None:
         log.warning("seed diverged: %s; its statistics are not measurements", reason)
     result = {

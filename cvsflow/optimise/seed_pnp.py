@@ -15,10 +15,8 @@ share. Every row's arithmetic is independent of the others, so neither the stack
 chunking nor the threads change a single bit of the result (bench/bench_seed.py compares the
 output files' sha256 with an earlier revision).
 
-The projection and its Jacobian are this module's own, not :mod:`cvsflow.geometry.camera`'s:
-they evaluate the distortion in a different order (``2 p1 x`` times ``y`` here, ``2 p1``
-times ``x y`` there; Horner radial here, term by term in ``project_points_jac``), which
-changes the last bits and so the seed search's path; the demo's seed tables would change.
+The projection and its Jacobian are :func:`cvsflow.geometry.camera.project_poses` and
+:func:`~cvsflow.geometry.camera.pose_jacobian` (per-row focal lengths, buffered arithmetic).
 """
 
 from __future__ import annotations
@@ -26,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from cvsflow.exceptions import OptimiseError
-from cvsflow.geometry import R_from_rvec, rvec_from_R
+from cvsflow.geometry import R_from_rvec, pose_jacobian, project_poses, rvec_from_R
 
 #: Rows (candidate x frame) per stack of :func:`solve_rows`: bounds the memory of one
 #: stack (about 10 kB per row for a 20-corner board) while keeping numpy's per-call
@@ -36,108 +34,8 @@ ROWS_PER_CHUNK = 1024
 
 def _project_with_jacobian(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist, want_jac=True):
     """Distorted pixel projections (N, P, 2), xd, yd and d(u, v)/d(omega, t) (N, P, 2, 6)."""
-    uv, xd, yd, parts = _project(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist)
-    return uv, xd, yd, (_jacobian(parts, fx, fy, dist) if want_jac else None)
-
-
-def _project(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist):
-    """Projections (N, P, 2), xd, yd (N, P), and the intermediates :func:`_jacobian` needs.
-
-    ``fx``, ``fy`` are scalars or (N, 1) arrays (one focal length per row). The operations
-    and their order are those of the textbook expressions written in the comments; they are
-    evaluated into few buffers (``out=``) because allocating a fresh (N, P) array for every
-    operation, and the page faults that come with it, cost more than the arithmetic.
-    """
-    mul, add = np.multiply, np.add
-    q = R_C_B @ X_B.T  # R X, (N, 3, P)
-    qx, qy, qz = q[:, 0], q[:, 1], q[:, 2]
-    k1, k2, p1, p2, k3 = dist
-    inv_z = add(qz, t_C_B[:, 2:3])  # inv_z = 1 / (qz + tz)
-    np.divide(1.0, inv_z, out=inv_z)
-    x = add(qx, t_C_B[:, 0:1])  # x = (qx + tx) * inv_z
-    mul(x, inv_z, out=x)
-    y = add(qy, t_C_B[:, 1:2])
-    mul(y, inv_z, out=y)
-    b = np.empty_like(x)
-    r2 = mul(x, x)  # r2 = x x + y y
-    add(r2, mul(y, y, out=b), out=r2)
-    radial = mul(r2, k3)  # radial = 1 + r2 (k1 + r2 (k2 + r2 k3))
-    add(k2, radial, out=radial)
-    mul(r2, radial, out=radial)
-    add(k1, radial, out=radial)
-    mul(r2, radial, out=radial)
-    add(1.0, radial, out=radial)
-    two_p1_x = mul(2.0 * p1, x)  # shared by xd, yd and the Jacobian
-    two_p2_x = mul(2.0 * p2, x)
-    xd = mul(x, radial)  # xd = x radial + (2 p1 x) y + p2 (r2 + 2 x x)
-    add(xd, mul(two_p1_x, y, out=b), out=xd)
-    mul(2.0, x, out=b)
-    mul(b, x, out=b)
-    add(r2, b, out=b)
-    add(xd, mul(p2, b, out=b), out=xd)
-    yd = mul(y, radial)  # yd = y radial + p1 (r2 + 2 y y) + (2 p2 x) y
-    mul(2.0, y, out=b)
-    mul(b, y, out=b)
-    add(r2, b, out=b)
-    add(yd, mul(p1, b, out=b), out=yd)
-    add(yd, mul(two_p2_x, y, out=b), out=yd)
-    uv = np.empty(x.shape + (2,))
-    add(mul(fx, xd, out=uv[..., 0]), cx, out=uv[..., 0])  # u = fx xd + cx
-    add(mul(fy, yd, out=uv[..., 1]), cy, out=uv[..., 1])
-    return uv, xd, yd, (qx, qy, qz, inv_z, x, y, r2, radial, two_p1_x, two_p2_x)
-
-
-def _jacobian(parts, fx, fy, dist):
-    """d(u, v)/d(omega, t) (N, P, 2, 6) from :func:`_project`'s intermediates ``parts``.
-
-    Every element depends only on its own row's intermediates, so the Jacobian of a subset of
-    rows (``parts`` and ``fx``, ``fy`` indexed alike) is bit for bit that subset of the whole.
-    Evaluated into few buffers, in the order of the expressions in the comments. The twelve
-    components are written into contiguous planes and interleaved by one copy at the end:
-    writing each straight into the (N, P, 2, 6) layout was twelve strided passes, a third of
-    the Jacobian's time; the values are the same, only where they are stored differs.
-    """
-    qx, qy, qz, inv_z, x, y, r2, radial, two_p1_x, two_p2_x = parts
-    k1, k2, p1, p2, k3 = dist
-    mul, add, sub = np.multiply, np.add, np.subtract
-    b0, b1, b2 = np.empty_like(x), np.empty_like(x), np.empty_like(x)
-    dr = mul(3.0 * k3, r2)  # d(radial)/d(r2) = k1 + r2 (2 k2 + 3 k3 r2)
-    add(2.0 * k2, dr, out=dr)
-    mul(r2, dr, out=dr)
-    add(k1, dr, out=dr)
-    dxd_dx = mul(2.0, x)  # radial + 2 x x dr + 2 p1 y + 6 p2 x
-    mul(dxd_dx, x, out=dxd_dx)
-    mul(dxd_dx, dr, out=dxd_dx)
-    add(radial, dxd_dx, out=dxd_dx)
-    add(dxd_dx, mul(2.0 * p1, y, out=b0), out=dxd_dx)
-    add(dxd_dx, mul(6.0 * p2, x, out=b0), out=dxd_dx)
-    dxd_dy = mul(2.0, x)  # 2 x y dr + (2 p1 x) + 2 p2 y; also d(yd)/dx
-    mul(dxd_dy, y, out=dxd_dy)
-    mul(dxd_dy, dr, out=dxd_dy)
-    add(dxd_dy, two_p1_x, out=dxd_dy)
-    add(dxd_dy, mul(2.0 * p2, y, out=b0), out=dxd_dy)
-    dyd_dy = mul(2.0, y)  # radial + 2 y y dr + 6 p1 y + (2 p2 x)
-    mul(dyd_dy, y, out=dyd_dy)
-    mul(dyd_dy, dr, out=dyd_dy)
-    add(radial, dyd_dy, out=dyd_dy)
-    add(dyd_dy, mul(6.0 * p1, y, out=b0), out=dyd_dy)
-    add(dyd_dy, two_p2_x, out=dyd_dy)
-    planes = np.empty((2, 6) + x.shape)  # planes[row, k] = J[..., row, k]
-    for row, (f, d_dx, d_dy) in enumerate(((fx, dxd_dx, dxd_dy), (fy, dxd_dy, dyd_dy))):
-        # A = d(u or v)/dp (columns x, y, z of p): a0 = f d_dx inv_z, a1 = f d_dy inv_z,
-        # a2 = -(f d_dx x + f d_dy y) inv_z
-        # (evaluated in place in the translation columns 3, 4, 5 of the Jacobian, which they are)
-        Jr = planes[row]
-        a0, a1 = mul(f, d_dx, out=Jr[3]), mul(f, d_dy, out=Jr[4])
-        a2 = add(mul(a0, x, out=Jr[5]), mul(a1, y, out=b1), out=Jr[5])
-        mul(np.negative(a2, out=a2), inv_z, out=a2)
-        mul(a0, inv_z, out=a0)
-        mul(a1, inv_z, out=a1)
-        # left perturbation R <- exp([w]x) R: dp/dw = -[q]x, so the row a^T (-[q]x) = (q x a)^T
-        sub(mul(qy, a2, out=b1), mul(qz, a1, out=b2), out=Jr[0])
-        sub(mul(qz, a0, out=b1), mul(qx, a2, out=b2), out=Jr[1])
-        sub(mul(qx, a1, out=b1), mul(qy, a0, out=b2), out=Jr[2])
-    return np.ascontiguousarray(planes.transpose(2, 3, 0, 1))
+    uv, xd, yd, parts = project_poses(R_C_B, t_C_B, X_B, fx, fy, cx, cy, dist)
+    return uv, xd, yd, (pose_jacobian(parts, fx, fy, dist) if want_jac else None)
 
 
 def dist5(dist):
@@ -247,7 +145,7 @@ def _solve_R_t(uv_px, X_B, fx, fy, cx, cy, dist5, R, t, max_iter, tol):
         delta = np.linalg.solve(JtJ + damp, Jtr)[..., 0]
         R_new = R_from_rvec(delta[:, :3]) @ Ra  # exp([delta_w]x) R
         t_new = ta + delta[:, 3:]
-        uv_new, _, _, parts = _project(R_new, t_new, X_B, fxa, fya, cx, cy, dist5)
+        uv_new, _, _, parts = project_poses(R_new, t_new, X_B, fxa, fya, cx, cy, dist5)
         res_new = obs - uv_new
         cost_new = np.sum(res_new ** 2, axis=(1, 2))
         accept = cost_new <= costa
@@ -261,9 +159,9 @@ def _solve_R_t(uv_px, X_B, fx, fy, cx, cy, dist5, R, t, max_iter, tol):
         keep = ~done
         if n_iter < max_iter and keep.any():  # the next iteration's Jacobian, kept rows only
             if keep.all():
-                J_new = _jacobian(parts, fxa, fya, dist5)
+                J_new = pose_jacobian(parts, fxa, fya, dist5)
             else:
-                J_new = _jacobian([v[keep] for v in parts], fxa[keep], fya[keep], dist5)
+                J_new = pose_jacobian([v[keep] for v in parts], fxa[keep], fya[keep], dist5)
             # A rejected row keeps the Jacobian of its unchanged pose. Rejections are rare
             # (about 1 in 100 rows), so its wasted row of the new Jacobian costs less than
             # cutting the kept Jacobian and the accepted rows' intermediates apart.

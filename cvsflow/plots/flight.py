@@ -8,14 +8,10 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-_AXES = [
-    ("ex_m", "sx_m", "x", "mm", 1e3),
-    ("ey_m", "sy_m", "y", "mm", 1e3),
-    ("ez_m", "sz_m", "z", "mm", 1e3),
-    ("eroll_rad", "sroll_rad", "roll", "deg", np.degrees(1)),
-    ("epitch_rad", "spitch_rad", "pitch", "deg", np.degrees(1)),
-    ("eyaw_rad", "syaw_rad", "yaw", "deg", np.degrees(1)),
-]
+from cvsflow.metrics import ERROR_DIMS, REPORT_UNITS
+
+#: Per axis: error column, standard-deviation column, label, unit, factor from SI.
+_AXES = [(f"err_{d}", f"sigma_{d}", *REPORT_UNITS[d]) for d in ERROR_DIMS]
 
 
 def plot_flight_errors(
@@ -29,8 +25,8 @@ def plot_flight_errors(
     Parameters
     ----------
     errors : DataFrame
-        ``FlightResult.errors``: ``t_s``, ``ex_m .. eyaw_rad`` (axes of L, m and rad) and
-        ``sx_m .. syaw_rad`` (reference standard deviations; NaN: no band).
+        ``FlightResult.errors``: ``t_s``, ``err_x_m .. err_yaw_rad`` (axes of L, m and rad) and
+        ``sigma_x_m .. sigma_yaw_rad`` (reference standard deviations; NaN: no band).
     k_sigma : float
         Half-width of the band in standard deviations.
     injected : DataFrame, optional

@@ -9,6 +9,7 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
+from cvsflow.geometry import sample_period
 from cvsflow.plots.decimate import min_max_envelope
 
 
@@ -44,7 +45,7 @@ def plot_marker_gaps(markers_filled: pd.DataFrame, summary: dict | None = None) 
         state[i] = np.where(missing, 2, np.where(filled, 1, 0))
     fig, ax = plt.subplots(figsize=(10.0, 1.0 + 0.35 * len(names)), layout="constrained")
     cmap = ListedColormap(["white", "tab:blue", "tab:red"])
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    dt = sample_period(t, default=1.0)
     ax.imshow(
         state,
         aspect="auto",

@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-POSE_DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
-#: Display name, unit and SI-to-display factor of each dimension.
-DISPLAY = {
-    "x_m": ("x", "mm", 1e3), "y_m": ("y", "mm", 1e3), "z_m": ("z", "mm", 1e3),
-    "roll_rad": ("roll θ", "deg", 180.0 / np.pi), "pitch_rad": ("pitch φ", "deg", 180.0 / np.pi),
-    "yaw_rad": ("yaw ψ", "deg", 180.0 / np.pi),
-}
+from cvsflow.metrics import ERROR_DIMS, REPORT_UNITS
+
+_SYMBOL = {"roll": "θ", "pitch": "φ", "yaw": "ψ"}
+
+#: Display name (with the chapter's symbol of an angle), unit and SI-to-display factor of each dimension.
+DISPLAY = {d: (f"{label} {_SYMBOL[label]}" if label in _SYMBOL else label, unit, k)
+           for d, (label, unit, k) in REPORT_UNITS.items()}
 
 
 def _six_axes(title, figsize=(13.0, 7.0)):
@@ -53,9 +53,9 @@ def plot_convergence(conv, f_bounds_px=None, diverged_reason=None):
         title += "\nDIVERGED: " + _short(diverged_reason)
     fig.suptitle(title, color="tab:red" if diverged_reason else "black")
     it = conv["iteration"].to_numpy()
-    for ax, d in zip(axes[:6], POSE_DIMS, strict=True):
+    for ax, d in zip(axes[:6], ERROR_DIMS, strict=True):
         name, unit, k = DISPLAY[d]
-        ax.plot(it, conv[f"eps_rms_{d}"] * k, label="RMS")
+        ax.plot(it, conv[f"eps_rmse_{d}"] * k, label="RMS")
         ax.plot(it, conv[f"eps_std_{d}"] * k, "--", label="std")
         ax.set(xlabel="iteration [-]", ylabel=f"error in {name} [{unit}]", title=name)
         ax.legend(fontsize="small")
@@ -96,7 +96,7 @@ def plot_error_histograms(errors, tests, prefix="eps", bins=60):
         6 axes, errors in mm or deg, density in 1/mm or 1/deg.
     """
     fig, axes = _six_axes("Error histograms with fitted normal density")
-    for ax, d in zip(axes, POSE_DIMS, strict=True):
+    for ax, d in zip(axes, ERROR_DIMS, strict=True):
         name, unit, k = DISPLAY[d]
         x = errors[f"{prefix}_{d}"].to_numpy(dtype=float) * k
         mu, sd = x.mean(), x.std(ddof=1)
@@ -128,7 +128,7 @@ def plot_qq(qq):
         6 axes: standard normal quantiles against ordered errors (mm or deg).
     """
     fig, axes = _six_axes("Normal Q-Q plots of the errors")
-    for ax, d in zip(axes, POSE_DIMS, strict=True):
+    for ax, d in zip(axes, ERROR_DIMS, strict=True):
         name, unit, k = DISPLAY[d]
         q = qq[d]
         ax.plot(q["theoretical"], q["ordered"] * k, ".", ms=2)
@@ -229,7 +229,7 @@ def plot_vicon_vs_cvs(tracks, labels=SEED_LABELS, diverged_reason=None):
         title += "\nDIVERGED: " + _short(diverged_reason)
     fig.suptitle(title, color="tab:red" if diverged_reason else "black")
     t = tracks["t_s"].to_numpy(dtype=float)
-    for k, d in enumerate(POSE_DIMS):
+    for k, d in enumerate(ERROR_DIMS):
         name, unit, f = DISPLAY[d]
         row = 0 if k < 3 else 2
         ax, ax_e = axes[row, k % 3], axes[row + 1, k % 3]
@@ -259,7 +259,7 @@ def plot_vicon_vs_cvs(tracks, labels=SEED_LABELS, diverged_reason=None):
 
 def _to_display(Sigma):
     """Sigma (SI) in mm and deg: scale by the outer product of the display factors."""
-    k = np.array([DISPLAY[d][2] for d in POSE_DIMS])
+    k = np.array([DISPLAY[d][2] for d in ERROR_DIMS])
     return np.asarray(Sigma) * np.outer(k, k)
 
 
@@ -280,7 +280,7 @@ def plot_covariance(Sigma, corr):
     """
     fig = Figure(figsize=(14.0, 6.0), layout="constrained")
     ax_cov, ax_corr = fig.subplots(1, 2)
-    labels = [f"{DISPLAY[d][0]} [{DISPLAY[d][1]}]" for d in POSE_DIMS]
+    labels = [f"{DISPLAY[d][0]} [{DISPLAY[d][1]}]" for d in ERROR_DIMS]
     S = _to_display(Sigma)
     ax_cov.axis("off")
     table = ax_cov.table(cellText=[[f"{v:.4g}" for v in row] for row in S], rowLabels=labels,

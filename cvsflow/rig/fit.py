@@ -62,7 +62,6 @@ from cvsflow.optimise import (
     K_from_intrinsics,
     OptimiseResult,
     Se3Model,
-    body_track,
     camera_start,
     corner_arrays,
     correlation_warnings,
@@ -345,9 +344,9 @@ def optimise_se3_rig(
     p_B = board_object_points(board)
     if camera_moving_smooth_s is None:
         camera_moving_smooth_s = CAMERA_MOVING_SMOOTH_S
-    cam = BodyTrack(*body_track(bodies, "camera"), smooth_s=camera_smooth_s,
+    cam = BodyTrack.from_bodies(bodies, "camera", smooth_s=camera_smooth_s,
                     static_tol=camera_static_tol, moving_smooth_s=camera_moving_smooth_s)  # fmt: skip
-    brd = BodyTrack(*body_track(bodies, "board"), smooth_s=board_smooth_s)
+    brd = BodyTrack.from_bodies(bodies, "board", smooth_s=board_smooth_s)
     n_cam = len(cameras)
     data, starts = [], []
     for i, e in enumerate(cameras):

@@ -13,6 +13,8 @@ import warnings
 
 import numpy as np
 
+from cvsflow.geometry import sample_period
+
 #: How far (in ``max_gap_s``) the extra frame of :func:`interpolation_error_ms`'s fallback
 #: divided difference may lie from the interpolant's nodes: next to a dropped frame the next
 #: found one is two intervals away, and a divided difference stays an estimate of the
@@ -193,7 +195,7 @@ def interpolation_error_ms(uv, t_s, t_target_s, max_gap_s, sigma_px, half_window
         ms_rest, valid = _newton_remainder_ms(uv, t_s, t_target_s, used, extra, sigma_px)
         take &= valid
         if n >= 5 and take.any():
-            h = float(np.median(np.diff(t_s)))
+            h = sample_period(t_s)
             pos = [(t_s[u] - t_s) / h for u in used]
             ms_rest = ms_rest * _nyquist_factor_nodes(
                 w, pos, (t_s[extra] - t_s) / h, (t_target_s - t_s) / h)

@@ -14,7 +14,7 @@ import pandas as pd
 
 from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
-from cvsflow.geometry import INTRINSIC_NAMES, project_points
+from cvsflow.geometry import INTRINSIC_NAMES, project_points, sample_period
 from cvsflow.geometry import transforms as tf
 from cvsflow.optimise import (
     K_from_intrinsics,
@@ -204,7 +204,7 @@ def fused_rig_poses(
         arrays.append((fr, uv))
         t_vicon.append(tv + float(cams[i]["dt_offset_s"]))
     if match_tol_s is None:
-        steps = [np.median(np.diff(t)) for t in t_vicon if len(t) > 1]
+        steps = [sample_period(t) for t in t_vicon if len(t) > 1]
         match_tol_s = 0.25 * min(steps) if steps else 1e-3
     group, n_groups, _, _ = _group_frames(t_vicon, float(match_tol_s))
     uv_g = np.full((n_groups, n_cam, len(p_B), 2), np.nan)
@@ -218,7 +218,7 @@ def fused_rig_poses(
     t_instant = _group_instants(t_vicon, group, n_groups) if instant == "interpolate" else None
     for i, ((fr, uv), g) in enumerate(zip(arrays, group, strict=True)):
         if t_instant is not None and len(fr):
-            max_gap_s = 1.5 * float(np.median(np.diff(t_vicon[i]))) if len(fr) > 1 else 0.0
+            max_gap_s = 1.5 * sample_period(t_vicon[i], default=0.0)
             uv_at, noise, moved, usable = corners_at_instants(uv, t_vicon[i], t_instant[g], max_gap_s)
             if np.any(moved & ~usable):
                 log.info("se3 rig: camera %d: %d of %d frames off their rig frame's instant have no "

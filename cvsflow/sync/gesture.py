@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from cvsflow.exceptions import SyncError
-from cvsflow.geometry import mean_rotation, rotation_angle
+from cvsflow.geometry import mean_rotation, rotation_angle, sample_period
 from cvsflow.plausibility import OVERLAP_FLOOR
 from cvsflow.sync.streams import _cvs_rotations, _spans, _vicon_relative, check_take_covers_video
 
@@ -106,7 +106,7 @@ def sync_gesture(
             )
     dt_low = on_v[0] - on_c[0]
     dt_high = on_v[1] - on_c[1]
-    h = float(np.median(np.diff(t_c)))
+    h = sample_period(t_c)
     quality = float(np.exp(-abs(dt_high - dt_low) / h))
     details = {
         "onset_video_s": float(on_c[0]),

@@ -24,7 +24,7 @@ import logging
 import numpy as np
 
 from cvsflow.exceptions import OverlapError, SyncError
-from cvsflow.geometry import rotation_angle
+from cvsflow.geometry import rotation_angle, sample_period
 from cvsflow.plausibility import OVERLAP_FLOOR, check_overlap, overlap_share
 from cvsflow.sync.gesture import sync_gesture
 from cvsflow.sync.offset_refine import refine_offset_rotations
@@ -203,7 +203,7 @@ def sync_angular_speed(
     video_span, take_span = _spans(poses_raw, bodies)
     check_take_covers_video(video_span, take_span, min_share=OVERLAP_FLOOR)
     t_frames = np.sort(poses_raw["t_s"].to_numpy(float))
-    h = float(np.median(np.diff(t_frames)))
+    h = sample_period(t_frames)
     step = h / 4.0 if grid_step_s is None else float(grid_step_s)
     n_win = max(1, int(round(speed_window_s / h)))  # the speeds' baseline, frames
     window = n_win * h

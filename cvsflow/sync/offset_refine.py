@@ -11,7 +11,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation
 
-from cvsflow.geometry import interpolate_quats
+from cvsflow.geometry import interpolate_quats, sample_period
 
 # --------------------------------------------------------------------------- rotation refinement
 
@@ -56,7 +56,7 @@ def _smooth_rotations(t_s, R, valid, sigma_s):
     if sigma_s <= 0.0 or len(t_s) < 2:
         q[~valid] = [0.0, 0.0, 0.0, 1.0]
         return q, valid.copy()
-    step = float(np.median(np.diff(t_s)))
+    step = sample_period(t_s)
     half = int(np.ceil(2.5 * sigma_s / step))
     if half < 1:
         q[~valid] = [0.0, 0.0, 0.0, 1.0]

@@ -21,6 +21,7 @@ from cvsflow.geometry import (
     make_T,
     pose6_from_T,
     quat_from_R,
+    sample_period,
     wrap_angle,
 )
 from cvsflow.mocap import body_poses
@@ -90,7 +91,7 @@ def build_pairs(poses_raw, bodies, dt_offset_s, mode="block", camera="camera", b
     t_b, T_W_Cm_all, v_c = body_poses(bodies, camera)
     _, T_W_Bm_all, v_b = body_poses(bodies, board)
     if mode == "block":
-        half = 0.5 * float(np.median(np.diff(t_b))) if len(t_b) > 1 else 0.0
+        half = 0.5 * sample_period(t_b, default=0.0)
         span = (t_b[0] - half, t_b[-1] + half)
         share, warnings = check_overlap(t_video, dt_offset_s, span, min_share=min_overlap_share,
                                         source="pairs")

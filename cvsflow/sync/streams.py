@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from cvsflow.exceptions import InputError
-from cvsflow.geometry import R_from_rvec, interpolate_T, invert_T, rotation_angle
+from cvsflow.geometry import R_from_rvec, interpolate_T, invert_T, rotation_angle, sample_period
 from cvsflow.mocap import body_poses
 
 # --------------------------------------------------------------------------- streams
@@ -161,7 +161,7 @@ def angular_speed_streams(poses_raw, bodies, camera="camera", board="board"):
         ``omega_vicon_rad_s`` (Vicon clock, native samples, same window as the video).
     """
     t_c, w_c = angular_speed_cvs(poses_raw)
-    h = float(np.median(np.diff(np.sort(poses_raw["t_s"].to_numpy(float)))))
+    h = sample_period(poses_raw["t_s"].to_numpy(float))
     t_v, w_v = angular_speed_vicon(bodies, h, camera=camera, board=board)
     return {"t_cvs_s": t_c, "omega_cvs_rad_s": w_c, "t_vicon_s": t_v, "omega_vicon_rad_s": w_v}
 

@@ -19,7 +19,7 @@ import numpy as np
 
 from cvsflow.board import AprilGrid, charuco_board
 from cvsflow.geometry import invert_T
-from cvsflow.synth.imaging import APRILGRID_MARGIN_BITS, Board, project_points, rectangle_outline_B
+from cvsflow.synth.imaging import APRILGRID_MARGIN_BITS, Board, project_in_view, rectangle_outline_B
 
 INK_REFLECTANCE = 0.06
 MARKER_RADIUS_M = 0.007  # 14 mm Vicon marker
@@ -462,7 +462,7 @@ def board_roi(T_C_B, texture: BoardTexture, K, dist, size, pad_px=3):
     rows, cols = texture.levels[0].shape[:2]
     extent = (x_a, x_a + cols / texture.ppm[0], y_a, y_a + rows / texture.ppm[0])
     outline = rectangle_outline_B(extent, n_per_edge=16)
-    uv = project_points(T_C_B, outline, K, dist)
+    uv = project_in_view(T_C_B, outline, K, dist)
     if not np.all(np.isfinite(uv)):
         # part of the sheet is off the lens model's domain: render the whole frame
         return (0, 0, width, height)

@@ -60,7 +60,7 @@ class FlightDemo:
     truth : DataFrame
         Common form of the true T_L_Q at the video frames (camera clock).
     injected : DataFrame
-        ``frame, t_s, ex_m .. eyaw_rad``: the on-board error at the video frames (the log
+        ``frame, t_s, err_x_m .. err_yaw_rad``: the on-board error at the video frames (the log
         interpolated at the true log times of the frames, minus the truth), axes of L.
     T_L_C, T_Q_B : ndarray, shape (4, 4)
         Camera in L; board mounting on the body.

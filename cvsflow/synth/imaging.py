@@ -1,8 +1,9 @@
 """Camera model and image formation of the demo session: projection, lens, background, exposure.
 
 The board itself, its texture and its image, is :mod:`cvsflow.synth.board_image`; this module
-holds the board's geometry (``Board``), the distorted projection and its undistortion grid, and
-the background, vignetting and exposure the rendered frames go through.
+holds the board's geometry (``Board``), the projection of board points in view (the lens is
+:func:`cvsflow.geometry.distort_normalised`) and its undistortion grid, and the background,
+vignetting and exposure the rendered frames go through.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import cv2
 import numpy as np
 
 from cvsflow.board import AprilGrid
+from cvsflow.geometry import distort_normalised, project_points
 
 A1_SHEET_M = (0.841, 0.594)  # printed sheet, width x height, metres
 #: White paper round an AprilGrid's outer corner squares, bits of its tags (the sheet).
@@ -185,32 +187,8 @@ def camera_from_config(camera_cfg):
     return K, np.asarray(camera_cfg["dist"], dtype=float)
 
 
-def distort_normalised(xy, dist):
-    """OpenCV's 5-term lens model on normalised rays ``xy`` (..., 2); returns (..., 2).
-
-    Parameters
-    ----------
-    xy : ndarray, shape (..., 2)
-        Undistorted normalised image coordinates (x / z, y / z in the camera frame C).
-    dist : array_like, shape (5,)
-        ``[k1, k2, p1, p2, k3]``.
-
-    Returns
-    -------
-    xy_d : ndarray, shape (..., 2)
-        Distorted normalised coordinates (pixels are ``K @ [xd, yd, 1]``).
-    """
-    k1, k2, p1, p2, k3 = dist
-    x, y = xy[..., 0], xy[..., 1]
-    r2 = x * x + y * y
-    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    xd = x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x)
-    yd = y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y
-    return np.stack([xd, yd], axis=-1)
-
-
-def project_points(T_C_B, p_B, K, dist):
-    """Distorted pixel positions of board points, as ``cv2.projectPoints`` would give.
+def project_in_view(T_C_B, p_B, K, dist):
+    """Pixels of board points seen through the lens, NaN where the lens model does not hold.
 
     Parameters
     ----------
@@ -224,8 +202,9 @@ def project_points(T_C_B, p_B, K, dist):
     Returns
     -------
     uv_px : ndarray, shape (M, 2) or (N, M, 2)
-        Pixels; NaN for points behind the camera or on rays outside the lens model's
-        valid domain (normalised radius > ``MAX_RAY_RADIUS``), where the polynomial folds back.
+        :func:`cvsflow.geometry.project_points`' pixels; NaN for points behind the camera or
+        on rays outside the lens model's valid domain (normalised radius > ``MAX_RAY_RADIUS``),
+        where the polynomial folds back.
     """
     T_C_B = np.asarray(T_C_B, dtype=float)
     p_C = np.einsum("...ij,mj->...mi", T_C_B[..., :3, :3], p_B) + T_C_B[..., None, :3, 3]
@@ -233,8 +212,7 @@ def project_points(T_C_B, p_B, K, dist):
     with np.errstate(divide="ignore", invalid="ignore"):
         xy = p_C[..., :2] / z
     valid = (z[..., 0] > 1e-6) & (np.sum(xy * xy, axis=-1) < MAX_RAY_RADIUS**2)
-    xy_d = distort_normalised(np.where(valid[..., None], xy, 0.0), dist)
-    uv = np.stack([K[0, 0] * xy_d[..., 0] + K[0, 2], K[1, 1] * xy_d[..., 1] + K[1, 2]], -1)
+    uv = project_points(np.where(valid[..., None], p_C, [0.0, 0.0, 1.0]), K, dist)
     return np.where(valid[..., None], uv, np.nan)
 
 

@@ -5,10 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from cvsflow.geometry import fit_rigid_pair, invert_T, transform_points
-
-#: Former name of :func:`cvsflow.geometry.fit_rigid_pair`, kept for its callers.
-fit_rigid = fit_rigid_pair
+from cvsflow.geometry import invert_T, transform_points, umeyama
 
 
 def true_mounting(T_body_obj_design, layout_m, placement_error_m):
@@ -36,7 +33,7 @@ def true_mounting(T_body_obj_design, layout_m, placement_error_m):
     """
     layout_m = np.asarray(layout_m, dtype=float)
     real_design = layout_m + placement_error_m
-    T_design_true = fit_rigid_pair(layout_m, real_design)
+    T_design_true, _ = umeyama(layout_m, real_design)
     markers_body_m = transform_points(invert_T(T_design_true), real_design)
     return invert_T(T_design_true) @ T_body_obj_design, markers_body_m
 

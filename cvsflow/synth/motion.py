@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cvsflow.geometry import R_from_euler, R_from_rvec, invert_T, make_T
-from cvsflow.synth.imaging import project_points
+from cvsflow.synth.imaging import project_in_view
 
 # The chapter's session: board held still, then tilted forward (the sync gesture), then free.
 HOLD_S = 1.5
@@ -328,7 +328,7 @@ def _min_square_px(T_C_B, board_corners, K, dist):
     if board_corners is None:
         return np.inf
     corners_B, a, b = board_corners
-    g = project_points(T_C_B, corners_B, K, dist)
+    g = project_in_view(T_C_B, corners_B, K, dist)
     sides = np.linalg.norm(g[b] - g[a], axis=-1)
     return float(np.min(sides)) if np.all(np.isfinite(sides)) else 0.0
 
@@ -447,7 +447,7 @@ def still_poses(
                 return make_T(R_C_B, np.array([x_n * z_m, y_n * z_m, z_m]) - R_C_B @ center_B)
 
             def fits(x_n, y_n, pose=pose):
-                return _in_view(project_points(pose(x_n, y_n), outline_B, K, dist), size, margin_px)
+                return _in_view(project_in_view(pose(x_n, y_n), outline_B, K, dist), size, margin_px)
 
             p = _push_into_region(fits, push, limit, back_off)
             if p is None:

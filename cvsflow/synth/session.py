@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.geometry import euler_from_R, invert_T, quat_from_R, transform_points
-from cvsflow.synth.imaging import Board, project_points, rectangle_outline_B
+from cvsflow.synth.imaging import Board, project_in_view, rectangle_outline_B
 from cvsflow.synth.markers import add_dropouts, marker_table, true_mounting
 from cvsflow.synth.motion import HandMotion, board_poses, camera_poses, random_sine_sum
 from cvsflow.synth.spec import FPS, IN_VIEW_MARGIN_PX, VICON_RATE_HZ, VICON_TAIL_S, SynthSpec
@@ -156,7 +156,7 @@ def video_truth(spec: SynthSpec, motion: HandMotion, exposure_s, t_s=None) -> Vi
         t_s = np.arange(n) / FPS
     T_C_B = board_poses(motion, t_s)
     corners_B = spec.board.corners_B()
-    corners_px = project_points(T_C_B, corners_B, spec.K, spec.dist)
+    corners_px = project_in_view(T_C_B, corners_B, spec.K, spec.dist)
     if spec.effects.line_delay_s > 0.0:
         corners_px, _ = corners_at_line_times(motion, t_s, corners_B, spec.K, spec.dist,
                                               spec.effects.line_delay_s, corners_px)
@@ -170,8 +170,8 @@ def video_truth(spec: SynthSpec, motion: HandMotion, exposure_s, t_s=None) -> Vi
             & (corners_px[..., 1] <= height - 1 - m)
         )
     in_view = np.all(inside, axis=1)
-    start = project_points(board_poses(motion, t_s - exposure_s / 2), corners_B, spec.K, spec.dist)
-    stop = project_points(board_poses(motion, t_s + exposure_s / 2), corners_B, spec.K, spec.dist)
+    start = project_in_view(board_poses(motion, t_s - exposure_s / 2), corners_B, spec.K, spec.dist)
+    stop = project_in_view(board_poses(motion, t_s + exposure_s / 2), corners_B, spec.K, spec.dist)
     travel = np.linalg.norm(stop - start, axis=-1)
     with np.errstate(invalid="ignore"):
         blur_px = np.where(
@@ -221,7 +221,7 @@ def corners_at_line_times(motion, t_s, corners_B, K, dist, line_delay_s, guess_p
         t_line = t_s[:, None] + np.clip(v, 0, None) * line_delay_s
         T = board_poses(motion, t_line.ravel()).reshape(n, m, 4, 4)
         p_C = np.einsum("nmij,mj->nmi", T[..., :3, :3], corners_B) + T[..., :3, 3]
-        uv = project_points(np.eye(4), p_C.reshape(-1, 3), K, dist).reshape(n, m, 2)
+        uv = project_in_view(np.eye(4), p_C.reshape(-1, 3), K, dist).reshape(n, m, 2)
     v = np.nan_to_num(uv[..., 1], nan=0.0)
     return uv, t_s[:, None] + np.clip(v, 0, None) * line_delay_s
 

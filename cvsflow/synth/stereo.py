@@ -13,7 +13,7 @@ import numpy as np
 from cvsflow.exceptions import ConfigError
 from cvsflow.geometry import R_from_euler, R_from_rvec, make_T
 from cvsflow.synth.frames import Renderer
-from cvsflow.synth.imaging import project_points
+from cvsflow.synth.imaging import project_in_view
 from cvsflow.synth.motion import _in_view, _min_square_px
 from cvsflow.synth.session import still_outline_B
 from cvsflow.synth.spec import parse_session_config
@@ -75,7 +75,7 @@ def shared_view_poses(rng, n, cameras, T_Ci_C0, board, depth_m=(1.2, 2.6), max_t
         ok = True
         for (K, dist, size), T in zip(cameras, T_Ci_C0, strict=True):
             T_C_B = T @ T_C0_B
-            if not (_in_view(project_points(T_C_B, outline_B, K, dist), size, margin_px)
+            if not (_in_view(project_in_view(T_C_B, outline_B, K, dist), size, margin_px)
                     and _min_square_px(T_C_B, corners, K, dist) >= min_square_px
                     and (T_C_B[:3, 2] @ T_C_B[:3, 3]) > 0.0):  # the printed side faces it
                 ok = False

@@ -17,6 +17,7 @@ import pandas as pd
 
 from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import sample_period
 from cvsflow.geometry import transforms as tf
 from cvsflow.metrics import ERROR_DIMS, pose_errors
 from cvsflow.optimise import corner_arrays
@@ -75,7 +76,7 @@ def seen_corners(corners, frame_ids, n_corners):
     if not np.array_equal(fr[idx], np.asarray(frame_ids)):
         missing = sorted(set(np.asarray(frame_ids).tolist()) - set(fr.tolist()))[:5]
         raise OptimiseError(f"measurement_features: frames {missing} have no corners")
-    period = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    period = sample_period(t, default=1.0)
     n = np.arange(len(fr))
     prev = np.clip(n - 1, 0, None)
     nxt = np.clip(n + 1, None, len(fr) - 1)

@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import sample_period
 from cvsflow.geometry import transforms as tf
 from cvsflow.metrics import ERROR_DIMS, pose_errors
 
@@ -340,7 +341,7 @@ def _reference_rate(rows, T_ref, rt, frame):
     order = np.argsort(t, kind="stable")
     ts = t[order]
     n = len(ts)
-    period = float(np.median(np.diff(ts))) if n > 1 else np.inf
+    period = sample_period(ts, default=np.inf)
     pos = np.empty(n, int)
     pos[order] = np.arange(n)
     prev = order[np.clip(pos - 1, 0, n - 1)]

@@ -17,7 +17,8 @@ import numpy as np
 
 from cvsflow.geometry import transforms as tf
 from cvsflow.metrics import ERROR_DIMS, pose_errors
-from cvsflow.optimise import CAMERA_MOVING_SMOOTH_S, body_track, smooth_track_local
+from cvsflow.mocap import body_poses
+from cvsflow.optimise import CAMERA_MOVING_SMOOTH_S, smooth_track_local
 from cvsflow.uncertainty.propagation import _numeric_jacobian
 
 #: Median of chi-square with one degree of freedom: a per-axis variance from the median of
@@ -49,7 +50,7 @@ def moving_body_noise(bodies, body="camera", window_s=CAMERA_MOVING_SMOOTH_S):
         local quadratic gives the per-sample noise s^2 (1 - g), the smoothed value carries
         s^2 g, g the centre variance factor of a quadratic over the window's samples.
     """
-    t, T, valid = body_track(bodies, body)
+    t, T, valid = body_poses(bodies, body, invalid="identity", min_valid=2, track=True)
     T_s = smooth_track_local(t, T, valid, window_s)
     rate = (len(t) - 1) / (t[-1] - t[0])
     n = 2 * int(round(0.5 * window_s * rate)) + 1

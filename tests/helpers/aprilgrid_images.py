@@ -5,7 +5,7 @@ import numpy as np
 
 from cvsflow.board import AprilGrid
 from cvsflow.synth.board_image import aprilgrid_texture, render_board
-from cvsflow.synth.imaging import project_points, undistortion_grid
+from cvsflow.synth.imaging import project_in_view, undistortion_grid
 
 #: The yac target: 6x6 tag36h11, 0.088 m tags, spacing 0.3.
 GRID = AprilGrid(6, 6, 0.088, 0.3)
@@ -42,4 +42,4 @@ def render_aprilgrid(T_C_B, grid=GRID, texture=None, xy_n=None, K=K, dist=DIST, 
         img = cv2.GaussianBlur(img, (0, 0), blur_sigma_px)
     img += np.random.default_rng(seed).normal(0.0, noise_sigma, img.shape)
     gray = np.clip(np.rint(img), 0, 255).astype(np.uint8)
-    return gray, project_points(np.asarray(T_C_B, float), grid.object_points(), K, dist)
+    return gray, project_in_view(np.asarray(T_C_B, float), grid.object_points(), K, dist)

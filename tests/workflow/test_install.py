@@ -95,7 +95,7 @@ def test_wheel_installs_and_runs_the_demo_and_a_session_outside_the_repository(t
     assert (demo / "session.yaml").is_file() and (demo / "data" / "demo" / "video.mp4").is_file()
     assert yaml.safe_load((demo / "session.yaml").read_text())["sessions"]["demo"]["synth"]["duration_s"] == 10.0
     comparison = yaml.safe_load((demo / "results" / "demo" / "comparison.yaml").read_text())
-    assert comparison["se3"]["per_dim"]["x_m"]["rms"] < 0.01  # metres: a working fit, not a number to hold
+    assert comparison["se3"]["per_dim"]["x_m"]["rmse"] < 0.01  # metres: a working fit, not a number to hold
     headline = pd.read_csv(demo / "results" / "headline.csv")
     assert {"demo", "flight flight_demo"} <= set(headline["session"])
     assert (demo / "logs" / "demo" / "corners.log").is_file()

@@ -282,7 +282,7 @@ def test_demo_se3_against_truth_and_beats_seed(demo_run):
     assert abs(K[0, 0] / K_true[0, 0] - 1) < 3e-3 and abs(K[1, 1] / K_true[1, 1] - 1) < 3e-3
     assert abs(result["dt_offset_s"] - truth["dt_offset_s"]) < 0.002
     comparison = yaml.safe_load((demo_run / "results/demo/comparison.yaml").read_text())
-    assert all(r <= 0.5 for r in comparison["rms_ratio_se3_to_seed"].values())
+    assert all(r <= 0.5 for r in comparison["rmse_ratio_se3_to_seed"].values())
 
 
 def test_changed_session_path_reruns_only_that_session(demo_run):
@@ -374,7 +374,7 @@ def test_demo_report_opens_on_the_headline_table(demo_run):
     assert rows.loc[("demo", "calibration", "fx"), "value"] == pytest.approx(camera["K"][0][0], rel=1e-7)
     assert rows.loc[("demo", "se3", "fy"), "std"] == pytest.approx(se3["std_errors"]["fy"], rel=1e-7)
     held = rows.loc[("demo", "held-out RMS (se3, frame C)", "z"), "value"]
-    assert held == pytest.approx(1e3 * comparison["se3"]["per_dim"]["z_m"]["rms"], rel=1e-7)
+    assert held == pytest.approx(1e3 * comparison["se3"]["per_dim"]["z_m"]["rmse"], rel=1e-7)
     nees = rows.loc[("demo", "error model (se3, held-out)", "mean NEES (6 if consistent)"), "value"]
     assert nees == pytest.approx(comparison["error_model"]["nees_mean"], rel=1e-7)
     assert set(table["session"]) == {"demo", "stills", "flight flight_demo"}
@@ -496,10 +496,10 @@ def test_real_flight_states_its_reference_with_the_validation_sessions_model(dem
     assert "fitted on the rendered sessions" in log_r
     stats = yaml.safe_load((demo_run / "results/flights/vicon_log/stats.yaml").read_text())
     assert abs(stats["clock"]["dt_offset_s"] + truth["dt_offset_s"]) < 0.003
-    assert all(stats["axes"][a]["rmse"] < 0.005 for a in ("x", "y", "z"))
+    assert all(stats["axes"][a]["rmse"] < 0.005 for a in ("x_m", "y_m", "z_m"))
     err = pd.read_parquet(demo_run / "results/flights/vicon_log/errors.parquet")
     err_r = pd.read_parquet(demo_run / "results/flights/vicon_log_r/errors.parquet")
-    assert np.isfinite(err["sx_m"]).all() and not np.allclose(err["sx_m"], err_r["sx_m"])
+    assert np.isfinite(err["sigma_x_m"]).all() and not np.allclose(err["sigma_x_m"], err_r["sigma_x_m"])
     # A calibration with a line delay (written into a copy of the se3 result, then put back
     # with its time stamp): the stage times the frames at the board's rows, takes the predicted
     # shear out, and says so in its log and stats.yaml. The demo's camera has a global
@@ -520,4 +520,4 @@ def test_real_flight_states_its_reference_with_the_validation_sessions_model(dem
     assert 0 < rs["rolling_shutter"]["shear_median_rad"] < 1e-3
     assert "rolling shutter: line delay" in (demo_run / "logs/flights/vicon_log/flight.log").read_text()
     assert abs(rs["clock"]["dt_offset_s"] - stats["clock"]["dt_offset_s"]) < 1e-3
-    assert all(abs(rs["axes"][a]["rmse"] - stats["axes"][a]["rmse"]) < 5e-4 for a in ("x", "y", "z"))
+    assert all(abs(rs["axes"][a]["rmse"] - stats["axes"][a]["rmse"]) < 5e-4 for a in ("x_m", "y_m", "z_m"))

@@ -14,7 +14,7 @@ with stage_logging(snakemake.log[0], "analyse") as log:
     check_rows(errors, snakemake.input.errors, "error rows")
     result = read_yaml(snakemake.input.result)
     cfg = snakemake.params.analyse
-    stats = analyse.error_statistics(errors)
+    stats = analyse.run_statistics(errors)
     stats["optimum"] = analyse.optimum_summary(result)
     with atomic_output(snakemake.output.stats) as tmp:
         tmp.write_text(json.dumps(stats, indent=2))

@@ -28,7 +28,7 @@ with stage_logging(snakemake.log[0], "compare") as log:
     )
     score = comparison["error_model"]
     if seed is not None:
-        log.info("se3/seed held-out RMS ratio: %s", comparison["rms_ratio_se3_to_seed"])
+        log.info("se3/seed held-out RMS ratio: %s", comparison["rmse_ratio_se3_to_seed"])
     log.info("error model: %.1f %% inside 68 %%, %.1f %% inside 95 %%, NEES %.2f",
              100 * score["inside_68_all"], 100 * score["inside_95_all"], score["nees_mean"])
     log.info("error model fitted on other sessions: NEES %.2f; held-out error / CRB %s",

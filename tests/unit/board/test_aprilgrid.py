@@ -11,7 +11,7 @@ from cvsflow.board import aprilgrid_tags as tags
 from cvsflow.board.aprilgrid_detect import consistent_tags
 from cvsflow.exceptions import ConfigError
 from cvsflow.synth.board_image import aprilgrid_texture, tag_bits_image
-from cvsflow.synth.imaging import project_points, undistortion_grid
+from cvsflow.synth.imaging import project_in_view, undistortion_grid
 from tests.helpers.aprilgrid_images import DIST, GRID, SIZE, K, look_at_grid, render_aprilgrid
 
 # A tag side is >= 20 px in these renders: a corner this far from its truth would be mislabelled.
@@ -201,7 +201,7 @@ def test_rejects_colour_image():
 
 def truth_detections():
     """Every tag's true corners (Kalibr order) of a well-seen grid: (ids, corners)."""
-    uv = project_points(look_at_grid(GRID, 1.2, 20.0, 30.0, 10.0), GRID.object_points(), K, DIST)
+    uv = project_in_view(look_at_grid(GRID, 1.2, 20.0, 30.0, 10.0), GRID.object_points(), K, DIST)
     return np.arange(GRID.n_tags), uv.reshape(-1, 4, 2)
 
 

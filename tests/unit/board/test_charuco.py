@@ -26,7 +26,7 @@ from cvsflow.geometry import transforms as tf
 from cvsflow.optimise.se3_start import corner_arrays
 from cvsflow.synth.effects import Grip, make_hand_texture, occluded_corners
 from cvsflow.synth.frames import FrameEffects, Renderer
-from cvsflow.synth.imaging import project_points
+from cvsflow.synth.imaging import project_in_view
 from cvsflow.synth.motion import make_hand_motion
 from cvsflow.synth.render import realistic_truth, render_stills
 from cvsflow.synth.session import still_outline_B
@@ -63,7 +63,7 @@ def centre_pose(spec, rpy, centre_C):
 
 def true_corners(spec, T_C_B):
     """Distorted pixels of every chessboard corner k (the renderer's truth), (N, 2)."""
-    return project_points(T_C_B, spec.board.corners_B(), spec.K, spec.dist)
+    return project_in_view(T_C_B, spec.board.corners_B(), spec.K, spec.dist)
 
 
 def assert_true_ids(corners_px, truth_px, tol=TOL_PX):
@@ -125,7 +125,7 @@ def test_every_detected_id_is_its_true_corner(renderer, rpy_deg, centre_C):
     the true corner of that id, and the whole board is found where it is wholly in view."""
     r, spec = renderer
     T = centre_pose(spec, np.radians(rpy_deg), centre_C)
-    outline = project_points(T, still_outline_B(spec.board), spec.K, spec.dist)
+    outline = project_in_view(T, still_outline_B(spec.board), spec.K, spec.dist)
     assert ((outline > 2) & (outline < [637, 477])).all()  # premise: every square in view
     # Noise draw 0: at the (30, -20, 15) pose corner 17's window (6 px) nearly reaches a marker,
     # and its refined point sits at the point-asymmetry limit in 3 of 12 noise draws with the

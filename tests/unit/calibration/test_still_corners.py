@@ -14,7 +14,7 @@ from cvsflow.calibration.still_corners import (
     refine_still_corners,
     window_limit_px,
 )
-from cvsflow.synth.imaging import project_points
+from cvsflow.synth.imaging import project_in_view
 from tests.helpers.calibration_views import BOARD, THETA5, rendered_stills
 
 NX, NY = 7, 5
@@ -32,7 +32,7 @@ def detections():
         if not ok:
             continue
         c = c.reshape(-1, 2).astype(np.float64)
-        truth = project_points(T, p_B, K, THETA5[4:]).reshape(-1, 2)
+        truth = project_in_view(T, p_B, K, THETA5[4:]).reshape(-1, 2)
         # The 8 x 6 board's two ends look alike: match OpenCV's order to the truth's.
         if (np.linalg.norm(c - truth, axis=1).mean()
                 > np.linalg.norm(c[::-1] - truth, axis=1).mean()):

@@ -9,8 +9,9 @@ from scipy import stats
 
 from cvsflow.evaluate import analyse
 from cvsflow.exceptions import InputError
+from cvsflow.metrics import ERROR_DIMS
 
-DIMS = analyse.POSE_DIMS
+DIMS = ERROR_DIMS
 
 
 def _errors(n=500, seed=0):
@@ -39,7 +40,7 @@ def _iterations(k=5):
         row = {"iteration": j, "fx_px": 660.0 + j, "fy_px": 730.0 - j, "objective": 1.0 / (j + 1),
                "norm_normalised": 0.05 / (j + 1)}
         for d in DIMS:
-            for s in ("mean", "std", "rms"):
+            for s in ("mean", "std", "rmse"):
                 row[f"eps_{s}_{d}"] = 0.01 / (j + 1)
             row[f"P_bar_{d}"] = 0.0
         rows.append(row)
@@ -54,7 +55,7 @@ def test_normality_table_matches_numpy_and_scipy():
         x = eps[:, i]
         assert t.loc[d, "mean"] == pytest.approx(x.mean(), abs=1e-15)
         assert t.loc[d, "std"] == pytest.approx(x.std(ddof=1), rel=1e-12)
-        assert t.loc[d, "rms"] == pytest.approx(np.sqrt(np.mean(x**2)), rel=1e-12)
+        assert t.loc[d, "rmse"] == pytest.approx(np.sqrt(np.mean(x**2)), rel=1e-12)
         assert t.loc[d, "min"] == x.min() and t.loc[d, "max"] == x.max()
         assert t.loc[d, "dagostino_p"] == pytest.approx(stats.normaltest(x).pvalue, rel=1e-12)
         assert t.loc[d, "anderson_stat"] == pytest.approx(stats.anderson(x, dist="norm", method="interpolate").statistic, rel=1e-12)
@@ -117,9 +118,9 @@ def test_vicon_vs_cvs_differences_are_eps():
 
 
 def test_statistics_dict_is_json_ready():
-    """error_statistics dumps to JSON and its numbers equal numpy's on the same table."""
+    """run_statistics dumps to JSON and its numbers equal numpy's on the same table."""
     df, eps, _ = _errors()
-    s = analyse.error_statistics(df)
+    s = analyse.run_statistics(df)
     back = json.loads(json.dumps(s))
     assert back["n"] == len(eps)
     assert back["per_dim"]["z_m"]["std"] == pytest.approx(eps[:, 2].std(ddof=1), rel=1e-12)
@@ -140,7 +141,7 @@ def test_optimum_summary_and_convergence():
     no_offset = {k: v for k, v in res.items() if k != "P_bar"}
     assert np.isnan(analyse.optimum_summary(no_offset)["P_bar"]).all()
     conv = analyse.convergence(_iterations(5))
-    assert len(conv) == 6 and "eps_rms_yaw_rad" in conv
+    assert len(conv) == 6 and "eps_rmse_yaw_rad" in conv
 
 
 def test_too_few_rows_and_missing_columns_raise():

@@ -23,12 +23,12 @@ SE3 = {"fx_px": 701.5, "fy_px": 697.3, "dt_offset_s": 2.3717, "rms_px": 0.3,
                              "matrix": [[1.0, 0.2, 0.0, 0.1], [0.2, 1.0, 0.3, -0.6],
                                         [0.0, 0.3, 1.0, 0.1], [0.1, -0.6, 0.1, 1.0]]},
        "warnings": ["se3: k1 and k2 correlate at -0.964"]}
-PER_DIM = {d: {"rms": v} for d, v in zip(
+PER_DIM = {d: {"rmse": v} for d, v in zip(
     ["x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad"],
     [0.0015, 0.0016, 0.0051, 0.003, 0.0055, 0.0009], strict=True)}
 COMPARISON = {"error_frame": "C", "se3": {"per_dim": PER_DIM},
               "seed": {"diverged": True, "statistics_not_measurements": {"per_dim": {
-                  "x_m": {"rms": 1804.0}}}},
+                  "x_m": {"rmse": 1804.0}}}},
               "error_model": {"inside_68_all": 0.67, "inside_95_all": 0.921, "nees_mean": 8.1}}
 SEED = {"fx_px": 285.7, "fy_px": 4985.8, "diverged": True,
         "diverged_reason": "fy = 4985.8 px within a grid step (32 px) of the bound [100, 5000] px"}
@@ -60,7 +60,7 @@ def test_numbers_in_report_units_with_their_source():
     assert rows[("calibration", "fx")]["text"] == "702.10 ± 0.30"
     held = rows[("held-out RMS (se3, frame C)", "z")]
     assert held["value"] == pytest.approx(5.1) and held["unit"] == "mm"
-    assert held["source"] == "results/lab1/comparison.yaml: se3.per_dim.z_m.rms"
+    assert held["source"] == "results/lab1/comparison.yaml: se3.per_dim.z_m.rmse"
     assert rows[("held-out RMS (se3, frame C)", "pitch")]["value"] == pytest.approx(np.degrees(0.0055))
     assert rows[("error model (se3, held-out)", "inside the 95 % band")]["value"] == pytest.approx(92.1)
     assert rows[("sync", "offset t_vicon - t_video (angular_speed)")]["std"] == 1.3e-4

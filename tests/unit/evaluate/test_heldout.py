@@ -90,49 +90,6 @@ def test_a_short_tail_block_joins_the_one_before():
     assert (fold == fold[-1]).sum() == (t >= 10.0).sum() == 40
 
 
-def test_bootstrap_ci_coverage_on_iid_normal():
-    """On iid N(0.3, 1) data (n=200), the 95 % CIs of the mean and std contain the truth in
-    roughly 95 % of 200 seeded repetitions (accepted 88-99 %)."""
-    hit_mean = hit_std = 0
-    reps = 200
-    for rep in range(reps):
-        x = np.random.default_rng(rep).normal(0.3, 1.0, 200)
-        b = ev.bootstrap_error_stats(x, block_len=1, n_boot=300, seed=rep)
-        hit_mean += b["mean_lo"][0] <= 0.3 <= b["mean_hi"][0]
-        hit_std += b["std_lo"][0] <= 1.0 <= b["std_hi"][0]
-    assert 0.88 <= hit_mean / reps <= 0.99
-    assert 0.88 <= hit_std / reps <= 0.99
-
-
-def test_block_bootstrap_widens_for_autocorrelated_errors():
-    """For AR(1) errors (phi = 0.9) the block bootstrap CI of the mean is at least twice as
-    wide as the iid bootstrap's (the iid one ignores autocorrelation)."""
-    rng = np.random.default_rng(7)
-    e = np.zeros(2000)
-    for i in range(1, len(e)):
-        e[i] = 0.9 * e[i - 1] + rng.normal()
-    w_iid = np.ptp(np.r_[ev.bootstrap_error_stats(e, 1, 400, seed=1)["mean_lo"],
-                         ev.bootstrap_error_stats(e, 1, 400, seed=1)["mean_hi"]])  # fmt: skip
-    b = ev.bootstrap_error_stats(e, 60, 400, seed=1)
-    assert b["mean_hi"][0] - b["mean_lo"][0] > 2 * w_iid
-    assert b["Sigma"].shape == (1, 1)
-
-
-def test_bootstrap_in_chunks_is_the_bootstrap_at_once(monkeypatch):
-    """The resamples taken a few at a time (memory flat in the session's length) give every
-    interval bit for bit as all at once: a chunk of one resample, of 7, and all 250."""
-    rng = np.random.default_rng(11)
-    E = rng.normal(size=(900, 6)) * np.array([1e-3, 2e-3, 5e-3, 1e-3, 1e-3, 4e-4])
-    results = []
-    for resamples_per_chunk in (1, 7, 250):
-        monkeypatch.setattr(ev, "BOOTSTRAP_CHUNK_BYTES", 16 * 900 * 6 * resamples_per_chunk)
-        results.append(ev.bootstrap_error_stats(E, 30, n_boot=250, seed=5))
-    for other in results[:2]:
-        for name in ("mean_lo", "mean_hi", "std_lo", "std_hi", "Sigma_lo", "Sigma_hi"):
-            assert np.array_equal(other[name], results[2][name])
-    assert not np.array_equal(results[2]["std_lo"], results[2]["std_hi"])
-
-
 def test_cross_validation_held_out_errors_match_pnp_noise():
     """Held-out se3 errors on a 20 s session: every frame scored once by a fit that did not
     see it; their spread is below 2 mm in x and y, 15 mm in z and 1.5 deg in angle, and the
@@ -145,11 +102,10 @@ def test_cross_validation_held_out_errors_match_pnp_noise():
     )  # fmt: skip
     assert len(fits) == 4 and held["frame"].is_unique and len(held) == 600
     assert folds_done == [1, 2, 3, 4]
-    summ = ev.summarise_errors(held)
-    std = dict(zip(summ["columns"], summ["std"], strict=True))
-    assert std["err_x_m"] < 0.002 and std["err_y_m"] < 0.002 and std["err_z_m"] < 0.015
+    summ = metrics.axis_statistics(held[metrics.error_columns()].to_numpy(float))
+    assert summ["x_m"]["std"] < 0.002 and summ["y_m"]["std"] < 0.002 and summ["z_m"]["std"] < 0.015
     assert np.degrees(held["err_angle_rad"]).quantile(0.95) < 1.5
-    assert abs(summ["mean"][0]) < 3 * std["err_x_m"] / np.sqrt(len(held) / 30)
+    assert abs(summ["x_m"]["mean"]) < 3 * summ["x_m"]["std"] / np.sqrt(len(held) / 30)
     assert {"d6_x_m", "d6_yaw_rad", "fold", "error_frame"} <= set(held.columns)
 
 

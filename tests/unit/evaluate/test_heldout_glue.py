@@ -142,9 +142,9 @@ def test_compare_methods_ratio_and_rms_by_hand():
     out = ev.compare_methods({"seed": a, "se3": b}, block_len=10, n_boot=200)
     for d in DIMS:
         rms_a = np.sqrt(np.mean(a[f"eps_{d}"] ** 2))
-        assert out["seed"]["per_dim"][d]["rms"] == pytest.approx(rms_a)
-        assert out["rms_ratio_se3_to_seed"][d] == pytest.approx(
-            out["se3"]["per_dim"][d]["rms"] / rms_a)
+        assert out["seed"]["per_dim"][d]["rmse"] == pytest.approx(rms_a)
+        assert out["rmse_ratio_se3_to_seed"][d] == pytest.approx(
+            out["se3"]["per_dim"][d]["rmse"] / rms_a)
         lo, hi = out["seed"]["per_dim"][d]["std_lo"], out["seed"]["per_dim"][d]["std_hi"]
         assert lo < out["seed"]["per_dim"][d]["std"] < hi
 
@@ -189,7 +189,7 @@ def test_compare_methods_leaves_out_non_finite_rows():
     a = pd.DataFrame({f"eps_{d}": rng.normal(0, 1.0, 50) for d in DIMS})
     a.loc[7, "eps_x_m"] = np.nan
     out = ev.compare_methods({"seed": a}, block_len=5, n_boot=50)
-    assert out["seed"]["n"] == 49 and np.isfinite(out["seed"]["per_dim"]["x_m"]["rms"])
+    assert out["seed"]["n"] == 49 and np.isfinite(out["seed"]["per_dim"]["x_m"]["rmse"])
 
 
 def test_diverged_seed_statistics_are_moved_and_marked():
@@ -200,13 +200,13 @@ def test_diverged_seed_statistics_are_moved_and_marked():
     sane["fold"], sane["diverged"], sane["diverged_reason"] = 0, False, ""
     se3 = pd.DataFrame({f"eps_{d}": rng.normal(0, 0.001, 100) for d in DIMS})
     out = ev.mark_seed_divergence(ev.compare_methods({"seed": sane, "se3": se3}, n_boot=50), sane)
-    assert out["seed"]["diverged"] is False and out["rms_ratio_se3_to_seed"] is not None
+    assert out["seed"]["diverged"] is False and out["rmse_ratio_se3_to_seed"] is not None
     bad = sane.copy()
     bad.loc[bad.index[:50], ["fold", "diverged", "diverged_reason"]] = [1, True, "fy at the bound"]
     out = ev.mark_seed_divergence(ev.compare_methods({"seed": bad, "se3": se3}, n_boot=50), bad)
     assert out["seed"]["diverged"] is True and "fold 1: fy at the bound" in out["seed"]["diverged_reason"]
     assert "per_dim" not in out["seed"] and "per_dim" in out["seed"]["statistics_not_measurements"]
-    assert out["rms_ratio_se3_to_seed"] is None and out["rms_ratio_se3_to_seed_not_measurements"]
+    assert out["rmse_ratio_se3_to_seed"] is None and out["rmse_ratio_se3_to_seed_not_measurements"]
     wide = pd.DataFrame({f"eps_{d}": rng.normal(0, 1.8, 100) for d in DIMS})
     out = ev.mark_seed_divergence(ev.compare_methods({"seed": wide, "se3": se3}, n_boot=50), wide)
     assert out["seed"]["diverged"] is True and "std" in out["seed"]["diverged_reason"]
@@ -263,7 +263,7 @@ def test_compare_heldout_with_corners_scores_model_T_per_fold(session, se3_heldo
     alone, scored_alone, _, _ = ev.compare_heldout(
         None, held, full, fits, s["board"], n_boot=50, corners=s["corners"]
     )
-    assert "seed" in comp and "seed" not in alone and "rms_ratio_se3_to_seed" not in alone
+    assert "seed" in comp and "seed" not in alone and "rmse_ratio_se3_to_seed" not in alone
     assert alone["se3"] == comp["se3"] and alone["error_model"] == comp["error_model"]
     pd.testing.assert_frame_equal(scored_alone, scored)
 

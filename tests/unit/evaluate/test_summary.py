@@ -5,7 +5,7 @@ import pandas as pd
 import pytest
 
 from cvsflow.evaluate.summary import summary_row
-from cvsflow.metrics.errors import ERROR_DIMS as POSE_DIMS
+from cvsflow.metrics.errors import ERROR_DIMS
 
 
 def test_summary_row_converts_to_report_units_and_true_p_bar():
@@ -14,11 +14,11 @@ def test_summary_row_converts_to_report_units_and_true_p_bar():
     frames = np.arange(20)
     F_true = rng.normal(size=(20, 6)) * [0.5, 0.5, 1.0, 0.2, 0.2, 0.2]
     P_star = F_true - np.array([0.1, -0.2, 0.3, 0.05, -0.05, 0.02])
-    truth_frames = pd.DataFrame(F_true, columns=list(POSE_DIMS)).assign(frame=frames)
-    pairs = pd.DataFrame(P_star, columns=[f"vic_{d}" for d in POSE_DIMS]).assign(frame=frames)
+    truth_frames = pd.DataFrame(F_true, columns=list(ERROR_DIMS)).assign(frame=frames)
+    pairs = pd.DataFrame(P_star, columns=[f"vic_{d}" for d in ERROR_DIMS]).assign(frame=frames)
     result = {"fx_px": 701.0, "fy_px": 699.0, "P_bar": [0.1, -0.2, 0.3, 0.05, -0.05, 0.02],
               "n_pairs": 20}
-    stats = {"per_dim": {d: {"std": 0.01} for d in POSE_DIMS},
+    stats = {"per_dim": {d: {"std": 0.01} for d in ERROR_DIMS},
              "optimum": {"norm_normalised_init_m": 0.02, "norm_normalised_final_m": 0.01}}
     truth = {"camera": {"K": [[702.0, 0, 320], [0, 698.0, 240], [0, 0, 1]]}}
     row = summary_row("demo", "seed", "calib", result, stats, truth, pairs, truth_frames)

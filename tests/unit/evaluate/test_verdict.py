@@ -25,7 +25,7 @@ def test_demo_verdict_states_the_heldout_rms_and_nees_of_its_files():
     """The demo's verdict (its golden files: the tables of `make demo`) quotes comparison.yaml's numbers."""
     verdict, loaded, distance = _demo_verdict()
     cmp = loaded["comparison"]
-    rms = {d: cmp["se3"]["per_dim"][d]["rms"] for d in cmp["se3"]["per_dim"]}
+    rms = {d: cmp["se3"]["per_dim"][d]["rmse"] for d in cmp["se3"]["per_dim"]}
     xyz = "/".join(f"{1e3 * rms[d]:.2f}" for d in ("x_m", "y_m", "z_m"))
     rpy = "/".join(f"{math.degrees(rms[d]):.2f}" for d in ("roll_rad", "pitch_rad", "yaw_rad"))
     em = cmp["error_model"]
@@ -66,8 +66,8 @@ def test_pixel_thresholds_scale_with_the_image_and_position_with_distance():
     big = dict(small, width=1920, height=1080)
     assert session_verdict("s", camera=small)["checks"][0]["status"] == "warn"
     assert session_verdict("s", camera=big)["checks"][0]["status"] == "pass"
-    per_dim = {d: {"rms": 0.0} for d in ("x_m", "y_m", "roll_rad", "pitch_rad", "yaw_rad")}
-    per_dim["z_m"] = {"rms": 0.010}
+    per_dim = {d: {"rmse": 0.0} for d in ("x_m", "y_m", "roll_rad", "pitch_rad", "yaw_rad")}
+    per_dim["z_m"] = {"rmse": 0.010}
     cmp = {"se3": {"per_dim": per_dim, "n": 100}}
     far = {c["stage"]: c["status"] for c in session_verdict("s", comparison=cmp, distance_m=5.0)["checks"]}
     near = {c["stage"]: c["status"] for c in session_verdict("s", comparison=cmp, distance_m=0.4)["checks"]}
@@ -82,7 +82,7 @@ def test_pixel_thresholds_scale_with_the_image_and_position_with_distance():
 ])
 def test_error_model_verdict_says_which_way_it_is_off(nees, inside, words, status):
     """NEES and the 95 % band share decide consistent / understated / overstated and the grade."""
-    per_dim = {d: {"rms": 1e-3} for d in ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")}
+    per_dim = {d: {"rmse": 1e-3} for d in ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")}
     cmp = {"se3": {"per_dim": per_dim, "n": 50}, "error_model": {"nees_mean": nees, "inside_95_all": inside}}
     v = session_verdict("s", comparison=cmp, distance_m=2.0)
     assert words in v["text"]
@@ -97,6 +97,8 @@ def test_flight_verdict_from_the_demo_flight():
     assert f"{math.degrees(stats['ape_rot']['rmse']):.2f} deg RMSE" in v["text"]
     assert f"RPE {1e3 * stats['rpe_trans']['rmse']:.1f} mm" in v["text"]
     assert f"log clock offset {stats['clock']['dt_offset_s']:.4f} s" in v["text"]
+    xyz = "/".join(f"{1e3 * stats['axes'][d]['rmse']:.1f}" for d in ("x_m", "y_m", "z_m"))
+    assert f"per axis x/y/z {xyz} mm" in v["text"]
     assert v["checks"][0]["stage"] == "clock"
 
 

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 from cvsflow import flight as F
 from cvsflow.exceptions import InputError, OptimiseError, SyncError
 from cvsflow.geometry.transforms import R_from_euler, euler_from_R, invert_T, make_T
+from cvsflow.metrics import ERROR_DIMS, error_statistics
 from cvsflow.synth.flight_demo import render_flight
 from tests.helpers.real_data import REAL_DATA
 
@@ -34,8 +35,11 @@ def _ape_evo(ref, est, with_scale):
     i_r, i_e = F.associate(ref["t_s"].to_numpy(), est["t_s"].to_numpy(), 0.01, 0.0)
     p_r = ref[["x_m", "y_m", "z_m"]].to_numpy()[i_r]
     p_e = est[["x_m", "y_m", "z_m"]].to_numpy()[i_e]
-    al = F.umeyama(p_r, p_e, with_scale)
-    return i_r, al, F.error_stats(F.ape_translation(p_r, al.apply_points(p_e)))
+    al = F.umeyama_alignment(p_r, p_e, with_scale)
+    st = error_statistics(F.ape_translation(p_r, al.apply_points(p_e)))
+    # evo states the population std (ddof 0); ours is the sample one (ddof 1)
+    st["std"] *= np.sqrt((st["n"] - 1) / st["n"])
+    return i_r, al, st
 
 
 EVO_SIM3 = dict(
@@ -104,12 +108,12 @@ def test_tum_per_axis_errors_add_up_to_ape(tum):
     i_r, i_e = F.associate(ref["t_s"].to_numpy(), est["t_s"].to_numpy())
     T_r = F.T_from_traj(ref)[i_r]
     T_e = F.T_from_traj(est)[i_e]
-    al = F.umeyama(T_r[:, :3, 3], T_e[:, :3, 3])
+    al = F.umeyama_alignment(T_r[:, :3, 3], T_e[:, :3, 3])
     e = F.axis_errors(T_r, T_e, al)
     ape = F.ape_translation(T_r[:, :3, 3], al.apply_points(T_e[:, :3, 3]))
     np.testing.assert_allclose(np.linalg.norm(e[:, :3], axis=1), ape, atol=1e-12)
     st = F.axis_stats(e)
-    assert np.sqrt(sum(st[a]["rmse"] ** 2 for a in "xyz")) == pytest.approx(
+    assert np.sqrt(sum(st[a]["rmse"] ** 2 for a in ("x_m", "y_m", "z_m"))) == pytest.approx(
         EVO_SE3["rmse"], abs=1e-9
     )
 
@@ -146,12 +150,12 @@ def test_umeyama_recovers_known_similarity():
     R = Rotation.random(random_state=4).as_matrix()
     t = rng.normal(size=3)
     y = 1.7 * p @ R.T + t
-    al = F.umeyama(y, p, with_scale=True)
+    al = F.umeyama_alignment(y, p, with_scale=True)
     np.testing.assert_allclose(al.T_ref_est[:3, :3], R, atol=1e-10)
     np.testing.assert_allclose(al.T_ref_est[:3, 3], t, atol=1e-10)
     assert al.scale == pytest.approx(1.7, abs=1e-10)
     with pytest.raises(OptimiseError, match="at least 3"):
-        F.umeyama(y[:2], p[:2])
+        F.umeyama_alignment(y[:2], p[:2])
 
 
 def test_weighted_alignment_equal_weights_is_umeyama_and_unequal_ones_resist_depth_noise():
@@ -165,7 +169,7 @@ def test_weighted_alignment_equal_weights_is_umeyama_and_unequal_ones_resist_dep
     y = p_est @ R.T + t + 0.005 * rng.standard_normal((200, 3))
     S_eq = np.broadcast_to(1e-4 * np.eye(3), (200, 3, 3))
     al_eq = F.align_weighted(y, p_est, S_eq)
-    al_u = F.umeyama(y, p_est)
+    al_u = F.umeyama_alignment(y, p_est)
     np.testing.assert_allclose(al_eq.T_ref_est, al_u.T_ref_est, atol=1e-9)
     assert al_eq.method == "se3w" and al_eq.floor_m2 >= 0.0
     S = np.zeros((200, 3, 3))
@@ -175,7 +179,7 @@ def test_weighted_alignment_equal_weights_is_umeyama_and_unequal_ones_resist_dep
     y2 = y.copy()
     y2[far, 2] += 0.05 * rng.standard_normal(far.sum())
     err = []
-    for al in (F.umeyama(y2, p_est), F.align_weighted(y2, p_est, S)):
+    for al in (F.umeyama_alignment(y2, p_est), F.align_weighted(y2, p_est, S)):
         dR = Rotation.from_matrix(al.T_ref_est[:3, :3] @ R.T).magnitude()
         err.append((dR, np.linalg.norm(al.T_ref_est[:3, 3] - t)))
     assert err[1][0] < 0.5 * err[0][0] and err[1][1] < 0.5 * err[0][1], err
@@ -310,12 +314,13 @@ def test_axis_stats_unresolved_share():
     e = np.zeros((4, 6))
     e[:, 0] = [0.1, -0.1, 0.3, -0.3]
     sig = np.full((4, 6), 0.2)
-    st = F.axis_stats(e, sig)["x"]
+    st = F.axis_stats(e, sig)["x_m"]
     assert st["unresolved_fraction"] == 0.5
     assert st["rmse"] == pytest.approx(np.sqrt(0.05), abs=1e-12)
     assert st["ref_variance_share"] == pytest.approx(0.04 / 0.05, abs=1e-12)
     assert st["rmse_corrected"] == pytest.approx(0.1, abs=1e-12)
-    assert st["max_abs"] == pytest.approx(0.3) and st["mean"] == pytest.approx(0.0)
+    assert st["max"] == pytest.approx(0.3) and st["min"] == pytest.approx(-0.3)
+    assert st["mean"] == pytest.approx(0.0) and st["std"] == pytest.approx(np.std(e[:, 0], ddof=1))
 
 
 @pytest.fixture(scope="module")
@@ -482,12 +487,12 @@ def test_recovered_error_matches_injected_full_pipeline(demo):
     # attitude error statistics: the injected roll/pitch bias (0.012, -0.009 rad) is seen, up to
     # the tilt of the fitted alignment (0.2 deg = 3.5 mrad: it absorbs part of the drift)
     inj = demo.injected.set_index("frame").loc[fr]
-    for ax in ("roll", "pitch"):
-        i = F.AXES.index(ax)
+    for ax in ("roll_rad", "pitch_rad"):
+        i = ERROR_DIMS.index(ax)
         assert r.stats["axes"][ax]["mean"] == pytest.approx(inj_seen[:, i].mean(), abs=5e-4)
-        assert r.stats["axes"][ax]["mean"] == pytest.approx(inj[f"e{ax}_rad"].mean(), abs=3.5e-3)
+        assert r.stats["axes"][ax]["mean"] == pytest.approx(inj[f"err_{ax}"].mean(), abs=3.5e-3)
     assert r.stats["n_pairs"] == len(fr) and len(fr) > 0.95 * len(demo.reference)
-    assert 0.0 < r.stats["axes"]["x"]["unresolved_fraction"] < 1.0
+    assert 0.0 < r.stats["axes"]["x_m"]["unresolved_fraction"] < 1.0
 
 
 def test_sim3_and_yaw_alignments_in_the_pipeline(demo):
@@ -571,7 +576,7 @@ def test_tum_export_reproduces_ape_without_alignment(demo, tmp_path):
     e = F.ape_translation(
         ref[["x_m", "y_m", "z_m"]].to_numpy()[i_r], est[["x_m", "y_m", "z_m"]].to_numpy()[i_e]
     )
-    assert F.error_stats(e)["rmse"] == pytest.approx(r.stats["ape_trans"]["rmse"], abs=1e-8)
+    assert error_statistics(e)["rmse"] == pytest.approx(r.stats["ape_trans"]["rmse"], abs=1e-8)
 
 
 def test_unaligned_tum_export_lets_evo_align_it_itself(demo, tmp_path):
@@ -588,10 +593,10 @@ def test_unaligned_tum_export_lets_evo_align_it_itself(demo, tmp_path):
     assert len(i_r) == r.stats["n_pairs"]
     p_ref = ref[["x_m", "y_m", "z_m"]].to_numpy()[i_r]
     p_est = est[["x_m", "y_m", "z_m"]].to_numpy()[i_e]
-    raw = F.error_stats(F.ape_translation(p_ref, p_est))["rmse"]
+    raw = error_statistics(F.ape_translation(p_ref, p_est))["rmse"]
     al = F.align_trajectories(p_ref, p_est, "se3")
     aligned = al.apply_T(F.T_from_traj(est.iloc[i_e]))[:, :3, 3]
-    rmse = F.error_stats(F.ape_translation(p_ref, aligned))["rmse"]
+    rmse = error_statistics(F.ape_translation(p_ref, aligned))["rmse"]
     assert rmse == pytest.approx(r.stats["ape_trans"]["rmse"], rel=1e-6)
     assert raw > 10 * rmse
 

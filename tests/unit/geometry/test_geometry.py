@@ -75,20 +75,38 @@ def test_fit_rigid_recovers_a_known_transform_per_frame():
     assert np.all(rms < 1e-12) and list(n_used) == [4, 4, 3, 4, 4, 4]
 
 
-def test_fit_rigid_refuses_degenerate_and_matches_the_pair_form():
-    """Collinear markers give NaN; the single-set form agrees with the batched one (not
-    bitwise: see fit_rigid_pair's notes) and both are proper rotations on noisy data."""
+def test_fit_rigid_refuses_degenerate_and_umeyama_agrees_with_it():
+    """Collinear markers give NaN; Umeyama's single-set form agrees with the batched fit (not
+    bitwise: another summation order) and both are proper rotations on noisy data."""
     rng = np.random.default_rng(4)
     line = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.3, 0.0, 0.0]])
     T_line, rms, _ = geo.fit_rigid(line, geo.transform_points(_random_T(rng, 1)[:, None], line[None]))
     assert np.isnan(T_line).all() and np.isnan(rms).all()
     T_true = _random_T(rng, 1)[0]
     Q = geo.transform_points(T_true, LAYOUT_M) + rng.normal(0.0, 1e-3, LAYOUT_M.shape)
-    T_pair = geo.fit_rigid_pair(LAYOUT_M, Q)
+    T_pair, s = geo.umeyama(LAYOUT_M, Q)
     T_batch = geo.fit_rigid(LAYOUT_M, Q[None])[0][0]
     np.testing.assert_allclose(T_pair, T_batch, atol=1e-13)
-    assert np.linalg.det(T_pair[:3, :3]) == pytest.approx(1.0)
+    assert s == 1.0 and np.linalg.det(T_pair[:3, :3]) == pytest.approx(1.0)
     assert np.linalg.norm(T_pair[:3, 3] - T_true[:3, 3]) < 3e-3
+
+
+def test_umeyama_with_scale_and_its_refusals():
+    """Sim(3): a known similarity is recovered exactly; a mirrored set still gives a rotation;
+    points on one spot are refused."""
+    rng = np.random.default_rng(9)
+    T_true = _random_T(rng, 1)[0]
+    p = rng.normal(size=(20, 3))
+    q = 2.5 * p @ T_true[:3, :3].T + T_true[:3, 3]
+    T, s = geo.umeyama(p, q, with_scale=True)
+    assert s == pytest.approx(2.5, rel=1e-12)
+    np.testing.assert_allclose(T, T_true, atol=1e-12)
+    T_m, _ = geo.umeyama(p, p * [1.0, 1.0, -1.0])
+    assert np.linalg.det(T_m[:3, :3]) == pytest.approx(1.0)
+    with pytest.raises(Exception, match="coincide"):
+        geo.umeyama(np.ones((4, 3)), p[:4])
+    M = rng.normal(size=(5, 3, 3))
+    np.testing.assert_array_equal(geo.project_SO3(M)[2], geo.project_SO3(M[2]))
 
 
 # ------------------------------------------------------------------ interpolation
@@ -124,6 +142,17 @@ def test_interpolate_quats_equals_scipy_slerp():
     assert ok.all()
     ref = Slerp(t, rots)(tq)
     assert np.all((Rotation.from_quat(q) * ref.inv()).magnitude() < 1e-12)
+
+
+def test_sample_period_is_the_median_spacing():
+    """30 fps frames with two dropped and one late stamp keep their 1/30 s period; unsorted
+    times are sorted first; fewer than two samples give the default."""
+    rng = np.random.default_rng(8)
+    t = np.delete(np.arange(100) / 30.0, [10, 11])
+    t[40] += 0.004
+    assert geo.sample_period(t) == pytest.approx(1 / 30.0, abs=1e-12)
+    assert geo.sample_period(rng.permutation(t)) == geo.sample_period(t)
+    assert np.isnan(geo.sample_period([1.0])) and geo.sample_period([], default=1.0) == 1.0
 
 
 # ------------------------------------------------------------------ camera model

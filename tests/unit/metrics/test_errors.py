@@ -1,4 +1,4 @@
-"""cvsflow.metrics.errors: the error definitions shared by analyse, evaluate and uncertainty."""
+"""cvsflow.metrics.errors: the error definitions shared by analyse, evaluate, flight and uncertainty."""
 
 from __future__ import annotations
 
@@ -6,33 +6,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow import geometry as geo
-from cvsflow.evaluate import analyse
-from cvsflow.evaluate import heldout as evaluate
 from cvsflow.metrics import errors as metrics
-
-
-def _errors(seed, n=200):
-    rng = np.random.default_rng(seed)
-    E = rng.normal(0.0, 1.0, (n, 6)) * [1e-3, 2e-3, 4e-3, 1e-3, 2e-3, 5e-4] + [1e-4, 0, 0, 0, 0, 2e-4]
-    return pd.DataFrame(E, columns=[f"eps_{d}" for d in metrics.ERROR_DIMS])
-
-
-def test_error_moments_are_mean_std_and_rms_about_zero():
-    """mean, sample std (ddof 1) and RMS about zero (not about the mean)."""
-    x = np.array([1.0, 2.0, 3.0, 6.0])
-    mean, std, rms = metrics.error_moments(x)
-    assert mean == 3.0 and std == np.std(x, ddof=1) and rms == np.sqrt(50.0 / 4.0)
-
-
-def test_analyse_and_evaluate_state_the_same_moments():
-    """The per-run statistics (analyse) and the method comparison (evaluate) use one
-    definition: on the same table their mean, std and rms are equal, bit for bit."""
-    table = _errors(1)
-    per_run = analyse.normality_tests(table)
-    compared = evaluate.compare_methods({"se3": table}, block_len=5, n_boot=20)["se3"]["per_dim"]
-    for d in metrics.ERROR_DIMS:
-        for k in ("mean", "std", "rms"):
-            assert compared[d][k] == per_run.loc[d, k], (d, k)
 
 
 def test_pose_errors_of_a_pure_yaw_error_and_the_table_form():

@@ -4,7 +4,7 @@ import numpy as np
 
 from cvsflow.geometry import transforms as tf
 from cvsflow.optimise import se3
-from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, body_track
+from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack
 from cvsflow.optimise.se3_sim import simulate_session
 
 INTRINSICS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
@@ -14,7 +14,7 @@ def _errors(fit, truth, bodies):
     """estimate - truth of each parameter; T_Cm_C's truth relative to the camera body that
     se3 sees (the mean of its noisy Vicon poses, whose offset from the true body is common
     to every frame and belongs to the mounting se3 fits)."""
-    cam = BodyTrack(*body_track(bodies, "camera"), smooth_s=1.0, static_tol=(0.002, 0.002),
+    cam = BodyTrack.from_bodies(bodies, "camera", smooth_s=1.0, static_tol=(0.002, 0.002),
                     moving_smooth_s=CAMERA_MOVING_SMOOTH_S)
     assert cam.static
     T_W_Cm_seen = cam(np.array([truth["dt_offset_s"] + 1.0]))[0]

@@ -9,9 +9,10 @@ import pytest
 
 from cvsflow.board.model import board_object_points
 from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry.camera import pose_jacobian, project_poses
 from cvsflow.geometry.transforms import R_from_rvec, T_from_pose6, rvec_tvec_from_T
+from cvsflow.metrics import ERROR_DIMS
 from cvsflow.optimise.seed import (
-    POSE_DIMS,
     compute_eps,
     compute_p_bar,
     normalised_error_norm,
@@ -19,8 +20,6 @@ from cvsflow.optimise.seed import (
     optimise_seed,
 )
 from cvsflow.optimise.seed_pnp import (
-    _jacobian,
-    _project,
     _project_with_jacobian,
     _solve_R_t,
     dist5,
@@ -59,7 +58,7 @@ def _session(n_frames, fx=700.0, fy=700.0, noise_px=0.2, seed=0):
     pairs = pd.DataFrame({"frame": frames, "t_s": t_s})
     P_star = pose - OFFSET
     P_star[:, 3:] = np.angle(np.exp(1j * P_star[:, 3:]))
-    for i, d in enumerate(POSE_DIMS):
+    for i, d in enumerate(ERROR_DIMS):
         pairs[f"cvs_{d}"] = pose[:, i]
         pairs[f"vic_{d}"] = P_star[:, i]
     for i in range(3):
@@ -155,19 +154,19 @@ def test_projection_and_jacobian_equal_the_textbook_expressions_bit_for_bit():
     want = _textbook_projection(R, tvec, X_B, fx, fy, 320.0, 240.0, d5)
     for g, w in zip(got, want, strict=True):
         assert g.shape == w.shape and g.tobytes() == w.tobytes()
-    at_truth = _project(R, tvec, X_B, 700.0, 700.0, 320.0, 240.0, d5)[0]
+    at_truth = project_poses(R, tvec, X_B, 700.0, 700.0, 320.0, 240.0, d5)[0]
     np.testing.assert_allclose(at_truth, uv_obs, atol=1.5)  # 0.2 px noise: it projects these frames
     sub = rng.random(30) < 0.5
-    _, _, _, parts = _project(R, tvec, X_B, fx, fy, 320.0, 240.0, d5)
-    J_sub = _jacobian([v[sub] for v in parts], fx[sub], fy[sub], d5)
+    _, _, _, parts = project_poses(R, tvec, X_B, fx, fy, 320.0, 240.0, d5)
+    J_sub = pose_jacobian([v[sub] for v in parts], fx[sub], fy[sub], d5)
     assert J_sub.tobytes() == got[3][sub].tobytes()
     # d(u, v)/dt by central differences: the Jacobian is a derivative, not only self-consistent
     h = 1e-7
     for k in range(3):
         dt = np.zeros(3)
         dt[k] = h
-        up = _project(R, tvec + dt, X_B, fx, fy, 320.0, 240.0, d5)[0]
-        dn = _project(R, tvec - dt, X_B, fx, fy, 320.0, 240.0, d5)[0]
+        up = project_poses(R, tvec + dt, X_B, fx, fy, 320.0, 240.0, d5)[0]
+        dn = project_poses(R, tvec - dt, X_B, fx, fy, 320.0, 240.0, d5)[0]
         np.testing.assert_allclose(got[3][..., 3 + k], (up - dn) / (2 * h), rtol=1e-5, atol=1e-3)
 
 
@@ -241,20 +240,20 @@ def test_tables_and_result_schema():
     res = optimise_seed(pairs, corners, K, DIST, BOARD, k_iterations=1, grid_points=3,
                         grid_levels=2)
     it, err = res.iterations, res.errors
-    for d in POSE_DIMS:
-        for pre in ("P_bar_", "eps_mean_", "eps_std_", "eps_rms_"):
+    for d in ERROR_DIMS:
+        for pre in ("P_bar_", "eps_mean_", "eps_std_", "eps_rmse_"):
             assert pre + d in it.columns
         for pre in ("vic_", "cvs_", "cvs_orig_", "eps_", "eps_orig_"):
             assert pre + d in err.columns
     for col in ("iteration", "fx_px", "fy_px", "objective", "norm_normalised"):
         assert col in it.columns
-    F = err[[f"cvs_{d}" for d in POSE_DIMS]].to_numpy()
-    P = err[[f"vic_{d}" for d in POSE_DIMS]].to_numpy()
+    F = err[[f"cvs_{d}" for d in ERROR_DIMS]].to_numpy()
+    P = err[[f"vic_{d}" for d in ERROR_DIMS]].to_numpy()
     P_bar = np.array(res.result["P_bar"])
-    np.testing.assert_allclose(err[[f"eps_{d}" for d in POSE_DIMS]].to_numpy(),
+    np.testing.assert_allclose(err[[f"eps_{d}" for d in ERROR_DIMS]].to_numpy(),
                                compute_eps(F, P, P_bar), atol=1e-12)
-    eps = err[[f"eps_{d}" for d in POSE_DIMS]].to_numpy()
-    np.testing.assert_allclose(it[[f"eps_rms_{d}" for d in POSE_DIMS]].iloc[-1],
+    eps = err[[f"eps_{d}" for d in ERROR_DIMS]].to_numpy()
+    np.testing.assert_allclose(it[[f"eps_rmse_{d}" for d in ERROR_DIMS]].iloc[-1],
                                np.sqrt(np.mean(eps**2, axis=0)), rtol=1e-12)
     assert res.result["n_pairs"] == 40 and res.result["iterations"] == 1
     assert set(res.result) >= {"fx_px", "fy_px", "P_bar", "objective", "timings_s",
@@ -383,7 +382,7 @@ def _plain_lm(uv, X_B, fx, fy, cx, cy, d5, R, t, max_iter, tol):
             Jtr = Jf.transpose(0, 2, 1) @ r.reshape(1, -1, 1)
             delta = np.linalg.solve(JtJ + lam[:, None, None] * (JtJ * np.eye(6)), Jtr)[..., 0]
             R_new, t_new = R_from_rvec(delta[:, :3]) @ Ri, ti + delta[:, 3:]
-            res_new = uv[i:i + 1] - _project(R_new, t_new, X_B, f_x, f_y, cx, cy, d5)[0]
+            res_new = uv[i:i + 1] - project_poses(R_new, t_new, X_B, f_x, f_y, cx, cy, d5)[0]
             accept = bool(np.sum(res_new ** 2, axis=(1, 2))[0] <= np.sum(r ** 2, axis=(1, 2))[0])
             if accept:
                 R[i], t[i] = R_new[0], t_new[0]

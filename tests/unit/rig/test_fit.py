@@ -12,7 +12,7 @@ from cvsflow.exceptions import OptimiseError
 from cvsflow.geometry import transforms as tf
 from cvsflow.geometry.camera import INTRINSIC_NAMES
 from cvsflow.optimise import se3
-from cvsflow.optimise.body_tracks import BodyTrack, body_track
+from cvsflow.optimise.body_tracks import BodyTrack
 from cvsflow.optimise.se3_model import Se3Model
 from cvsflow.optimise.se3_sim import simulate_rig_session
 from cvsflow.optimise.se3_start import corner_arrays
@@ -87,8 +87,8 @@ def fitted(rig):
 def test_rig_jacobian_matches_finite_differences(rig):
     """RigModel's stacked analytic Jacobian equals central differences (shared T_Bm_B columns too)."""
     p_B = board_object_points(rig["board"])
-    cam = BodyTrack(*body_track(rig["bodies"], "camera"))
-    brd = BodyTrack(*body_track(rig["bodies"], "board"), smooth_s=0.01)
+    cam = BodyTrack.from_bodies(rig["bodies"], "camera")
+    brd = BodyTrack.from_bodies(rig["bodies"], "board", smooth_s=0.01)
     models, per_cam = [], []
     tb = rig["truth"]
     for c, t in zip(rig["cameras"], tb["cameras"], strict=True):

@@ -150,7 +150,7 @@ def test_pnp_reference_estimated_clock_and_weighted_alignment(pnp_flight):
     assert abs(e_c) < 3 * k.details["dt_centre_std_s"]
     assert abs(k.dt_offset_s - d.clock.dt_offset_s) < 4 * k.details["dt_offset_std_s"]
     assert r.alignment.method == "se3w"
-    for axis in ("x", "z"):
+    for axis in ("x_m", "z_m"):
         assert res[False]["z_rms_truth_alignment"][axis] > 1.5, res[False]
         assert res[True]["z_rms_truth_alignment"][axis] < 1.25, res[True]
 
@@ -245,7 +245,7 @@ def test_figures(demo, tmp_path):
     ]
     assert len(fig.axes[0].collections) == 1  # the ±kσ band
     ymax = np.max(np.abs(fig.axes[0].lines[0].get_ydata()))
-    assert ymax == pytest.approx(1e3 * np.abs(r.errors["ex_m"]).max(), rel=1e-9)
+    assert ymax == pytest.approx(1e3 * np.abs(r.errors["err_x_m"]).max(), rel=1e-9)
     save_figure(fig, tmp_path / "err.png")
     for f in (plot_flight_trajectories(r.ref_aligned, r.est_aligned), plot_ape(r.errors, r.stats)):
         assert all(ax.get_xlabel() and ax.get_ylabel() for ax in f.axes)

@@ -18,7 +18,7 @@ from cvsflow.exceptions import ConfigError
 from cvsflow.geometry.transforms import invert_T, rotation_angle
 from cvsflow.io.mocap.vicon import read_nexus_csv
 from cvsflow.rig.extrinsics import stereo_extrinsics
-from cvsflow.synth.imaging import project_points
+from cvsflow.synth.imaging import project_in_view
 from cvsflow.synth.motion import CameraView, board_poses
 from cvsflow.synth.render import render_rig_camera, render_rig_mocap
 from cvsflow.synth.rig_session import (
@@ -142,7 +142,7 @@ def test_rendered_frames_show_the_board_where_the_rig_truth_puts_it(rendered, tr
         corners = pd.read_parquet(folder / "truth_corners.parquet")
         spec = truth.specs[i]
         T = truth.T_C_C0(i) @ true_board_poses_C0(truth, frames["t_s"].to_numpy() + truth.dt_offset_s[i])
-        uv = project_points(T, spec.board.corners_B(), spec.K, spec.dist)
+        uv = project_in_view(T, spec.board.corners_B(), spec.K, spec.dist)
         got = corners[["u_px", "v_px"]].to_numpy().reshape(uv.shape)
         np.testing.assert_allclose(got, uv, atol=1e-9)
 
@@ -159,7 +159,7 @@ def test_shared_views_are_seen_whole_by_both_cameras_where_the_truth_says(render
                              spec.board.config(), subpix_window_px=5)
         assert sorted(table["image"].unique()) == [p.name for p in paths]
         for v, (_, g) in enumerate(table.groupby("image")):
-            uv = project_points(truth.T_C_C0(i) @ T_C0_B[v], spec.board.corners_B(), spec.K, spec.dist)
+            uv = project_in_view(truth.T_C_C0(i) @ T_C0_B[v], spec.board.corners_B(), spec.K, spec.dist)
             assert np.max(np.linalg.norm(g[["u_px", "v_px"]].to_numpy() - uv, axis=1)) < 0.5, (cam, v)
         tables.append(table)
         cameras.append({"K": spec.K.tolist(), "dist": spec.dist.tolist()})

@@ -14,12 +14,13 @@ import yaml
 
 from cvsflow.calibration.intrinsics import calibrate_camera
 from cvsflow.exceptions import ConfigError
+from cvsflow.geometry import umeyama
 from cvsflow.geometry.transforms import T_from_pose6, euler_from_R, invert_T, rotation_angle, rvec_tvec_from_T
 from cvsflow.io import synth_out
 from cvsflow.synth.board_image import make_board_texture
 from cvsflow.synth.frames import Renderer
-from cvsflow.synth.imaging import Board, project_points
-from cvsflow.synth.markers import fit_rigid, true_mounting
+from cvsflow.synth.imaging import Board, project_in_view
+from cvsflow.synth.markers import true_mounting
 from cvsflow.synth.motion import board_poses, make_hand_motion, still_poses
 from cvsflow.synth.render import render_session, render_stills
 from cvsflow.synth.session import make_rig, still_outline_B, vicon_recording, video_truth
@@ -141,7 +142,7 @@ def test_rendered_corners_match_truth(spec):
             image, c, (5, 5), (-1, -1),
             (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 50, 1e-4),
         )[:, 0]
-        truth = project_points(T_C_B, corners_B, spec.K, spec.dist)
+        truth = project_in_view(T_C_B, corners_B, spec.K, spec.dist)
         # OpenCV may number the grid from either end; the nearer order is the match
         err = min(np.linalg.norm(c - truth, axis=1).max(),
                   np.linalg.norm(c[::-1] - truth, axis=1).max())
@@ -149,8 +150,8 @@ def test_rendered_corners_match_truth(spec):
     assert max(errors) < 0.3, errors
 
 
-def test_project_points_matches_opencv(spec):
-    """project_points reproduces cv2.projectPoints (5-term distortion) to 1e-6 px."""
+def test_project_in_view_matches_opencv(spec):
+    """project_in_view reproduces cv2.projectPoints (5-term distortion) to 1e-6 px."""
     rng = np.random.default_rng(5)
     corners_B = spec.board.corners_B()
     for _ in range(5):
@@ -159,7 +160,7 @@ def test_project_points_matches_opencv(spec):
         rvec, tvec = rvec_tvec_from_T(T_C_B)
         ref, _ = cv2.projectPoints(corners_B, rvec, tvec, spec.K, spec.dist)
         np.testing.assert_allclose(
-            project_points(T_C_B, corners_B, spec.K, spec.dist), ref[:, 0], atol=1e-6
+            project_in_view(T_C_B, corners_B, spec.K, spec.dist), ref[:, 0], atol=1e-6
         )
 
 
@@ -187,7 +188,7 @@ def test_true_mounting_is_least_squares_fit():
     T_design = T_from_pose6([0.2, 0.395, -0.004, np.pi, 0, 0])
     err = rng.normal(0, 0.003, layout.shape)
     T_Bm_B, markers = true_mounting(T_design, layout, err)
-    T_fit = fit_rigid(layout, markers)
+    T_fit = umeyama(layout, markers)[0]
     np.testing.assert_allclose(T_fit, np.eye(4), atol=1e-12)
     # the correction is small (placement errors of 3 mm) but not zero
     assert 1e-5 < np.linalg.norm(T_Bm_B[:3, 3] - T_design[:3, 3]) < 0.01
@@ -210,11 +211,11 @@ def test_vicon_markers_reconstruct_board_pose(spec):
     t_video = df["t_s"].to_numpy()[idx] - rig.dt_offset_s
     T_expected = rig.T_W_Cm @ rig.T_Cm_C @ board_poses(motion, t_video) @ invert_T(rig.T_Bm_B)
     for k in range(len(idx)):
-        T_fit = fit_rigid(clean.board_layout_m, xyz[k])
+        T_fit = umeyama(clean.board_layout_m, xyz[k])[0]
         assert np.linalg.norm(T_fit[:3, 3] - T_expected[k, :3, 3]) < 1e-4
         assert rotation_angle(T_fit[:3, :3].T @ T_expected[k, :3, :3]) < 1e-4
     cam = np.stack([df[[f"{n}_{a}_m" for a in "xyz"]].to_numpy()[0] for n in clean.camera_names])
-    np.testing.assert_allclose(fit_rigid(clean.camera_layout_m, cam), rig.T_W_Cm, atol=1e-4)
+    np.testing.assert_allclose(umeyama(clean.camera_layout_m, cam)[0], rig.T_W_Cm, atol=1e-4)
     # the offset is not a whole number of Vicon samples
     frac = (rig.dt_offset_s * 300) % 1.0
     assert 0.1 < frac < 0.9
@@ -287,7 +288,7 @@ def test_still_poses_in_view_and_varied(spec):
     outline = still_outline_B(spec.board)
     poses = still_poses(rng, 15, spec.K, spec.dist, IMAGE_SIZE, outline, board=spec.board)
     assert len(poses) == 15
-    uv = project_points(poses, outline, spec.K, spec.dist)
+    uv = project_in_view(poses, outline, spec.K, spec.dist)
     assert np.all((uv >= 10) & (uv <= [629, 469]))
     assert poses[:, 2, 3].min() > 0.6 and poses[:, 2, 3].max() < 2.5
     assert np.ptp(poses[:, 2, 3]) > 0.8
@@ -298,7 +299,7 @@ def test_still_poses_in_view_and_varied(spec):
     strong = tilt > 38.0
     lean = np.rad2deg(np.arctan2(np.abs(normal_B[strong, 1]), np.abs(normal_B[strong, 0])))
     assert lean.max() > 75.0 and lean.min() < 15.0
-    grid = project_points(poses, spec.board.corners_B(), spec.K, spec.dist).reshape(15, 4, 5, 2)
+    grid = project_in_view(poses, spec.board.corners_B(), spec.K, spec.dist).reshape(15, 4, 5, 2)
     sides = np.r_[np.linalg.norm(np.diff(grid, axis=2), axis=-1).ravel(),
                   np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel()]
     assert sides.min() >= 20.0
@@ -317,11 +318,11 @@ def test_still_poses_come_nearer_for_a_wide_lens_and_small_squares():
     outline = still_outline_B(board)
     poses = still_poses(np.random.default_rng(31), 15, K, dist, (640, 480), outline, board=board)
     assert len(poses) == 15
-    grid = project_points(poses, board.corners_B(), K, dist).reshape(15, board.ny, board.nx, 2)
+    grid = project_in_view(poses, board.corners_B(), K, dist).reshape(15, board.ny, board.nx, 2)
     sides = np.r_[np.linalg.norm(np.diff(grid, axis=2), axis=-1).ravel(),
                   np.linalg.norm(np.diff(grid, axis=1), axis=-1).ravel()]
     assert sides.min() >= 20.0
-    uv = project_points(poses, outline, K, dist)
+    uv = project_in_view(poses, outline, K, dist)
     assert np.all((uv >= 10) & (uv <= [629, 469]))
     assert poses[:, 2, 3].max() < 1.3 and np.ptp(poses[:, 2, 3]) > 0.3
 
@@ -334,7 +335,7 @@ def test_still_corners_cover_every_image_region(spec, seed):
     rng = random_streams(seed)["stills"]
     poses = still_poses(rng, 15, spec.K, spec.dist, IMAGE_SIZE, still_outline_B(spec.board),
                         board=spec.board)
-    uv = project_points(poses, spec.board.corners_B(), spec.K, spec.dist).reshape(-1, 2)
+    uv = project_in_view(poses, spec.board.corners_B(), spec.K, spec.dist).reshape(-1, 2)
     width, height = IMAGE_SIZE
     col = np.clip((uv[:, 0] * 3 // width).astype(int), 0, 2)
     row = np.clip((uv[:, 1] * 3 // height).astype(int), 0, 2)
@@ -449,7 +450,7 @@ def test_files_agree_vicon_and_video_truth(rendered):
             xyz = np.stack([markers[[f"{n}_{a}_m" for a in "xyz"]].to_numpy()[jj] for n in names])
             if np.isnan(xyz).any():
                 break
-            fits.append(fit_rigid(layout, xyz))
+            fits.append(umeyama(layout, xyz)[0])
         if len(fits) < 2:
             continue
         w = j - j0
@@ -483,7 +484,7 @@ def _fitted_bodies(df, spec):
     for names, layout in ((spec.camera_names, spec.camera_layout_m),
                           (spec.board_names, spec.board_layout_m)):  # fmt: skip
         xyz = np.stack([df[[f"{n}_{a}_m" for a in "xyz"]].to_numpy()[idx] for n in names], axis=1)
-        out.append(np.stack([fit_rigid(layout, xyz[k]) for k in range(len(idx))]))
+        out.append(np.stack([umeyama(layout, xyz[k])[0] for k in range(len(idx))]))
     return df["t_s"].to_numpy()[idx], out[0], out[1]
 
 

@@ -22,7 +22,7 @@ from cvsflow.synth.board_image import (
     render_board,
     render_board_region,
 )
-from cvsflow.synth.imaging import Board, project_points, undistortion_grid
+from cvsflow.synth.imaging import Board, project_in_view, undistortion_grid
 
 BOARD = Board(6, 5, 0.09)
 SIZE = (640, 480)
@@ -116,7 +116,7 @@ def test_small_square_corners_have_no_common_bias(texture):
         layer = render_board(T_C_B, texture, xy_n, K, DEMO_DIST)
         grey = (255.0 * (layer[..., 0] + 0.5 * (1.0 - layer[..., 1]))).astype(np.float32)
         grey = cv2.GaussianBlur(grey, (0, 0), 0.8)
-        truth = project_points(T_C_B, corners_B, K, DEMO_DIST)
+        truth = project_in_view(T_C_B, corners_B, K, DEMO_DIST)
         start = truth + rng.uniform(-0.3, 0.3, truth.shape)
         start = np.ascontiguousarray(start[:, None], np.float32)
         uv = cv2.cornerSubPix(grey, start, (5, 5), (-1, -1), criteria)[:, 0].astype(float)

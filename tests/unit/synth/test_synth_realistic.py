@@ -20,7 +20,7 @@ import yaml
 from cvsflow.exceptions import ConfigError
 from cvsflow.synth.effects import PRESETS, auto_exposure, make_timeline, parse_effects
 from cvsflow.synth.frames import ILLUMINANT_BGR, FrameEffects, Lighting, Renderer
-from cvsflow.synth.imaging import project_points
+from cvsflow.synth.imaging import project_in_view
 from cvsflow.synth.motion import board_poses, make_hand_motion, random_sine_sum
 from cvsflow.synth.render import render_session
 from cvsflow.synth.session import corners_at_line_times
@@ -262,7 +262,7 @@ def _moving_frame(spec, motion, line_delay_s):
     """A time (s) in 3..15 s with the board in view and moving fast (largest rolling-shutter shift)."""
     t = np.arange(3.0, 15.0, 0.05)
     T = board_poses(motion, t)
-    uv0 = project_points(T, spec.board.corners_B(), spec.K, spec.dist)
+    uv0 = project_in_view(T, spec.board.corners_B(), spec.K, spec.dist)
     uv1, _ = corners_at_line_times(motion, t, spec.board.corners_B(), spec.K, spec.dist, line_delay_s, uv0)
     w, h = spec.image_size
     inside = np.all((uv0[..., 0] > 20) & (uv0[..., 0] < w - 20) & (uv0[..., 1] > 20) & (uv0[..., 1] < h - 20), 1)
