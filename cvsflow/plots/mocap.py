@@ -167,21 +167,29 @@ def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None =
     Returns
     -------
     Figure
-        Top: |omega| in deg/s of the video (shifted by the offset) and of the Vicon over the
-        video's span plus 1 s each side. Bottom: their difference in deg/s at the video
-        samples (NaN, not drawn, outside the Vicon samples).
+        Top: before the offset, |omega| in deg/s of the video on its own clock and of the Vicon
+        over the whole take (what the search started from). Middle: the video shifted by the
+        offset and the Vicon over the video's span plus 1 s each side. Bottom: their difference
+        in deg/s at the video samples (NaN, not drawn, outside the Vicon samples).
     """
     t_c = streams["t_cvs_s"] + dt_offset_s
     w_c = np.degrees(streams["omega_cvs_rad_s"])
     t_v = streams["t_vicon_s"]
     w_v = np.degrees(streams["omega_vicon_rad_s"])
     span = (t_v >= t_c[0] - 1.0) & (t_v <= t_c[-1] + 1.0)
-    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(10.0, 6.0), sharex=True, layout="constrained",
-                                   height_ratios=[2, 1])
+    fig = plt.figure(figsize=(10.0, 8.5), layout="constrained")
+    ax_raw, ax0, ax1 = fig.subplots(3, 1, height_ratios=[1.5, 2, 1])
+    ax1.sharex(ax0)
+    ax_raw.plot(t_v, w_v, lw=0.6, color="tab:orange", label="Vicon (its clock)")
+    ax_raw.plot(streams["t_cvs_s"], w_c, ".", ms=2.0, color="tab:blue", label="video (its clock, offset 0)")
+    ax_raw.set_title("before: both streams on their own clocks")
+    ax_raw.set_ylabel("|omega| (deg/s)")
+    ax_raw.set_xlabel("time on each stream's clock (s)")
+    ax_raw.legend(fontsize=8)
     ax0.plot(t_v[span], w_v[span], lw=0.8, color="tab:orange", label="Vicon (board rel. camera body)")
     ax0.plot(t_c, w_c, ".", ms=2.5, color="tab:blue", label="video (PnP), shifted")
     ax0.set_ylabel("angular speed |omega| (deg/s)")
-    title = f"Synchronisation: dt_offset = {dt_offset_s * 1000:.1f} ms"
+    title = f"after: video shifted by dt_offset = {dt_offset_s * 1000:.1f} ms"
     if method:
         title += f" ({method})"
     if quality is not None:

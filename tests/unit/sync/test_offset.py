@@ -267,8 +267,9 @@ def test_streams_for_the_figure(session):
 
 
 def test_sync_figure(session):
-    """plot_sync draws both streams on the Vicon clock with deg/s and s axis labels, and the
-    aligned residual is small compared with the signal (median |diff| < 20 % of median speed)."""
+    """plot_sync draws both streams before the offset (each on its own clock) and after it on the
+    Vicon clock with deg/s and s axis labels, and the aligned residual is small compared with the
+    signal (median |diff| < 20 % of median speed)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -278,7 +279,10 @@ def test_sync_figure(session):
 
     poses, bodies, _ = session
     fig = plot_sync(poses, bodies, {"dt_offset_s": DT_OFFSET_S, "quality": 0.9, "method": "angular_speed"})
-    ax0, ax1 = fig.axes
+    ax_raw, ax0, ax1 = fig.axes
+    assert "before" in ax_raw.get_title() and "after" in ax0.get_title()
+    video_raw, video_shifted = ax_raw.lines[1].get_xdata(), ax0.lines[1].get_xdata()
+    assert np.allclose(video_shifted - video_raw, DT_OFFSET_S)
     assert "deg/s" in ax0.get_ylabel() and ax1.get_xlabel() == "Vicon time t (s)"
     resid = ax1.lines[0].get_ydata()
     speed = ax0.lines[1].get_ydata()
