@@ -2,6 +2,7 @@
 table and the report's verdict.
 """
 
+from cvsflow.evaluate.by_view import errors_by_view, view_geometry
 from cvsflow.evaluate.headline import (
     flight_headline,
     headline_rst,
@@ -24,5 +25,5 @@ __all__ = [
     "compare_heldout", "cross_validate_se3", "cross_validate_seed", "flight_headline", "headline_rst",
     "headline_table", "heldout_blocks", "make_time_blocks", "rig_headline", "se3_run_tables",
     "session_headline", "session_verdict", "flight_verdict", "median_distance_m", "summary_row",
-    "verdict_rst",
+    "verdict_rst", "errors_by_view", "view_geometry",
 ]

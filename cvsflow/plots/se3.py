@@ -145,3 +145,40 @@ def plot_solver_convergence(iterations: pd.DataFrame) -> Figure:
         a.grid(alpha=0.3)
     fig.suptitle("se3: convergence of the joint calibration")
     return fig
+
+
+def plot_errors_by_view(binned: pd.DataFrame) -> Figure:
+    """Held-out RMS error per axis against the board's distance and against its tilt.
+
+    Parameters
+    ----------
+    binned : DataFrame
+        :func:`cvsflow.evaluate.by_view.errors_by_view`: rows ``by`` (``distance_m`` or
+        ``tilt_rad``), ``centre``, ``n`` and the RMS of each error dimension (SI).
+
+    Returns
+    -------
+    Figure
+        Two rows (translation in mm, rotation in deg) by two columns (distance in m, tilt in
+        deg); one line per axis through the bins' medians.
+    """
+    from cvsflow.metrics import ERROR_DIMS, REPORT_UNITS
+
+    fig, axes = plt.subplots(2, 2, figsize=(10.0, 6.5), layout="constrained", sharex="col")
+    for col, (by, xlabel, xk) in enumerate((("distance_m", "board distance (m)", 1.0),
+                                            ("tilt_rad", "board tilt from facing the camera (deg)",
+                                             180.0 / np.pi))):
+        part = binned[binned["by"] == by]
+        for row, dims in enumerate((ERROR_DIMS[:3], ERROR_DIMS[3:])):
+            ax = axes[row, col]
+            for d in dims:
+                label, unit, k = REPORT_UNITS[d]
+                ax.plot(xk * part["centre"], k * part[d], "o-", ms=3, label=label)
+            ax.set_ylabel(f"held-out RMS ({unit})")
+            ax.set_ylim(bottom=0.0)
+            ax.legend(fontsize=8)
+            if row == 1:
+                ax.set_xlabel(xlabel)
+    n = int(binned[binned["by"] == "distance_m"]["n"].sum()) if len(binned) else 0
+    fig.suptitle(f"Held-out error against the board's distance and tilt ({n} frames, equal-count bins)")
+    return fig

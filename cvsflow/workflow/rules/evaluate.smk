@@ -94,6 +94,13 @@ rule compare:
                 subcategory="held-out comparison (seed vs se3)",
                 labels={"session": "{session}", "figure": "NEES histogram"},
             ),
+            by_view=report(
+                "results/{session}/figures/errors_by_view.png",
+                caption="../report/errors_by_view.rst",
+                category="{session}",
+                subcategory="held-out comparison (seed vs se3)",
+                labels={"session": "{session}", "figure": "error by distance, tilt"},
+            ),
         ),
         comparison="results/{session}/comparison.yaml",
         se3_scored="results/{session}/heldout/se3_scored.parquet",

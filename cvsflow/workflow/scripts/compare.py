@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from cvsflow.evaluate import compare_heldout
+from cvsflow.evaluate import compare_heldout, errors_by_view
 from cvsflow.io.files import draw_figure, read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.logs import cpu_section, stage_logging
 from cvsflow.plots import se3 as plots
@@ -43,3 +43,4 @@ with stage_logging(snakemake.log[0], "compare") as log:
         draw_figure(out, "heldout", lambda: plots.plot_heldout_errors(se3))
         draw_figure(out, "bands", lambda: plots.plot_error_bands(se3, sigma, np.nanmean(mu, axis=0)))
         draw_figure(out, "correlation", lambda: plots.plot_parameter_correlation(result))
+        draw_figure(out, "by_view", lambda: plots.plot_errors_by_view(errors_by_view(se3)))
