@@ -183,9 +183,9 @@ def build_bag_config(bag) -> tuple[dict, list[str], str]:
     notes.append("calib_dir: TODO (a folder of stills of the board), or camera: <session> to reuse another "
                  "session's calibration; board: TODO (its size), or target: a Kalibr target "
                  "file")  # fmt: skip
-    notes.append("NOT RUNNABLE YET: the workflow's stages do not read a bag (cvsflow run refuses a bag "
-                 "block); this block records the topics for the bag readers (cvsflow.io.rosbag_images, "
-                 "rosbag_poses). To run now, give video and a motion-capture export instead")  # fmt: skip
+    notes.append("dt_offset_s: left out, the sync stage estimates the offset between the frames' and the "
+                 "poses' stamps; dt_offset_s: 0 holds it when one clock stamps both (a still camera at "
+                 "every frame leaves it unobservable)")  # fmt: skip
     session = {"bag": block, "calib_dir": "TODO", "board": {"squares_x": "TODO", "squares_y": "TODO",
                                                             "square_m": "TODO"}}  # fmt: skip
     return session, notes, topics_text(topics)

@@ -5,14 +5,14 @@ The config keys (``sessions.<name>.bag``, schema ``cvsflow/workflow/schemas/conf
     bag:
       path: recordings/lab1.bag      # or [part0.bag, part1.bag], a ROS 2 bag folder, .db3, .mcap
       time: header                   # or receive (stamps left at zero); default header
-      image_topic: /cam0/image_raw   # the camera input, instead of video
-      camera_body: {topic: /vicon/cam/pose, parent: world}          # T_W_Cm, instead of mocap.file
+      image_topic: /cam0/image_raw   # the camera input, instead of video or frames
+      camera_body: {topic: /vicon/cam/pose, parent: world}   # T_W_Cm, instead of mocap.file, pose_streams
       board_body: {topic: /tf, parent: world, child: board, time: receive}   # T_W_Bm
 
-The three functions here are the interface the workflow's rules are to call; they do not yet
-(:func:`cvsflow.workflow.sessions.session_stages` refuses a session with a ``bag`` block):
+What the workflow calls (the block's check lives with the other session checks):
 
-- :func:`bag_settings` at parse time (as :func:`cvsflow.io.mocap.formats.mocap_settings`):
+- :func:`cvsflow.workflow.sessions.bag_settings` at parse time (as
+  :func:`cvsflow.io.mocap.formats.mocap_settings`):
   the block with its defaults, checked against the session's other inputs, without opening
   the bag;
 - :func:`bag_frame_source` in the corners stage: the frame source (``source(start, stop)``
@@ -32,64 +32,6 @@ from cvsflow.exceptions import ConfigError
 from cvsflow.io.rosbag_images import bag_frame_list, iter_bag_gray
 from cvsflow.io.rosbag_poses import read_bag_pose_stream
 
-BODIES = ("camera", "board")
-
-
-def bag_settings(session: str, cfg: dict) -> dict | None:
-    """A session's ``bag`` block with its defaults, checked; None when it has none.
-
-    Parameters
-    ----------
-    session : str
-        Session key, for messages.
-    cfg : dict
-        ``config["sessions"][session]`` (validated against the schema).
-
-    Returns
-    -------
-    dict or None
-        ``path`` (str, or a list of str for a split ROS 1 recording), ``time``, ``image``
-        (``{"topic", "time"}`` or None), ``camera_body`` and ``board_body`` (``{"topic",
-        "parent", "child", "time"}`` or None).
-
-    Raises
-    ------
-    ConfigError
-        ``image_topic`` beside a ``video``; a body topic beside ``mocap.file``; one body's topic
-        without the other's; a block that names no topic.
-    """
-    block = cfg.get("bag")
-    if block is None:
-        return None
-    where = f"config: sessions.{session}.bag"
-    time = block.get("time", "header")
-    out = {"path": block["path"], "time": time, "image": None, "camera_body": None, "board_body": None}
-    if "image_topic" in block:
-        if "video" in cfg:
-            raise ConfigError(f"{where}.image_topic: the session also names a video ({cfg['video']}); "
-                              "expected one camera input: the bag's image topic or the video")  # fmt: skip
-        out["image"] = {"topic": block["image_topic"], "time": time}
-    named = [b for b in BODIES if f"{b}_body" in block]
-    if named:
-        if len(named) == 1:
-            missing = next(b for b in BODIES if b not in named)
-            raise ConfigError(f"{where}: {named[0]}_body without {missing}_body; expected the poses of "
-                              "both marker bodies from the bag (camera_body: T_W_Cm, board_body: "
-                              "T_W_Bm)")  # fmt: skip
-        export = (cfg.get("mocap") or {}).get("file")
-        if export is not None:
-            raise ConfigError(f"{where}: camera_body and board_body, and the session also names a "
-                              f"motion-capture export (mocap.file: {export}); expected one motion capture: "
-                              "the bag's poses or the export")  # fmt: skip
-        for b in BODIES:
-            spec = block[f"{b}_body"]
-            out[f"{b}_body"] = {"topic": spec["topic"], "parent": spec.get("parent"),
-                                "child": spec.get("child"), "time": spec.get("time", time)}  # fmt: skip
-    if out["image"] is None and not named:
-        raise ConfigError(f"{where}: names no topic; expected image_topic (the camera input) and/or "
-                          "camera_body and board_body (the marker bodies' poses)")  # fmt: skip
-    return out
-
 
 def bag_frame_source(settings: dict):
     """The frame source and the frame list of a session's bag image topic.
@@ -97,7 +39,7 @@ def bag_frame_source(settings: dict):
     Parameters
     ----------
     settings : dict
-        :func:`bag_settings` (with an ``image``).
+        :func:`cvsflow.workflow.sessions.bag_settings` (with an ``image``).
 
     Returns
     -------
@@ -131,7 +73,7 @@ def read_bag_body(settings: dict, body: str) -> pd.DataFrame:
     Parameters
     ----------
     settings : dict
-        :func:`bag_settings` (with both bodies).
+        :func:`cvsflow.workflow.sessions.bag_settings` (with both bodies).
     body : {"camera", "board"}
 
     Returns
@@ -147,7 +89,7 @@ def read_bag_body(settings: dict, body: str) -> pd.DataFrame:
     TopicNotFoundError, TopicTypeError, FrameIdError, ZeroStampError, PoseStreamError, BagError
         As :func:`~cvsflow.io.rosbag_poses.read_bag_pose_stream`.
     """
-    spec = settings.get(f"{body}_body") if body in BODIES else None
+    spec = settings.get(f"{body}_body") if body in ("camera", "board") else None
     if spec is None:
         raise ConfigError(f"{settings['path']}: the session's bag block names no {body}_body")
     return read_bag_pose_stream(settings["path"], spec["topic"], spec["parent"], spec["child"], spec["time"])

@@ -1,7 +1,8 @@
 """Which stages each configured session can run, or why it cannot run what it asks for.
 
 A session names its inputs (``calib_dir``, ``video`` or a timestamped ``frames`` folder,
-``mocap.file`` or two ``pose_streams``, or a ``synth`` block that renders all three). Every input
+``mocap.file`` or two ``pose_streams``, a ROS bag's image and pose topics in a ``bag`` block, or a
+``synth`` block that renders all three). Every input
 it names must be used: a video is turned into poses, which need the camera's intrinsics, from the
 session's own stills or, with ``camera: <other session>``, from another session's calibration.
 A session that names something it cannot use stops the run before any job starts, with a message
@@ -131,6 +132,81 @@ def camera_session(name: str, sessions: dict) -> str | None:
     return other
 
 
+#: The two marker bodies a bag block may give the poses of.
+BAG_BODIES = ("camera", "board")
+
+
+def bag_settings(session: str, cfg: dict) -> dict | None:
+    """A session's ``bag`` block with its defaults, checked; None when it has none.
+
+    Parameters
+    ----------
+    session : str
+        Session key, for messages.
+    cfg : dict
+        ``config["sessions"][session]`` (validated against the schema).
+
+    Returns
+    -------
+    dict or None
+        ``path`` (str, or a list of str for a split ROS 1 recording), ``time``, ``image``
+        (``{"topic", "time"}`` or None), ``camera_body`` and ``board_body`` (``{"topic",
+        "parent", "child", "time"}`` or None).
+
+    Raises
+    ------
+    ConfigError
+        ``image_topic`` beside a ``video`` or ``frames``; a body topic beside ``mocap.file`` or
+        ``pose_streams``; one body's topic
+        without the other's; a block that names no topic.
+    """
+    block = cfg.get("bag")
+    if block is None:
+        return None
+    where = f"config: sessions.{session}.bag"
+    time = block.get("time", "header")
+    out = {"path": block["path"], "time": time, "image": None, "camera_body": None, "board_body": None}
+    if "image_topic" in block:
+        for key in ("video", "frames"):
+            if key in cfg:
+                raise ConfigError(f"{where}.image_topic: the session also names {key} ({cfg[key]}); expected "
+                                  f"one camera input: the bag's image topic or the {key}")  # fmt: skip
+        out["image"] = {"topic": block["image_topic"], "time": time}
+    named = [b for b in BAG_BODIES if f"{b}_body" in block]
+    if named:
+        if len(named) == 1:
+            missing = next(b for b in BAG_BODIES if b not in named)
+            raise ConfigError(f"{where}: {named[0]}_body without {missing}_body; expected the poses of "
+                              "both marker bodies from the bag (camera_body: T_W_Cm, board_body: "
+                              "T_W_Bm)")  # fmt: skip
+        export = (cfg.get("mocap") or {}).get("file")
+        if "pose_streams" in cfg:
+            raise ConfigError(f"{where}: camera_body and board_body, and the session also names "
+                              "pose_streams; expected one motion capture: the bag's poses or the pose "
+                              "streams")  # fmt: skip
+        if export is not None:
+            raise ConfigError(f"{where}: camera_body and board_body, and the session also names a "
+                              f"motion-capture export (mocap.file: {export}); expected one motion capture: "
+                              "the bag's poses or the export")  # fmt: skip
+        for b in BAG_BODIES:
+            spec = block[f"{b}_body"]
+            out[f"{b}_body"] = {"topic": spec["topic"], "parent": spec.get("parent"),
+                                "child": spec.get("child"), "time": spec.get("time", time)}  # fmt: skip
+    if out["image"] is None and not named:
+        raise ConfigError(f"{where}: names no topic; expected image_topic (the camera input) and/or "
+                          "camera_body and board_body (the marker bodies' poses)")  # fmt: skip
+    return out
+
+
+def _camera_input(s: dict, bag: dict | None) -> str:
+    """The session's camera input as a message names it: a video, a frame folder or a bag's topic."""
+    if "frames" in s:
+        return f"a frame folder ({s['frames']})"
+    if bag is not None and bag["image"] is not None:
+        return f"a bag's image topic ({bag['image']['topic']})"
+    return f"a video ({s.get('video')})"
+
+
 def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     """The stages session ``name`` runs; every input it names is used by one of them.
 
@@ -152,9 +228,10 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     ------
     ConfigError
         The session names a video without a camera, a Vicon export without markers, both a
-        video and a frame folder or both an export and pose streams, a bag
-        (not read by the stages yet), or nothing to process; a ChArUco board without a
-        usable marker_m or dictionary; an AprilGrid with a missing or invalid key.
+        video and a frame folder or both an export and pose streams, a ``bag`` block that
+        contradicts them (:func:`bag_settings`), or nothing to
+        process; a ChArUco board without a usable marker_m or dictionary; an AprilGrid with a
+        missing or invalid key.
     """
     s = sessions[name]
     where = f"config: sessions.{name}"
@@ -166,35 +243,30 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
                 aprilgrid_from_board(s["board"])
         except ConfigError as exc:
             raise ConfigError(f"{where}.{exc}") from exc
-    if "bag" in s:
-        # The bag block's keys and readers exist (cvsflow.io.rosbag_session); the stages do not
-        # read them yet, and a session must not name an input that nothing uses.
-        raise ConfigError(
-            f"{where}.bag: the workflow's stages do not read a bag yet (`cvsflow init BAG` lists its "
-            f"topics); expected video and mocap.file for a workflow run"
-        )
+    bag = bag_settings(name, s)  # None without a bag block
     synth = "synth" in s
     cam = camera_session(name, sessions)
     for a, b, given in (("video", "frames", "video" in s), ("mocap.file", "pose_streams", mocap_file(s))):
         if given and b in s:
             raise ConfigError(f"{where}: names both {a} and {b}; expected one of the two")
-    has_video = synth or "video" in s or "frames" in s
-    has_mocap = synth or mocap_file(s) is not None or "pose_streams" in s
+    bag_image = bag is not None and bag["image"] is not None
+    bag_bodies = bag is not None and bag["camera_body"] is not None
+    has_video = synth or "video" in s or "frames" in s or bag_image
+    has_mocap = synth or mocap_file(s) is not None or "pose_streams" in s or bag_bodies
     stages = []
     if cam == name:
         stages.append("calibrate")
     if has_video:
         if cam is None:
             raise ConfigError(
-                f"{where}: names a {'frame folder' if 'frames' in s else 'video'} "
-                f"({s.get('video', s.get('frames'))}) but no calib_dir: its poses need the "
+                f"{where}: names {_camera_input(s, bag)} but no calib_dir: its poses need the "
                 f"camera's intrinsics. Expected calib_dir (a folder of ~15 stills of the board) "
                 f"or camera: <session> to reuse the calibration of another session with the "
                 f"same camera and settings"
             )
         stages.append("poses")
     if has_mocap:
-        if "pose_streams" not in s and "markers" not in s:
+        if "pose_streams" not in s and not bag_bodies and "markers" not in s:
             raise ConfigError(
                 f"{where}: names a motion-capture export but no markers: expected markers.camera.names "
                 f"and markers.board.names (the marker names of each rigid body in the export)"

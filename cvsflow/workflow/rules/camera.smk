@@ -62,6 +62,7 @@ rule corners:
     params:
         board=lambda wc: session_cfg(wc.session)["board"],
         corners=config["corners"],
+        bag=lambda wc: bag_image(wc.session),  # the frames of a bag's image topic, else None
     script:
         "../scripts/corners.py"
 
@@ -94,5 +95,6 @@ rule poses:
         board=lambda wc: session_cfg(wc.session)["board"],
         pnp=config["pnp"],
         video=video_path,
+        bag=lambda wc: bag_image(wc.session),
     script:
         "../scripts/poses.py"

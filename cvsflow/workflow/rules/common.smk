@@ -5,6 +5,7 @@ from cvsflow.io.mocap.formats import mocap_settings
 from cvsflow.io.trajectory import kitti_times_path
 from cvsflow.io.targets import read_target_board
 from cvsflow.workflow.sessions import (
+    bag_settings,
     camera_session,
     check_sessions,
     expand_rig_sessions,
@@ -41,20 +42,28 @@ METHODS = {
 }
 
 
-# How each session's motion-capture export is read (format, bodies_from); checked here, at parse time.
-# A session with pose_streams reads two pose files instead (bodies_from: streams).
-MOCAP = {
-    s: (
-        {
-            "format": SESSIONS[s]["pose_streams"].get("format", "auto"),
-            "bodies_from": "streams",
-        }
-        if "pose_streams" in SESSIONS[s]
-        else mocap_settings(s, SESSIONS[s])
-    )
-    for s in SESSIONS
-    if "mocap" in SESSION_STAGES[s]
-}
+# A session's ROS bag block (cvsflow.io.rosbag_session): its image topic is the camera input,
+# its two body topics the motion capture.
+BAGS = {s: bag_settings(s, SESSIONS[s]) for s in SESSIONS if "bag" in SESSIONS[s]}
+
+
+def bag_image(session):
+    """The session's bag settings when its camera input is a bag's image topic, else None."""
+    bag = BAGS.get(session)
+    return bag if bag is not None and bag["image"] is not None else None
+
+
+def _mocap(s):
+    """How a session's motion capture is read: two pose streams (files or a bag's topics:
+    bodies_from streams) or an export (mocap_settings, checked here, at parse time)."""
+    if "pose_streams" in SESSIONS[s]:
+        return {"format": SESSIONS[s]["pose_streams"].get("format", "auto"), "bodies_from": "streams"}
+    if s in BAGS and BAGS[s]["camera_body"] is not None:
+        return {"format": "rosbag", "bodies_from": "streams"}
+    return mocap_settings(s, SESSIONS[s])
+
+
+MOCAP = {s: _mocap(s) for s in SESSIONS if "mocap" in SESSION_STAGES[s]}
 
 
 def figures(**outputs):
@@ -78,6 +87,8 @@ def bodies_path(wildcards):
 
 def mocap_bodies_input(wildcards):
     """The repaired markers, the export itself (the system's own body poses), or the pose streams."""
+    if MOCAP[wildcards.session]["format"] == "rosbag":
+        return {"bag": BAGS[wildcards.session]["path"]}
     if MOCAP[wildcards.session]["bodies_from"] == "streams":
         streams = SESSIONS[wildcards.session]["pose_streams"]
         return {"camera_stream": streams["camera"], "board_stream": streams["board"]}
@@ -112,15 +123,18 @@ def calib_dir(wildcards):
 
 
 def video_path(wildcards):
-    """The session's video, or its timestamped frame folder (frames)."""
+    """The session's video, its timestamped frame folder (frames), or its bag (the image topic's)."""
+    if bag_image(wildcards.session) is not None:
+        return bag_image(wildcards.session)["path"]
     if "frames" in SESSIONS[wildcards.session]:
         return SESSIONS[wildcards.session]["frames"]
     return _session_path(wildcards.session, "video", "video.mp4")
 
 
 def resample_mode(session):
-    """mocap.resample, or interp for a frame folder (irregular frame times: each frame's own time)."""
-    if "frames" in SESSIONS[session]:
+    """mocap.resample, or interp for a frame folder or a bag's frames (irregular frame times: each
+    frame's own time)."""
+    if "frames" in SESSIONS[session] or bag_image(session) is not None:
         return "interp"
     return config["mocap"]["resample"]
 

@@ -78,6 +78,7 @@ rule mocap_bodies:
         max_fit_rms_m=config["mocap"]["max_fit_rms_m"],
         max_fit_rms_share=config["mocap"]["max_fit_rms_share"],
         refine_layout=config["mocap"]["refine_layout"],
+        bag=lambda wc: BAGS.get(wc.session),  # the bodies' topics of a bag, else None
     script:
         "../scripts/mocap_bodies.py"
 
@@ -98,5 +99,6 @@ rule mocap_resample:
         runtime=10,
     params:
         resample=lambda wc: resample_mode(wc.session),
+        bag=lambda wc: bag_image(wc.session),
     script:
         "../scripts/mocap_resample.py"

@@ -1,4 +1,4 @@
-"""Chessboard corners of every video frame (rule corners)."""
+"""Chessboard corners of every frame of a video, a frame folder or a bag's image topic (rule corners)."""
 
 import os
 from functools import partial
@@ -11,18 +11,27 @@ from cvsflow.io.frames import add_frame_ns, frame_folder_info, frame_list, iter_
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import iter_video_gray, video_info, video_timing
 from cvsflow.io.progress import Progress
+from cvsflow.io.rosbag_session import bag_frame_source
 
 # One OpenCV thread per worker process: the workers are the parallelism.
 cv2.setNumThreads(1)
 
 with stage_logging(snakemake.log[0], "corners") as log:
-    video = snakemake.input[0]
-    folder = os.path.isdir(video)  # a timestamped frame folder: its exact times (t_ns) kept
-    info, timing = (frame_folder_info(video), None) if folder else (video_info(video), video_timing(video))
-    log.info("%s %s: %s; %d processes", "frames" if folder else "video", video, info, snakemake.threads)
+    video, bag = snakemake.input[0], snakemake.params.bag
+    frames = None  # the frame list of a frame folder or a bag: their exact times (t_ns) kept
+    if bag is not None:  # a bag's image topic
+        source, frames = bag_frame_source(bag)
+        info, timing, what = {"n_frames": len(frames), **frames.attrs}, None, "bag"
+    elif os.path.isdir(video):  # a timestamped frame folder
+        source, frames = partial(iter_frames_gray, video, undecodable=True), frame_list(video)
+        info, timing, what = frame_folder_info(video), None, "frames"
+    else:
+        source, info, timing, what = (partial(iter_video_gray, video, undecodable=True), video_info(video),
+                                      video_timing(video), "video")  # fmt: skip
+    log.info("%s %s: %s; %d processes", what, video, info, snakemake.threads)
     with Progress("corners", info["n_frames"], "frames", log) as progress:
         corners = extract_corners_parallel(
-            partial(iter_frames_gray if folder else iter_video_gray, video, undecodable=True),
+            source,
             info["n_frames"],
             snakemake.params.board,
             n_workers=snakemake.threads,
@@ -32,11 +41,11 @@ with stage_logging(snakemake.log[0], "corners") as log:
             max_grid_deviation=snakemake.params.corners["max_grid_deviation"],
             restart_every=snakemake.params.corners["restart_every_frames"],
         )
-    if folder:
-        corners = add_frame_ns(corners, frame_list(video))
+    if frames is not None:
+        corners = add_frame_ns(corners, frames)
     write_parquet(corners, snakemake.output.corners)
     summary = summarise_corners(corners, timing)
-    if folder:  # each image coded on its own (JPEG, PNG): no codec motion on a still board
+    if frames is not None:  # each image coded on its own (raw, JPEG, PNG): no codec motion on a still board
         summary["inter_coded"] = False
     if summary["inter_coded"]:
         # docs/findings.md 2026-12-05: a still board's error there is pose-like

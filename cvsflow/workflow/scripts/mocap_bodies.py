@@ -1,22 +1,28 @@
 """Camera and board poses: fitted to their markers, as the mocap system solved them, or two pose
-streams (rule mocap_bodies).
+streams (files or a bag's topics) (rule mocap_bodies).
 """
 
 from cvsflow.io.files import draw_figure, read_parquet, write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.mocap.formats import read_pose_stream, read_system_bodies
 from cvsflow.io.mocap.streams import stream_T
+from cvsflow.io.rosbag_session import read_bag_body
 from cvsflow.mocap import bodies_from_streams, fit_bodies, resolve_layouts
 from cvsflow.plausibility import check_body_fits
 from cvsflow.plots import mocap as plots
 
 with stage_logging(snakemake.log[0], "mocap_bodies") as log:
     specs = snakemake.params.markers
-    if hasattr(snakemake.input, "camera_stream"):  # pose_streams: one body per file
-        source = f"{snakemake.input.camera_stream} and {snakemake.input.board_stream}"
-        fmt = snakemake.params.mocap["format"]
-        cam, brd = (read_pose_stream(snakemake.input[k], fmt, given_by="pose_streams.format")
-                    for k in ("camera_stream", "board_stream"))  # fmt: skip
+    bag = snakemake.params.bag
+    if hasattr(snakemake.input, "camera_stream") or hasattr(snakemake.input, "bag"):  # one stream per body
+        if bag is not None:  # a bag's camera_body and board_body topics
+            cam, brd = read_bag_body(bag, "camera"), read_bag_body(bag, "board")
+            source = f"{cam.attrs['path']} and {brd.attrs['path']}"
+        else:  # pose_streams: one body per file
+            source = f"{snakemake.input.camera_stream} and {snakemake.input.board_stream}"
+            fmt = snakemake.params.mocap["format"]
+            cam, brd = (read_pose_stream(snakemake.input[k], fmt, given_by="pose_streams.format")
+                        for k in ("camera_stream", "board_stream"))  # fmt: skip
         bodies = bodies_from_streams(cam["t_ns"].to_numpy(), stream_T(cam), brd["t_ns"].to_numpy(),
                                      stream_T(brd), source=source)  # fmt: skip
         log.info("bodies from pose streams: camera %d samples (%s), board %d", len(cam),

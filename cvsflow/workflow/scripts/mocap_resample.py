@@ -6,11 +6,15 @@ from cvsflow.io.files import read_parquet, write_parquet
 from cvsflow.io.frames import frame_folder_info
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import video_info
+from cvsflow.io.rosbag_images import bag_frames_info
 from cvsflow.mocap import downsample_bodies
 
 with stage_logging(snakemake.log[0], "mocap_resample") as log:
-    video = snakemake.input.video
-    fps = (frame_folder_info(video) if os.path.isdir(video) else video_info(video))["fps"]
+    video, bag = snakemake.input.video, snakemake.params.bag
+    if bag is not None:  # a bag's image topic
+        fps = bag_frames_info(bag["path"], bag["image"]["topic"], bag["image"]["time"])["fps"]
+    else:
+        fps = (frame_folder_info(video) if os.path.isdir(video) else video_info(video))["fps"]
     bodies_30hz = downsample_bodies(
         read_parquet(snakemake.input.bodies), fps, mode=snakemake.params.resample
     )

@@ -10,6 +10,7 @@ from cvsflow.io.files import draw_figure, read_parquet, read_yaml, write_parquet
 from cvsflow.io.frames import frame_folder_info
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import video_size
+from cvsflow.io.rosbag_images import bag_frames_info
 from cvsflow.plausibility import check_image_size, check_poses_found
 from cvsflow.plots import camera as plots
 
@@ -18,9 +19,13 @@ cv2.setNumThreads(snakemake.threads)
 
 with stage_logging(snakemake.log[0], "poses") as log:
     camera = read_yaml(snakemake.input.camera)
-    video = snakemake.input.video
-    # a frame folder has no display rotation
-    size = {**frame_folder_info(video), "rotation_deg": 0} if os.path.isdir(video) else video_size(video)
+    video, bag = snakemake.input.video, snakemake.params.bag
+    # a frame folder and a bag's images have no display rotation
+    if bag is not None:
+        image = bag["image"]
+        size = {**bag_frames_info(bag["path"], image["topic"], image["time"]), "rotation_deg": 0}
+    else:
+        size = {**frame_folder_info(video), "rotation_deg": 0} if os.path.isdir(video) else video_size(video)
     check_image_size(camera, size["width"], size["height"], snakemake.input.camera, snakemake.params.video,
                      size["rotation_deg"])
     corners = read_parquet(snakemake.input.corners)

@@ -14,9 +14,9 @@ from cvsflow import cli
 from cvsflow.exceptions import ConfigError
 from cvsflow.io.frames import frame_list, iter_frames_gray
 from cvsflow.io.mocap.formats import read_pose_stream
-from cvsflow.io.rosbag_session import bag_frame_source, bag_settings, read_bag_body
+from cvsflow.io.rosbag_session import bag_frame_source, read_bag_body
 from cvsflow.workflow.config import DEMO_CONFIG, SCHEMA
-from cvsflow.workflow.sessions import check_sessions
+from cvsflow.workflow.sessions import bag_settings, check_sessions
 from tests.helpers.bags import JPEG_TOPIC, RAW_TOPIC, Msg, write_bag, yac_messages
 from tests.helpers.real_data import REAL_DATA
 
@@ -37,7 +37,7 @@ def test_init_bag_lists_topics_and_fills_the_likely_ones(yac_bag, tmp_path, caps
     assert cli.main(["init", str(yac_bag), "--out", str(out)]) == 0
     printed = capsys.readouterr().out
     assert "/mocap/body0/pose           geometry_msgs/msg/PoseStamped" in printed and "wrote" in printed
-    assert "NOT RUNNABLE YET: the workflow's stages do not read a bag" in printed
+    assert "dt_offset_s: left out, the sync stage estimates" in printed
     text = out.read_text()
     assert "# /tf                         tf2_msgs/msg/TFMessage" in text
     cfg = yaml.safe_load(text)["sessions"]["yac"]
@@ -46,12 +46,11 @@ def test_init_bag_lists_topics_and_fills_the_likely_ones(yac_bag, tmp_path, caps
                           "board_body": {"topic": "/mocap/target0/pose", "parent": "world"}}  # fmt: skip
     assert cfg["calib_dir"] == "TODO" and cfg["board"]["square_m"] == "TODO"
     assert "compressed copy of a raw topic" in text and "also seen: {'topic': '/tf', 'parent': 'world'" in text
-    # with the TODOs filled the block passes the schema; the workflow says it does not read bags yet
+    # with the TODOs filled the block passes the schema and the session runs every stage
     cfg.update(calib_dir=str(YAC / "cam0" / "data"), board={"squares_x": 7, "squares_y": 6, "square_m": 0.03})
     config = {**yaml.safe_load(DEMO_CONFIG.read_text()), "sessions": {"yac": copy.deepcopy(cfg)}}
     validate(config, str(SCHEMA))
-    with pytest.raises(ConfigError, match="sessions.yac.bag: the workflow's stages do not read a bag yet"):
-        check_sessions(config["sessions"])
+    assert check_sessions(config["sessions"]) == {"yac": ("calibrate", "poses", "mocap", "pairs")}
     assert cli.main(["init", str(yac_bag), "--out", str(out)]) == 1
     assert "exists; cvsflow init never overwrites a file" in capsys.readouterr().err
 
@@ -92,7 +91,7 @@ def test_session_readers_give_the_files_data(yac_bag):
 def test_bag_settings_refuse_what_contradicts():
     base = {"path": "x.bag", "image_topic": "/c"}
     assert bag_settings("s", {}) is None
-    with pytest.raises(ConfigError, match=r"sessions.s.bag.image_topic: the session also names a video \(v.mp4\)"):
+    with pytest.raises(ConfigError, match=r"sessions.s.bag.image_topic: the session also names video \(v.mp4\)"):
         bag_settings("s", {"bag": base, "video": "v.mp4"})
     body = {"topic": "/p", "parent": "world"}
     with pytest.raises(ConfigError, match="camera_body without board_body"):

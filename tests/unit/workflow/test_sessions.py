@@ -127,3 +127,23 @@ def test_frame_folder_and_pose_streams_run_every_stage():
         session_stages("s", {"s": {**s, "mocap": {"file": "v.csv"}}})
     with pytest.raises(ConfigError, match=r"names a frame folder \(cam0\) but no calib_dir"):
         session_stages("s", {"s": {"board": board, "frames": "cam0", "pose_streams": streams}})
+
+
+def test_a_bag_session_runs_every_stage_from_its_topics():
+    """A bag's image topic (instead of video or frames) and its two body topics (instead of an
+    export and markers) give every stage; the bag's image beside frames, its bodies beside pose
+    streams, or an image topic without a camera are refused, naming the key."""
+    board = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
+    body = {"topic": "/mocap/body0/pose", "parent": "world"}
+    bag = {"path": "rec.bag", "image_topic": "/cam0/image_raw", "camera_body": body, "board_body": body}
+    s = {"board": board, "calib_dir": "cam0/data", "bag": bag}
+    assert session_stages("s", {"s": s}) == ("calibrate", "poses", "mocap", "pairs")
+    images_only = {**s, "bag": {"path": "rec.bag", "image_topic": "/cam0/image_raw"}}
+    assert session_stages("s", {"s": images_only}) == ("calibrate", "poses")
+    with pytest.raises(ConfigError, match=r"sessions.s.bag.image_topic: the session also names frames \(cam0\)"):
+        session_stages("s", {"s": {**s, "frames": "cam0"}})
+    with pytest.raises(ConfigError, match="sessions.s.bag: camera_body and board_body, and the session also "
+                                          "names pose_streams"):  # fmt: skip
+        session_stages("s", {"s": {**s, "pose_streams": {"camera": "a.csv", "board": "b.csv"}}})
+    with pytest.raises(ConfigError, match=r"names a bag's image topic \(/cam0/image_raw\) but no calib_dir"):
+        session_stages("s", {"s": {"board": board, "bag": bag}})
