@@ -43,7 +43,7 @@ from cvsflow.flight.alignment import (
     umeyama_alignment,
 )
 from cvsflow.flight.clock import Clock, angular_speed, estimate_clock
-from cvsflow.flight.comparison import FlightResult, check_against_truth, evaluate_flight
+from cvsflow.flight.comparison import FlightOptions, FlightResult, check_against_truth, evaluate_flight
 from cvsflow.flight.reference import (
     corner_noise_per_axis,
     correct_rolling_shutter,
@@ -85,7 +85,7 @@ __all__ = [
     "ape_rotation", "ape_translation", "associate", "axis_errors", "axis_stats",
     "check_against_truth", "check_trajectory", "Clock", "corner_noise_per_axis",
     "correct_rolling_shutter", "ERR_COLS", "estimate_clock", "evaluate_flight", "factor_columns",
-    "factor_from_columns", "FlightResult", "flip_columns", "flip_from_columns",
+    "factor_from_columns", "FlightOptions", "FlightResult", "flip_columns", "flip_from_columns",
     "interpolate_trajectory", "pnp_flip_term", "propagate_reference_sigma",
     "reference_covariance_from_pnp", "reference_covariance_model", "reference_covariance_transfer",
     "reference_from_poses", "rotation_alignment", "rpe", "session_error_model", "SIG_COLS",

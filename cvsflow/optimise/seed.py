@@ -46,89 +46,20 @@ from __future__ import annotations
 
 import logging
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pandas as pd
 
-from cvsflow.board import board_object_points
-from cvsflow.exceptions import OptimiseError, WholeBoardError
-from cvsflow.geometry import R_from_rvec, euler_from_R, wrap_angle
+from cvsflow.exceptions import OptimiseError
+from cvsflow.geometry import euler_from_R, wrap_angle
 from cvsflow.metrics import ERROR_DIMS, axis_statistics
 from cvsflow.optimise.result import OptimiseResult
-from cvsflow.optimise.seed_pnp import dist5, focal_sensitivity, solve_rows
+from cvsflow.optimise.seed_search import OBJECTIVES, PoseSolver, SeedOptions, grid_search, seed_inputs
 
 log = logging.getLogger(__name__)
 
 #: The statistics of eps each row of ``iterations`` holds (keys of :data:`cvsflow.metrics.STATISTICS`).
 ITERATION_STATISTICS = ("mean", "std", "rmse")
-#: The objectives of step c) (eq. 1.12 and its variants; see the module docstring).
-OBJECTIVES = ("summed", "sum_abs", "sum_squares")
-#: Fewest pairs the optimiser accepts (6 unknowns of P_bar, 2 focal lengths).
-MIN_PAIRS = 10
-#: The way out when too few frames show the whole board.
-SE3_ALONE = ("se3 uses partly hidden boards: run it alone, for this session with methods: [se3] "
-             "in its sessions.<name> block (or for all with optimise.methods: [se3])")
-
-
-# --------------------------------------------------------------------------- board, corners
-
-
-def corner_array(corners, frames, n_corners, allow_partial=False):
-    """Pixel corners of the given frames as one array.
-
-    Parameters
-    ----------
-    corners : pandas.DataFrame
-        ``corners.parquet``: ``frame, found, corner, u_px, v_px``.
-    frames : array_like of int, shape (N,)
-        Frames wanted, in order.
-    n_corners : int
-        Inner corners per board (P).
-    allow_partial : bool
-        Accept frames that hold only some of the corners (NaN rows for the others).
-
-    Returns
-    -------
-    uv_px : ndarray, shape (N, P, 2)
-        Distorted pixel positions, corner k in row k.
-
-    Raises
-    ------
-    OptimiseError
-        A frame is missing or not found, or (unless ``allow_partial``) lacks a corner.
-    """
-    missing_cols = {"frame", "corner", "u_px", "v_px"} - set(corners.columns)
-    if missing_cols:
-        raise OptimiseError(f"corners.parquet: missing columns {sorted(missing_cols)}")
-    frames = np.asarray(frames, dtype=np.int64)
-    c = corners
-    if "found" in c.columns:
-        c = c[c["found"].astype(bool)]
-    c = c[(c["corner"] >= 0) & (c["corner"] < n_corners)]
-    c = c[c["frame"].isin(frames)]
-    c = c.drop_duplicates(["frame", "corner"])
-    wide = c.pivot(index="frame", columns="corner", values=["u_px", "v_px"])
-    wide = wide.reindex(index=frames)
-    uv = np.full((frames.size, n_corners, 2), np.nan)
-    for j, col in enumerate(("u_px", "v_px")):
-        if col in wide.columns.get_level_values(0):
-            block = wide[col].reindex(columns=range(n_corners))
-            uv[:, :, j] = block.to_numpy(dtype=float)
-    bad = ~np.isfinite(uv).all(axis=(1, 2))
-    if allow_partial:
-        bad = ~np.isfinite(uv).all(axis=2).any(axis=1)
-    if bad.any():
-        first = int(frames[np.argmax(bad)])
-        raise OptimiseError(
-            f"corners.parquet: frame {first} (and {int(bad.sum()) - 1} more) of pairs.parquet "
-            + ("has no found corner with finite u_px, v_px" if allow_partial else
-               f"has no complete set of {n_corners} found corners with finite u_px, v_px")
-        )
-    return uv
-
-
-# --------------------------------------------------------------------------- eqs. 1.10-1.12
 
 
 def compute_p_bar(F, P_star):
@@ -232,13 +163,6 @@ def _pose6(R, t):
     return np.concatenate([t, euler_from_R(R)], axis=1)
 
 
-def _grid(centre, half_width, n_points):
-    """(fx, fy) candidates on an n x n grid centred on ``centre`` (always included)."""
-    offsets = np.linspace(-half_width, half_width, n_points)
-    gx, gy = np.meshgrid(centre[0] + offsets, centre[1] + offsets, indexing="ij")
-    return np.stack([gx.ravel(), gy.ravel()], axis=1)
-
-
 #: A seed result is flagged ``diverged`` beyond these (module docstring of :func:`seed_divergence`).
 DIVERGED_EPS_STD_M = 1.0
 DIVERGED_F_RATIO = (0.25, 4.0)
@@ -283,25 +207,7 @@ def seed_divergence(f_px, f_calibrated_px, f_bounds_px, step_px, eps_std_xyz_m):
     return "; ".join(reasons) if reasons else None
 
 
-def optimise_seed(
-    pairs,
-    corners,
-    K,
-    dist,
-    board,
-    *,
-    k_iterations=50,
-    f_init_px=None,
-    objective="sum_squares",
-    grid_half_width_px=32.0,
-    grid_points=5,
-    grid_levels=6,
-    f_bounds_px=(100.0, 5000.0),
-    n_workers=1,
-    gn_max_iter=10,
-    gn_tol=1e-6,
-    pose_cache=None,
-):
+def optimise_seed(pairs, corners, K, dist, board, options=None, *, pose_cache=None, **overrides):
     """Run the chapter's focal-length and offset optimisation (seed eqs. 1.5-1.12).
 
     Parameters
@@ -318,31 +224,15 @@ def optimise_seed(
         OpenCV distortion [k1, k2, p1, p2, k3], fixed.
     board : dict
         ``squares_x``, ``squares_y``, ``square_m`` (see :func:`board_object_points`).
-    k_iterations : int
-        Iterations of steps a)-c) (the chapter: 50).
-    f_init_px : None or float or (float, float)
-        Starting (fx, fy) in pixels; None starts from K (step 1 of the chapter).
-    objective : {"summed", "sum_abs", "sum_squares"}
-        Objective of step c); see the module docstring. ``summed`` is eq. 1.12 literally.
-    grid_half_width_px : float
-        Half width of the first grid level around the current (fx, fy), pixels.
-    grid_points : int
-        Odd number of grid points per axis per level (the current point is on the grid).
-    grid_levels : int
-        Coarse-to-fine levels; each level is centred on the previous best and spans
-        plus or minus the previous level's step (see Notes).
-    f_bounds_px : (float, float)
-        Candidates outside these bounds are skipped, pixels.
-    n_workers : int
-        Threads sharing the chunks of each grid level's stacked PnP solve (numpy releases
-        the GIL); the result does not depend on it.
-    gn_max_iter, gn_tol : int, float
-        Gauss-Newton limits of the per-candidate PnP (rad and metres).
+    options : SeedOptions or dict, optional
+        The method's settings (:class:`~cvsflow.optimise.seed_search.SeedOptions`; a dict: the
+        config's ``optimise.seed`` block); default its defaults.
     pose_cache : cvsflow.optimise.seed_cache.SeedPoseCache, optional
         Poses solved by earlier runs on other subsets of the same session's pairs (built
-        from a superset of ``pairs`` and from ``corners``, whose pixel corners it holds): the
-        rows it has are taken from it, the others solved and added. The result is the same
-        with and without it, bit for bit.
+        from a superset of ``pairs`` and from ``corners``): the rows it has are taken from it,
+        the others solved and added. The result is the same with and without it, bit for bit.
+    **overrides
+        Fields of :class:`~cvsflow.optimise.seed_search.SeedOptions` to change.
 
     Returns
     -------
@@ -353,9 +243,7 @@ def optimise_seed(
         and the grid minimum ``objective_grid_min`` that chose row j+1's f (NaN on row k).
         ``errors``: per frame ``frame, t_s``, ``vic_*`` (P*), ``cvs_orig_*`` (F(f_init)),
         ``cvs_*`` (F(f_final)), ``eps_orig_*`` (with P_bar at f_init), ``eps_*`` (final).
-        ``result``: fx_px, fy_px, P_bar, n_pairs, iterations, objective, initial and
-        final normalised error norms, timings (seconds); ``diverged`` (bool) and
-        ``diverged_reason`` (str or None, :func:`seed_divergence`).
+        ``result``: :func:`_seed_result`.
 
     Raises
     ------
@@ -364,11 +252,6 @@ def optimise_seed(
 
     Notes
     -----
-    Level l of the grid has half width ``h_l`` and step ``2 h_l / (grid_points - 1)``;
-    ``h_{l+1}`` is level l's step. With the defaults (32 px, 5 points, 6 levels) the steps
-    are 16, 8, 4, 2, 1, 0.5 px. The grid search is local: one iteration moves f at most
-    ``sum_l h_l`` pixels.
-
     When a grid search returns its own centre, (f, P_bar) is a fixed point and all later
     iterations would repeat it exactly; their rows are copied instead of recomputed.
 
@@ -377,219 +260,99 @@ def optimise_seed(
     literal reading of the chapter and cannot reproduce its 700 -> 628, 535.
     """
     t_start = time.perf_counter()
-    if objective not in OBJECTIVES:
-        raise OptimiseError(f"seed objective {objective!r}: expected one of {OBJECTIVES}")
-    if int(grid_points) < 3 or int(grid_points) % 2 == 0:
-        raise OptimiseError(f"seed grid_points = {grid_points}: expected an odd number >= 3")
-    if int(grid_levels) < 1 or not grid_half_width_px > 0 or int(k_iterations) < 0:
-        raise OptimiseError(
-            f"seed grid: levels {grid_levels}, half width {grid_half_width_px} px, "
-            f"k {k_iterations}: expected levels >= 1, half width > 0, k >= 0"
-        )
-    cvs_cols = [f"cvs_{d}" for d in ERROR_DIMS] + [f"cvs_rvec_{i}" for i in range(3)]
-    vic_cols = [f"vic_{d}" for d in ERROR_DIMS]
-    missing = {"frame", *cvs_cols, *vic_cols} - set(pairs.columns)
-    if missing:
-        raise OptimiseError(f"pairs.parquet: missing columns {sorted(missing)}")
-    if len(pairs) < MIN_PAIRS:
-        raise OptimiseError(
-            f"pairs.parquet: {len(pairs)} pairs; the seed optimiser needs at least {MIN_PAIRS}"
-        )
-    K = np.asarray(K, dtype=float)
-    if K.shape != (3, 3):
-        raise OptimiseError(f"camera K: shape {K.shape}, expected (3, 3)")
-    d5 = dist5(dist)
-    cx, cy = float(K[0, 2]), float(K[1, 2])
-    if f_init_px is None:
-        f = np.array([K[0, 0], K[1, 1]], dtype=float)
-    else:
-        f = np.broadcast_to(np.asarray(f_init_px, dtype=float), (2,)).copy()
-    if not np.all(f > 0):
-        raise OptimiseError(f"seed f_init_px = {f.tolist()}: focal lengths must be > 0 px")
-
-    pairs = pairs.sort_values("frame").reset_index(drop=True)
-    frames = pairs["frame"].to_numpy(dtype=np.int64)
-    if np.unique(frames).size != frames.size:
-        raise OptimiseError("pairs.parquet: duplicate frame numbers")
-    X_B = board_object_points(board)
-    if pose_cache is None:
-        uv = corner_array(corners, frames, X_B.shape[0], allow_partial=True)
-    else:
-        pose_cache.bind(K, dist, board, gn_max_iter, gn_tol)
-        cache_rows = pose_cache.positions(pairs)
-        uv = pose_cache.uv_px[cache_rows]
-    # The chapter re-estimates every pose at each candidate f from the whole board; frames
-    # where a hand or the image border hid some corners are left to se3.
-    complete = np.isfinite(uv).all(axis=(1, 2))
-    if not complete.all():
-        log.warning(
-            "seed: %d of %d pairs have only part of the board's corners; left out",
-            int((~complete).sum()), len(frames),
-        )  # fmt: skip
-        pairs, frames, uv = pairs[complete].reset_index(drop=True), frames[complete], uv[complete]
-        if pose_cache is not None:
-            cache_rows = cache_rows[complete]
-        if len(pairs) < MIN_PAIRS:
-            raise WholeBoardError(
-                f"pairs.parquet: {len(pairs)} pairs with the whole board (a hand or the image "
-                f"border hides part of it in the other {int((~complete).sum())}); the seed "
-                f"optimiser (the chapter's method) needs at least {MIN_PAIRS}. {SE3_ALONE}"
-            )
-    P_star = pairs[vic_cols].to_numpy(dtype=float)
-    if not np.isfinite(P_star).all():
-        bad = int(frames[np.argmax(~np.isfinite(P_star).all(axis=1))])
-        raise OptimiseError(f"pairs.parquet: frame {bad}: non-finite Vicon pose vic_*")
-    R0 = R_from_rvec(pairs[[f"cvs_rvec_{i}" for i in range(3)]].to_numpy(dtype=float))
-    t0 = pairs[[f"cvs_{d}" for d in ERROR_DIMS[:3]]].to_numpy(dtype=float)
-
-    pool = ThreadPoolExecutor(max_workers=int(n_workers)) if int(n_workers) > 1 else None
-    n_frames = len(frames)
-
-    def solve_stack(frame_rows, fx_rows, fy_rows, R_start, t_start_):
-        """Poses of (candidate, frame) rows: one batched solve."""
-        return solve_rows(uv, frame_rows, X_B, fx_rows, fy_rows, cx, cy, d5, R_start, t_start_,
-                          gn_max_iter, gn_tol, pool=pool, n_workers=n_workers)
-
-    def solve(cands, R_start, t_start_, walk):
-        """Poses of every frame at every candidate (fx, fy), reached along ``walk``."""
-        cands = np.asarray(cands, dtype=float).reshape(-1, 2)
-        if pose_cache is None:
-            Rc, tc = solve_stack(np.tile(np.arange(n_frames), len(cands)),
-                                 np.repeat(cands[:, 0], n_frames), np.repeat(cands[:, 1], n_frames),
-                                 R_start, t_start_)
-        else:
-            Rc, tc = pose_cache.solve(walk, cands, cache_rows, R_start, t_start_, solve_stack)
-        return Rc.reshape(len(cands), n_frames, 3, 3), tc.reshape(len(cands), n_frames, 3)
-
-    # F(f_init): re-estimated with our PnP so every F is on the same footing.
-    R, t = solve(f, R0, t0, ())
-    R, t = R[0], t[0]
-    # the focal lengths visited: with a candidate, they fix its warm starts (pose_cache's key)
-    walk = ((float(f[0]), float(f[1])),)
-    rows = []
-    n_solves = 0
-    t_grid = 0.0
-    F_init = None
-    eps_init = None
-    fixed_point = False
-    try:
-        for j in range(int(k_iterations) + 1):
+    opts = SeedOptions.build(options, **overrides)
+    inp = seed_inputs(pairs, corners, K, dist, board, opts, pose_cache)
+    k = int(opts.k_iterations)
+    rows, n_solves, t_grid, fixed_point = [], 0, 0.0, False
+    with PoseSolver(inp, opts, pose_cache) as solver:
+        # F(f_init): re-estimated with our PnP so every F is on the same footing.
+        f = inp.f0
+        R, t = solver.solve(f, inp.R0, inp.t0, ())
+        R, t = R[0], t[0]
+        walk = ((float(f[0]), float(f[1])),)  # the focal lengths visited (the pose cache's key)
+        for j in range(k + 1):
             F = _pose6(R, t)
-            P_bar = compute_p_bar(F, P_star)  # step a), eq. 1.10
-            eps = compute_eps(F, P_star, P_bar)  # step b), eq. 1.11
-            if F_init is None:
+            P_bar = compute_p_bar(F, inp.P_star)  # step a), eq. 1.10
+            eps = compute_eps(F, inp.P_star, P_bar)  # step b), eq. 1.11
+            if j == 0:
                 F_init, eps_init, P_bar_init = F, eps, P_bar
-            eps_stats = axis_statistics(eps, names=ITERATION_STATISTICS)
-            row = {"iteration": j, "fx_px": f[0], "fy_px": f[1],
-                   "objective": objective_value(eps[:, :3], objective),
-                   "objective_grid_min": np.nan,
-                   "norm_normalised": normalised_error_norm(eps[:, :3])}
-            for i, d in enumerate(ERROR_DIMS):
-                row[f"P_bar_{d}"] = P_bar[i]
-            for name in ITERATION_STATISTICS:
-                for d in ERROR_DIMS:
-                    row[f"eps_{name}_{d}"] = eps_stats[d][name]
-            if j == int(k_iterations):
-                rows.append(row)
+            row, eps_stats = _iteration_row(j, f, P_bar, eps, opts.objective)
+            rows.append(row)
+            if j == k:
                 break
-            # step c), eq. 1.12: grid search with P_bar held from step a)
             if fixed_point:
                 # the last grid search returned its own centre: the state (f, P_bar) is
                 # unchanged, so every further iteration is identical; copy, do not recompute
                 row["objective_grid_min"] = row["objective"]
-                rows.append(row)
                 continue
             tg = time.perf_counter()
-            dtheta_df = focal_sensitivity(uv, X_B, f[0], f[1], cx, cy, d5, R, t)
-            target = P_star[:, :3] + P_bar[:3]
-
-            def score(cands, R=R, t=t, dtheta_df=dtheta_df, target=target, f_now=f.copy(),
-                      walk=walk):
-                """Objective and poses at each candidate; all candidates solved in one stack."""
-                out = [None] * len(cands)
-                moved = []
-                for i, fxy in enumerate(cands):
-                    df = fxy - f_now
-                    if not np.any(df):
-                        out[i] = (objective_value(t - target, objective), R, t)
-                    else:
-                        step = dtheta_df @ df  # first-order warm start, (N, 6)
-                        moved.append((i, R_from_rvec(step[:, :3]) @ R, t + step[:, 3:]))
-                if moved:
-                    Rc, tc = solve([cands[i] for i, _, _ in moved],
-                                   np.concatenate([m[1] for m in moved]),
-                                   np.concatenate([m[2] for m in moved]), walk)
-                    for k, (i, _, _) in enumerate(moved):
-                        out[i] = (objective_value(tc[k] - target, objective), Rc[k], tc[k])
-                return out
-
-            best = (objective_value(t - target, objective), f.copy(), R, t)
-            centre = f.copy()
-            half = float(grid_half_width_px)
-            seen = {tuple(f)}
-            for _level in range(int(grid_levels)):
-                cands = [c for c in _grid(centre, half, int(grid_points))
-                         if tuple(c) not in seen
-                         and f_bounds_px[0] <= c[0] <= f_bounds_px[1]
-                         and f_bounds_px[0] <= c[1] <= f_bounds_px[1]]
-                seen.update(tuple(c) for c in cands)
-                results = score(cands)
-                n_solves += len(cands)
-                for c, (val, Rc, tc) in zip(cands, results, strict=True):
-                    if val < best[0]:
-                        best = (val, c.copy(), Rc, tc)
-                centre = best[1]
-                half = 2.0 * half / (int(grid_points) - 1)
+            best, n = grid_search(solver, f, R, t, P_bar, walk, objective_value)  # step c), eq. 1.12
+            n_solves += n
             t_grid += time.perf_counter() - tg
             row["objective_grid_min"] = best[0]
-            rows.append(row)
             fixed_point = bool(np.all(best[1] == f))
             f, R, t = best[1], best[2], best[3]
             walk += ((float(f[0]), float(f[1])),)
             log.debug("seed iteration %d: fx %.3f fy %.3f objective %.6g", j, f[0], f[1], best[0])
             if (j + 1) % 10 == 0:  # progress for long runs
                 log.info("seed: iteration %d of %d, f (%.1f, %.1f) px, %d PnP solves in %.1f s",
-                         j + 1, int(k_iterations), f[0], f[1], n_solves, t_grid)
-    finally:
-        if pool is not None:
-            pool.shutdown()
-
+                         j + 1, k, f[0], f[1], n_solves, t_grid)  # fmt: skip
     iterations = pd.DataFrame(rows)
-    errors = pd.DataFrame({"frame": frames})
-    errors["t_s"] = pairs["t_s"].to_numpy(dtype=float) if "t_s" in pairs else np.nan
-    for prefix, arr in (("vic", P_star), ("cvs_orig", F_init), ("cvs", F),
-                        ("eps_orig", eps_init), ("eps", eps)):
+    errors = pd.DataFrame({"frame": inp.frames})
+    errors["t_s"] = inp.pairs["t_s"].to_numpy(dtype=float) if "t_s" in inp.pairs else np.nan
+    for prefix, arr in (("vic", inp.P_star), ("cvs_orig", F_init), ("cvs", F), ("eps_orig", eps_init),
+                        ("eps", eps)):  # fmt: skip
         for i, d in enumerate(ERROR_DIMS):
             errors[f"{prefix}_{d}"] = arr[:, i]
-    last = iterations.iloc[-1]
-    reason = seed_divergence(f, (K[0, 0], K[1, 1]), f_bounds_px,
-                             2.0 * float(grid_half_width_px) / (int(grid_points) - 1),
-                             [eps_stats[d]["std"] for d in ERROR_DIMS[:3]])
+    reason = seed_divergence(f, (inp.K[0, 0], inp.K[1, 1]), opts.f_bounds_px, opts.first_step_px,
+                             [eps_stats[d]["std"] for d in ERROR_DIMS[:3]])  # fmt: skip
     if reason is not None:
         log.warning("seed diverged: %s; its statistics are not measurements", reason)
-    result = {
+    result = _seed_result(iterations, f, P_bar, P_bar_init, opts, len(inp.frames), n_solves, reason,
+                          {"total": time.perf_counter() - t_start, "grid_search": t_grid})  # fmt: skip
+    log.info("seed: %d pairs, %d iterations, f (%.2f, %.2f) -> (%.2f, %.2f) px, "
+             "normalised norm %.4g -> %.4g m", len(inp.frames), k, result["f_init_px"][0],
+             result["f_init_px"][1], f[0], f[1], result["norm_normalised_init_m"],
+             result["norm_normalised_final_m"])  # fmt: skip
+    return OptimiseResult(iterations=iterations, errors=errors, result=result)
+
+
+def _iteration_row(j, f, P_bar, eps, objective):
+    """Row j of ``iterations`` and the statistics of eps it holds."""
+    eps_stats = axis_statistics(eps, names=ITERATION_STATISTICS)
+    row = {"iteration": j, "fx_px": f[0], "fy_px": f[1], "objective": objective_value(eps[:, :3], objective),
+           "objective_grid_min": np.nan, "norm_normalised": normalised_error_norm(eps[:, :3])}  # fmt: skip
+    for i, d in enumerate(ERROR_DIMS):
+        row[f"P_bar_{d}"] = P_bar[i]
+    for name in ITERATION_STATISTICS:
+        for d in ERROR_DIMS:
+            row[f"eps_{name}_{d}"] = eps_stats[d][name]
+    return row, eps_stats
+
+
+def _seed_result(iterations, f, P_bar, P_bar_init, opts, n_pairs, n_solves, reason, timings):
+    """result.yaml of a seed run: ``fx_px, fy_px, f_init_px, P_bar, P_bar_init`` (m, rad),
+    ``n_pairs, iterations, objective, objective_init``, the normalised error norms (m) at the
+    start and the end, ``n_pnp_solves, f_bounds_px, diverged, diverged_reason, timings_s``."""
+    last = iterations.iloc[-1]
+    return {
         "method": "seed",
-        "objective_kind": objective,
+        "objective_kind": opts.objective,
         "fx_px": float(f[0]),
         "fy_px": float(f[1]),
         "f_init_px": [float(iterations["fx_px"].iloc[0]), float(iterations["fy_px"].iloc[0])],
         "P_bar": [float(v) for v in P_bar],
         "P_bar_init": [float(v) for v in P_bar_init],
         "P_bar_units": ["m", "m", "m", "rad", "rad", "rad"],
-        "n_pairs": int(len(frames)),
-        "iterations": int(k_iterations),
+        "n_pairs": int(n_pairs),
+        "iterations": int(opts.k_iterations),
         "objective": float(last["objective"]),
         "objective_init": float(iterations["objective"].iloc[0]),
         "norm_normalised_init_m": float(iterations["norm_normalised"].iloc[0]),
         "norm_normalised_final_m": float(last["norm_normalised"]),
         "n_pnp_solves": int(n_solves),
-        "f_bounds_px": [float(f_bounds_px[0]), float(f_bounds_px[1])],
+        "f_bounds_px": [float(opts.f_bounds_px[0]), float(opts.f_bounds_px[1])],
         "diverged": reason is not None,
         "diverged_reason": reason,
-        "timings_s": {"total": time.perf_counter() - t_start, "grid_search": t_grid},
+        "timings_s": timings,
     }
-    log.info("seed: %d pairs, %d iterations, f (%.2f, %.2f) -> (%.2f, %.2f) px, "
-             "normalised norm %.4g -> %.4g m", len(frames), k_iterations,
-             result["f_init_px"][0], result["f_init_px"][1], f[0], f[1],
-             result["norm_normalised_init_m"], result["norm_normalised_final_m"])
-    return OptimiseResult(iterations=iterations, errors=errors, result=result)

@@ -24,8 +24,8 @@ import numpy as np
 
 from cvsflow.board import board_object_points
 from cvsflow.exceptions import OptimiseError
-from cvsflow.optimise.seed import corner_array
 from cvsflow.optimise.seed_pnp import dist5
+from cvsflow.optimise.seed_search import corner_array
 
 #: Bytes of cached poses at most (default of :class:`SeedPoseCache`): a 90 s session's
 #: 2,700 pairs take 0.26 MB per (walk, candidate) entry, and its cross-validation (5 folds,
@@ -46,7 +46,7 @@ class SeedPoseCache:
         ``frame`` and the start pose columns :data:`START_COLUMNS`.
     corners : pandas.DataFrame
         ``corners.parquet``; the pixel corners of every pair frame are read once here
-        (:func:`cvsflow.optimise.seed.corner_array`, frames with part of the board as NaN rows).
+        (:func:`cvsflow.optimise.seed_search.corner_array`, frames with part of the board as NaN rows).
     board : dict
         ``squares_x``, ``squares_y``, ``square_m``.
     max_bytes : int

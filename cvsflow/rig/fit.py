@@ -53,26 +53,23 @@ from cvsflow.geometry import INTRINSIC_NAMES, project_SO3
 from cvsflow.geometry import transforms as tf
 from cvsflow.metrics import frame_errors
 from cvsflow.optimise import (
-    CAMERA_MOVING_SMOOTH_S,
-    DEFAULT_FREE,
-    DEFAULT_INTRINSIC_STD,
-    LOSSES,
     MIN_FRAMES,
-    BodyTrack,
     K_from_intrinsics,
     OptimiseResult,
     Se3Model,
+    Se3Options,
     camera_start,
     corner_arrays,
     correlation_warnings,
-    fixed_intrinsic_std,
+    fixed_std,
     jacobian_fd,
-    levenberg_marquardt,
     parameter_covariance,
     refuse_implausible_fit,
     robust_cost,
+    solve,
     solve_hand_eye,
     solve_pnp_frames,
+    uncertainty_keys,
     usable_frames,
 )
 from cvsflow.rig.poses import fused_rig_poses
@@ -256,27 +253,8 @@ def common_times(cameras, t_video):
             for k, (e, t) in enumerate(zip(cameras, t_video, strict=True))]  # fmt: skip
 
 
-def optimise_se3_rig(
-    cameras,
-    bodies,
-    board,
-    *,
-    free=DEFAULT_FREE,
-    fit_dt=True,
-    loss="soft_l1",
-    f_scale_px=1.0,
-    max_nfev=100,
-    corr_warn=0.95,
-    cluster_s=1.0,
-    camera_smooth_s=1.0,
-    board_smooth_s=0.01,
-    camera_static_tol=(0.002, 0.002),
-    camera_moving_smooth_s=None,
-    init_T_Bm_B=None,
-    match_tol_s=None,
-    fused_calibration_cov=True,
-    fused_max_residual_px=None,
-):
+def optimise_se3_rig(cameras, bodies, board, options=None, *, init_T_Bm_B=None, match_tol_s=None,
+                     fused_calibration_cov=True, fused_max_residual_px=None, **overrides):
     """Joint se3 estimate for N cameras on one rig body: intrinsics, T_Cm_Ci, dt_i, T_Bm_B.
 
     Parameters
@@ -286,13 +264,13 @@ def optimise_se3_rig(
         ``camera`` (its camera.yaml: ``K``, ``dist``, optional ``std``), ``dt_offset_s`` (its
         starting offset, t_vicon = t_video + dt); optional ``free`` (its intrinsics to
         estimate; default the rig's ``free``), ``frames`` (its frames to fit on),
-        ``line_delay_s`` and ``fit_line_delay`` (as the mono options), ``T_Cm_C`` (4x4 start).
+        ``line_delay_s`` and ``fit_line_delay`` (default the rig's options), ``T_Cm_C`` (4x4
+        start).
     bodies : DataFrame
         bodies.parquet: ``camera`` the rig's marker body (T_W_Cm), ``board`` (T_W_Bm).
     board : dict
         ``squares_x``, ``squares_y``, ``square_m``.
-    free, fit_dt, loss, f_scale_px, max_nfev, corr_warn, cluster_s, camera_smooth_s,
-    board_smooth_s, camera_static_tol, camera_moving_smooth_s
+    options : Se3Options or dict, optional
         As :func:`cvsflow.optimise.se3.optimise_se3` (``fit_dt`` for every camera).
     init_T_Bm_B : array_like, shape (4, 4), optional
         Start of T_Bm_B; with every camera's ``T_Cm_C`` given, no hand-eye start is solved.
@@ -305,20 +283,18 @@ def optimise_se3_rig(
     fused_max_residual_px : float, optional
         :func:`fused_rig_poses` ``max_residual_px`` (a view with a corner this far from its
         PnP pose is left out of the fused poses; the fit itself keeps every corner).
+    **overrides
+        Fields of :class:`cvsflow.optimise.Se3Options` to change.
 
     Returns
     -------
     OptimiseResult
         ``iterations`` (``nfev, cost, rms_px`` and ``cam{i}_fx_px, cam{i}_fy_px,
         cam{i}_dt_offset_s``); ``errors``: :func:`fused_rig_poses` of the fitted frames;
-        ``result``: ``method`` ``se3_rig``, ``cameras`` (per camera ``K, dist, T_Cm_C,
-        T_Cm_C_pose6, T_C0_C`` (camera i in camera 0, m), ``dt_offset_s, line_delay_s,
-        free, n_frames, n_frames_skipped, rms_px``, ``fixed_intrinsics``), ``T_Bm_B``,
-        ``T_Bm_B_pose6``, and the mono keys ``estimates, std_errors, std_errors_data,
-        std_errors_fixed, std_errors_gn, std_errors_cluster, correlation,
-        correlation_total, n_residuals, n_clusters, rms_px, sigma_px, cost, n_iterations,
-        n_jacobians, time_s, status, message, warnings`` over the rig's parameter names
-        (:class:`RigModel`), plus the smoothing options (for :func:`fused_rig_poses`).
+        ``result``: ``method`` ``se3_rig``, ``cameras`` (:func:`_camera_results`), ``T_Bm_B``,
+        ``T_Bm_B_pose6``, the mono fit's uncertainty keys over the rig's parameter names
+        (:class:`RigModel`), ``fixed_sensitivity``, ``covariance_total``, the options, and
+        ``n_rig_frames``, ``n_rig_frames_by_cameras`` of the fused poses.
 
     Raises
     ------
@@ -336,30 +312,96 @@ def optimise_se3_rig(
     solver and covariance; names prefixed ``cam0_``).
     """
     t0 = time.perf_counter()
-    if loss not in LOSSES:
-        raise OptimiseError(f"se3 rig: loss {loss!r}; expected one of {LOSSES}")
-    if not f_scale_px > 0:
-        raise OptimiseError(f"se3 rig: f_scale_px {f_scale_px!r}; expected > 0 px")
+    opts = Se3Options.build(options, "se3 rig", **overrides)
     _check_cameras(cameras)
     p_B = board_object_points(board)
-    if camera_moving_smooth_s is None:
-        camera_moving_smooth_s = CAMERA_MOVING_SMOOTH_S
-    cam = BodyTrack.from_bodies(bodies, "camera", smooth_s=camera_smooth_s,
-                    static_tol=camera_static_tol, moving_smooth_s=camera_moving_smooth_s)  # fmt: skip
-    brd = BodyTrack.from_bodies(bodies, "board", smooth_s=board_smooth_s)
-    n_cam = len(cameras)
-    data, starts = [], []
-    for i, e in enumerate(cameras):
-        data.append(_camera_frames(i, e, p_B, cam, brd, e.get("frames")))
-        starts.append(camera_start(e["camera"], label=f"se3 rig: camera {i}"))
+    cam, brd = opts.tracks(bodies)
+    data = [_camera_frames(i, e, p_B, cam, brd, e.get("frames")) for i, e in enumerate(cameras)]
+    starts = [camera_start(e["camera"], label=f"se3 rig: camera {i}") for i, e in enumerate(cameras)]
     dts = [float(e["dt_offset_s"]) for e in cameras]
+    T_Cm_C0, T_Bm_B0 = _rig_start(cameras, data, starts, dts, p_B, cam, brd, init_T_Bm_B)
+    models, per_cam0 = [], []
+    for i, e in enumerate(cameras):
+        K0, dist0 = starts[i]
+        intr0 = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], *dist0])
+        ld0 = float(e.get("line_delay_s", opts.line_delay_s))
+        models.append(Se3Model(
+            intr0, set(e.get("free", opts.free)), T_Cm_C0[i][:3, :3], T_Bm_B0[:3, :3], opts.fit_dt,
+            dts[i], data[i][1], data[i][2], p_B, cam, brd,
+            fit_ld=bool(e.get("fit_line_delay", opts.fit_line_delay)), ld0=ld0,
+        ))  # fmt: skip
+        per_cam0.append((intr0, T_Cm_C0[i][:3, 3], dts[i], ld0))
+    model = RigModel(models)
+    x0 = model.pack(per_cam0, T_Bm_B0[:3, 3])
+    r0 = model.residuals(x0)
+    if not np.isfinite(r0).all():
+        raise OptimiseError("se3 rig: non-finite residuals at the start (board behind a camera?)")
+    log.info("se3 rig: %d cameras, %s frames, %d parameters; start RMS %.3f px", len(cameras),
+             [len(d[0]) for d in data], model.n_params, float(np.sqrt(np.mean(r0**2))))  # fmt: skip
 
-    # --- start: hand-eye on the camera with most frames, the others' mountings given T_Bm_B
+    def row(x, r, nfev):
+        out = {"nfev": nfev, "cost": robust_cost(r, opts.loss, opts.f_scale_px),
+               "rms_px": float(np.sqrt(np.mean(r**2)))}  # fmt: skip
+        for i, m in enumerate(models):
+            intr, _, _, dt = m.unpack(model.local(x, i))
+            out.update({f"cam{i}_fx_px": intr[0], f"cam{i}_fy_px": intr[1], f"cam{i}_dt_offset_s": dt})
+        return out
+
+    sol, history, n_jac, solver_warnings = solve(model, x0, opts, row, "se3 rig")
+    r = model.residuals(sol.x)
+    for i, m in enumerate(models):
+        refuse_implausible_fit(m.unpack(model.local(sol.x, i))[0][:2], r[model.rows[i]],
+                               f"se3 rig: camera {i}")
+    warnings, sd_fixed, fixed_out = [], [], []
+    for i, (e, m) in enumerate(zip(cameras, models, strict=True)):
+        names_i = [n for n, f in zip(INTRINSIC_NAMES, m.free, strict=True) if not f]
+        sd, defaulted = fixed_std(e["camera"], names_i, f"se3 rig: camera {i}", warnings)
+        sd_fixed.append(sd)
+        values = [float(m.intr0[INTRINSIC_NAMES.index(n)]) for n in names_i]
+        fixed_out.append({"names": names_i, "values": values, "std": [float(v) for v in sd],
+                          "std_defaulted": list(defaulted)})  # fmt: skip
+    block = _rig_clusters(cameras, data, models, opts.cluster_s)
+    pc = parameter_covariance(model.jacobian(sol.x), r, opts.loss, opts.f_scale_px, block,
+                              model.jacobian_fixed(sol.x), np.concatenate(sd_fixed))  # fmt: skip
+    warnings += correlation_warnings(pc["corr"], model.names, opts.corr_warn, "se3 rig") + solver_warnings
+    cams_out = _camera_results(models, model, sol.x, r, data, fixed_out, T_Cm_C0, dts)
+    T_Bm_B = models[0].unpack(model.local(sol.x, 0))[2]
+    result = {
+        "method": "se3_rig", "cameras": cams_out, "T_Bm_B": T_Bm_B.tolist(),
+        "T_Bm_B_pose6": tf.pose6_from_T(T_Bm_B).tolist(), "init_T_Bm_B": T_Bm_B0.tolist(),
+        "fit_dt": bool(opts.fit_dt), **uncertainty_keys(model.names, sol.x, pc),
+        "fixed_sensitivity": np.asarray(pc["S"], float).tolist(), "n_residuals": int(r.size),
+        "n_clusters": int(pc["n_clusters"]), **opts.summary(cam),
+        "camera_moving_smooth_s": float(opts.camera_moving_smooth_s),
+        "rms_px": float(np.sqrt(np.mean(r**2))), "sigma_px": float(np.sqrt(pc["sigma2"])),
+        "cost": float(sol.cost), "n_iterations": int(sol.nfev), "n_jacobians": int(n_jac),
+        "solver": opts.solver, "status": int(sol.status), "message": str(sol.message),
+        "warnings": warnings, "covariance_total": pc["cov_total"].tolist(),
+    }  # fmt: skip
+    per_frame = fused_rig_poses(result, [e["corners"] for e in cameras], bodies, board,
+                                frames=[d[0] for d in data], match_tol_s=match_tol_s,
+                                calibration_cov=fused_calibration_cov,
+                                max_residual_px=fused_max_residual_px)  # fmt: skip
+    result["n_rig_frames"] = len(per_frame)
+    result["n_rig_frames_by_cameras"] = {
+        int(k): int(v) for k, v in per_frame["n_cameras"].value_counts().sort_index().items()
+    }
+    result["time_s"] = float(time.perf_counter() - t0)
+    log.info("se3 rig: %d cameras, RMS %.3f px, %d evaluations, %.2f s", len(cameras), result["rms_px"],
+             sol.nfev, result["time_s"])  # fmt: skip
+    return OptimiseResult(iterations=pd.DataFrame(history), errors=per_frame, result=result)
+
+
+def _rig_start(cameras, data, starts, dts, p_B, cam, brd, init_T_Bm_B):
+    """Start mountings: hand-eye on the camera with most frames, the others' given T_Bm_B.
+
+    Returns ``T_Cm_C0`` (list of (4, 4), one per camera) and ``T_Bm_B0`` (4, 4), metres.
+    """
+    n_cam = len(cameras)
     T_Cm_C0 = [None if e.get("T_Cm_C") is None else np.asarray(e["T_Cm_C"], float).reshape(4, 4)
                for e in cameras]  # fmt: skip
     T_Bm_B0 = None if init_T_Bm_B is None else np.asarray(init_T_Bm_B, float).reshape(4, 4)
-    pnp = [None] * n_cam
-    A = [None] * n_cam
+    pnp, A = [None] * n_cam, [None] * n_cam
     for i, ((_, t_video, uv, _), (K0, dist0)) in enumerate(zip(data, starts, strict=True)):
         if T_Cm_C0[i] is None or T_Bm_B0 is None:
             pnp[i] = solve_pnp_frames(uv, p_B, K0, dist0)
@@ -380,89 +422,27 @@ def optimise_se3_rig(
             if ok.sum() < 1:
                 raise OptimiseError(f"se3 rig: camera {i}: no frame with a PnP pose for the start")
             T_Cm_C0[i] = _mean_pose(A[i][ok] @ T_Bm_B0 @ tf.invert_T(T_C_B[ok]))
-    models, per_cam0 = [], []
-    for i, e in enumerate(cameras):
-        _, t_video, uv, _ = data[i]
-        K0, dist0 = starts[i]
-        intr0 = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], *dist0])
-        ld0 = float(e.get("line_delay_s", 0.0))
-        models.append(Se3Model(
-            intr0, set(e.get("free", free)), T_Cm_C0[i][:3, :3], T_Bm_B0[:3, :3], fit_dt, dts[i],
-            t_video, uv, p_B, cam, brd, fit_ld=bool(e.get("fit_line_delay", False)), ld0=ld0,
-        ))  # fmt: skip
-        per_cam0.append((intr0, T_Cm_C0[i][:3, 3], dts[i], ld0))
-    model = RigModel(models)
-    x0 = model.pack(per_cam0, T_Bm_B0[:3, 3])
-    r0 = model.residuals(x0)
-    if not np.isfinite(r0).all():
-        raise OptimiseError("se3 rig: non-finite residuals at the start (board behind a camera?)")
-    log.info("se3 rig: %d cameras, %s frames, %d parameters; start RMS %.3f px", n_cam,
-             [len(d[0]) for d in data], model.n_params, float(np.sqrt(np.mean(r0**2))))  # fmt: skip
+    return T_Cm_C0, T_Bm_B0
 
-    history, n_jac = [], [0]
 
-    def fun(x):
-        r = model.residuals(x)
-        row = {"nfev": len(history), "cost": robust_cost(r, loss, f_scale_px),
-               "rms_px": float(np.sqrt(np.mean(r**2)))}  # fmt: skip
-        for i, m in enumerate(models):
-            intr, _, _, dt = m.unpack(model.local(x, i))
-            row.update({f"cam{i}_fx_px": intr[0], f"cam{i}_fy_px": intr[1], f"cam{i}_dt_offset_s": dt})
-        history.append(row)
-        return r
-
-    def jac(x):
-        n_jac[0] += 1
-        return model.jacobian(x)
-
-    sol = levenberg_marquardt(fun, jac, x0, loss, f_scale_px, max_nfev)
-    if not np.isfinite(sol.x).all():
-        raise OptimiseError(f"se3 rig: the solver diverged ({sol.message})")
-    x = sol.x
-    r = model.residuals(x)
-    for i, m in enumerate(models):
-        refuse_implausible_fit(m.unpack(model.local(x, i))[0][:2], r[model.rows[i]],
-                               f"se3 rig: camera {i}")
-    J = model.jacobian(x)
-
-    # clusters: time blocks of the common timeline (frames at one instant share Vicon noise)
+def _rig_clusters(cameras, data, models, cluster_s):
+    """The cluster of every residual: blocks of ``cluster_s`` on the common timeline (frames at
+    one instant share the mocap noise), shape (m,)."""
     t_common = common_times(cameras, [d[1] for d in data])
     t_first = min(t[0] for t in t_common)
-    block = np.concatenate([
+    return np.concatenate([
         np.repeat(np.floor((t - t_first) / max(cluster_s, 1e-9)).astype(int)[np.nonzero(m.seen)[0]], 2)
         for t, m in zip(t_common, models, strict=True)
     ])  # fmt: skip
-    warnings_out, sd_fixed, fixed_out = [], [], []
-    for i, (e, m) in enumerate(zip(cameras, models, strict=True)):
-        names_i = [n for n, f in zip(INTRINSIC_NAMES, m.free, strict=True) if not f]
-        sd, defaulted = fixed_intrinsic_std(e["camera"], names_i) if names_i else (np.zeros(0), [])
-        if defaulted:
-            msg = (
-                f"se3 rig: camera {i} has no std for the fixed {defaulted}; their uncertainty is "
-                f"taken as {[DEFAULT_INTRINSIC_STD[n] for n in defaulted]} (DEFAULT_INTRINSIC_STD)"
-            )
-            warnings_out.append(msg)
-            log.warning(msg)
-        sd_fixed.append(sd)
-        values = [float(m.intr0[INTRINSIC_NAMES.index(n)]) for n in names_i]
-        fixed_out.append({"names": names_i, "values": values, "std": [float(v) for v in sd],
-                          "std_defaulted": list(defaulted)})  # fmt: skip
-    J_fixed = model.jacobian_fixed(x)
-    pc = parameter_covariance(J, r, loss, f_scale_px, block, J_fixed, np.concatenate(sd_fixed))
-    names = model.names
-    warnings_out += correlation_warnings(pc["corr"], names, corr_warn, "se3 rig")
-    if sol.status <= 0:
-        msg = f"se3 rig: solver stopped before converging: {sol.message}"
-        warnings_out.append(msg)
-        log.warning(msg)
 
-    def named(v):
-        return {n: float(a) for n, a in zip(names, v, strict=True)}
 
+def _camera_results(models, model, x, r, data, fixed_out, T_Cm_C0, dts):
+    """Per camera: ``K, dist, T_Cm_C, T_Cm_C_pose6, T_C0_C`` (camera i in camera 0, m),
+    ``dt_offset_s, line_delay_s, fit_line_delay, free, n_frames, n_frames_skipped, rms_px,
+    fixed_intrinsics, init``."""
     cams_out = []
-    T_Bm_B = None
     for i, m in enumerate(models):
-        intr, T_Cm_C, T_Bm_B, dt = m.unpack(model.local(x, i))
+        intr, T_Cm_C, _, dt = m.unpack(model.local(x, i))
         ri = r[model.rows[i]]
         cams_out.append({
             "K": K_from_intrinsics(*intr[:4]).tolist(), "dist": intr[4:].tolist(),
@@ -478,54 +458,7 @@ def optimise_se3_rig(
     T_Cm_C_0 = np.asarray(cams_out[0]["T_Cm_C"])
     for c in cams_out:
         c["T_C0_C"] = (tf.invert_T(T_Cm_C_0) @ np.asarray(c["T_Cm_C"])).tolist()
-    result = {
-        "method": "se3_rig",
-        "cameras": cams_out,
-        "T_Bm_B": T_Bm_B.tolist(),
-        "T_Bm_B_pose6": tf.pose6_from_T(T_Bm_B).tolist(),
-        "init_T_Bm_B": T_Bm_B0.tolist(),
-        "fit_dt": bool(fit_dt),
-        "estimates": named(x),
-        "std_errors": named(pc["se"]),
-        "std_errors_data": named(pc["se_data"]),
-        "std_errors_fixed": named(pc["se_fixed"]),
-        "std_errors_gn": named(pc["se_gn"]),
-        "std_errors_cluster": named(pc["se_cl"]),
-        "fixed_sensitivity": np.asarray(pc["S"], float).tolist(),
-        "correlation": {"names": list(names), "matrix": np.round(pc["corr"], 6).tolist()},
-        "correlation_total": {"names": list(names), "matrix": np.round(pc["corr_total"], 6).tolist()},
-        "n_residuals": int(r.size),
-        "n_clusters": int(pc["n_clusters"]),
-        "cluster_s": float(cluster_s),
-        "camera_smooth_s": float(camera_smooth_s),
-        "board_smooth_s": float(board_smooth_s),
-        "camera_static": bool(cam.static),
-        "camera_static_tol": None if camera_static_tol is None else list(camera_static_tol),
-        "camera_moving_smooth_s": float(camera_moving_smooth_s),
-        "rms_px": float(np.sqrt(np.mean(r**2))),
-        "sigma_px": float(np.sqrt(pc["sigma2"])),
-        "cost": float(sol.cost),
-        "loss": loss,
-        "f_scale_px": float(f_scale_px),
-        "n_iterations": int(sol.nfev),
-        "n_jacobians": int(n_jac[0]),
-        "status": int(sol.status),
-        "message": str(sol.message),
-        "warnings": warnings_out,
-    }
-    result["covariance_total"] = pc["cov_total"].tolist()
-    per_frame = fused_rig_poses(result, [e["corners"] for e in cameras], bodies, board,
-                                frames=[d[0] for d in data], match_tol_s=match_tol_s,
-                                calibration_cov=fused_calibration_cov,
-                                max_residual_px=fused_max_residual_px)  # fmt: skip
-    result["n_rig_frames"] = len(per_frame)
-    result["n_rig_frames_by_cameras"] = {
-        int(k): int(v) for k, v in per_frame["n_cameras"].value_counts().sort_index().items()
-    }
-    result["time_s"] = float(time.perf_counter() - t0)
-    log.info("se3 rig: %d cameras, RMS %.3f px, %d evaluations, %.2f s", n_cam, result["rms_px"],
-             sol.nfev, result["time_s"])  # fmt: skip
-    return OptimiseResult(iterations=pd.DataFrame(history), errors=per_frame, result=result)
+    return cams_out
 
 
 def cross_validate_se3_rig(cameras, bodies, board, *, n_folds=5, block_s=5.0, seed=0, frame="C",

@@ -15,7 +15,7 @@ from cvsflow.geometry.camera import project_points
 from cvsflow.geometry.interpolate import interpolate_T
 from cvsflow.geometry.transforms import project_SO3
 from cvsflow.mocap import body_poses
-from cvsflow.optimise import se3
+from cvsflow.optimise import DEFAULT_FREE, se3
 from cvsflow.optimise.body_tracks import (
     CAMERA_MOVING_SMOOTH_S,
     BodyTrack,
@@ -78,7 +78,7 @@ def test_projection_and_model_jacobians_equal_finite_differences():
     brd = BodyTrack.from_bodies(s["bodies"], "board")
     intr = np.r_[tr["K"][0, 0], tr["K"][1, 1], tr["K"][0, 2], tr["K"][1, 2], tr["dist"]]
     model = Se3Model(
-        intr, set(se3.DEFAULT_FREE), tr["T_Cm_C"][:3, :3], tr["T_Bm_B"][:3, :3], True,
+        intr, set(DEFAULT_FREE), tr["T_Cm_C"][:3, :3], tr["T_Bm_B"][:3, :3], True,
         tr["dt_offset_s"], t, uv, p_B, cam, brd,
     )  # fmt: skip
     x = model.pack(intr, tr["T_Cm_C"][:3, 3], tr["T_Bm_B"][:3, 3], tr["dt_offset_s"] + 0.00123)
@@ -463,7 +463,7 @@ def test_rolling_shutter_jacobian_equals_finite_differences(rs_session, motion):
     brd = BodyTrack.from_bodies(s["bodies"], "board")
     intr = np.r_[tr["K"][0, 0], tr["K"][1, 1], tr["K"][0, 2], tr["K"][1, 2], tr["dist"]]
     model = Se3Model(
-        intr, set(se3.DEFAULT_FREE), tr["T_Cm_C"][:3, :3], tr["T_Bm_B"][:3, :3], True,
+        intr, set(DEFAULT_FREE), tr["T_Cm_C"][:3, :3], tr["T_Bm_B"][:3, :3], True,
         tr["dt_offset_s"], t, uv, p_B, cam, brd, fit_ld=True, ld0=3e-5,
     )  # fmt: skip
     assert model.names[-2:] == ["dt_offset_s", "line_delay_s"]

@@ -302,7 +302,7 @@ def test_seed_leaves_out_pairs_with_part_of_the_board():
     """Pairs whose frame holds only some corners (hand or image border) are left out of the
     chapter's method, which re-estimates each pose from the whole board; a pairs frame with no
     corner at all is still an error naming it."""
-    from cvsflow.optimise.seed import corner_array
+    from cvsflow.optimise.seed_search import corner_array
 
     corners = pd.DataFrame(
         {"frame": [0] * 4 + [1] * 3, "found": True, "corner": [0, 1, 2, 3, 0, 1, 3],
