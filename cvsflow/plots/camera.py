@@ -76,6 +76,47 @@ def plot_calibration_coverage(calib_corners: pd.DataFrame, camera: dict) -> Figu
     return fig
 
 
+def plot_image_coverage(corners: pd.DataFrame, calib_corners: pd.DataFrame, camera: dict) -> Figure:
+    """Where the video's corners and the calibration stills' corners fell in the image.
+
+    Parameters
+    ----------
+    corners : DataFrame
+        ``found, u_px, v_px`` (corners.parquet: every video frame's corners).
+    calib_corners : DataFrame
+        ``u_px, v_px`` (calib_corners.parquet of the camera's calibration).
+    camera : dict
+        camera.yaml content (``width``, ``height`` in px).
+
+    Returns
+    -------
+    Figure
+        The video's corners as a density (corners per 20 px cell, log scale) over the image
+        (pixels, v down), the stills' corners as red dots over it.
+    """
+    from matplotlib.colors import LogNorm
+
+    w, h = camera["width"], camera["height"]
+    seen = corners[corners["found"].astype(bool)].dropna(subset=["u_px", "v_px"])
+    fig, ax = plt.subplots(figsize=(7.0, 5.6 * h / w + 1.0), layout="constrained")
+    bins = (max(1, int(w // 20)), max(1, int(h // 20)))
+    *_, image = ax.hist2d(seen["u_px"], seen["v_px"], bins=bins, range=[[0, w], [0, h]], cmap="viridis",
+                          norm=LogNorm(), cmin=1)
+    fig.colorbar(image, ax=ax, label="video corners per 20 px cell", shrink=0.8)
+    ax.scatter(calib_corners["u_px"], calib_corners["v_px"], s=5, color="tab:red", edgecolors="none",
+               label="calibration stills' corners")
+    ax.add_patch(plt.Rectangle((0, 0), w, h, fill=False, color="black", lw=1.0))
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    ax.set_aspect("equal")
+    ax.set_facecolor("0.85")
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+    ax.set_title(f"Image coverage: the video's corners ({len(seen)}) and the stills' ({len(calib_corners)})")
+    ax.legend(fontsize=7, loc="lower right")
+    return fig
+
+
 def plot_projection_uncertainty(maps: list[dict], camera: dict) -> Figure:
     """Projection uncertainty over the image: pixels coloured by it, the stills' corners on top.
 

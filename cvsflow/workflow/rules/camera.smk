@@ -71,6 +71,9 @@ rule poses:
     input:
         corners="results/{session}/corners.parquet",
         camera=camera_yaml,
+        calib_corners=lambda wc: camera_yaml(wc).replace(
+            "camera.yaml", "calib_corners.parquet"
+        ),
         video=video_path,  # its frame size is checked against the camera's
     output:
         **figures(
@@ -80,6 +83,13 @@ rule poses:
                 category="{session}",
                 subcategory="camera",
                 labels={"session": "{session}", "figure": "raw poses"},
+            ),
+            coverage=report(
+                "results/{session}/figures/image_coverage.png",
+                caption="../report/image_coverage.rst",
+                category="{session}",
+                subcategory="camera",
+                labels={"session": "{session}", "figure": "image coverage"},
             ),
         ),
         poses="results/{session}/poses_raw.parquet",

@@ -41,3 +41,5 @@ with stage_logging(snakemake.log[0], "poses") as log:
         log.warning(warning)
     write_parquet(poses, snakemake.output.poses)
     draw_figure(snakemake.output, "fig", lambda: plots.plot_pose_timeseries(poses))
+    draw_figure(snakemake.output, "coverage", lambda: plots.plot_image_coverage(
+        corners, read_parquet(snakemake.input.calib_corners), camera))
