@@ -57,7 +57,10 @@ def _mocap(s):
     """How a session's motion capture is read: two pose streams (files or a bag's topics:
     bodies_from streams) or an export (mocap_settings, checked here, at parse time)."""
     if "pose_streams" in SESSIONS[s]:
-        return {"format": SESSIONS[s]["pose_streams"].get("format", "auto"), "bodies_from": "streams"}
+        return {
+            "format": SESSIONS[s]["pose_streams"].get("format", "auto"),
+            "bodies_from": "streams",
+        }
     if s in BAGS and BAGS[s]["camera_body"] is not None:
         return {"format": "rosbag", "bodies_from": "streams"}
     return mocap_settings(s, SESSIONS[s])
