@@ -43,6 +43,16 @@ def plot_calibration_errors(camera: dict) -> Figure:
     return fig
 
 
+def _image_axes(ax, w, h):
+    """Axes over the image: its outline, pixels with v down, equal aspect."""
+    ax.add_patch(plt.Rectangle((0, 0), w, h, fill=False, color="black", lw=1.0))
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    ax.set_aspect("equal")
+    ax.set_xlabel("u (px)")
+    ax.set_ylabel("v (px)")
+
+
 def plot_calibration_coverage(calib_corners: pd.DataFrame, camera: dict) -> Figure:
     """Where the calibration corners fell in the image, coloured by still.
 
@@ -65,12 +75,7 @@ def plot_calibration_coverage(calib_corners: pd.DataFrame, camera: dict) -> Figu
     cmap = plt.get_cmap("tab20")
     for i, (name, block) in enumerate(calib_corners.groupby("image", sort=True)):
         ax.scatter(block["u_px"], block["v_px"], s=8, color=cmap(i % 20), label=name)
-    ax.add_patch(plt.Rectangle((0, 0), w, h, fill=False, color="black", lw=1.0))
-    ax.set_xlim(0, w)
-    ax.set_ylim(h, 0)
-    ax.set_aspect("equal")
-    ax.set_xlabel("u (px)")
-    ax.set_ylabel("v (px)")
+    _image_axes(ax, w, h)
     ax.set_title("Calibration corner coverage of the image")
     ax.legend(fontsize=6, ncol=2, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     return fig
@@ -105,13 +110,8 @@ def plot_image_coverage(corners: pd.DataFrame, calib_corners: pd.DataFrame, came
     fig.colorbar(image, ax=ax, label="video corners per 20 px cell", shrink=0.8)
     ax.scatter(calib_corners["u_px"], calib_corners["v_px"], s=5, color="tab:red", edgecolors="none",
                label="calibration stills' corners")
-    ax.add_patch(plt.Rectangle((0, 0), w, h, fill=False, color="black", lw=1.0))
-    ax.set_xlim(0, w)
-    ax.set_ylim(h, 0)
-    ax.set_aspect("equal")
+    _image_axes(ax, w, h)
     ax.set_facecolor("0.85")
-    ax.set_xlabel("u (px)")
-    ax.set_ylabel("v (px)")
     ax.set_title(f"Image coverage: the video's corners ({len(seen)}) and the stills' ({len(calib_corners)})")
     ax.legend(fontsize=7, loc="lower right")
     return fig
