@@ -213,8 +213,10 @@ def _handeye_camera_poses(args) -> dict:
 def cmd_handeye(args) -> int:
     """``cvsflow handeye``: hand-eye calibration from stills, timestamped frames or a camera pose stream.
 
-    Writes ``OUT/handeye.yaml`` and prints ``T_Cm_C`` (eye-in-hand) or ``T_W_C`` (eye-to-hand)
-    with its standard errors (mm, deg), and the time offset where one was estimated.
+    Writes ``OUT/handeye.yaml`` (and for stills or frames ``OUT/handeye_views.png``, the
+    mocap-chain reprojection per view in the fit and left out) and prints ``T_Cm_C``
+    (eye-in-hand) or ``T_W_C`` (eye-to-hand) with its standard errors (mm, deg), and the time
+    offset where one was estimated.
 
     - ``--stills``: one carrier pose each (:func:`cvsflow.handeye.stills.calibrate_hand_eye`).
     - ``--frames``: a timestamped frame folder and the carrier's pose stream
@@ -262,11 +264,14 @@ def cmd_handeye(args) -> int:
     """
     import cv2
 
-    from cvsflow.io.files import refuse_overwrite, write_yaml
+    from cvsflow.io.files import refuse_overwrite, save_figure, write_yaml
+    from cvsflow.plots.chain_reprojection import plot_chain_reprojection
 
     out = Path(args.out) / "handeye.yaml"
+    fig_path = Path(args.out) / "handeye_views.png"
     _check_sources(args)
-    refuse_overwrite([out], args.force, "cvsflow handeye")
+    written = [out] if args.camera_poses is not None else [out, fig_path]
+    refuse_overwrite(written, args.force, "cvsflow handeye")
     cv2.setNumThreads(1)
     if args.camera_poses is not None:
         res = _handeye_camera_poses(args)
@@ -279,6 +284,9 @@ def cmd_handeye(args) -> int:
     write_yaml({"command": "cvsflow handeye", **res}, out)
     _print_summary(res, "T_W_C" if args.eye_to_hand else "T_Cm_C")
     print(f"wrote {out}")
+    if any("chain_rms_px" in s for s in res.get("stills", [])):  # per view, in the fit and left out
+        save_figure(plot_chain_reprojection(res["stills"]), fig_path)
+        print(f"wrote {fig_path}")
     return 0
 
 

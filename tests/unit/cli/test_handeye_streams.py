@@ -83,6 +83,7 @@ def test_frames_with_a_pose_stream_and_intrinsics_from_the_frames(tmp_path):
     assert len(outside) == 1 and res["frame_counts"]["n_outside_stream"] == 1
     used = [s for s in res["stills"] if s["used"]]
     assert len(used) == 14 and all(s["chain_rms_px"] < 1.0 and s["chain_rms_loo_px"] < 1.5 for s in used)
+    assert (tmp_path / "out" / "handeye_views.png").stat().st_size > 0  # those numbers as a figure
     assert res["dt_offset_s"] is None and "held at 0 s" in res["observability"]["dt"]["reason"]
 
 
