@@ -3,7 +3,7 @@ SE(3) fit), each returning an :class:`OptimiseResult`."""
 
 from cvsflow.optimise.body_tracks import CAMERA_MOVING_SMOOTH_S, BodyTrack, smooth_track_local
 from cvsflow.optimise.result import OptimiseResult
-from cvsflow.optimise.se3 import MIN_FRAMES, camera_start, optimise_se3, usable_frames
+from cvsflow.optimise.se3 import MIN_FRAMES, camera_start, keep_usable, optimise_se3, usable_frames
 from cvsflow.optimise.se3_apply import apply_se3, pose_columns, tracks_from_params
 from cvsflow.optimise.se3_cov import (
     DEFAULT_INTRINSIC_STD,
@@ -31,9 +31,10 @@ __all__ = [
     "apply_se3", "BodyTrack", "CAMERA_MOVING_SMOOTH_S", "camera_start", "compute_eps",
     "compute_p_bar", "corner_arrays", "correlation_warnings", "covariances", "DEFAULT_FREE",
     "DEFAULT_INTRINSIC_STD", "DIVERGED_EPS_STD_M", "fixed_intrinsic_std", "fixed_std",
-    "jacobian_fd", "K_from_intrinsics", "levenberg_marquardt", "LOSSES", "MIN_FRAMES", "MIN_PAIRS",
-    "optimise_se3", "optimise_seed", "OptimiseResult", "parameter_covariance", "pose_columns",
-    "refuse_implausible_fit", "robust_cost", "SE3_ALONE", "Se3Model", "Se3Options", "SeedOptions",
-    "SeedPoseCache", "simulate_rig_session", "simulate_session", "smooth_track_local", "solve",
-    "solve_hand_eye", "solve_pnp_frames", "tracks_from_params", "uncertainty_keys", "usable_frames"
+    "jacobian_fd", "K_from_intrinsics", "keep_usable", "levenberg_marquardt", "LOSSES",
+    "MIN_FRAMES", "MIN_PAIRS", "optimise_se3", "optimise_seed", "OptimiseResult",
+    "parameter_covariance", "pose_columns", "refuse_implausible_fit", "robust_cost", "SE3_ALONE",
+    "Se3Model", "Se3Options", "SeedOptions", "SeedPoseCache", "simulate_rig_session",
+    "simulate_session", "smooth_track_local", "solve", "solve_hand_eye", "solve_pnp_frames",
+    "tracks_from_params", "uncertainty_keys", "usable_frames"
 ]

@@ -175,7 +175,7 @@ def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, f
     p_B = board_object_points(board)
     cam, brd = opts.tracks(bodies)
     log.info("se3: camera body %s", "static (mean pose used)" if cam.static else "moving")
-    frame, t_video, uv, n_skip = _usable_corners(corners, p_B, frames, dt_offset_s, cam, brd)
+    frame, t_video, uv, n_skip = keep_usable(*corner_arrays(corners, len(p_B)), frames, dt_offset_s, cam, brd)
     T_Cm_C0, T_Bm_B0 = _start_mountings(init, uv, p_B, K0, dist0, t_video + dt_offset_s, cam, brd)
     intr0 = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], *dist0])
     model = Se3Model(
@@ -229,22 +229,50 @@ def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, f
     return OptimiseResult(iterations=pd.DataFrame(history), errors=per_frame, result=result)
 
 
-def _usable_corners(corners, p_B, frames, dt_offset_s, cam, brd):
-    """Frames, video times (s) and corners (F, P, 2) px with mocap poses at t + dt, and the count
-    left out; OptimiseError with fewer than MIN_FRAMES."""
-    frame, t_video, uv = corner_arrays(corners, len(p_B))
+def keep_usable(frame, t_video, uv, frames, dt_offset_s, cam, brd, label="se3"):
+    """The frames a fit can use: those asked for, with mocap poses of both bodies around t + dt.
+
+    Parameters
+    ----------
+    frame : ndarray of int, shape (F,)
+        Video frames with corners (:func:`~cvsflow.optimise.se3_start.corner_arrays`).
+    t_video : ndarray, shape (F,)
+        Their video times, s.
+    uv : ndarray, shape (F, P, 2)
+        Their corners, px.
+    frames : array_like of int or None
+        Frames to fit on (e.g. the training blocks); None: all.
+    dt_offset_s : float
+        Time offset, s (t_mocap = t_video + dt).
+    cam, brd : BodyTrack
+        Camera-marker and board-marker tracks (:func:`usable_frames`).
+    label : str
+        Prefix of the messages (``"se3"``, ``"se3 rig: camera 1"``).
+
+    Returns
+    -------
+    frame, t_video, uv : ndarray
+        The usable rows.
+    n_skip : int
+        Frames left out for a gap in the mocap poses.
+
+    Raises
+    ------
+    OptimiseError
+        Fewer than ``MIN_FRAMES`` usable frames.
+    """
     if frames is not None:
         sel = np.isin(frame, np.asarray(frames))
         frame, t_video, uv = frame[sel], t_video[sel], uv[sel]
     usable = usable_frames(t_video, dt_offset_s, cam, brd)
     n_skip = int((~usable).sum())
     if n_skip:
-        log.warning("se3: %d of %d frames skipped (no valid Vicon pose within %.2f s of t + dt)",
-                    n_skip, len(frame), DT_MARGIN_S)  # fmt: skip
+        log.warning("%s: %d of %d frames skipped (no valid Vicon pose within %.2f s of t + dt)",
+                    label, n_skip, len(frame), DT_MARGIN_S)  # fmt: skip
     frame, t_video, uv = frame[usable], t_video[usable], uv[usable]
     if len(frame) < MIN_FRAMES:
         raise OptimiseError(
-            f"se3: {len(frame)} frames with corners and valid Vicon poses at t_video + "
+            f"{label}: {len(frame)} frames with corners and valid Vicon poses at t_video + "
             f"{dt_offset_s:.3f} s; need at least {MIN_FRAMES}"
         )
     return frame, t_video, uv, n_skip

@@ -53,7 +53,6 @@ from cvsflow.geometry import INTRINSIC_NAMES, project_SO3
 from cvsflow.geometry import transforms as tf
 from cvsflow.metrics import frame_errors
 from cvsflow.optimise import (
-    MIN_FRAMES,
     K_from_intrinsics,
     OptimiseResult,
     Se3Model,
@@ -63,6 +62,7 @@ from cvsflow.optimise import (
     correlation_warnings,
     fixed_std,
     jacobian_fd,
+    keep_usable,
     parameter_covariance,
     refuse_implausible_fit,
     robust_cost,
@@ -70,7 +70,6 @@ from cvsflow.optimise import (
     solve_hand_eye,
     solve_pnp_frames,
     uncertainty_keys,
-    usable_frames,
 )
 from cvsflow.rig.poses import fused_rig_poses
 
@@ -186,18 +185,8 @@ def _camera_frames(i, entry, p_B, cam, brd, frames):
             f"se3 rig: camera {i}: t_s does not increase with frame at frame {frame[k + 1]} "
             f"({t_video[k]} s after frame {frame[k]} at {t_video[k + 1]} s)"
         )
-    if frames is not None:
-        sel = np.isin(frame, np.asarray(frames))
-        frame, t_video, uv = frame[sel], t_video[sel], uv[sel]
-    usable = usable_frames(t_video, float(entry["dt_offset_s"]), cam, brd)
-    n_skip = int((~usable).sum())
-    frame, t_video, uv = frame[usable], t_video[usable], uv[usable]
-    if len(frame) < MIN_FRAMES:
-        raise OptimiseError(
-            f"se3 rig: camera {i}: {len(frame)} frames with corners and valid Vicon poses at "
-            f"t_video + {float(entry['dt_offset_s']):.3f} s; need at least {MIN_FRAMES}"
-        )
-    return frame, t_video, uv, n_skip
+    return keep_usable(frame, t_video, uv, frames, float(entry["dt_offset_s"]), cam, brd,
+                       f"se3 rig: camera {i}")  # fmt: skip
 
 
 def _check_cameras(cameras):
