@@ -121,6 +121,42 @@ def plot_fit_residuals(bodies: pd.DataFrame) -> Figure:
     return fig
 
 
+def plot_stream_bodies(bodies: pd.DataFrame) -> Figure:
+    """The bodies of a session whose motion capture is two pose streams (no marker fit to show).
+
+    Parameters
+    ----------
+    bodies : DataFrame
+        ``bodies`` table (``t_s``, ``body``, ``valid``, ``x_m``, ``y_m``, ``z_m``).
+
+    Returns
+    -------
+    Figure
+        Top: each body's distance from its median position (mm, log scale): the camera body's
+        path, a still board's jitter. Bottom: the samples where a body's pose is unknown
+        (outside its stream or in a gap).
+    """
+    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(10.0, 6.0), sharex=True, layout="constrained",
+                                   height_ratios=[3, 1])
+    for k, (body, sub) in enumerate(bodies.groupby("body", sort=False)):
+        t = sub["t_s"].to_numpy(float)
+        xyz = sub[["x_m", "y_m", "z_m"]].to_numpy(float)
+        d_mm = 1000.0 * np.linalg.norm(xyz - np.nanmedian(xyz, axis=0), axis=1)
+        (line,) = ax0.plot(*min_max_envelope(t, np.maximum(d_mm, 1e-3)), lw=0.8,
+                           label=f"{body} (median {np.nanmedian(d_mm):.1f} mm)")
+        bad = ~sub["valid"].to_numpy(bool)
+        ax1.plot(t[bad], np.full(bad.sum(), k), "|", color=line.get_color(), ms=10,
+                 label=f"{body}: {bad.sum()} of {len(t)} samples unknown")
+    ax0.set_yscale("log")
+    ax0.set_ylabel("distance from its median position (mm)")
+    ax0.set_title("Bodies from pose streams (poses as recorded: no marker fit, no residual)")
+    ax0.legend(fontsize=8)
+    ax1.set_yticks([])
+    ax1.set_xlabel("motion-capture time t (s)")
+    ax1.legend(fontsize=8, loc="upper right")
+    return fig
+
+
 def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict) -> Figure:
     """Board angular speed of both systems on the Vicon clock after alignment.
 

@@ -46,4 +46,6 @@ with stage_logging(snakemake.log[0], "mocap_bodies") as log:
                                        snakemake.params.max_fit_rms_share):
             log.warning(warning)
     write_parquet(bodies, snakemake.output.bodies)
-    draw_figure(snakemake.output, "fig", lambda: plots.plot_fit_residuals(bodies))
+    streams = hasattr(snakemake.input, "camera_stream")  # no marker fit to draw
+    draw_figure(snakemake.output, "fig",
+                lambda: (plots.plot_stream_bodies if streams else plots.plot_fit_residuals)(bodies))
