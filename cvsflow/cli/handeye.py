@@ -61,19 +61,26 @@ def _check_sources(args) -> None:
     """One carrier pose source, the bag options only with a bag; a named InputError otherwise."""
     if args.bag is None:
         given = [o for o, v in (("--image-topic", args.image_topic), ("--pose-topic", args.pose_topic),
-                                ("--pose-parent", args.pose_parent), ("--pose-child", args.pose_child))
+                                ("--pose-parent", args.pose_parent), ("--pose-child", args.pose_child),
+                                ("--camera-pose-topic", args.camera_pose_topic))
                  if v is not None]  # fmt: skip
         if given:
             raise InputError(f"{', '.join(given)}: topics and frames of a ROS bag; expected --bag BAG "
                              "with them")
-    elif args.image_topic is None:
+    elif (args.image_topic is None) == (args.camera_pose_topic is None):
         raise InputError(f"--bag {args.bag}: expected --image-topic (the camera's Image or CompressedImage "
-                         "topic; `cvsflow init BAG` lists the topics)")  # fmt: skip
+                         "topic) or --camera-pose-topic (the camera's pose in the target frame), one of "
+                         "them; `cvsflow init BAG` lists the topics")  # fmt: skip
     if args.poses is not None and args.pose_topic is not None:
         raise InputError("--poses and --pose-topic: expected one source of the carrier's poses")
     if args.poses is None and args.pose_topic is None:
         raise InputError("--poses: the carrier's poses are required (a pose file or stream; with --bag, "
                          "--pose-topic instead)")  # fmt: skip
+
+
+def _camera_poses_mode(args) -> bool:
+    """Whether the camera's own pose stream is given (a file, or a topic of the bag)."""
+    return args.camera_poses is not None or args.camera_pose_topic is not None
 
 
 def _handeye_stills(args, board) -> dict:
@@ -187,7 +194,12 @@ def _handeye_camera_poses(args) -> dict:
     if args.eye_to_hand:
         raise InputError("--camera-poses with --eye-to-hand: a camera's pose stream is fitted eye-in-hand "
                          "(the camera on its marker body, the target fixed)")  # fmt: skip
-    cam = read_pose_stream(args.camera_poses, args.camera_pose_format, given_by="--camera-pose-format")
+    if args.camera_pose_topic is not None:
+        from cvsflow.io.rosbag_poses import read_bag_pose_stream
+
+        cam = read_bag_pose_stream(args.bag, args.camera_pose_topic, time=_bag_time(args))
+    else:
+        cam = read_pose_stream(args.camera_poses, args.camera_pose_format, given_by="--camera-pose-format")
     moc = _carrier_stream(args)
     streams = (cam["t_ns"].to_numpy(), stream_T(cam), moc["t_ns"].to_numpy(), stream_T(moc))
     options = StreamsOptions(estimate_dt=args.dt_offset_s is None, dt_init_s=args.dt_offset_s)
@@ -223,7 +235,8 @@ def cmd_handeye(args) -> int:
       (:func:`cvsflow.handeye.frame_stream.calibrate_from_frames`); intrinsics from the same
       frames when no ``--camera`` is given.
     - ``--bag``: the same from a ROS bag's image topic and the carrier's pose topic (or
-      ``--poses``), named frames by their time in ns.
+      ``--poses``), named frames by their time in ns; with ``--camera-pose-topic`` instead of
+      ``--image-topic``, the camera-poses mode on the bag's two pose topics.
     - ``--camera-poses``: the camera's pose stream in the target frame and its marker body's
       (:func:`cvsflow.handeye.stream_fit.estimate_streams`, with the split-half check).
 
@@ -231,7 +244,8 @@ def cmd_handeye(args) -> int:
     ----------
     args : argparse.Namespace
         ``stills`` | ``frames`` | ``bag`` | ``camera_poses``, ``poses`` (file or glob; None with
-        ``pose_topic``), ``image_topic``, ``pose_topic``, ``pose_parent``, ``pose_child`` and
+        ``pose_topic``), ``image_topic`` or ``camera_pose_topic``, ``pose_topic``, ``pose_parent``,
+        ``pose_child`` and
         ``receive_time`` (with ``bag``), ``pose_format``,
         ``camera_pose_format``, ``csv_spec``, ``inner`` with ``square_m`` (m) or ``target`` (a
         Kalibr target file), ``camera`` (known intrinsics file), ``out``, ``force`` (replace an
@@ -270,10 +284,10 @@ def cmd_handeye(args) -> int:
     out = Path(args.out) / "handeye.yaml"
     fig_path = Path(args.out) / "handeye_views.png"
     _check_sources(args)
-    written = [out] if args.camera_poses is not None else [out, fig_path]
+    written = [out] if _camera_poses_mode(args) else [out, fig_path]
     refuse_overwrite(written, args.force, "cvsflow handeye")
     cv2.setNumThreads(1)
-    if args.camera_poses is not None:
+    if _camera_poses_mode(args):
         res = _handeye_camera_poses(args)
     else:
         if args.inner is None and args.target is None:
@@ -342,6 +356,9 @@ def _add_handeye_parser(sub) -> None:
                    "file per still), a pose stream for --frames and --camera-poses (required, but for "
                    "--bag with --pose-topic)")  # fmt: skip
     h.add_argument("--image-topic", help="--bag: the camera's sensor_msgs Image or CompressedImage topic")
+    h.add_argument("--camera-pose-topic", help="--bag, instead of --image-topic: the camera's pose in the "
+                   "target frame per message (PoseStamped, TransformStamped, Odometry), as --camera-poses "
+                   "takes it from a file")  # fmt: skip
     h.add_argument("--pose-topic", help="--bag: the carrier's poses (PoseStamped, TransformStamped, "
                    "Odometry, or /tf with --pose-parent and --pose-child)")  # fmt: skip
     h.add_argument("--pose-parent", help="--pose-topic: the frame the poses are in (header.frame_id; "
