@@ -170,7 +170,8 @@ def test_a_failed_stage_shows_its_named_error_and_log_not_a_traceback(tmp_path, 
 
 
 def test_video_that_is_a_folder_says_so(tmp_path):
-    """video pointing at a folder: 'is a folder, expected a video file'; no corners table."""
+    """video pointing at a folder without frames: a folder is read as a frame folder, and one
+    without images or data.csv says what it expected; no corners table."""
     (tmp_path / "calib").mkdir()
     folder = tmp_path / "recordings"
     folder.mkdir()
@@ -179,7 +180,7 @@ def test_video_that_is_a_folder_says_so(tmp_path):
     proc = snakemake(tmp_path, "results/s/corners.parquet", check=False)
     assert proc.returncode != 0
     log = (tmp_path / "logs/s/corners.log").read_text()
-    assert f"{folder}: is a folder, expected a video file" in log
+    assert f"{folder}: no images (" in log and "expected frames named by their time in ns, or an ASL camera folder" in log
     assert results_of(tmp_path) == []
 
 

@@ -107,7 +107,7 @@ def test_init_writes_a_rig_session_from_camera_folders(tmp_path, capsys):
     assert cfg["board"] == {"squares_x": 6, "squares_y": 5, "square_m": "TODO"}  # 5x4 inner corners
     assert cfg["markers"]["camera"]["names"] == ["rig:R1", "rig:R2", "rig:R3"]
     assert cfg["markers"]["board"]["names"] == ["board:B1", "board:B2", "board:B3"]
-    assert "results/bar/rig/heldout.yaml" in text and "camera 0 (the reference, C0) is cam_left" in text
+    assert f"# Use: cvsflow run {out}" in text and "camera 0 (the reference, C0) is cam_left" in text
     plain, rigs = assert_runnable_rig("bar", cfg)
     assert rigs["bar"]["shared_dirs"] == [c["shared_dir"] for c in cfg["cameras"]]
     assert plain["bar-cam_right"]["video"] == str(rec / "cam_right" / "video.mp4")
