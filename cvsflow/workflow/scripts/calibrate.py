@@ -2,12 +2,12 @@
 
 import cv2
 
+from cvsflow import plots
 from cvsflow.calibration import calibrate_camera, uncertainty_map_of
 from cvsflow.io.camera_formats import write_camera_format
 from cvsflow.io.files import draw_figure, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import list_stills, read_stills
-from cvsflow.plots import camera as plots
 
 # OpenCV's own thread pool would take every core and make results differ in the last bits.
 cv2.setNumThreads(snakemake.threads)
@@ -24,9 +24,9 @@ with stage_logging(snakemake.log[0], "calibrate") as log:
     for fmt in ("opencv", "kalibr", "ros"):
         write_camera_format(camera, fmt, snakemake.output[fmt])
     out = snakemake.output
-    draw_figure(out, "fig_errors", lambda: plots.plot_calibration_errors(camera))
-    draw_figure(out, "fig_coverage", lambda: plots.plot_calibration_coverage(calib_corners, camera))
-    draw_figure(out, "fig_uncertainty", lambda: plots.plot_projection_uncertainty(
+    draw_figure(out, "fig_errors", lambda: plots.camera.plot_calibration_errors(camera))
+    draw_figure(out, "fig_coverage", lambda: plots.camera.plot_calibration_coverage(calib_corners, camera))
+    draw_figure(out, "fig_uncertainty", lambda: plots.camera.plot_projection_uncertainty(
         [uncertainty_map_of(camera, calib_corners, d)
          for d in (camera["projection_uncertainty"]["distance_m"], float("inf"))], camera))
     log.info("calibration verdicts: %s", camera["quality"]["summary"])

@@ -2,11 +2,10 @@
 
 import numpy as np
 
+from cvsflow import plots
 from cvsflow.evaluate import compare_heldout, errors_by_view
 from cvsflow.io.files import draw_figure, read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.logs import cpu_section, stage_logging
-from cvsflow.plots import se3 as plots
-from cvsflow.plots import uncertainty as uplots
 
 with stage_logging(snakemake.log[0], "compare") as log:
     ev = snakemake.params.evaluate
@@ -38,9 +37,9 @@ with stage_logging(snakemake.log[0], "compare") as log:
     write_parquet(se3, snakemake.output.se3_scored)
     out = snakemake.output
     with cpu_section(log, "figures"):
-        draw_figure(out, "calibration_table", lambda: uplots.plot_calibration_table(comparison))
-        draw_figure(out, "nees", lambda: uplots.plot_nees_histogram(se3))
-        draw_figure(out, "heldout", lambda: plots.plot_heldout_errors(se3))
-        draw_figure(out, "bands", lambda: plots.plot_error_bands(se3, sigma, np.nanmean(mu, axis=0)))
-        draw_figure(out, "correlation", lambda: plots.plot_parameter_correlation(result))
-        draw_figure(out, "by_view", lambda: plots.plot_errors_by_view(errors_by_view(se3)))
+        draw_figure(out, "calibration_table", lambda: plots.uncertainty.plot_calibration_table(comparison))
+        draw_figure(out, "nees", lambda: plots.uncertainty.plot_nees_histogram(se3))
+        draw_figure(out, "heldout", lambda: plots.se3.plot_heldout_errors(se3))
+        draw_figure(out, "bands", lambda: plots.se3.plot_error_bands(se3, sigma, np.nanmean(mu, axis=0)))
+        draw_figure(out, "correlation", lambda: plots.se3.plot_parameter_correlation(result))
+        draw_figure(out, "by_view", lambda: plots.se3.plot_errors_by_view(errors_by_view(se3)))

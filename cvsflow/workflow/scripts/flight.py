@@ -2,6 +2,7 @@
 
 import numpy as np
 
+from cvsflow import plots
 from cvsflow.board import board_object_points
 from cvsflow.flight import (
     Clock,
@@ -21,7 +22,6 @@ from cvsflow.geometry import T_from_pose6
 from cvsflow.io.files import draw_figure, read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.flightlog import read_flight_log, read_tum, write_tum
 from cvsflow.io.logs import stage_logging
-from cvsflow.plots import flight as plots
 
 with stage_logging(snakemake.log[0], "flight") as log:
     cfg = snakemake.params.flight
@@ -93,7 +93,8 @@ with stage_logging(snakemake.log[0], "flight") as log:
     write_tum(result.est_unaligned, snakemake.output.onboard_unaligned_tum)
     k = cfg.get("k_sigma", 1.0)
     out = snakemake.output
-    draw_figure(out, "fig_errors", lambda: plots.plot_flight_errors(result.errors, k_sigma=max(2.0, k)))
+    draw_figure(out, "fig_errors",
+                lambda: plots.flight.plot_flight_errors(result.errors, k_sigma=max(2.0, k)))
     draw_figure(out, "fig_trajectories",
-                lambda: plots.plot_flight_trajectories(result.ref_aligned, result.est_aligned))
-    draw_figure(out, "fig_ape", lambda: plots.plot_ape(result.errors, stats))
+                lambda: plots.flight.plot_flight_trajectories(result.ref_aligned, result.est_aligned))
+    draw_figure(out, "fig_ape", lambda: plots.flight.plot_ape(result.errors, stats))

@@ -2,6 +2,7 @@
 streams (files or a bag's topics) (rule mocap_bodies).
 """
 
+from cvsflow import plots
 from cvsflow.io.files import draw_figure, read_parquet, write_parquet
 from cvsflow.io.logs import stage_logging
 from cvsflow.io.mocap.formats import read_pose_stream, read_system_bodies
@@ -9,7 +10,6 @@ from cvsflow.io.mocap.streams import stream_T
 from cvsflow.io.rosbag_session import read_bag_body
 from cvsflow.mocap import bodies_from_streams, fit_bodies, resolve_layouts
 from cvsflow.plausibility import check_body_fits
-from cvsflow.plots import mocap as plots
 
 with stage_logging(snakemake.log[0], "mocap_bodies") as log:
     specs = snakemake.params.markers
@@ -47,5 +47,5 @@ with stage_logging(snakemake.log[0], "mocap_bodies") as log:
             log.warning(warning)
     write_parquet(bodies, snakemake.output.bodies)
     streams = hasattr(snakemake.input, "camera_stream")  # no marker fit to draw
-    draw_figure(snakemake.output, "fig",
-                lambda: (plots.plot_stream_bodies if streams else plots.plot_fit_residuals)(bodies))
+    draw_figure(snakemake.output, "fig", lambda: (
+        plots.mocap.plot_stream_bodies if streams else plots.mocap.plot_fit_residuals)(bodies))

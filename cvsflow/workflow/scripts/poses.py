@@ -5,6 +5,7 @@ import os
 import cv2
 import numpy as np
 
+from cvsflow import plots
 from cvsflow.calibration import estimate_poses
 from cvsflow.io.files import draw_figure, read_parquet, read_yaml, write_parquet
 from cvsflow.io.frames import frame_folder_info
@@ -12,7 +13,6 @@ from cvsflow.io.logs import stage_logging
 from cvsflow.io.media import video_size
 from cvsflow.io.rosbag_images import bag_frames_info
 from cvsflow.plausibility import check_image_size, check_poses_found
-from cvsflow.plots import camera as plots
 
 # OpenCV's own thread pool would take every core and make results differ in the last bits.
 cv2.setNumThreads(snakemake.threads)
@@ -40,6 +40,6 @@ with stage_logging(snakemake.log[0], "poses") as log:
     for warning in check_poses_found(poses, corners, snakemake.params.video, snakemake.input.corners):
         log.warning(warning)
     write_parquet(poses, snakemake.output.poses)
-    draw_figure(snakemake.output, "fig", lambda: plots.plot_pose_timeseries(poses))
-    draw_figure(snakemake.output, "coverage", lambda: plots.plot_image_coverage(
+    draw_figure(snakemake.output, "fig", lambda: plots.camera.plot_pose_timeseries(poses))
+    draw_figure(snakemake.output, "coverage", lambda: plots.camera.plot_image_coverage(
         corners, read_parquet(snakemake.input.calib_corners), camera))

@@ -5,10 +5,10 @@ from pathlib import Path
 
 import pandas as pd
 
+from cvsflow import plots
 from cvsflow.evaluate import summary_row
 from cvsflow.io.files import atomic_output, draw_figure, read_parquet, read_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.plots import summary as plots
 
 with stage_logging(snakemake.log[0], "summary") as log:
     inp = dict(snakemake.input.items())
@@ -28,5 +28,5 @@ with stage_logging(snakemake.log[0], "summary") as log:
     log.info("%d runs summarised", len(table))
     with atomic_output(snakemake.output.table) as tmp:
         table.to_csv(tmp, index=False, float_format="%.6g")
-    draw_figure(snakemake.output, "sweep", lambda: plots.plot_sweep(table))
-    draw_figure(snakemake.output, "sessions", lambda: plots.plot_sessions(table))
+    draw_figure(snakemake.output, "sweep", lambda: plots.summary.plot_sweep(table))
+    draw_figure(snakemake.output, "sessions", lambda: plots.summary.plot_sessions(table))

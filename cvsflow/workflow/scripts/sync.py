@@ -1,9 +1,9 @@
 """Time offset between the video and the Vicon take (rule sync)."""
 
+from cvsflow import plots
 from cvsflow.io.files import draw_figure, read_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.plausibility import check_sync_inputs
-from cvsflow.plots import mocap as plots
 from cvsflow.sync import given_offset, synchronise
 
 with stage_logging(snakemake.log[0], "sync") as log:
@@ -20,4 +20,4 @@ with stage_logging(snakemake.log[0], "sync") as log:
              result["method"], "n/a" if result["quality"] is None else f"{result['quality']:.2f}",
              100 * result["overlap_share"])
     write_yaml(result, snakemake.output.sync)
-    draw_figure(snakemake.output, "fig", lambda: plots.plot_sync(poses, bodies, result))
+    draw_figure(snakemake.output, "fig", lambda: plots.mocap.plot_sync(poses, bodies, result))
