@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from cvsflow.exceptions import InputError
 from cvsflow.metrics import ERROR_DIMS, STATISTICS, error_statistics
@@ -81,6 +80,10 @@ def normality_tests(errors, prefix="eps"):
     n ~ 2400; D'Agostino-Pearson and Anderson-Darling are the tests it could have made.
     At such n they reject for small departures, which is itself a finding.
     """
+    # scipy.stats costs ~0.35 s of CPU to import: loaded by the figures that use it, not by
+    # every job that imports this module (an analyse job with figures: false)
+    from scipy import stats
+
     e = _eps(errors, prefix)
     rows = []
     for i, d in enumerate(ERROR_DIMS):
@@ -114,6 +117,10 @@ def qq_data(errors, prefix="eps"):
         "ordered": ndarray (N,), sorted errors (SI); "slope", "intercept": least-squares
         line (SI per standard deviation)}.
     """
+    # scipy.stats costs ~0.35 s of CPU to import: loaded by the figures that use it, not by
+    # every job that imports this module (an analyse job with figures: false)
+    from scipy import stats
+
     e = _eps(errors, prefix)
     out = {}
     for i, d in enumerate(ERROR_DIMS):
