@@ -39,8 +39,8 @@ def _same_result(a, b):
     """handeye.yaml of a and b equal but for the input's record; a frame folder's file names
     (``<ns>.png``, ``.jpg``) are a bag's frame names (``<ns>``) where warnings name frames."""
     ra, rb = (yaml.safe_load((d / "handeye.yaml").read_text()) for d in (a, b))
-    text_a = yaml.safe_dump({k: v for k, v in ra.items() if k not in INPUT_KEYS})
-    text_b = yaml.safe_dump({k: v for k, v in rb.items() if k not in INPUT_KEYS})
+    text_a, text_b = (yaml.safe_dump({k: v for k, v in r.items() if k not in INPUT_KEYS}, width=float("inf"))
+                      for r in (ra, rb))  # one line per value: names of two lengths wrap apart
     assert re.sub(r"(\d{19})\.(png|jpg)", r"\1", text_a) == text_b
     assert [f["reason"] for f in ra["frames"]] == [f["reason"] for f in rb["frames"]]
     return ra, rb
