@@ -247,11 +247,13 @@ class PoseCurve:
             raise MocapError("pose curve: sample times not strictly increasing")
         finite = np.isfinite(T).all(axis=(1, 2))
         self.valid = finite if valid is None else (np.asarray(valid, bool) & finite)
-        self.R = np.where(self.valid[:, None, None], T[:, :3, :3], np.eye(3))
-        self.p = np.where(self.valid[:, None], T[:, :3, 3], 0.0)
+        T = np.where(self.valid[:, None, None], T, np.eye(4))
+        # the curve itself is PoseInterpolant's; this class adds the gaps and the status
+        self.track = PoseInterpolant(self.t, T, self.valid)
+        self.R = T[:, :3, :3]
+        self.p = T[:, :3, 3]
         self.h = np.diff(self.t)
         self.max_gap_s = 3.0 * sample_period(self.t) if max_gap_s is None else float(max_gap_s)
-        self.w = Rotation.from_matrix(np.swapaxes(self.R[:-1], 1, 2) @ self.R[1:]).as_rotvec()
         self.interval_ok = self.valid[:-1] & self.valid[1:] & (self.h <= self.max_gap_s)
 
     def at(self, tq_s):
@@ -276,15 +278,13 @@ class PoseCurve:
             0 ok; 1 outside the samples' span; 2 in a gap (an interval longer than
             ``max_gap_s`` or next to an invalid sample).
         """
-        tq = np.asarray(tq_s, float)
-        i0, _, _, inside = bracket(self.t, np.ones(len(self.t), bool), tq)
+        tq = np.atleast_1d(np.asarray(tq_s, float))
+        i0, _ = self.track.locate(tq)
+        inside = (tq >= self.t[0]) & (tq <= self.t[-1])
         ok = inside & self.interval_ok[i0]
         status = np.where(ok, 0, np.where(inside, 2, 1))
-        f = np.where(ok, (tq - self.t[i0]) / self.h[i0], 0.0)
-        R = self.R[i0] @ Rotation.from_rotvec(f[:, None] * self.w[i0]).as_matrix().reshape(-1, 3, 3)
-        p = self.p[i0] + f[:, None] * (self.p[i0 + 1] - self.p[i0])
-        omega = self.w[i0] / self.h[i0, None]
-        v = (self.p[i0 + 1] - self.p[i0]) / self.h[i0, None]
+        T, v, omega = self.track(np.where(ok, tq, self.t[i0]), rates=True)
+        R, p = T[:, :3, :3], T[:, :3, 3]
         R[~ok] = np.eye(3)
         p[~ok], omega[~ok], v[~ok] = 0.0, 0.0, 0.0
         return R, p, omega, v, status
