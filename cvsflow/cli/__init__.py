@@ -38,13 +38,24 @@ def build_parser() -> argparse.ArgumentParser:
     """
     p = argparse.ArgumentParser(
         prog="cvsflow",
-        description="Webcam + chessboard pose accuracy against Vicon: calibrate, export, run, init.",
+        description="Camera + target pose accuracy against motion capture: calibrate, export, run, init.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("-v", "--verbose", action="store_true", help="log progress (INFO) on stderr")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
+    _add_calibrate_parsers(sub)
+    _add_export_parsers(sub)
+    _add_run_parsers(sub)
+    _add_init_parser(sub)
+    _add_remux_parser(sub)
+    _add_handeye_parser(sub)
+    return p
+
+
+def _add_calibrate_parsers(sub) -> None:
+    """Add ``calibrate`` and ``calibrate-rig`` to the subcommands ``sub``."""
     c = sub.add_parser(
         "calibrate",
         help="calibrate a camera from a folder of chessboard, ChArUco or AprilGrid stills",
@@ -93,6 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="fewest stills each camera must share with camera 0")
     cr.set_defaults(func=cmd_calibrate_rig)
 
+
+def _add_export_parsers(sub) -> None:
+    """Add ``export camera`` and ``export trajectory`` to the subcommands ``sub``."""
     e = sub.add_parser("export", help="export a finished run's camera or trajectories")
     esub = e.add_subparsers(dest="what", required=True, metavar="WHAT")
     ec = esub.add_parser(
@@ -131,6 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "(default: RESULTS/se3/calib/result.yaml if present)")
     et.set_defaults(func=cmd_export_trajectory)
 
+
+def _add_run_parsers(sub) -> None:
+    """Add ``run`` (handled by :func:`main`) and ``demo`` to the subcommands ``sub``."""
     r = sub.add_parser(
         "run",
         usage="cvsflow run [CONFIG.yaml] [--cores N] [snakemake options] [targets]",
@@ -161,6 +178,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--cores", type=int, help="cores to use (default the workstation profile's, 2)")
     d.set_defaults(func=cmd_demo)
 
+
+def _add_init_parser(sub) -> None:
+    """Add ``init`` to the subcommands ``sub``."""
     i = sub.add_parser(
         "init",
         help="write a session config from a recording folder or a ROS bag, for you to check",
@@ -186,6 +206,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="one camera, even if the subfolders look like a rig")
     i.set_defaults(func=cmd_init, layout="auto")
 
+
+def _add_remux_parser(sub) -> None:
+    """Add ``remux`` to the subcommands ``sub``."""
     m = sub.add_parser(
         "remux",
         help="give a raw H.264/HEVC stream (Raspberry Pi cameras) its frame times in an MP4",
@@ -200,8 +223,6 @@ def build_parser() -> argparse.ArgumentParser:
     times.add_argument("--timestamps", help="timecode format v2 file, one time in ms per frame")
     times.add_argument("--fps", type=float, help="nominal frame rate, frames/s")
     m.set_defaults(func=cmd_remux)
-    _add_handeye_parser(sub)
-    return p
 
 
 def main(argv=None) -> int:
