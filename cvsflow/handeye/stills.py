@@ -193,7 +193,7 @@ def calibrate_hand_eye(
     Returns
     -------
     dict
-        handeye.yaml content (see the README): ``mode``, the two transforms as 4x4 lists
+        handeye.yaml content (see docs/tools.md): ``mode``, the two transforms as 4x4 lists
         (``T_Cm_C`` and ``T_W_B``, or ``T_W_C`` and ``T_Bm_B``), ``std`` of each (deg about the
         child axes, mm in the parent; the larger of ``std_gauss_newton`` and
         ``std_jackknife``), ``closed_form``, ``rms_px``, ``sigma_px``, ``intrinsics``,

@@ -76,7 +76,7 @@ def check_seed_result(result, K_calib, where="seed result", focal_factor=4.0):
     """seed results inside physical ranges: finite positive focal lengths near the calibration.
 
     The chapter's method, applied as written, drifts to its grid bounds on sessions it was not
-    built on (README); such a run is flagged ``diverged`` by the optimiser and reported as such,
+    built on (docs/methods.md); such a run is flagged ``diverged`` by the optimiser and reported as such,
     so its focal range is left to that flag. Non-finite values are an error either way.
 
     Parameters

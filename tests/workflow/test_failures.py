@@ -302,7 +302,7 @@ def test_interrupted_run_resumes_with_a_plain_rerun_to_the_same_bytes(
     rerun = plain_snakemake(tmp_path)
     if sig_name == "SIGKILL" and rerun.returncode != 0:
         # A killed Snakemake cannot remove its lock; should the rerun refuse for it, it says to
-        # unlock (README), and after --unlock a plain rerun works.
+        # unlock (docs/sessions.md), and after --unlock a plain rerun works.
         out = rerun.stdout + rerun.stderr
         assert "cannot be locked" in out and "--unlock" in out, out[-4000:]
         assert plain_snakemake(tmp_path, "--unlock").returncode == 0

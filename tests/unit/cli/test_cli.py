@@ -315,9 +315,9 @@ def test_init_names_a_session_as_a_wildcard_and_reports_what_is_missing(tmp_path
 
 
 def _readme_session_block():
-    """The YAML block of the README's 'Your own session' section."""
+    """The YAML block of the README's 'Your own recording' section."""
     readme = (Path(__file__).resolve().parents[3] / "README.md").read_text()
-    section = readme.split("## Your own session", 1)[1]
+    section = readme.split("## Your own recording", 1)[1]
     return yaml.safe_load(section.split("```yaml", 1)[1].split("```", 1)[0])
 
 
