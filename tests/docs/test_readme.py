@@ -50,11 +50,14 @@ def quickstart_numbers() -> dict[str, str]:
 
 
 def test_readme_quick_start_numbers_are_the_demo_files():
-    """Every number of the README's demo table is what the demo's files hold, as printed."""
+    """Every number of the README's demo table, and of the guide's copy, is what the demo's files
+    hold, as printed."""
     text = README.read_text()
     table = text.split("## The demo", 1)[1].split("\n## ", 1)[0]
+    guide = (REPO / "docs" / "getting-started.md").read_text()
     for row, numbers in quickstart_numbers().items():
         assert numbers in table, f"README's demo row {row!r} should read {numbers!r}"
+        assert numbers in guide, f"docs/getting-started.md's demo row {row!r} should read {numbers!r}"
 
 
 def test_readme_is_short_and_its_set_up_commands_are_real():
