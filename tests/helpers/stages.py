@@ -17,6 +17,10 @@ class Named(list):
     def __getitem__(self, key):
         return self.__dict__[key] if isinstance(key, str) else super().__getitem__(key)
 
+    def get(self, key, default=None):
+        """The named item, or ``default`` (as Namedlist.get)."""
+        return self.__dict__.get(key, default)
+
 
 def run_stage(script, tmp_path, inputs, outputs, params, threads=1):
     """Run a workflow script with a fake ``snakemake`` object; return the log path."""

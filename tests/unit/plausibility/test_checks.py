@@ -128,7 +128,7 @@ def test_fit_rms_against_layout_scale_stops_vicon_bodies(tmp_path):
     outs = {"bodies": tmp_path / "bodies.parquet", "fig": tmp_path / "mocap_fit.png"}
     with pytest.raises(UnitsError, match=r"markers_filled\.parquet: body 'board': rigid-body fit RMS "
                        r"\d{3}(\.\d+)? m.*expected at most 0\.04\d* m"):
-        run_stage("mocap_bodies", tmp_path, {"m": src}, outs, {"markers": SPECS, **VICON_CFG})
+        run_stage("mocap_bodies", tmp_path, {"m": src}, outs, {"markers": SPECS, "bag": None, **VICON_CFG})
     assert not any(p.exists() for p in outs.values())
 
 
@@ -177,7 +177,7 @@ def test_board_never_appears_stops_poses(tmp_path):
     write_yaml({"K": K, "dist": [0.0] * 5}, cam)
     outs = {"poses": tmp_path / "poses_raw.parquet", "fig": tmp_path / "poses_raw.png"}
     video = _black_video(tmp_path / "data" / "black" / "video.mp4")
-    params = {"board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
+    params = {"bag": None, "board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
               "pnp": {"ransac_reproj_px": 3.0, "ransac_iterations": 200, "ransac_confidence": 0.999, "seed": 0},
               "video": str(video)}
     with pytest.raises(BoardNotSeenError, match=r"data/black/video\.mp4: 0 of 90 video frames have a board "
@@ -208,7 +208,7 @@ def test_video_of_another_size_than_the_calibration_stops_poses(tmp_path):
     write_yaml({"K": K, "dist": [0.0] * 5, "width": 480, "height": 640}, cam)
     video = _black_video(tmp_path / "video.mp4")
     outs = {"poses": tmp_path / "poses_raw.parquet", "fig": tmp_path / "poses_raw.png"}
-    params = {"board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
+    params = {"bag": None, "board": {"squares_x": 6, "squares_y": 5, "square_m": 0.09},
               "pnp": {"ransac_reproj_px": 3.0, "ransac_iterations": 200, "ransac_confidence": 0.999, "seed": 0},
               "video": str(video)}
     with pytest.raises(ImageSizeError, match=r"video\.mp4: frames are 640x480 px, but .*camera\.yaml was "
