@@ -106,7 +106,8 @@ def test_wheel_installs_and_runs_the_demo_and_a_session_outside_the_repository(t
     lab.mkdir()
     session = yaml.safe_load((demo / "session.yaml").read_text())["sessions"]["demo"]
     mine = {k: session[k] for k in ("board", "markers")}
-    mine.update({k: str(demo / session[k]) for k in ("calib_dir", "video", "vicon")}, methods=["se3"])
+    mine.update({k: str(demo / session[k]) for k in ("calib_dir", "video")}, methods=["se3"])
+    mine["mocap"] = {**session["mocap"], "file": str(demo / session["mocap"]["file"])}
     (home / "lab1.yaml").write_text(yaml.safe_dump({"sessions": {"lab1": mine}}))
     t0 = time.perf_counter()
     run([cvsflow, "run", "../lab1.yaml"], lab, env)
