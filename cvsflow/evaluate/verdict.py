@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from cvsflow.metrics import ERROR_DIMS, REPORT_UNITS
+from cvsflow.uncertainty import TARGETS
 
 #: The image diagonal (px) at which the pixel thresholds hold as written: 640x480.
 REFERENCE_DIAGONAL_PX = 800.0
@@ -37,8 +38,8 @@ THRESHOLDS = {
     "heldout_rot_rad": (math.radians(0.5), math.radians(2.0)),
 }
 #: A calibrated error model: mean NEES (6 when right) and share inside the 95 % band, pass and warn.
-NEES_PASS, NEES_WARN = (4.5, 7.5), (3.0, 12.0)
-INSIDE_95_PASS, INSIDE_95_WARN = (0.93, 0.97), (0.88, 0.99)
+NEES_PASS, NEES_WARN = TARGETS["nees"], (3.0, 12.0)
+INSIDE_95_PASS, INSIDE_95_WARN = TARGETS["inside_95"], (0.88, 0.99)
 #: Error dimensions (SI) with display name, unit and factor.
 DIMS = tuple((d, *REPORT_UNITS[d]) for d in ERROR_DIMS)
 

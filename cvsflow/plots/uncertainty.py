@@ -11,12 +11,10 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from cvsflow.uncertainty import chi2_pdf, chi2_quantile
+from cvsflow.metrics import ERROR_DIMS as DIMS
+from cvsflow.uncertainty import TARGETS, chi2_pdf, chi2_quantile
 
-DIMS = ("x_m", "y_m", "z_m", "roll_rad", "pitch_rad", "yaw_rad")
 NAMES = ("x", "y", "z", "roll", "pitch", "yaw")
-#: Target bands of a calibrated model (issue 15): NEES mean, share inside 95 %, inside 68 %.
-TARGETS = {"nees": (4.5, 7.5), "inside_95": (0.93, 0.97), "inside_68": (0.64, 0.72)}
 
 
 def _rows(score, label):
