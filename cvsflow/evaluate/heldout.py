@@ -28,7 +28,7 @@ from cvsflow.metrics import (
     frame_errors,
     poses_from_table,
 )
-from cvsflow.optimise import DIVERGED_EPS_STD_M, apply_se3, corner_arrays, optimise_se3
+from cvsflow.optimise import DIVERGED_EPS_STD_M, Se3Share, apply_se3, corner_arrays, optimise_se3
 
 log = logging.getLogger(__name__)
 
@@ -115,6 +115,9 @@ def cross_validate_se3(
 ):  # fmt: skip
     """Fit se3 on all folds but one, score the held-out fold; every fold in turn.
 
+    The folds share the corner arrays, the body tracks and every frame's PnP pose at a camera
+    (:class:`cvsflow.optimise.se3_share.Se3Share`): each fold's fit is the one it had alone.
+
     Parameters
     ----------
     corners, bodies, camera, board, dt_offset_s
@@ -143,14 +146,17 @@ def cross_validate_se3(
     blocks = heldout_blocks(corners, board, n_folds=n_folds, block_s=block_s, seed=seed)
     frame_ids, fold = blocks["frame"].to_numpy(), blocks["fold"].to_numpy()
     parts, fits = [], []
+    share = Se3Share(corners, bodies, board)  # what the folds' fits have in common, made once
     for k in range(n_folds):
         train = frame_ids[fold != k]
         test = frame_ids[fold == k]
-        fit = optimise_se3(corners, bodies, camera, board, dt_offset_s, frames=train, **se3_options)
+        fit = optimise_se3(corners, bodies, camera, board, dt_offset_s, frames=train, share=share,
+                           **se3_options)
         res = dict(fit.result)
         res["fold"] = k
         fits.append(res)
-        scored = frame_errors(apply_se3(res, corners, bodies, board, frames=test), frame=frame)
+        scored = frame_errors(apply_se3(res, corners, bodies, board, frames=test, share=share),
+                              frame=frame)
         scored["fold"] = k
         scored["sigma_px"] = res["sigma_px"]
         parts.append(scored)
@@ -170,7 +176,7 @@ def _pose6_block(frames, prefix):
     return geo.pose6_from_T(poses_from_table(frames, prefix))
 
 
-def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C"):
+def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C", share=None):
     """The se3 run in the analysis' form: per-iteration table, per-frame errors, result.
 
     Parameters
@@ -185,6 +191,8 @@ def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C"):
         poses_raw.parquet: the PnP poses at the calibrated intrinsics ("original" CVS).
     frame : {"C", "B"}
         Frame of the composed errors.
+    share : cvsflow.optimise.se3_share.Se3Share, optional
+        The one ``fit`` was made with: its tracks and PnP poses are reused.
 
     Returns
     -------
@@ -202,7 +210,7 @@ def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C"):
         (``norm_normalised_init_m``, ``norm_normalised_final_m``).
     """
     result = dict(fit.result)
-    final = frame_errors(apply_se3(result, corners, bodies, board), frame=frame)
+    final = frame_errors(apply_se3(result, corners, bodies, board, share=share), frame=frame)
     errors = pd.DataFrame({"frame": final["frame"].to_numpy(), "t_s": final["t_s"].to_numpy()})
     vic, cvs = _pose6_block(final, "ref_"), _pose6_block(final, "cvs_")
     orig = poses_raw.set_index("frame").reindex(final["frame"].to_numpy())
@@ -218,7 +226,8 @@ def se3_run_tables(fit, corners, bodies, board, poses_raw, frame="C"):
     init = result.get("init")
     norm_init = np.nan
     if isinstance(init, dict) and {"K", "dist", "T_Cm_C", "T_Bm_B", "dt_offset_s"} <= set(init):
-        start = frame_errors(apply_se3({**result, **init}, corners, bodies, board), frame=frame)
+        start = frame_errors(apply_se3({**result, **init}, corners, bodies, board, share=share),
+                             frame=frame)
         norm_init = float(np.sqrt(np.mean(start["err_dist_m"] ** 2)))
     K = np.asarray(result["K"], float)
     K0 = np.asarray(init["K"], float) if isinstance(init, dict) and "K" in init else K

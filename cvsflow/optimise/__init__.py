@@ -21,6 +21,7 @@ from cvsflow.optimise.se3_fit import (
 )
 from cvsflow.optimise.se3_lm import LOSSES, levenberg_marquardt, refuse_implausible_fit, robust_cost
 from cvsflow.optimise.se3_model import K_from_intrinsics, Se3Model, jacobian_fd
+from cvsflow.optimise.se3_share import Se3Share
 from cvsflow.optimise.se3_sim import simulate_rig_session, simulate_session
 from cvsflow.optimise.se3_start import corner_arrays, solve_hand_eye, solve_pnp_frames
 from cvsflow.optimise.seed import DIVERGED_EPS_STD_M, compute_eps, compute_p_bar, optimise_seed
@@ -34,7 +35,7 @@ __all__ = [
     "jacobian_fd", "K_from_intrinsics", "keep_usable", "levenberg_marquardt", "LOSSES",
     "MIN_FRAMES", "MIN_PAIRS", "optimise_se3", "optimise_seed", "OptimiseResult",
     "parameter_covariance", "pose_columns", "refuse_implausible_fit", "robust_cost", "SE3_ALONE",
-    "Se3Model", "Se3Options", "SeedOptions", "SeedPoseCache", "simulate_rig_session",
+    "Se3Model", "Se3Options", "Se3Share", "SeedOptions", "SeedPoseCache", "simulate_rig_session",
     "simulate_session", "smooth_track_local", "solve", "solve_hand_eye", "solve_pnp_frames",
     "tracks_from_params", "uncertainty_keys", "usable_frames"
 ]

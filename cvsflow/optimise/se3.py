@@ -122,7 +122,7 @@ MIN_FRAMES = 10
 #: Half-width (s) of the time window around t_i + dt0 that must hold valid Vicon samples.
 DT_MARGIN_S = 0.05
 def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, frames=None, init=None,
-                 **overrides):
+                 share=None, **overrides):
     """Joint estimate of intrinsics, T_Cm_C, T_Bm_B and the time offset (method ``se3``).
 
     Parameters
@@ -148,6 +148,9 @@ def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, f
     init : dict, optional
         ``T_Cm_C`` and ``T_Bm_B`` (4x4, m) to start from instead of the hand-eye closed form
         (e.g. a board that never turns, or a previous fit).
+    share : cvsflow.optimise.se3_share.Se3Share, optional
+        Corner arrays, body tracks and PnP poses made once for all fits on these ``corners``,
+        ``bodies`` and ``board`` (the held-out folds); the result is the same without it.
     **overrides
         Fields of :class:`~cvsflow.optimise.se3_fit.Se3Options` to change (``loss="huber"``).
 
@@ -172,11 +175,17 @@ def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, f
     K0, dist0 = camera_start(camera)
     if not np.isfinite(dt_offset_s):
         raise OptimiseError(f"se3: dt_offset_s {dt_offset_s!r}; expected a finite time in s")
-    p_B = board_object_points(board)
-    cam, brd = opts.tracks(bodies)
+    if share is None:
+        p_B = board_object_points(board)
+        arrays = corner_arrays(corners, len(p_B))
+    else:
+        share.check(corners, bodies, board)
+        p_B, arrays = share.p_B, (share.frame, share.t_video, share.uv)
+    cam, brd = opts.tracks(bodies, share)
     log.info("se3: camera body %s", "static (mean pose used)" if cam.static else "moving")
-    frame, t_video, uv, n_skip = keep_usable(*corner_arrays(corners, len(p_B)), frames, dt_offset_s, cam, brd)
-    T_Cm_C0, T_Bm_B0 = _start_mountings(init, uv, p_B, K0, dist0, t_video + dt_offset_s, cam, brd)
+    frame, t_video, uv, n_skip = keep_usable(*arrays, frames, dt_offset_s, cam, brd)
+    pnp = None if share is None else (lambda K, dist: share.pnp(share.rows(frame), K, dist))
+    T_Cm_C0, T_Bm_B0 = _start_mountings(init, uv, p_B, K0, dist0, t_video + dt_offset_s, cam, brd, pnp)
     intr0 = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], *dist0])
     model = Se3Model(
         intr0, set(opts.free), T_Cm_C0[:3, :3], T_Bm_B0[:3, :3], opts.fit_dt, dt_offset_s,
@@ -217,7 +226,7 @@ def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, f
     result.update(n_frames=len(frame), n_frames_skipped=n_skip, n_jacobians=int(n_jac),
                   time_s=float(time.perf_counter() - t0))
     per_frame = apply_se3({**result, "camera_moving_smooth_s": opts.camera_moving_smooth_s}, corners, bodies,
-                          board, frames=frame)  # fmt: skip
+                          board, frames=frame, share=share)  # fmt: skip
     rms_frame = np.sqrt(np.nanmean(model.per_corner(r**2), axis=1))
     wmin = loss_weights(r, opts.loss, opts.f_scale_px)[0] / np.where(r == 0, 1.0, r)
     wmin = np.nanmin(model.per_corner(np.where(r == 0, 1.0, wmin)), axis=1)
@@ -278,15 +287,16 @@ def keep_usable(frame, t_video, uv, frames, dt_offset_s, cam, brd, label="se3"):
     return frame, t_video, uv, n_skip
 
 
-def _start_mountings(init, uv, p_B, K0, dist0, t_vicon, cam, brd):
-    """T_Cm_C and T_Bm_B to start from: ``init``'s, else PnP at the calibration then AX = ZB."""
+def _start_mountings(init, uv, p_B, K0, dist0, t_vicon, cam, brd, pnp=None):
+    """T_Cm_C and T_Bm_B to start from: ``init``'s, else PnP at the calibration (by ``pnp(K,
+    dist)`` when given: the poses of the same frames) then AX = ZB."""
     if init is not None:
         try:
             return (np.asarray(init["T_Cm_C"], float).reshape(4, 4),
                     np.asarray(init["T_Bm_B"], float).reshape(4, 4))  # fmt: skip
         except (KeyError, TypeError, ValueError) as exc:
             raise OptimiseError(f"se3: init {init!r}: expected T_Cm_C and T_Bm_B (4x4)") from exc
-    T_C_B_pnp, ok = solve_pnp_frames(uv, p_B, K0, dist0)
+    T_C_B_pnp, ok = solve_pnp_frames(uv, p_B, K0, dist0) if pnp is None else pnp(K0, dist0)
     T_Cm_Bm = tf.invert_T(cam(t_vicon)) @ brd(t_vicon)
     return solve_hand_eye(T_Cm_Bm[ok], T_C_B_pnp[ok])
 

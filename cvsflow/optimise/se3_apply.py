@@ -47,7 +47,7 @@ def pose_columns(prefix, T):
     return out
 
 
-def tracks_from_params(params, bodies):
+def tracks_from_params(params, bodies, share=None):
     """The camera-marker and board-marker tracks with a fit's smoothing options.
 
     Parameters
@@ -58,6 +58,8 @@ def tracks_from_params(params, bodies):
         ``CAMERA_MOVING_SMOOTH_S``), as in a ``result.yaml``.
     bodies : DataFrame
         bodies.parquet.
+    share : cvsflow.optimise.se3_share.Se3Share, optional
+        Tracks made once for the session's fits (of these ``bodies``).
 
     Returns
     -------
@@ -65,17 +67,18 @@ def tracks_from_params(params, bodies):
     """
     board_smooth_s = float(params.get("board_smooth_s", 0.0))
     moving_smooth_s = params.get("camera_moving_smooth_s")
-    cam = BodyTrack.from_bodies(
-        bodies, "camera",
+    make = (lambda body, **o: BodyTrack.from_bodies(bodies, body, **o)) if share is None else share.track
+    cam = make(
+        "camera",
         smooth_s=float(params.get("camera_smooth_s", 0.0)),
         static_tol=params.get("camera_static_tol"),
         moving_smooth_s=CAMERA_MOVING_SMOOTH_S if moving_smooth_s is None else float(moving_smooth_s),
     )
-    brd = BodyTrack.from_bodies(bodies, "board", smooth_s=board_smooth_s)
+    brd = make("board", smooth_s=board_smooth_s)
     return cam, brd
 
 
-def apply_se3(params, corners, bodies, board, frames=None):
+def apply_se3(params, corners, bodies, board, frames=None, *, share=None):
     """Per-frame CVS pose (PnP at the fitted intrinsics) and Vicon reference pose (eq. 1).
 
     Parameters
@@ -94,6 +97,9 @@ def apply_se3(params, corners, bodies, board, frames=None):
         ``squares_x``, ``squares_y``, ``square_m``.
     frames : array_like of int, optional
         Frames to evaluate (e.g. a held-out block); default all complete found frames.
+    share : cvsflow.optimise.se3_share.Se3Share, optional
+        Corner arrays, tracks and PnP poses made once for the session's fits (of these
+        ``corners``, ``bodies`` and ``board``); the table is the same with and without it.
 
     Returns
     -------
@@ -106,24 +112,29 @@ def apply_se3(params, corners, bodies, board, frames=None):
         cvs_yaw_rad``; reference T_C_B from the Vicon with ``ref_`` prefix, same columns
         (no rvec); ``reproj_rms_px`` (PnP reprojection RMS at the fitted intrinsics).
     """
-    p_B = board_object_points(board)
-    frame, t_video, uv = corner_arrays(corners, len(p_B))
+    if share is None:
+        p_B = board_object_points(board)
+        frame, t_video, uv = corner_arrays(corners, len(p_B))
+    else:
+        share.check(corners, bodies, board)
+        p_B, frame, t_video, uv = share.p_B, share.frame, share.t_video, share.uv
+    rows = np.arange(len(frame))
     if frames is not None:
         sel = np.isin(frame, np.asarray(frames))
-        frame, t_video, uv = frame[sel], t_video[sel], uv[sel]
+        frame, t_video, uv, rows = frame[sel], t_video[sel], uv[sel], rows[sel]
     K = np.asarray(params["K"], float)
     dist = np.asarray(params["dist"], float)
     T_Cm_C = np.asarray(params["T_Cm_C"], float)
     T_Bm_B = np.asarray(params["T_Bm_B"], float)
     dt = float(params["dt_offset_s"])
-    cam, brd = tracks_from_params(params, bodies)
+    cam, brd = tracks_from_params(params, bodies, share)
     tq = t_video + dt
     ld = float(params.get("line_delay_s", 0.0) or 0.0)
     if ld != 0.0:
         tq = tq + ld * np.nanmean(uv[..., 1], axis=1)
     ok_vicon = cam.ok(tq) & brd.ok(tq)
     T_ref = tf.invert_T(cam(tq) @ T_Cm_C) @ brd(tq) @ T_Bm_B  # eq. (1)
-    T_cvs, ok_pnp = solve_pnp_frames(uv, p_B, K, dist)
+    T_cvs, ok_pnp = solve_pnp_frames(uv, p_B, K, dist) if share is None else share.pnp(rows, K, dist)
     keep = ok_vicon & ok_pnp
     T_ref, T_cvs = T_ref[keep], T_cvs[keep]
     p_C = np.einsum("fij,pj->fpi", T_cvs[:, :3, :3], p_B) + T_cvs[:, None, :3, 3]

@@ -133,23 +133,25 @@ class Se3Options:
             raise OptimiseError(f"{label}: line_delay_s {self.line_delay_s!r}; expected a finite value "
                                 ">= 0 s")
 
-    def tracks(self, bodies):
+    def tracks(self, bodies, share=None):
         """The camera-marker and board-marker tracks of a bodies table, smoothed as these options say.
 
         Parameters
         ----------
         bodies : DataFrame
             bodies.parquet (native rate).
+        share : cvsflow.optimise.se3_share.Se3Share, optional
+            Tracks made once for the session's fits (of these ``bodies``).
 
         Returns
         -------
         cam, brd : BodyTrack
             T_W_Cm and T_W_Bm.
         """
-        cam = BodyTrack.from_bodies(bodies, "camera", smooth_s=self.camera_smooth_s,
-                                    static_tol=self.camera_static_tol,
-                                    moving_smooth_s=self.camera_moving_smooth_s)  # fmt: skip
-        return cam, BodyTrack.from_bodies(bodies, "board", smooth_s=self.board_smooth_s)
+        make = (lambda body, **o: BodyTrack.from_bodies(bodies, body, **o)) if share is None else share.track
+        cam = make("camera", smooth_s=self.camera_smooth_s, static_tol=self.camera_static_tol,
+                   moving_smooth_s=self.camera_moving_smooth_s)  # fmt: skip
+        return cam, make("board", smooth_s=self.board_smooth_s)
 
     def summary(self, cam):
         """The options and the camera's state as the result records them."""

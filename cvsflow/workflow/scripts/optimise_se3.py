@@ -5,7 +5,7 @@ import numpy as np
 from cvsflow.evaluate import se3_run_tables
 from cvsflow.io.files import read_parquet, read_yaml, write_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
-from cvsflow.optimise import optimise_se3
+from cvsflow.optimise import Se3Share, optimise_se3
 from cvsflow.plausibility import check_se3_result
 
 with stage_logging(snakemake.log[0], "optimise_se3") as log:
@@ -19,12 +19,14 @@ with stage_logging(snakemake.log[0], "optimise_se3") as log:
     corners = read_parquet(snakemake.input.corners)
     bodies = read_parquet(snakemake.input.bodies)
     board = snakemake.params.board
-    fit = optimise_se3(corners, bodies, camera, board, sync["dt_offset_s"], **snakemake.params.se3)
+    share = Se3Share(corners, bodies, board)  # tracks and PnP poses, made once for the tables
+    fit = optimise_se3(corners, bodies, camera, board, sync["dt_offset_s"], share=share,
+                       **snakemake.params.se3)
     for warning in fit.result.get("warnings", []):
         log.warning(warning)
     iterations, errors, result = se3_run_tables(fit, corners, bodies, board,
                                                 read_parquet(snakemake.input.poses),
-                                                frame=snakemake.params.frame)
+                                                frame=snakemake.params.frame, share=share)
     log.info("fx %.2f px, fy %.2f px, dt %.4f s, corner RMS %.3f px", result["fx_px"],
              result["fy_px"], result["dt_offset_s"], result["rms_px"])
     check_se3_result(result, K_calib, sync.get("details", {}).get("max_offset_s", 30.0),
