@@ -16,9 +16,11 @@ from cvsflow.calibration.intrinsics import (
     view_corners,
 )
 from cvsflow.calibration.pnp import estimate_poses
+from cvsflow.calibration.pose_stream import poses_from_stream
 from cvsflow.calibration.projection_uncertainty import uncertainty_map_of
 
 __all__ = [
-    "calibrate_camera", "estimate_poses", "find_board", "INTRINSIC_STD_NAMES", "uncertainty_map_of",
+    "calibrate_camera", "estimate_poses", "find_board", "INTRINSIC_STD_NAMES", "poses_from_stream",
+    "uncertainty_map_of",
     "view_corners"
 ]

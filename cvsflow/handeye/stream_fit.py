@@ -141,6 +141,11 @@ class StreamsResult:
         RMS of the used frames' residuals per component (rad, m).
     t_ref_ns : int
         The epoch of the fit's float seconds (the first camera time).
+    estimate : dict
+        ``T_Cm_C``, ``T_W_B`` and ``dt_s`` as fitted, observable or not.
+    scatter : ndarray, shape (6, 6), or None
+        The residuals' robust 6 x 6 scatter in C (rad, m; :data:`RESIDUAL_NAMES` order): a
+        frame's detector and motion-capture error together, as the fit weighted it.
     """
 
     dt_offset_s: float | None
@@ -163,6 +168,7 @@ class StreamsResult:
     residual_rms: dict
     t_ref_ns: int
     estimate: dict = field(default_factory=dict)
+    scatter: np.ndarray | None = None
 
 
 def seconds_since(t_ns, t_ref_ns) -> np.ndarray:
@@ -395,6 +401,7 @@ def estimate_streams(t_cam_ns, T_B_C, t_mocap_ns, T_W_Cm, options: StreamsOption
         counts=counts, offset=offset, block_s=block_s, corr_len_s=corr_len_s,
         residual_rms=dict(zip(RESIDUAL_NAMES, np.sqrt(np.mean(r**2, axis=0)).tolist(), strict=True)),
         t_ref_ns=t_ref, estimate={"T_Cm_C": prob.T_X0, "T_W_B": prob.T_Y0, "dt_s": float(prob.dt0)},
+        scatter=S,
     )  # fmt: skip
 
 

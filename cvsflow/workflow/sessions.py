@@ -2,7 +2,10 @@
 
 A session names its inputs (``calib_dir``, ``video`` or a timestamped ``frames`` folder,
 ``mocap.file`` or two ``pose_streams``, a ROS bag's image and pose topics in a ``bag`` block, or a
-``synth`` block that renders all three). Every input
+``synth`` block that renders all three). Instead of images a session may name a detector's
+``camera_poses`` stream (the camera's pose in the target frame per timestamp): it then needs no
+board, stills or intrinsics, only the motion capture of the camera's marker body (the board's
+may be left out: the target is then static in the mocap world). Every input
 it names must be used: a video is turned into poses, which need the camera's intrinsics, from the
 session's own stills or, with ``camera: <other session>``, from another session's calibration.
 A session that names something it cannot use stops the run before any job starts, with a message
@@ -18,8 +21,25 @@ from cvsflow.exceptions import ConfigError, CvsflowError
 
 logger = logging.getLogger(__name__)
 
-#: Stages a session can run, in DAG order.
-STAGES = ("calibrate", "poses", "mocap", "pairs")
+#: Stages a session can run, in DAG order (``camera_poses`` and ``pose_fit``: a session whose
+#: camera input is a camera-pose stream, instead of ``poses`` and ``pairs``).
+STAGES = ("calibrate", "poses", "camera_poses", "mocap", "pairs", "pose_fit")
+
+#: What a camera-pose session must not name, and why.
+_NOT_WITH_CAMERA_POSES = {
+    "video": "expected one camera input: the camera-pose stream or the video",
+    "frames": "expected one camera input: the camera-pose stream or the frame folder",
+    "synth": "a synth block renders a video; expected one camera input",
+    "calib_dir": "a camera-pose stream needs no intrinsics (there are no images); leave out calib_dir",
+    "camera": "a camera-pose stream needs no intrinsics (there are no images); leave out camera",
+    "target": "the stream's poses are already in the target's frame (no board is detected); leave out "
+              "target",
+    "board": "the stream's poses are already in the target's frame (no board is detected); leave out "
+             "board",
+    "methods": "the session is fitted by the pose-level fit (results/<session>/pose_fit/), not by seed or "
+               "se3; leave out methods",
+    "cameras": "a rig takes videos; expected one camera-pose stream per session",
+}
 
 def mocap_file(session: dict) -> str | None:
     """The motion-capture export a session names.
@@ -198,6 +218,59 @@ def bag_settings(session: str, cfg: dict) -> dict | None:
     return out
 
 
+def camera_poses_settings(session: str, cfg: dict) -> dict | None:
+    """A session's ``camera_poses`` (a path, or ``{file, format}``) with its defaults; None without.
+
+    Parameters
+    ----------
+    session : str
+        Session key, for messages.
+    cfg : dict
+        ``config["sessions"][session]`` (validated against the schema).
+
+    Returns
+    -------
+    dict or None
+        ``file`` (the camera-pose stream: the camera's pose in the target frame per row, ASL,
+        TUM or ETH CSV) and ``format`` (``auto`` or one of them).
+
+    Raises
+    ------
+    ConfigError
+        An empty path.
+    """
+    value = cfg.get("camera_poses")
+    if value is None:
+        return None
+    out = {"file": value, "format": "auto"} if isinstance(value, str) else {"format": "auto", **value}
+    if not out.get("file"):
+        raise ConfigError(f"config: sessions.{session}.camera_poses: no file; expected the camera-pose "
+                          "stream's path (camera_poses: FILE or camera_poses: {file: FILE, format: auto})")
+    return out
+
+
+def _camera_poses_stages(name: str, s: dict, bag: dict | None) -> tuple[str, ...]:
+    """The stages of a session whose camera input is a camera-pose stream, or why it cannot run."""
+    where = f"config: sessions.{name}"
+    for key, why in _NOT_WITH_CAMERA_POSES.items():
+        if key in s:
+            raise ConfigError(f"{where}: names camera_poses and {key}; {why}")
+    if bag is not None and bag["image"] is not None:
+        raise ConfigError(f"{where}: names camera_poses and bag.image_topic; expected one camera input: "
+                          "the camera-pose stream or the bag's image topic")  # fmt: skip
+    has_mocap = "pose_streams" in s or mocap_file(s) is not None or (bag is not None and bag["camera_body"])
+    if not has_mocap:
+        raise ConfigError(f"{where}: names camera_poses but no motion capture of the camera's marker body; "
+                          "expected pose_streams: {camera: FILE} (the camera body's poses in the mocap "
+                          "world; board: FILE too when the target moves), or mocap.file with markers, or "
+                          "a bag block's camera_body and board_body")  # fmt: skip
+    if mocap_file(s) is not None and "markers" not in s:
+        raise ConfigError(f"{where}: names a motion-capture export but no markers: expected "
+                          "markers.camera.names and markers.board.names")  # fmt: skip
+    logger.debug("session %s: a camera-pose stream (stages camera_poses, mocap, pose_fit)", name)
+    return ("camera_poses", "mocap", "pose_fit")
+
+
 def _camera_input(s: dict, bag: dict | None) -> str:
     """The session's camera input as a message names it: a video, a frame folder or a bag's topic."""
     if "frames" in s:
@@ -222,19 +295,29 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     tuple of str
         A subset of `STAGES`, in DAG order: ``calibrate`` (own stills), ``poses`` (video or
         frame folder, and a camera), ``mocap`` (motion-capture export and markers, or pose
-        streams), ``pairs`` (all of them: sync, pairs, optimisers, held-out evaluation).
+        streams), ``pairs`` (all of them: sync, pairs, optimisers, held-out evaluation); a
+        session with ``camera_poses``: ``camera_poses`` (the stream as its poses table),
+        ``mocap`` and ``pose_fit`` (sync, the pose-level fit, held-out evaluation).
 
     Raises
     ------
     ConfigError
         The session names a video without a camera, a Vicon export without markers, both a
         video and a frame folder or both an export and pose streams, a ``bag`` block that
-        contradicts them (:func:`bag_settings`), or nothing to
+        contradicts them (:func:`bag_settings`), pose streams without a board stream (but for a
+        camera-pose session); a camera-pose session that names images, stills, a camera, a
+        board, methods or no motion capture; or nothing to
         process; a ChArUco board without a usable marker_m or dictionary; an AprilGrid with a
         missing or invalid key.
     """
     s = sessions[name]
     where = f"config: sessions.{name}"
+    if camera_poses_settings(name, s) is not None:
+        return _camera_poses_stages(name, s, bag_settings(name, s))
+    if "pose_streams" in s and "board" not in s["pose_streams"]:
+        raise ConfigError(f"{where}.pose_streams: no board stream; expected board: FILE (the board-marker "
+                          "body's poses). Only a camera_poses session may leave it out (its target static "
+                          "in the mocap world)")  # fmt: skip
     if isinstance(s.get("board"), dict) and s["board"].get("type") in ("charuco", "aprilgrid"):
         try:
             if board_type(s["board"]) == "charuco":
@@ -277,7 +360,8 @@ def session_stages(name: str, sessions: dict) -> tuple[str, ...]:
     if not stages:
         raise ConfigError(
             f"{where}: nothing to process; expected calib_dir, video or frames (with calib_dir or "
-            f"camera), mocap.file (with markers) or pose_streams, or a synth block"
+            f"camera), mocap.file (with markers) or pose_streams, camera_poses (with pose_streams), or a "
+            f"synth block"
         )
     logger.debug("session %s: stages %s", name, ", ".join(stages))
     return tuple(stages)

@@ -6,6 +6,7 @@ from cvsflow.io.trajectory import kitti_times_path
 from cvsflow.io.targets import read_target_board
 from cvsflow.workflow.sessions import (
     bag_settings,
+    camera_poses_settings,
     camera_session,
     check_sessions,
     expand_rig_sessions,
@@ -94,7 +95,10 @@ def mocap_bodies_input(wildcards):
         return {"bag": BAGS[wildcards.session]["path"]}
     if MOCAP[wildcards.session]["bodies_from"] == "streams":
         streams = SESSIONS[wildcards.session]["pose_streams"]
-        return {"camera_stream": streams["camera"], "board_stream": streams["board"]}
+        files = {"camera_stream": streams["camera"]}
+        if "board" in streams:  # a camera_poses session's target may be static in the world
+            files["board_stream"] = streams["board"]
+        return files
     if MOCAP[wildcards.session]["bodies_from"] == "system":
         return {"export": mocap_path(wildcards)}
     return {"markers": f"results/{wildcards.session}/markers_filled.parquet"}
@@ -162,7 +166,40 @@ def runs_stage(session, stage):
     return stage in SESSION_STAGES[session]
 
 
+# Sessions whose camera input is a camera-pose stream: their poses table is the stream's
+# (rule camera_poses, cvsflow/workflow/rules/streams.smk), not the poses rule's.
+CAMERA_POSES = {
+    s: camera_poses_settings(s, SESSIONS[s])
+    for s in SESSIONS
+    if runs_stage(s, "camera_poses")
+}
+CAMERA_POSES_PATTERN = "|".join(CAMERA_POSES) or "(?!x)x"
+
+
+def camera_poses_path(wildcards):
+    return CAMERA_POSES[wildcards.session]["file"]
+
+
+def pose_fit_targets(session):
+    """The outputs of a camera-pose session's sync, pose-level fit and held-out evaluation."""
+    base = f"results/{session}"
+    return [
+        f"{base}/poses_raw.parquet",
+        f"{base}/figures/poses_raw.png",
+        f"{base}/bodies.parquet",
+        f"{base}/sync.yaml",
+        f"{base}/figures/sync.png",
+        f"{base}/pose_fit/result.yaml",
+        f"{base}/heldout/pose_fit.parquet",
+        f"{base}/heldout/pose_fit.yaml",
+        f"{base}/figures/heldout_errors.png",
+        f"{base}/figures/nees_histogram.png",
+    ]
+
+
 def session_targets(session):
+    if runs_stage(session, "pose_fit"):
+        return pose_fit_targets(session)
     out = []
     if runs_stage(session, "calibrate"):
         out += [

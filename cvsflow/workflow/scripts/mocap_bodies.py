@@ -2,6 +2,8 @@
 streams (files or a bag's topics) (rule mocap_bodies).
 """
 
+import numpy as np
+
 from cvsflow import plots
 from cvsflow.io.files import draw_figure, read_parquet, write_parquet
 from cvsflow.io.logs import stage_logging
@@ -19,14 +21,21 @@ with stage_logging(snakemake.log[0], "mocap_bodies") as log:
             cam, brd = read_bag_body(bag, "camera"), read_bag_body(bag, "board")
             source = f"{cam.attrs['path']} and {brd.attrs['path']}"
         else:  # pose_streams: one body per file
-            source = f"{snakemake.input.camera_stream} and {snakemake.input.board_stream}"
             fmt = snakemake.params.mocap["format"]
-            cam, brd = (read_pose_stream(snakemake.input[k], fmt, given_by="pose_streams.format")
-                        for k in ("camera_stream", "board_stream"))  # fmt: skip
-        bodies = bodies_from_streams(cam["t_ns"].to_numpy(), stream_T(cam), brd["t_ns"].to_numpy(),
-                                     stream_T(brd), source=source)  # fmt: skip
+            cam = read_pose_stream(snakemake.input.camera_stream, fmt, given_by="pose_streams.format")
+            source = str(snakemake.input.camera_stream)
+            brd = None
+            if hasattr(snakemake.input, "board_stream"):
+                source += f" and {snakemake.input.board_stream}"
+                brd = read_pose_stream(snakemake.input.board_stream, fmt, given_by="pose_streams.format")
+        if brd is None:  # a camera_poses session without a board body: the target is static in W
+            t_brd, T_brd = cam["t_ns"].to_numpy()[:1], np.eye(4)[None]
+            log.info("no board stream: the board body is the mocap world (T_W_Bm = I)")
+        else:
+            t_brd, T_brd = brd["t_ns"].to_numpy(), stream_T(brd)
+        bodies = bodies_from_streams(cam["t_ns"].to_numpy(), stream_T(cam), t_brd, T_brd, source=source)
         log.info("bodies from pose streams: camera %d samples (%s), board %d", len(cam),
-                 cam.attrs.get("format"), len(brd))  # fmt: skip
+                 cam.attrs.get("format"), len(t_brd))  # fmt: skip
         specs = {}
     elif hasattr(snakemake.input, "export"):  # mocap.bodies_from: system
         source = snakemake.input.export

@@ -8,6 +8,7 @@ import pytest
 from cvsflow.exceptions import ConfigError
 from cvsflow.io.targets import read_target_board
 from cvsflow.workflow.sessions import (
+    camera_poses_settings,
     check_sessions,
     expand_rig_sessions,
     mocap_file,
@@ -147,3 +148,80 @@ def test_a_bag_session_runs_every_stage_from_its_topics():
         session_stages("s", {"s": {**s, "pose_streams": {"camera": "a.csv", "board": "b.csv"}}})
     with pytest.raises(ConfigError, match=r"names a bag's image topic \(/cam0/image_raw\) but no calib_dir"):
         session_stages("s", {"s": {"board": board, "bag": bag}})
+
+
+def test_a_camera_pose_session_runs_its_own_stages():
+    """camera_poses (a detector's stream instead of images) with the camera body's pose stream,
+    the board's optional: stages camera_poses, mocap, pose_fit; the plain path and the
+    {file, format} block read alike."""
+    streams = {"camera": "vicon.csv"}
+    s = {"camera_poses": "cam.csv", "pose_streams": streams}
+    assert session_stages("s", {"s": s}) == ("camera_poses", "mocap", "pose_fit")
+    moving = {**s, "camera_poses": {"file": "cam.csv", "format": "eth"},
+              "pose_streams": {"camera": "vicon.csv", "board": "b.csv"}}  # fmt: skip
+    assert session_stages("s", {"s": moving}) == ("camera_poses", "mocap", "pose_fit")
+    assert camera_poses_settings("s", s) == {"file": "cam.csv", "format": "auto"}
+    assert camera_poses_settings("s", moving) == {"file": "cam.csv", "format": "eth"}
+    assert camera_poses_settings("s", {"board": {}}) is None
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("video", "v.mp4", "names camera_poses and video; expected one camera input"),
+    ("frames", "cam0", "names camera_poses and frames; expected one camera input"),
+    ("calib_dir", "stills", "names camera_poses and calib_dir; a camera-pose stream needs no intrinsics"),
+    ("camera", "other", "names camera_poses and camera; a camera-pose stream needs no intrinsics"),
+    ("board", {"squares_x": 6, "squares_y": 5, "square_m": 0.09}, "names camera_poses and board; the "
+     "stream's poses are already in the target's frame"),
+    ("target", "target.yaml", "names camera_poses and target"),
+    ("methods", ["se3"], "names camera_poses and methods; the session is fitted by the pose-level fit"),
+])  # fmt: skip
+def test_a_camera_pose_session_naming_images_or_a_board_is_refused(key, value, message):
+    """Every input a camera-pose session names must be used: images, stills, a camera, a board or
+    methods beside camera_poses stop the run before any job, naming both keys."""
+    s = {"camera_poses": "cam.csv", "pose_streams": {"camera": "vicon.csv"}, key: value}
+    with pytest.raises(ConfigError, match=f"config: sessions.s: {message}"):
+        session_stages("s", {"s": s})
+
+
+def test_a_camera_pose_session_needs_the_camera_body_and_only_it_may_drop_the_board():
+    """Without any motion capture the message says what to add; a frame session's pose streams
+    still need the board's stream; a bag's image topic is a second camera input."""
+    with pytest.raises(ConfigError, match=r"names camera_poses but no motion capture of the camera's "
+                                          r"marker body; expected pose_streams: \{camera: FILE\}"):  # fmt: skip
+        session_stages("s", {"s": {"camera_poses": "cam.csv"}})
+    board = {"squares_x": 6, "squares_y": 5, "square_m": 0.09}
+    frames = {"board": board, "calib_dir": "cam0/data", "frames": "cam0", "pose_streams": {"camera": "a.csv"}}
+    with pytest.raises(ConfigError, match="sessions.s.pose_streams: no board stream; expected board: FILE"):
+        session_stages("s", {"s": frames})
+    bag = {"camera_poses": "cam.csv", "pose_streams": {"camera": "a.csv"},
+           "bag": {"path": "r.bag", "image_topic": "/cam0/image_raw"}}  # fmt: skip
+    with pytest.raises(ConfigError, match="names camera_poses and bag.image_topic"):
+        session_stages("s", {"s": bag})
+    with pytest.raises(ConfigError, match="sessions.s.camera_poses: no file"):
+        camera_poses_settings("s", {"camera_poses": {"file": ""}})
+
+
+def test_the_schema_takes_a_camera_pose_session_without_a_board():
+    """The schema accepts camera_poses without board or target (a path or {file, format}) and
+    pose_streams without board; it still refuses board and target together and an unknown format."""
+    from pathlib import Path
+
+    import yaml
+    from snakemake.utils import validate
+
+    repo = Path(__file__).resolve().parents[3]
+    schema = str(repo / "cvsflow" / "workflow" / "schemas" / "config.schema.yaml")
+    config = yaml.safe_load((repo / "config" / "config.yaml").read_text())
+    config["sessions"] = {"eth": {"camera_poses": "cam.csv", "pose_streams": {"camera": "vicon.csv"}},
+                          "eth2": {"camera_poses": {"file": "cam.csv", "format": "eth"},
+                                   "pose_streams": {"camera": "vicon.csv"}, "dt_offset_s": 0.02}}  # fmt: skip
+    validate(config, schema)
+    assert set(check_sessions(config["sessions"])["eth"]) == {"camera_poses", "mocap", "pose_fit"}
+    bad = copy.deepcopy(config)
+    bad["sessions"]["eth"]["camera_poses"] = {"file": "cam.csv", "format": "visp"}
+    with pytest.raises(Exception, match="camera_poses"):
+        validate(bad, schema)
+    both = copy.deepcopy(config)
+    both["sessions"]["eth"].update(board={"squares_x": 6, "squares_y": 5, "square_m": 0.09}, target="t.yaml")
+    with pytest.raises(Exception, match="board"):
+        validate(both, schema)
