@@ -7,6 +7,7 @@ from cvsflow.evaluate.headline import (
     flight_headline,
     headline_rst,
     headline_table,
+    pose_fit_headline,
     rig_headline,
     session_headline,
 )
@@ -31,7 +32,8 @@ from cvsflow.evaluate.verdict import flight_verdict, median_distance_m, session_
 
 __all__ = [
     "compare_heldout", "cross_validate_se3", "cross_validate_seed", "cross_validate_streams",
-    "fit_pose_streams", "fold_options", "heldout_summary", "pose_fit_record", "stream_inputs",
+    "fit_pose_streams", "fold_options", "heldout_summary", "pose_fit_headline", "pose_fit_record",
+    "stream_inputs",
     "flight_headline", "headline_rst",
     "headline_table", "heldout_blocks", "make_time_blocks", "rig_headline", "se3_run_tables",
     "session_headline", "session_verdict", "flight_verdict", "median_distance_m", "summary_row",

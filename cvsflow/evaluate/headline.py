@@ -250,6 +250,88 @@ def _pose_rows(r, group, name, T, T_true, std, std_prefix, src, correlation=None
               truth=np.degrees(pt[3 + k]))
 
 
+def _std_si(rec_std, name):
+    """A pose_fit record's std of one transform (deg, mm) as se3's std_errors keys (rad, m)."""
+    sd = (rec_std or {}).get(name) or {}
+    out = {f"{name}_r{a}_rad": math.radians(_num(sd.get(f"r{a}_deg"))) for a in "xyz"}
+    out.update({f"{name}_{a}_m": 1e-3 * _num(sd.get(f"{a}_mm")) for a in "xyz"})
+    return out
+
+
+def pose_fit_headline(session, result, heldout=None, truth=None):
+    """The headline rows of a camera-pose session's pose-level fit and its held-out evaluation.
+
+    Parameters
+    ----------
+    session : str
+    result : dict
+        results/<session>/pose_fit/result.yaml (``dt_offset_s``, ``dt_offset_std_s``,
+        ``T_Cm_C``, ``T_Bm_B``, ``std`` in deg and mm, ``observability``, ``split_half``,
+        ``std_inflated_by``).
+    heldout : dict, optional
+        results/<session>/heldout/pose_fit.yaml (``per_dim``, ``error_model``, ``error_frame``).
+    truth : dict, optional
+        ``dt_offset_s``, ``T_Cm_C``, ``T_Bm_B`` of a simulated session.
+
+    Returns
+    -------
+    list of dict
+        Rows with :data:`COLUMNS`, in report units (s, mm, deg, %); the rotations' standard
+        errors as Euler-angle errors (:func:`_euler_std`, without the correlations between
+        the three).
+    """
+    r = _Rows(session)
+    src = f"results/{session}/pose_fit/result.yaml"
+    truth = truth or {}
+    if result.get("dt_offset_s") is None:
+        reason = ((result.get("observability") or {}).get("dt") or {}).get("reason") or "unknown"
+        r.note("pose fit", "time offset dt", f"not determined ({reason}); held at "
+               f"{_fmt(result.get('dt_used_s'), 4)} s", f"{src}: dt_offset_s, observability.dt")
+    else:
+        r.add("pose fit", "time offset dt", result["dt_offset_s"], "s",
+              f"{src}: dt_offset_s, dt_offset_std_s", std=result.get("dt_offset_std_s"),
+              truth=truth.get("dt_offset_s", NAN), digits=6)
+    for name in ("T_Cm_C", "T_Bm_B"):
+        T = result.get(name)
+        if T is None:
+            reason = ((result.get("observability") or {}).get("hand_eye") or {}).get("reason")
+            r.note("pose fit", name, f"not determined ({reason})", f"{src}: observability.hand_eye")
+            continue
+        std = _std_si(result.get("std"), name)
+        p = _pose6(T)
+        pt = _pose6(truth[name]) if name in truth else np.full(6, NAN)
+        for k, a in enumerate("xyz"):
+            r.add("pose fit", f"{name} {a}", 1e3 * p[k], "mm", f"{src}: {name}, std.{name}.{a}_mm",
+                  std=1e3 * std[f"{name}_{a}_m"], truth=1e3 * pt[k])
+        sd = _euler_std(T, std, None, name)
+        for k, label in enumerate(("roll", "pitch", "yaw")):
+            r.add("pose fit", f"{name} {label}", np.degrees(p[3 + k]), "deg",
+                  f"{src}: {name}, std.{name}.r*_deg", std=np.degrees(sd[k]), truth=np.degrees(pt[3 + k]))
+    split = result.get("split_half")
+    if split:
+        verdict = "agrees" if split.get("agree") else "disagrees"
+        text = (f"{verdict}: mean z² {_fmt(split.get('mean_z2'), 3)} "
+                f"(limit {_fmt(split.get('mean_z2_limit'), 3)}), "
+                f"{split.get('n_agree')} of {split.get('n')} within 2 std; errors widened "
+                f"×{_fmt(result.get('std_inflated_by', 1.0), 3)}")
+        r.note("pose fit", "split-half check", text, f"{src}: split_half, std_inflated_by")
+    if heldout:
+        hsrc = f"results/{session}/heldout/pose_fit.yaml"
+        group = f"held-out RMS (pose fit, frame {heldout.get('error_frame', 'C')})"
+        for d, name, unit, k in DIMS:
+            s = (heldout.get("per_dim") or {}).get(d)
+            if s is not None:
+                r.add(group, name, k * _num(s.get("rmse")), unit, f"{hsrc}: per_dim.{d}.rmse")
+        em = heldout.get("error_model") or {}
+        for band in ("68", "95"):
+            r.add("stated uncertainty (pose fit, held-out)", f"inside the {band} % band",
+                  100 * _num(em.get(f"inside_{band}_all")), "%", f"{hsrc}: error_model.inside_{band}_all",
+                  digits=3)
+        r.add("stated uncertainty (pose fit, held-out)", "mean NEES (6 if consistent)", em.get("nees_mean"),
+              "[-]", f"{hsrc}: error_model.nees_mean", digits=3)
+    return r.rows
+
+
 def rig_headline(rig, result, heldout=None, truth=None):
     """The headline rows of a rig session: every camera's fit, the board's mounting, held-out scores.
 

@@ -93,6 +93,8 @@ rule poses:
             ),
         ),
         poses="results/{session}/poses_raw.parquet",
+    wildcard_constraints:
+        session=NOT_CAMERA_POSES_PATTERN,
     log:
         "logs/{session}/poses.log",
     benchmark:

@@ -174,6 +174,9 @@ CAMERA_POSES = {
     if runs_stage(s, "camera_poses")
 }
 CAMERA_POSES_PATTERN = "|".join(CAMERA_POSES) or "(?!x)x"
+# Every other session (rules poses and compare: their outputs' names are a camera-pose
+# session's too, and their inputs (corners, a video) it has not)
+NOT_CAMERA_POSES_PATTERN = f"(?!(?:{CAMERA_POSES_PATTERN})(?:/|$))[A-Za-z0-9_-]+"
 
 
 def camera_poses_path(wildcards):
@@ -387,6 +390,12 @@ def headline_inputs(wildcards):
             files[f"{session}/mocap_import"] = f"results/{session}/mocap_import.yaml"
         if runs_stage(session, "mocap") and MOCAP[session]["bodies_from"] != "streams":
             files[f"{session}/mocap_repair"] = f"results/{session}/mocap_repair.yaml"
+        if runs_stage(session, "pose_fit"):
+            files[f"{session}/sync"] = f"results/{session}/sync.yaml"
+            files[f"{session}/pose_fit"] = f"results/{session}/pose_fit/result.yaml"
+            files[f"{session}/pose_fit_heldout"] = (
+                f"results/{session}/heldout/pose_fit.yaml"
+            )
         if runs_stage(session, "pairs"):
             files[f"{session}/sync"] = f"results/{session}/sync.yaml"
             for method in METHODS[session]:

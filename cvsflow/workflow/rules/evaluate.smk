@@ -104,6 +104,8 @@ rule compare:
         ),
         comparison="results/{session}/comparison.yaml",
         se3_scored="results/{session}/heldout/se3_scored.parquet",
+    wildcard_constraints:
+        session=NOT_CAMERA_POSES_PATTERN,
     log:
         "logs/{session}/compare.log",
     benchmark:

@@ -8,6 +8,7 @@ from cvsflow.evaluate import (
     headline_rst,
     headline_table,
     median_distance_m,
+    pose_fit_headline,
     rig_headline,
     session_headline,
     session_verdict,
@@ -30,6 +31,8 @@ with stage_logging(snakemake.log[0], "headline") as log:
         rows += session_headline(
             s, camera_from=snakemake.params.camera_from.get(s), truth=load(f"{s}/truth"),
             mocap_import=load(f"{s}/mocap_import"), **loaded)
+        if f"{s}/pose_fit" in inp:  # a camera-pose session: the pose-level fit instead of se3
+            rows += pose_fit_headline(s, load(f"{s}/pose_fit"), heldout=load(f"{s}/pose_fit_heldout"))
         heldout = read_parquet(inp[f"{s}/heldout"]) if f"{s}/heldout" in inp else None
         verdict = session_verdict(s, distance_m=median_distance_m(heldout), **loaded)
         bands = image_data_uri(inp[f"{s}/bands"]) if f"{s}/bands" in inp else None

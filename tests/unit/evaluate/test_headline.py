@@ -168,3 +168,33 @@ def test_data_quality_rows_from_corners_and_vicon_repair():
     assert rows[("data", "Vicon marker samples filled")]["value"] == pytest.approx(10.0)
     assert rows[("warnings", "vicon")]["text"] == "board:B3 missing for 0.4 s"
     assert rows[("warnings", "vicon")]["source"] == "results/lab1/mocap_repair.yaml: warnings"
+
+
+def test_a_camera_pose_session_headline_states_the_pose_fit_and_its_heldout_coverage():
+    """The pose-level fit's offset, mountings (mm, deg, with errors and truth) and split-half
+    check, the held-out RMS and the stated uncertainty's coverage; an offset the data cannot fix
+    is a note with its reason, not a number."""
+    from cvsflow.evaluate import pose_fit_headline
+
+    T = np.eye(4)
+    T[:3, 3] = [0.072, 0.040, 0.026]
+    std = {"rx_deg": 0.2, "ry_deg": 0.2, "rz_deg": 0.2, "x_mm": 3.1, "y_mm": 3.5, "z_mm": 2.8}
+    result = {"dt_offset_s": 0.0193, "dt_offset_std_s": 0.0025, "dt_used_s": 0.0193, "T_Cm_C": T.tolist(),
+              "T_Bm_B": np.eye(4).tolist(), "std": {"T_Cm_C": std, "T_Bm_B": std}, "std_inflated_by": 1.46,
+              "split_half": {"agree": False, "mean_z2": 2.14, "mean_z2_limit": 1.72, "n_agree": 11, "n": 13}}
+    heldout = {"error_frame": "C", "per_dim": {"x_m": {"rmse": 0.004}, "yaw_rad": {"rmse": 0.01}},
+               "error_model": {"inside_68_all": 0.685, "inside_95_all": 0.912, "nees_mean": 14.2}}
+    rows = {(r["group"], r["quantity"]): r for r in pose_fit_headline("eth", result, heldout,
+                                                                      truth={"dt_offset_s": 0.02})}
+    dt = rows[("pose fit", "time offset dt")]
+    assert dt["value"] == 0.0193 and dt["std"] == 0.0025 and dt["truth"] == 0.02
+    z = rows[("pose fit", "T_Cm_C z")]
+    assert z["value"] == pytest.approx(26.0) and z["std"] == pytest.approx(2.8) and z["unit"] == "mm"
+    assert rows[("pose fit", "T_Cm_C yaw")]["std"] == pytest.approx(0.2, rel=1e-6)
+    assert "disagrees: mean z² 2.14 (limit 1.72), 11 of 13" in rows[("pose fit", "split-half check")]["text"]
+    assert rows[("held-out RMS (pose fit, frame C)", "x")]["value"] == pytest.approx(4.0)
+    assert rows[("stated uncertainty (pose fit, held-out)", "inside the 95 % band")]["value"] == pytest.approx(91.2)
+    still = {**result, "dt_offset_s": None, "dt_used_s": 0.0,
+             "observability": {"dt": {"reason": "the camera is nearly still"}}}
+    row = next(r for r in pose_fit_headline("s", still) if r["quantity"] == "time offset dt")
+    assert np.isnan(row["value"]) and "not determined (the camera is nearly still); held at 0 s" in row["text"]

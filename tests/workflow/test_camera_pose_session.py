@@ -1,0 +1,105 @@
+"""A workflow session whose camera input is a camera-pose stream (camera_poses): simulated
+streams with known truth through sync, the pose-level fit and the held-out evaluation; ETH's
+prime_sense_1 as such a session against `cvsflow handeye --camera-poses` on the same files
+(skips without the shared real data); a stream that misses the motion capture stops by name."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from cvsflow.cli import main
+from cvsflow.geometry import rotation_angle
+from cvsflow.handeye import simulate_streams
+from tests.helpers.handeye_sim import write_stream
+from tests.helpers.real_data import need_real_file
+from tests.workflow.test_workflow import snakemake, write_config
+
+PS1 = "ethz-hand-eye/prime_sense_color_w_vicon_1/prime_sense_1"
+OUTPUTS = ("results/s/pose_fit/result.yaml", "results/s/heldout/pose_fit.yaml", "results/headline.csv")
+
+
+def _std_mm(rec, name):
+    sd = rec["std"][name]
+    return np.array([sd["x_mm"], sd["y_mm"], sd["z_mm"]])
+
+
+def test_simulated_camera_pose_session_end_to_end(tmp_path):
+    """No board, stills or video: the stream is the poses table (exact ns), the board body is the
+    world; sync finds the 30 ms offset, the fit gives dt, T_Cm_C and T_Bm_B within 4 stated
+    errors of the truth, and every frame is scored held-out with a stated per-frame uncertainty."""
+    sim = simulate_streams(5, duration_s=30.0)
+    cam = write_stream(tmp_path / "cam.csv", sim["t_cam_ns"], sim["T_B_C"], "eth")
+    moc = write_stream(tmp_path / "vicon.csv", sim["t_mocap_ns"], sim["T_W_Cm"], "asl")
+    write_config(tmp_path, {"sessions": {"s": {"camera_poses": {"file": str(cam), "format": "eth"},
+                                               "pose_streams": {"camera": str(moc)}}},
+                            "evaluate": {"n_boot": 100}})  # fmt: skip
+    snakemake(tmp_path, *OUTPUTS)
+    res = tmp_path / "results" / "s"
+    poses = pd.read_parquet(res / "poses_raw.parquet")
+    assert (poses["t_ns"].to_numpy() == sim["t_cam_ns"]).all() and poses["valid"].all()
+    assert not (res / "corners.parquet").exists() and not (res / "camera.yaml").exists()
+    sync = yaml.safe_load((res / "sync.yaml").read_text())
+    assert abs(sync["dt_offset_s"] - 0.03) < 0.01
+    fit = yaml.safe_load((res / "pose_fit" / "result.yaml").read_text())
+    assert abs(fit["dt_offset_s"] - 0.03) < 4 * fit["dt_offset_std_s"]
+    err_mm = 1e3 * (np.array(fit["T_Cm_C"])[:3, 3] - sim["T_Cm_C"][:3, 3])
+    assert np.all(np.abs(err_mm) < 4 * _std_mm(fit, "T_Cm_C"))
+    err_mm = 1e3 * (np.array(fit["T_Bm_B"])[:3, 3] - sim["T_W_B"][:3, 3])
+    assert np.all(np.abs(err_mm) < 4 * _std_mm(fit, "T_Bm_B"))
+    assert fit["board_body"] is False and fit["sync"]["method"] == "angular_speed"
+    held = yaml.safe_load((res / "heldout" / "pose_fit.yaml").read_text())
+    heldout = pd.read_parquet(res / "heldout" / "pose_fit.parquet")
+    assert held["n"] == len(heldout) == len(poses) and len(held["folds"]) == 5
+    em = held["error_model"]
+    assert 0.55 < em["inside_68_all"] < 0.8 and 0.88 < em["inside_95_all"] < 0.99 and 4 < em["nees_mean"] < 9
+    assert held["per_dim"]["z_m"]["rmse"] < 0.02
+    headline = pd.read_csv(tmp_path / "results" / "headline.csv")
+    assert "T_Cm_C z" in set(headline[headline["session"] == "s"]["quantity"])
+
+
+def test_a_stated_offset_is_held_and_a_stream_outside_the_mocap_stops(tmp_path):
+    """dt_offset_s in the session fixes the offset (sync writes it as given, the fit holds it); a
+    camera stream that lies outside the motion capture stops sync naming both spans, and no
+    pose-fit output is left."""
+    sim = simulate_streams(6, duration_s=20.0)
+    cam = write_stream(tmp_path / "cam.csv", sim["t_cam_ns"], sim["T_B_C"], "eth")
+    moc = write_stream(tmp_path / "vicon.csv", sim["t_mocap_ns"], sim["T_W_Cm"], "eth")
+    write_config(tmp_path, {"sessions": {"s": {"camera_poses": str(cam), "pose_streams": {"camera": str(moc)},
+                                               "dt_offset_s": 0.03}}, "evaluate": {"n_boot": 50}})  # fmt: skip
+    snakemake(tmp_path, "results/s/pose_fit/result.yaml")
+    fit = yaml.safe_load((tmp_path / "results" / "s" / "pose_fit" / "result.yaml").read_text())
+    assert fit["dt_offset_s"] is None and fit["dt_used_s"] == 0.03 and fit["sync"]["method"] == "given"
+    late = write_stream(tmp_path / "late.csv", sim["t_cam_ns"] + 3600 * 10**9, sim["T_B_C"], "eth")
+    other = tmp_path / "other"
+    write_config(other, {"sessions": {"s": {"camera_poses": str(late), "pose_streams": {"camera": str(moc)}}}})
+    proc = snakemake(other, "results/s/pose_fit/result.yaml", check=False)
+    assert proc.returncode != 0
+    out = proc.stdout + proc.stderr
+    assert "stage sync failed (OverlapError)" in out and "the take 1491754" in out
+    assert "InputFunctionException" not in out  # no video or corners rule is asked about the session
+    assert not (other / "results" / "s" / "pose_fit" / "result.yaml").exists()
+
+
+def test_eth_prime_sense_1_as_a_session_agrees_with_handeye(tmp_path):
+    """ETH's prime_sense_1 (camera poses from target detections, its Vicon body; the target static
+    in the Vicon world) as a session: its offset and T_Cm_C agree with `cvsflow handeye
+    --camera-poses` on the same files within their stated errors (the same estimator), and its
+    held-out evaluation scores every pose."""
+    root = need_real_file(f"{PS1}/2017-04-09-18-13-10_W_camera_rgb_image_raw.csv").parent
+    cam = next(root.glob("*_W_camera_rgb_image_raw.csv"))
+    moc = next(root.glob("*_vicon_prime_sense.csv"))
+    write_config(tmp_path, {"sessions": {"s": {"camera_poses": str(cam), "pose_streams": {"camera": str(moc)}}},
+                            "evaluate": {"n_boot": 100}})  # fmt: skip
+    snakemake(tmp_path, *OUTPUTS)
+    fit = yaml.safe_load((tmp_path / "results" / "s" / "pose_fit" / "result.yaml").read_text())
+    assert main(["handeye", "--camera-poses", str(cam), "--poses", str(moc), "--out", str(tmp_path / "he")]) == 0
+    he = yaml.safe_load((tmp_path / "he" / "handeye.yaml").read_text())
+    assert abs(fit["dt_offset_s"] - he["dt_offset_s"]) < np.hypot(fit["dt_offset_std_s"], he["dt_offset_std_s"])
+    d_mm = 1e3 * (np.array(fit["T_Cm_C"])[:3, 3] - np.array(he["T_Cm_C"])[:3, 3])
+    assert np.all(np.abs(d_mm) < np.hypot(_std_mm(fit, "T_Cm_C"), _std_mm(he, "T_Cm_C")))
+    dR = np.array(fit["T_Cm_C"])[:3, :3].T @ np.array(he["T_Cm_C"])[:3, :3]
+    assert np.degrees(rotation_angle(dR)) < fit["std"]["T_Cm_C"]["rotation_deg"]
+    held = yaml.safe_load((tmp_path / "results" / "s" / "heldout" / "pose_fit.yaml").read_text())
+    assert held["n"] >= 1500 and np.isfinite(held["error_model"]["nees_mean"])
