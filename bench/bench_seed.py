@@ -28,6 +28,16 @@ the machine may be shared, so CPU seconds are the steadier number; with threads,
 can exceed wall seconds). ``--repeat N`` runs each implementation N times and keeps each
 stage's least CPU (the outputs of every repeat must hash alike): on a shared machine one run's
 CPU seconds scatter by +-10 %.
+
+``--after REV`` runs revision REV as 'after' instead of the working tree. ``--paths`` replaces
+byte identity by the condition a faster route to the seed method must meet: on the session,
+the focal path (``fx_px, fy_px`` of every row of ``iterations``) and the verdict
+(``diverged``, ``diverged_reason``) of the full fit and of every held-out fold are the same,
+and the final focal lengths move by less than a tenth of a grid step; it prints the largest
+focal-path difference in grid steps, the verdicts, and how far P_bar and the held-out errors
+moved (exit status 1 when the condition fails)::
+
+    .venv/bin/python bench/bench_seed.py --results DIR --cv --before main --paths
 """
 
 from __future__ import annotations
@@ -140,6 +150,48 @@ def run(inputs, opts, cv, out_dir):
     return stats, {f: sha(out_dir / f) for f in files}, result
 
 
+def compare_paths(before, after, opts):
+    """Print how the after run's focal paths and verdicts compare with the before run's.
+
+    The grid step is the first level's, 2 grid_half_width_px / (grid_points - 1). Returns
+    True when the focal paths and verdicts (full fit and held-out folds) are the same and the
+    final focal lengths moved by less than a tenth of a grid step.
+    """
+    half = float(opts.get("grid_half_width_px", 32.0))
+    step = 2.0 * half / (int(opts.get("grid_points", 5)) - 1)
+    ib, ia = (read_parquet(d / "iterations.parquet") for d in (before, after))
+    rb, ra = (read_yaml(d / "result.yaml") for d in (before, after))
+    fb, fa = (x[["fx_px", "fy_px"]].to_numpy(float) for x in (ib, ia))
+    df = np.abs(fb - fa).max(axis=1) / step if fb.shape == fa.shape else np.array([np.inf])
+    first = int(np.argmax(df > 0)) if (df > 0).any() else None
+    final = max(abs(rb["fx_px"] - ra["fx_px"]), abs(rb["fy_px"] - ra["fy_px"])) / step
+    verdict = (rb["diverged"], rb["diverged_reason"]) == (ra["diverged"], ra["diverged_reason"])
+    d_pbar = np.abs(np.subtract(rb["P_bar"], ra["P_bar"])).max()
+    print(f"grid step {step:g} px; full fit: focal path max diff {df.max():.3g} grid steps "
+          f"(first differing row {first}), final f diff {final:.3g} grid steps, verdict same "
+          f"{verdict} (diverged {rb['diverged']} -> {ra['diverged']}), max |dP_bar| {d_pbar:.3g}")
+    if not verdict:
+        print(f"  before: {rb['diverged_reason']}\n  after:  {ra['diverged_reason']}")
+    ok = bool(df.max() == 0 and verdict and final < 0.1)
+    hb_path, ha_path = before / "heldout_seed.parquet", after / "heldout_seed.parquet"
+    if hb_path.exists() and ha_path.exists():
+        hb, ha = read_parquet(hb_path), read_parquet(ha_path)
+        cols = ["fold", "fx_px", "fy_px", "diverged", "diverged_reason"]
+        fold_b, fold_a = (h[cols].drop_duplicates().sort_values("fold").reset_index(drop=True)
+                          for h in (hb, ha))
+        same_folds = fold_b.equals(fold_a)
+        eps = [f"eps_{d}" for d in ERROR_DIMS]
+        d_eps = (np.nanmax(np.abs(hb[eps].to_numpy(float) - ha[eps].to_numpy(float)))
+                 if hb["frame"].equals(ha["frame"]) else np.inf)
+        print(f"held-out folds: focal lengths and verdicts same {same_folds} ({len(fold_b)} folds), "
+              f"max |d eps| {d_eps:.3g} (m, rad)")
+        if not same_folds:
+            print(fold_b.compare(fold_a) if fold_b.shape == fold_a.shape else (fold_b, fold_a))
+        ok = ok and same_folds
+    print("condition (same focal paths and verdicts, final f within 0.1 grid step):", ok)
+    return ok
+
+
 def inputs_and_options(args):
     """The session (pipeline folder or synthetic), its options and a label."""
     config = yaml.safe_load(args.config.read_text())
@@ -198,6 +250,9 @@ def main():
     ap.add_argument("--cv", action="store_true", help="also time cross_validate_seed")
     ap.add_argument("--impl", choices=("before", "after", "both"), default="both")
     ap.add_argument("--before", default=BEFORE_REV, help="git revision of the 'before' code")
+    ap.add_argument("--after", help="git revision of the 'after' code (default: working tree)")
+    ap.add_argument("--paths", action="store_true",
+                    help="compare focal paths and verdicts instead of requiring identical bytes")
     ap.add_argument("--repeat", type=int, default=1, help="runs per implementation (least CPU)")
     ap.add_argument("--out", type=Path, help="keep the outputs here")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
@@ -212,7 +267,8 @@ def main():
     out_root = args.out or Path(tempfile.mkdtemp(prefix="bench_seed_out_"))
     runs = {}
     for name in chosen:
-        package = package_at(args.before) if name == "before" else REPO
+        rev = args.before if name == "before" else args.after
+        package = REPO if rev is None else package_at(rev)
         argv = [a for a in sys.argv[1:] if a != "--child"]
         for flag in ("--out", "--impl"):  # the parent's, replaced below
             if flag in argv:
@@ -236,7 +292,13 @@ def main():
               f"{result['norm_normalised_final_m']:.5f} m")
         for f, h in hashes.items():
             print(f"{name:6s} sha256 {h[:16]}  {f}")
-    if len(runs) == 2:
+    if len(runs) == 2 and args.paths:
+        for stage in runs["before"]["stats"]:
+            cb, ca = runs["before"]["stats"][stage][1], runs["after"]["stats"][stage][1]
+            print(f"cpu {stage:20s} before {cb:7.2f} s  after {ca:7.2f} s  x{cb / ca:5.2f}")
+        if not compare_paths(out_root / "before" / "run0", out_root / "after" / "run0", opts):
+            sys.exit(1)
+    elif len(runs) == 2:
         sb, hb = runs["before"]["stats"], runs["before"]["hashes"]
         sa, ha = runs["after"]["stats"], runs["after"]["hashes"]
         for stage in sb:

@@ -151,7 +151,7 @@ def cross_validate_se3(
         train = frame_ids[fold != k]
         test = frame_ids[fold == k]
         fit = optimise_se3(corners, bodies, camera, board, dt_offset_s, frames=train, share=share,
-                           **se3_options)
+                           per_frame=False, **se3_options)
         res = dict(fit.result)
         res["fold"] = k
         fits.append(res)

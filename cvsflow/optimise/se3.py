@@ -122,7 +122,7 @@ MIN_FRAMES = 10
 #: Half-width (s) of the time window around t_i + dt0 that must hold valid Vicon samples.
 DT_MARGIN_S = 0.05
 def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, frames=None, init=None,
-                 share=None, **overrides):
+                 share=None, per_frame=True, **overrides):
     """Joint estimate of intrinsics, T_Cm_C, T_Bm_B and the time offset (method ``se3``).
 
     Parameters
@@ -151,6 +151,9 @@ def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, f
     share : cvsflow.optimise.se3_share.Se3Share, optional
         Corner arrays, body tracks and PnP poses made once for all fits on these ``corners``,
         ``bodies`` and ``board`` (the held-out folds); the result is the same without it.
+    per_frame : bool
+        Make the per-frame table ``errors``; False leaves it empty (a held-out fold reads
+        only ``result``, and the table's PnP at the fitted camera was a fifth of its time).
     **overrides
         Fields of :class:`~cvsflow.optimise.se3_fit.Se3Options` to change (``loss="huber"``).
 
@@ -225,6 +228,11 @@ def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, f
     result = _result(model, sol, r, pc, opts, cam, fixed, start, warnings)
     result.update(n_frames=len(frame), n_frames_skipped=n_skip, n_jacobians=int(n_jac),
                   time_s=float(time.perf_counter() - t0))
+    log.info("se3: fx %.2f fy %.2f dt %.4f s, RMS %.3f px, %d evaluations, %.2f s",
+             result["K"][0][0], result["K"][1][1], result["dt_offset_s"], result["rms_px"], sol.nfev,
+             result["time_s"])  # fmt: skip
+    if not per_frame:
+        return OptimiseResult(iterations=pd.DataFrame(history), errors=pd.DataFrame(), result=result)
     per_frame = apply_se3({**result, "camera_moving_smooth_s": opts.camera_moving_smooth_s}, corners, bodies,
                           board, frames=frame, share=share)  # fmt: skip
     rms_frame = np.sqrt(np.nanmean(model.per_corner(r**2), axis=1))
@@ -232,9 +240,6 @@ def optimise_se3(corners, bodies, camera, board, dt_offset_s, options=None, *, f
     wmin = np.nanmin(model.per_corner(np.where(r == 0, 1.0, wmin)), axis=1)
     per_frame = per_frame.merge(pd.DataFrame({"frame": frame, "rms_px": rms_frame, "weight_min": wmin}),
                                 on="frame")
-    log.info("se3: fx %.2f fy %.2f dt %.4f s, RMS %.3f px, %d evaluations, %.2f s",
-             result["K"][0][0], result["K"][1][1], result["dt_offset_s"], result["rms_px"], sol.nfev,
-             result["time_s"])  # fmt: skip
     return OptimiseResult(iterations=pd.DataFrame(history), errors=per_frame, result=result)
 
 

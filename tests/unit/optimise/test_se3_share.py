@@ -57,3 +57,14 @@ def test_share_refuses_other_tables(session):
                      s["truth"]["dt_offset_s"], share=share)
     with pytest.raises(OptimiseError, match="no corners"):
         share.rows([int(share.frame.max()) + 1])
+
+
+def test_fit_without_the_per_frame_table_has_the_same_result(session):
+    """per_frame=False (the held-out folds) leaves out only the errors table."""
+    s = session
+    args = (s["corners"], s["bodies"], s["camera"], s["board"], s["truth"]["dt_offset_s"])
+    full, bare = optimise_se3(*args), optimise_se3(*args, per_frame=False)
+    for res in (full.result, bare.result):
+        res.pop("time_s")
+    assert repr(full.result) == repr(bare.result) and bare.errors.empty and len(full.errors) > 0
+    pd.testing.assert_frame_equal(full.iterations, bare.iterations, check_exact=True)
