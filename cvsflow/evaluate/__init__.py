@@ -26,6 +26,7 @@ from cvsflow.evaluate.heldout_streams import (
     heldout_summary,
     pose_fit_record,
     stream_inputs,
+    stream_sync,
 )
 from cvsflow.evaluate.summary import summary_row
 from cvsflow.evaluate.verdict import flight_verdict, median_distance_m, session_verdict, verdict_rst
@@ -33,7 +34,7 @@ from cvsflow.evaluate.verdict import flight_verdict, median_distance_m, session_
 __all__ = [
     "compare_heldout", "cross_validate_se3", "cross_validate_seed", "cross_validate_streams",
     "fit_pose_streams", "fold_options", "heldout_summary", "pose_fit_headline", "pose_fit_record",
-    "stream_inputs",
+    "stream_inputs", "stream_sync",
     "flight_headline", "headline_rst",
     "headline_table", "heldout_blocks", "make_time_blocks", "rig_headline", "se3_run_tables",
     "session_headline", "session_verdict", "flight_verdict", "median_distance_m", "summary_row",

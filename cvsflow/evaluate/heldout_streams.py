@@ -24,6 +24,7 @@ robust fit with block-sandwich standard errors) instead of se3.
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 
 import numpy as np
 import pandas as pd
@@ -40,9 +41,11 @@ from cvsflow.handeye import (
     inflate,
     split_half_check,
     split_half_inflation,
+    stream_offset,
     streams_record,
 )
 from cvsflow.metrics import ERROR_DIMS, pose_errors
+from cvsflow.sync import given_offset
 
 log = logging.getLogger(__name__)
 
@@ -113,7 +116,52 @@ def stream_inputs(poses: pd.DataFrame, bodies: pd.DataFrame):
     return p["frame"].to_numpy(np.int64), _t_ns(p), T_B_C, _t_ns(cam.reset_index()), T_Bm_Cm
 
 
-def fit_pose_streams(t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm, dt_offset_s=None, split_half=True):
+def stream_sync(poses: pd.DataFrame, bodies: pd.DataFrame, min_overlap_share: float = 0.8) -> dict:
+    """sync.yaml of a camera-pose session: the stream fit's own offset search.
+
+    The angular-speed cross-correlation of the camera stream and the camera body (its coarse
+    offset) refined from relative rotations (:func:`cvsflow.handeye.stream_offset`): the
+    offset ``cvsflow handeye --camera-poses`` starts its joint fit from, so that the session's
+    fit is that command's. A recording whose offset the search cannot find keeps 0 (one clock)
+    with the reason in ``warnings``; the fit then says whether the hand-eye holds without it.
+
+    Parameters
+    ----------
+    poses, bodies : DataFrame
+        poses_raw.parquet (the stream's) and bodies.parquet.
+    min_overlap_share : float
+        Share of the camera's poses inside the motion capture below which a warning is given.
+
+    Returns
+    -------
+    dict
+        As :func:`cvsflow.sync.synchronise`: ``dt_offset_s`` (``t_mocap = t_camera +
+        dt_offset_s``), ``method`` (``pose_streams``, or ``none`` when no offset was found),
+        ``quality`` (the cross-correlation's), ``details`` (``coarse``, ``refined``,
+        ``dt_sigma_s`` the refinement's own, ``reason``), ``overlap_share``, ``warnings``.
+
+    Raises
+    ------
+    OverlapError
+        Under 20 % (or 30) of the camera's poses inside the motion capture at that offset, both
+        spans named.
+    """
+    _, *streams = stream_inputs(poses, bodies)
+    off = stream_offset(*streams)
+    dt = 0.0 if off["dt_s"] is None else off["dt_s"]
+    out = given_offset(poses, bodies, dt, min_overlap_share=min_overlap_share)
+    coarse, refined = off.get("coarse") or {}, off.get("refined") or {}
+    if off["dt_s"] is None:
+        out["warnings"].append(f"no time offset found ({off['reason']}); 0 kept (one clock)")
+        log.warning("sync: %s", out["warnings"][-1])
+    out.update(method="pose_streams" if off["dt_s"] is not None else "none", quality=coarse.get("quality"),
+               details={"coarse": off.get("coarse"), "refined": off.get("refined"),
+                        "dt_sigma_s": refined.get("sigma_s"), "reason": off["reason"]})  # fmt: skip
+    return out
+
+
+def fit_pose_streams(t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm, dt_offset_s=None, dt_start_s=None, offset=None,
+                     split_half=True):  # fmt: skip
     """The session's pose-level fit: :func:`cvsflow.handeye.estimate_streams` as ``cvsflow handeye
     --camera-poses`` runs it, with its split-half check and the widening it may call for.
 
@@ -123,9 +171,14 @@ def fit_pose_streams(t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm, dt_offset_s=None, spl
         :func:`stream_inputs`' output.
     dt_offset_s : float, optional
         A stated offset (``t_mocap = t_camera + dt_offset_s``, s): held, not estimated.
+    dt_start_s : float, optional
+        Where the offset's fit starts (:func:`stream_sync`'s): no search of its own.
+    offset : dict, optional
+        The search that gave ``dt_start_s`` (``coarse``, ``refined``): the result's ``offset``.
     split_half : bool
-        Fit the recording's halves alone and widen the stated errors by the Birge ratio when
-        they disagree beyond them (:func:`cvsflow.handeye.split_half_inflation`).
+        Fit the recording's halves alone (each searching its own offset start, as handeye does)
+        and widen the stated errors by the Birge ratio when they disagree beyond them
+        (:func:`cvsflow.handeye.split_half_inflation`).
 
     Returns
     -------
@@ -134,12 +187,15 @@ def fit_pose_streams(t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm, dt_offset_s=None, spl
     split : dict or None
         :func:`cvsflow.handeye.split_half_check`'s result (None when not run).
     """
-    options = StreamsOptions(estimate_dt=dt_offset_s is None, dt_init_s=dt_offset_s)
+    held = StreamsOptions(estimate_dt=dt_offset_s is None, dt_init_s=dt_offset_s)
+    options = held if dt_offset_s is not None or dt_start_s is None else StreamsOptions(dt_init_s=dt_start_s)
     streams = (t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm)
     res = estimate_streams(*streams, options)
+    if offset is not None:
+        res = replace(res, offset={"coarse": offset.get("coarse"), "refined": offset.get("refined")})
     split = None
     if split_half and res.T_Cm_C is not None:
-        split = split_half_check(*streams, options)
+        split = split_half_check(*streams, held)
         factor = split_half_inflation(split)
         if factor > 1.0:
             log.warning("split-half check: the recording's halves disagree beyond their stated errors "

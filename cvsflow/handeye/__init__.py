@@ -3,7 +3,7 @@ streams with the carrier's poses (and the clock offset between them)."""
 
 from cvsflow.handeye.frame_stream import calibrate_from_frames
 from cvsflow.handeye.stills import calibrate_hand_eye, pair_stills_with_poses
-from cvsflow.handeye.stream_fit import StreamsOptions, StreamsResult, estimate_streams
+from cvsflow.handeye.stream_fit import StreamsOptions, StreamsResult, estimate_streams, stream_offset
 from cvsflow.handeye.stream_model import StreamProblem
 from cvsflow.handeye.stream_report import (
     inflate,
@@ -16,5 +16,5 @@ from cvsflow.handeye.stream_sim import simulate_streams
 __all__ = [
     "calibrate_from_frames", "calibrate_hand_eye", "estimate_streams", "inflate",
     "pair_stills_with_poses", "simulate_streams", "split_half_check", "split_half_inflation",
-    "StreamProblem", "streams_record", "StreamsOptions", "StreamsResult"
+    "stream_offset", "StreamProblem", "streams_record", "StreamsOptions", "StreamsResult"
 ]

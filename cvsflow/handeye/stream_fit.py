@@ -34,7 +34,7 @@ only.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -253,6 +253,31 @@ def _offset_start(t_cam, T_B_C, curve, opts: StreamsOptions):
     refined = refine_offset(t_cam, R, curve, coarse["dt_s"])
     info["refined"] = {k: refined[k] for k in ("dt_s", "sigma_s", "n_pairs")}
     return (refined["dt_s"] if refined["dt_s"] is not None else coarse["dt_s"]), True, info, reasons
+
+
+def stream_offset(t_cam_ns, T_B_C, t_mocap_ns, T_W_Cm, options: StreamsOptions | None = None) -> dict:
+    """The offset :func:`estimate_streams` starts from, as it finds it (steps 1 of the module).
+
+    Parameters
+    ----------
+    t_cam_ns, T_B_C, t_mocap_ns, T_W_Cm, options
+        As :func:`estimate_streams`.
+
+    Returns
+    -------
+    dict
+        ``dt_s`` (the refined offset, else the coarse one; None when the cross-correlation
+        finds none: ``reason`` says why), ``coarse`` and ``refined`` (the steps' results, as
+        :class:`StreamsResult`'s ``offset``), ``reason`` (str or None).
+    """
+    opts = options or StreamsOptions()
+    t_cam_ns = np.asarray(t_cam_ns, np.int64)
+    t_ref = int(t_cam_ns[0])
+    curve = PoseCurve(seconds_since(t_mocap_ns, t_ref), T_W_Cm, max_gap_s=opts.max_gap_s)
+    search = replace(opts, dt_init_s=None, estimate_dt=True)
+    t_cam = seconds_since(t_cam_ns, t_ref)
+    dt, found, info, reasons = _offset_start(t_cam, np.asarray(T_B_C, float), curve, search)
+    return {"dt_s": float(dt) if found else None, **info, "reason": "; ".join(reasons) or None}
 
 
 def _frames_in_curve(t_cam, curve, dt, margin_s, t_cam_ns, t_mocap_ns, dt_text):

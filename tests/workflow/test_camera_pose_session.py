@@ -41,14 +41,16 @@ def test_simulated_camera_pose_session_end_to_end(tmp_path):
     assert (poses["t_ns"].to_numpy() == sim["t_cam_ns"]).all() and poses["valid"].all()
     assert not (res / "corners.parquet").exists() and not (res / "camera.yaml").exists()
     sync = yaml.safe_load((res / "sync.yaml").read_text())
-    assert abs(sync["dt_offset_s"] - 0.03) < 0.01
+    assert sync["method"] == "pose_streams" and abs(sync["dt_offset_s"] - 0.03) < 0.01
+    assert sync["details"]["refined"]["dt_s"] == sync["dt_offset_s"]
     fit = yaml.safe_load((res / "pose_fit" / "result.yaml").read_text())
     assert abs(fit["dt_offset_s"] - 0.03) < 4 * fit["dt_offset_std_s"]
     err_mm = 1e3 * (np.array(fit["T_Cm_C"])[:3, 3] - sim["T_Cm_C"][:3, 3])
     assert np.all(np.abs(err_mm) < 4 * _std_mm(fit, "T_Cm_C"))
     err_mm = 1e3 * (np.array(fit["T_Bm_B"])[:3, 3] - sim["T_W_B"][:3, 3])
     assert np.all(np.abs(err_mm) < 4 * _std_mm(fit, "T_Bm_B"))
-    assert fit["board_body"] is False and fit["sync"]["method"] == "angular_speed"
+    assert fit["board_body"] is False and fit["sync"]["method"] == "pose_streams"
+    assert fit["offset"]["refined"]["dt_s"] == sync["dt_offset_s"]  # the fit started there
     held = yaml.safe_load((res / "heldout" / "pose_fit.yaml").read_text())
     heldout = pd.read_parquet(res / "heldout" / "pose_fit.parquet")
     assert held["n"] == len(heldout) == len(poses) and len(held["folds"]) == 5
@@ -77,7 +79,7 @@ def test_a_stated_offset_is_held_and_a_stream_outside_the_mocap_stops(tmp_path):
     proc = snakemake(other, "results/s/pose_fit/result.yaml", check=False)
     assert proc.returncode != 0
     out = proc.stdout + proc.stderr
-    assert "stage sync failed (OverlapError)" in out and "the take 1491754" in out
+    assert "stage sync failed (OverlapError)" in out and "1491754388.034" in out
     assert "InputFunctionException" not in out  # no video or corners rule is asked about the session
     assert not (other / "results" / "s" / "pose_fit" / "result.yaml").exists()
 
@@ -103,3 +105,21 @@ def test_eth_prime_sense_1_as_a_session_agrees_with_handeye(tmp_path):
     assert np.degrees(rotation_angle(dR)) < fit["std"]["T_Cm_C"]["rotation_deg"]
     held = yaml.safe_load((tmp_path / "results" / "s" / "heldout" / "pose_fit.yaml").read_text())
     assert held["n"] >= 1500 and np.isfinite(held["error_model"]["nees_mean"])
+
+
+def test_a_bad_camera_pose_file_stops_its_stage_by_name(tmp_path):
+    """A camera-pose stream with a quaternion that is not unit stops the camera_poses stage with
+    the reader's error naming the file and line; no poses table is left."""
+    sim = simulate_streams(7, duration_s=5.0)
+    cam = write_stream(tmp_path / "cam.csv", sim["t_cam_ns"], sim["T_B_C"], "eth")
+    lines = cam.read_text().splitlines()
+    cells = lines[4].split(",")
+    cells[-1] = str(3 * float(cells[-1]) + 1.0)
+    lines[4] = ",".join(cells)
+    cam.write_text("\n".join(lines) + "\n")
+    moc = write_stream(tmp_path / "vicon.csv", sim["t_mocap_ns"], sim["T_W_Cm"], "eth")
+    write_config(tmp_path, {"sessions": {"s": {"camera_poses": str(cam), "pose_streams": {"camera": str(moc)}}}})
+    proc = snakemake(tmp_path, "results/s/poses_raw.parquet", check=False)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0 and "stage camera_poses failed (QuaternionNormError)" in out and "cam.csv" in out
+    assert not (tmp_path / "results" / "s" / "poses_raw.parquet").exists()

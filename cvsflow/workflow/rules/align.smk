@@ -24,6 +24,7 @@ rule sync:
     params:
         sync=config["sync"],
         dt_offset_s=lambda wc: session_cfg(wc.session).get("dt_offset_s"),
+        pose_stream=lambda wc: runs_stage(wc.session, "camera_poses"),
     script:
         "../scripts/sync.py"
 

@@ -8,9 +8,12 @@ with stage_logging(snakemake.log[0], "pose_fit") as log:
     sync = read_yaml(snakemake.input.sync)
     _, *streams = stream_inputs(read_parquet(snakemake.input.poses),
                                        read_parquet(snakemake.input.bodies))
-    # a stated offset (sync's method given) is held; else the fit finds its own, as handeye does
+    # a stated offset (sync's method given) is held; else the fit starts at sync's (the streams'
+    # own search, as handeye's), or searches again when sync found none
     given = sync["dt_offset_s"] if sync.get("method") == "given" else None
-    res, split = fit_pose_streams(*streams, dt_offset_s=given)
+    start = sync["dt_offset_s"] if sync.get("method") == "pose_streams" else None
+    res, split = fit_pose_streams(*streams, dt_offset_s=given, dt_start_s=start,
+                                  offset=sync.get("details") if start is not None else None)
     record = pose_fit_record(res, split, snakemake.params.board_body)
     record["sync"] = {"dt_offset_s": sync["dt_offset_s"], "method": sync.get("method")}
     if res.dt_offset_s is not None:
