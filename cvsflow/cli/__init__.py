@@ -195,7 +195,7 @@ def _add_init_parser(sub) -> None:
         "session whose bag block names the likely image topic and the camera and board bodies' "
         "pose topics or TF frames, TODO where the bag cannot tell.",
     )
-    i.add_argument("dir", help="recording folder, or a ROS bag")
+    i.add_argument("dir", help="recording folder, a ROS bag, or a camera-pose stream (CSV)")
     i.add_argument("--out", help="config file to write (default DIR/cvsflow_session.yaml; for a bag "
                    "BAG_session.yaml beside it)")  # fmt: skip
     i.add_argument("--name", help="session name (default: the folder's or the bag's name)")

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from cvsflow.cli.init_bag import build_bag_config, is_bag
 from cvsflow.cli.init_frames import add_frame_session, find_frames
+from cvsflow.cli.init_streams import build_camera_pose_config
 from cvsflow.exceptions import CvsflowError, InputError
 
 log = logging.getLogger(__name__)
@@ -477,6 +478,10 @@ def build_session_config(folder, layout="auto") -> tuple[dict, list[str]]:
             f"{folder}: not a rig recording: expected two or more camera folders "
             f"({folder}/<camera>/), each with a folder of 3 or more stills and one with a video; "
             "shared views in <camera>/shared/ or shared/<camera>/")
+    if not _videos(folder) and find_frames(folder) is None and _find_stills(folder) is None:
+        found = build_camera_pose_config(folder)  # a detector's camera-pose stream: no images
+        if found is not None:
+            return found
     notes = []
     session: dict = {}
     stills = _find_stills(folder)
@@ -556,7 +561,9 @@ def cmd_init(args) -> int:
 
     folder = Path(args.dir)
     bag = is_bag(folder)
-    default_out = folder.parent / f"{folder.stem}_session.yaml" if bag else folder / "cvsflow_session.yaml"
+    single = folder.is_file() and not bag  # a camera-pose CSV
+    beside = bag or single
+    default_out = folder.parent / f"{folder.stem}_session.yaml" if beside else folder / "cvsflow_session.yaml"
     out = Path(args.out) if args.out else default_out
     if out.exists():
         raise InputError(f"{out}: exists; cvsflow init never overwrites a file (give --out)")
@@ -564,10 +571,12 @@ def cmd_init(args) -> int:
     if bag:
         session, notes, listing = build_bag_config(folder)
         print(listing)
+    elif single:
+        session, notes = build_camera_pose_config(folder)
     else:
         session, notes = build_session_config(folder, getattr(args, "layout", "auto"))
     # A session name is a wildcard value: letters, digits, _ and - only (cvsflow/workflow/rules/common.smk).
-    name = re.sub(r"[^A-Za-z0-9_-]", "_", args.name or (folder.stem if bag else folder.resolve().name))
+    name = re.sub(r"[^A-Za-z0-9_-]", "_", args.name or (folder.stem if beside else folder.resolve().name))
     text = "# Session config written by `cvsflow init`: check every line, fill every TODO.\n"
     text += "".join(f"# {line}\n" for line in listing.splitlines())
     # cvsflow run CONFIG runs that file's sessions alone; its paths are as init wrote them.
