@@ -13,7 +13,7 @@ rule camera_poses:
         **figures(
             fig=report(
                 "results/{session}/figures/poses_raw.png",
-                caption="../report/poses_raw.rst",
+                caption="../report/camera_poses.rst",
                 category="{session}",
                 subcategory="camera",
                 labels={"session": "{session}", "figure": "raw poses"},
@@ -69,14 +69,14 @@ rule heldout_pose_fit:
         **figures(
             fig_heldout=report(
                 "results/{session}/figures/heldout_errors.png",
-                caption="../report/heldout_errors.rst",
+                caption="../report/heldout_pose_fit.rst",
                 category="{session}",
                 subcategory="held-out evaluation (pose-level fit)",
                 labels={"session": "{session}", "figure": "held-out errors"},
             ),
             fig_nees=report(
                 "results/{session}/figures/nees_histogram.png",
-                caption="../report/nees_histogram.rst",
+                caption="../report/pose_fit_nees.rst",
                 category="{session}",
                 subcategory="held-out evaluation (pose-level fit)",
                 labels={"session": "{session}", "figure": "NEES histogram"},
