@@ -17,6 +17,7 @@ rule sync:
         "logs/{session}/sync.log",
     benchmark:
         "benchmarks/{session}/sync.tsv"
+    priority: 35
     threads: 1
     resources:
         mem_mb=1000,
@@ -41,6 +42,7 @@ rule pairs:
         "logs/{session}/pairs.log",
     benchmark:
         "benchmarks/{session}/pairs.tsv"
+    priority: 30
     threads: 1
     resources:
         mem_mb=1000,

@@ -34,6 +34,7 @@ rule calibrate:
         "logs/{session}/calibrate.log",
     benchmark:
         "benchmarks/{session}/calibrate.tsv"
+    priority: 50
     threads: 1
     resources:
         mem_mb=1000,
@@ -55,6 +56,9 @@ rule corners:
         "logs/{session}/corners.log",
     benchmark:
         "benchmarks/{session}/corners.tsv"
+    # Snakemake's scheduler sums the priorities of the jobs it starts together: this job takes
+    # both cores, so it outranks any two of the others (see the Snakefile)
+    priority: 120
     threads: 2
     resources:
         mem_mb=2000,
@@ -99,6 +103,7 @@ rule poses:
         "logs/{session}/poses.log",
     benchmark:
         "benchmarks/{session}/poses.tsv"
+    priority: 45
     threads: 1
     resources:
         mem_mb=2000,

@@ -11,6 +11,7 @@ rule heldout_seed:
         "benchmarks/{session}/heldout.seed.tsv"
     # one thread: the two seed jobs run side by side instead (90 s demo 83.5 -> 66.3 s
     # wall, tables identical; two threads cost 28 % more CPU for 15 % less wall each)
+    priority: 25
     threads: 1
     resources:
         mem_mb=3000,
@@ -36,6 +37,7 @@ rule heldout_se3:
         "logs/{session}/heldout.se3.log",
     benchmark:
         "benchmarks/{session}/heldout.se3.tsv"
+    priority: 20
     threads: 1
     resources:
         mem_mb=3000,
@@ -110,6 +112,7 @@ rule compare:
         "logs/{session}/compare.log",
     benchmark:
         "benchmarks/{session}/compare.tsv"
+    priority: 15
     threads: 1
     resources:
         mem_mb=2000,

@@ -8,6 +8,7 @@ rule mocap_import:
         "logs/{session}/mocap_import.log",
     benchmark:
         "benchmarks/{session}/mocap_import.tsv"
+    priority: 50
     threads: 1
     resources:
         mem_mb=2000,
@@ -39,6 +40,7 @@ rule mocap_repair:
         "logs/{session}/mocap_repair.log",
     benchmark:
         "benchmarks/{session}/mocap_repair.tsv"
+    priority: 45
     threads: 1
     resources:
         mem_mb=2000,
@@ -68,6 +70,7 @@ rule mocap_bodies:
         "logs/{session}/mocap_bodies.log",
     benchmark:
         "benchmarks/{session}/mocap_bodies.tsv"
+    priority: 40
     threads: 1
     resources:
         mem_mb=2000,
@@ -93,6 +96,7 @@ rule mocap_resample:
         "logs/{session}/mocap_resample.log",
     benchmark:
         "benchmarks/{session}/mocap_resample.tsv"
+    priority: 32
     threads: 1
     resources:
         mem_mb=1000,

@@ -13,6 +13,7 @@ rule optimise_seed:
         "benchmarks/{session}/optimise.seed.{finit}.tsv"
     # one thread: the two seed jobs run side by side instead (90 s demo 83.5 -> 66.3 s
     # wall, tables identical; two threads cost 28 % more CPU for 15 % less wall each)
+    priority: 20
     threads: 1
     resources:
         mem_mb=3000,
