@@ -411,11 +411,13 @@ def compare_heldout(seed_heldout, se3_heldout, se3_result, fold_fits, board, *, 
     if corners is not None:
         feats = un.measurement_features(se3, corners, board, fits=fold_fits, frame=frame,
                                         bodies=bodies, inter_coded=inter_coded)
-        score, cov, mu = un.crossfit_transfer(feats, se3)
-        comparison["error_model"] = score
         # the session's own model (T) on all its frames: what its flights state their
-        # reference's uncertainty with (the camera-side terms; the floors are its Vicon's)
-        comparison["error_model_fit"] = un.fit_transfer_model(feats, se3)
+        # reference's uncertainty with (the camera-side terms; the floors are its Vicon's);
+        # the folds' fits start from it
+        session_fit = un.fit_transfer_model(feats, se3)
+        score, cov, mu = un.crossfit_transfer(feats, se3, start=session_fit)
+        comparison["error_model"] = score
+        comparison["error_model_fit"] = session_fit
         model = un.RENDERED_TRANSFER_MODEL if transfer_model is None else transfer_model
         sig_px = se3["sigma_px"].to_numpy(float)
         tr = un.score_transfer(model, feats, se3, se3["fold"].to_numpy(), sig_px)

@@ -241,7 +241,7 @@ def _transfer_nll(q, s_corr, E, terms, shrink=None, r_rs=0.0, c_ref=0.0, s_still
             -float(g_still))
 
 
-def fit_transfer_model(features, errors, shrink=None, still=True):
+def fit_transfer_model(features, errors, shrink=None, still=True, start=None):
     """Fit model (T) by maximum likelihood on frames of one or more sessions.
 
     Model (T), per frame i (what is known when it is measured):
@@ -306,6 +306,9 @@ def fit_transfer_model(features, errors, shrink=None, still=True):
         rows) with prior strength k: fitted (``"fit"``) or the given value.
     still : bool
         Fit the still-board codec term s_still where some frame is ``inter_coded``.
+    start : dict, optional
+        A model fitted on frames including these (a session's, for its folds): one start
+        from it instead of two fixed ones; a fold's optimum lies near it.
 
     Returns
     -------
@@ -411,8 +414,12 @@ def fit_transfer_model(features, errors, shrink=None, still=True):
     if fit_still:
         bounds.append((-25, np.log(3.0)))
         starts = [np.r_[x, np.log(0.3)] for x in starts]
-    for start in starts:
-        sol = minimize(nll, start, jac=True, method="L-BFGS-B", bounds=bounds,
+    if start is not None:
+        starts = [_x_from_model(start, starts[0], keep, fit_k,
+                                [("s_corr", fit_corr), ("r_rs", fit_rrs), ("c_ref", fit_ref),
+                                 ("s_still", fit_still)], bounds)]
+    for x_start in starts:
+        sol = minimize(nll, x_start, jac=True, method="L-BFGS-B", bounds=bounds,
                        options={"maxiter": 500, "ftol": 1e-12, "gtol": 1e-9})
         if best is None or sol.fun < best.fun:
             best = sol
@@ -436,6 +443,17 @@ def fit_transfer_model(features, errors, shrink=None, still=True):
     if noise is not None:
         model["board_noise"] = noise
     return model
+
+
+def _x_from_model(model, x_default, keep, fit_k, extras, bounds):
+    """:func:`fit_transfer_model`'s optimiser vector at a fitted ``model`` (its free entries,
+    log k, the optional terms fitted; ``x_default`` where the model lacks one), in ``bounds``."""
+    x = list(_q_from_model({**model, "k_shrink": None})[keep])
+    for name, fitted in [("k_shrink", fit_k), *extras]:
+        if fitted:
+            x.append(np.log(model[name]) if model.get(name) else x_default[len(x)])
+    lo, hi = np.array(bounds, float).T
+    return np.clip(np.asarray(x, float), lo, hi)
 
 
 def _q_from_model(model):

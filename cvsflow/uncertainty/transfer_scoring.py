@@ -227,7 +227,7 @@ def transfer_nll(model, features, errors):
                          o["s_still"])[0]
 
 
-def crossfit_transfer(features, errors, sigma_px=None):
+def crossfit_transfer(features, errors, sigma_px=None, start=None):
     """Model (T) fitted on all time-block folds of a session but one, scored on the last.
 
     Parameters
@@ -238,6 +238,9 @@ def crossfit_transfer(features, errors, sigma_px=None):
         The held-out rows (``err_{dim}``, ``fold``).
     sigma_px : ndarray, optional
         Per-row corner noise for the Cramer-Rao bound.
+    start : dict, optional
+        The model fitted on all the rows (:func:`fit_transfer_model`): each fold's fit starts
+        from it (its ``start``), about a third of the evaluations of two fixed starts.
 
     Returns
     -------
@@ -257,7 +260,7 @@ def crossfit_transfer(features, errors, sigma_px=None):
     for k in np.unique(fold):
         train, test = fold != k, fold == k
         model = fit_transfer_model(features[train].reset_index(drop=True),
-                                   errors[train].reset_index(drop=True))  # fmt: skip
+                                   errors[train].reset_index(drop=True), start=start)  # fmt: skip
         f_test = features[test].reset_index(drop=True)
         cov[test] = transfer_covariance(model, f_test)
         mu[test] = transfer_mean(model, f_test)

@@ -422,6 +422,29 @@ def test_transfer_model_recovers_its_parameters_and_is_calibrated():
         assert 0.93 < sc["inside_95"][d] < 0.97 and 0.64 < sc["inside_68"][d] < 0.72, d
 
 
+def test_transfer_fit_started_from_the_whole_fit_finds_the_folds_optimum():
+    """A fold's fit started from the whole session's (the cross-fit's warm start) reaches the
+    likelihood of the two fixed starts and the same determined parameters."""
+    feats, E, _ = draw_transfer(np.random.default_rng(5), 1600, TRUTH_T, n_blocks=80)
+    whole = un.fit_transfer_model(feats, E)
+    # started at its own optimum, a fit stays there: the start is the model, entry by entry
+    again = un.fit_transfer_model(feats, E, start=whole)
+    for name in un.TRANSFER_PARAMS:
+        assert again[name] == pytest.approx(whole[name], rel=1e-5, abs=1e-12), name
+    fold = np.arange(len(E)) * 4 // len(E)
+    for k in range(4):
+        f, e = feats[fold != k].reset_index(drop=True), E[fold != k].reset_index(drop=True)
+        cold, warm = un.fit_transfer_model(f, e), un.fit_transfer_model(f, e, start=whole)
+        assert warm["nll"] <= cold["nll"] + 1e-6 * abs(cold["nll"]), k
+        for name in ("s_speed", "b_pos_m", "b_rot_rad", "nu"):
+            assert warm[name] == pytest.approx(cold[name], rel=0.02), (k, name)
+    # the start is the whole fit only: a wrong one still ends at the fold's optimum
+    bad = {**whole, "s_speed": 10 * whole["s_speed"], "nu": 30.0}
+    f, e = feats[fold != 0].reset_index(drop=True), E[fold != 0].reset_index(drop=True)
+    assert un.fit_transfer_model(f, e, start=bad)["s_speed"] == pytest.approx(
+        un.fit_transfer_model(f, e)["s_speed"], rel=0.02)
+
+
 def _draw_still(rng, n, s_still, inter_coded):
     """Frames of model (T) (no parameter covariance) whose nearly still, inter-coded ones err by
     the still board's pose-like codec term too: var_px (1 + s_still^2 (n_c / 3) g(v)) U."""
