@@ -14,11 +14,13 @@ robust fit with block-sandwich standard errors) instead of se3.
   evaluation) but one; predict each held-out frame's camera pose through the motion-capture
   chain, ``T_B_C = T_Bm_B^-1 T_Bm_Cm(t + dt) T_Cm_C``, and score the detector's pose against it
   (``err_*`` of :func:`cvsflow.metrics.pose_errors`: estimate - reference, in C or B).
-- The stated per-frame uncertainty of a held-out error (:func:`heldout_covariance`): the fold
-  fit's residual scatter (a frame's detector and motion-capture error together) mapped into the
-  error's coordinates, plus the fold fit's parameter covariance propagated through the chain;
-  scored by :func:`cvsflow.uncertainty.score_covariance` (shares inside the 68 % and 95 % bands
-  per axis, NEES).
+- The stated per-frame uncertainty of a held-out error (:func:`heldout_covariance`): the
+  covariance of a Student-t fitted to the fold fit's residuals on its own frames
+  (:func:`residual_model`: a frame's detector and motion-capture error together, heavier-tailed
+  than a Gaussian) mapped into the error's coordinates, plus the fold fit's parameter
+  covariance propagated through the chain; scored by
+  :func:`cvsflow.uncertainty.score_covariance` with that Student-t's bands (shares inside the
+  68 % and 95 % bands per axis, NEES), pooled over the folds.
 """
 
 from __future__ import annotations
@@ -280,7 +282,45 @@ def _err(T_ref, T_est, frame):
     return e[[f"err_{d}" for d in ERROR_DIMS]].to_numpy(float)
 
 
-def heldout_covariance(res: StreamsResult, t_s, T_B_C_meas, curve, frame="C"):
+def _problem(res: StreamsResult, t_s, T_B_C_meas, curve) -> StreamProblem:
+    """The stream model of frames at camera times t_s, linearised at a fit's estimate."""
+    fit_dt = res.param_names[0] == "dt_offset_s"
+    return StreamProblem(t_s, T_B_C_meas[:, :3, :3], T_B_C_meas[:, :3, 3], curve, res.estimate["T_Cm_C"],
+                         res.estimate["T_W_B"], res.dt_used_s, fit_dt=fit_dt)  # fmt: skip
+
+
+def residual_model(res: StreamsResult, t_s, T_B_C, curve):
+    """The per-frame noise of a fit's own frames: a multivariate Student-t of their residuals.
+
+    A detector's pose errors have heavier tails than a Gaussian (a few views in which the
+    target's corners are poorly placed): the fit's robust scatter describes the Gaussian core
+    only. The residuals of the frames the fit used, in C (rad, m), give the covariance and the
+    degrees of freedom of a Student-t by maximum likelihood
+    (:func:`cvsflow.uncertainty.fit_multivariate_t`).
+
+    Parameters
+    ----------
+    res : StreamsResult
+        The fit.
+    t_s : ndarray, shape (N,)
+        Its frames' camera times, s since ``res.t_ref_ns``.
+    T_B_C : ndarray, shape (N, 4, 4)
+        Their detector poses.
+    curve : PoseCurve
+        ``T_Bm_Cm`` on the mocap clock.
+
+    Returns
+    -------
+    cov : ndarray, shape (6, 6)
+        Covariance of a frame's residual (rad, m; C), the Student-t's.
+    nu : float
+        Its degrees of freedom.
+    """
+    r, status = _problem(res, t_s, T_B_C, curve).raw(np.zeros(12 + (res.param_names[0] == "dt_offset_s")))
+    return un.fit_multivariate_t(r[status == 0])
+
+
+def heldout_covariance(res: StreamsResult, t_s, T_B_C_meas, curve, frame="C", meas_cov=None):
     """Held-out frames' errors against the mocap chain and their stated covariance.
 
     Parameters
@@ -296,6 +336,9 @@ def heldout_covariance(res: StreamsResult, t_s, T_B_C_meas, curve, frame="C"):
         ``res.t_ref_ns``).
     frame : {"C", "B"}
         Frame of the errors (:func:`cvsflow.metrics.pose_errors`).
+    meas_cov : ndarray, shape (6, 6), optional
+        Covariance of a frame's residual in C (:func:`residual_model`); default the fit's
+        robust scatter.
 
     Returns
     -------
@@ -305,16 +348,14 @@ def heldout_covariance(res: StreamsResult, t_s, T_B_C_meas, curve, frame="C"):
         :func:`cvsflow.metrics.pose_errors` of the detector's pose against it.
     cov : ndarray, shape (N, 6, 6)
         Stated covariance of each frame's error (SI, ``ERROR_DIMS`` order): the residual
-        scatter as a right perturbation of the detector's pose in C, ``G S G^T``, plus the
+        covariance as a right perturbation of the detector's pose in C, ``G S G^T``, plus the
         fit's parameter covariance through the chain, ``H C H^T`` (both by central
         differences of :data:`FD_STEP`).
     status : ndarray of int, shape (N,)
         The curve's status per frame (0 inside the motion capture; 1 outside, 2 in a gap: their
         rows are NaN).
     """
-    fit_dt = res.param_names[0] == "dt_offset_s"
-    prob = StreamProblem(t_s, T_B_C_meas[:, :3, :3], T_B_C_meas[:, :3, 3], curve, res.estimate["T_Cm_C"],
-                         res.estimate["T_W_B"], res.dt_used_s, fit_dt=fit_dt)  # fmt: skip
+    prob = _problem(res, t_s, T_B_C_meas, curve)
     P = prob.n_params
     T_ref, status = _predict(np.zeros(P), prob, curve, t_s)
     T_est = geo.invert_T(T_B_C_meas)
@@ -339,7 +380,8 @@ def heldout_covariance(res: StreamsResult, t_s, T_B_C_meas, curve, frame="C"):
             M = geo.make_T(R_M @ geo.R_from_rvec(dr), p_M + R_M @ dp)
             moved.append(_err(T_ref, geo.invert_T(M), frame))
         G[:, :, k] = (moved[0] - moved[1]) / (2 * FD_STEP)
-    cov = G @ res.scatter @ np.swapaxes(G, 1, 2) + H @ res.cov @ np.swapaxes(H, 1, 2)
+    S = res.scatter if meas_cov is None else meas_cov
+    cov = G @ S @ np.swapaxes(G, 1, 2) + H @ res.cov @ np.swapaxes(H, 1, 2)
     err = pose_errors(T_ref, T_est, frame=frame)
     err[~ok] = np.nan
     T_ref[~ok] = np.nan
@@ -382,16 +424,17 @@ def cross_validate_streams(frame_ids, t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm,
     heldout : DataFrame
         One row per camera pose scored by the fit that did not see it: ``frame, t_s, t_ns,
         fold``, the :func:`cvsflow.metrics.pose_errors` columns, ``sigma_{dim}`` (stated
-        standard deviation), ``nees``, the ``cvs_`` (detector) and ``ref_`` (mocap chain)
+        standard deviation), ``nees``, ``nu`` (the stated Student-t's degrees of freedom), the
+        ``cvs_`` (detector) and ``ref_`` (mocap chain)
         poses of T_C_B, ``error_frame``; frames whose time falls outside the motion capture or
         in a gap are left out.
     fits : list of dict
         Per fold: ``fold``, ``n_train``, ``n_test``, ``n_scored``, ``dt_offset_s`` (used),
-        ``T_Cm_C``, ``T_Bm_B`` (4x4 lists), ``std`` (per parameter, SI).
+        ``dt_estimated``, ``nu``, ``T_Cm_C``, ``T_Bm_B`` (4x4 lists), ``std`` (per parameter, SI).
     score : dict
-        :func:`cvsflow.uncertainty.score_covariance` over all scored frames (``inside_68``,
-        ``inside_95`` per axis and ``_all``, ``z_rms``, ``nees_mean``, ``nees_inside_95``)
-        with ``folds`` (the same per fold).
+        :func:`cvsflow.uncertainty.score_covariance` per fold (its Student-t's bands) pooled
+        over the scored frames (``inside_68``, ``inside_95`` per axis and ``_all``, ``z_rms``,
+        ``nees_mean``, ``nees_inside_95``, ``nu`` min and max) with ``folds`` (each fold's).
 
     Raises
     ------
@@ -412,7 +455,8 @@ def cross_validate_streams(frame_ids, t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm,
         if res.T_Cm_C is None:
             raise OptimiseError(f"held-out fold {k}: the fit on the other folds cannot determine the "
                                 f"hand-eye ({res.observability['hand_eye']['reason']})")  # fmt: skip
-        T_ref, err, cov, status = heldout_covariance(res, t_s[test], T_B_C[test], curve, frame)
+        meas_cov, nu = residual_model(res, t_s[train], T_B_C[train], curve)
+        T_ref, err, cov, status = heldout_covariance(res, t_s[test], T_B_C[test], curve, frame, meas_cov)
         rows = pd.DataFrame({"frame": frame_ids[test], "t_s": t_cam_ns[test] / 1e9, "t_ns": t_cam_ns[test],
                              "fold": k})  # fmt: skip
         rows = pd.concat([rows, err, pd.DataFrame(_pose_columns(geo.invert_T(T_B_C[test]), "cvs_")),
@@ -424,12 +468,13 @@ def cross_validate_streams(frame_ids, t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm,
         rows["nees"] = un.nees_values(cov, rows)
         parts.append(rows)
         covs.append(cov)
-        s = un.score_covariance(cov, rows) if len(rows) else {"n": 0}
-        s["fold"] = k
+        rows["nu"] = nu
+        s = un.score_covariance(cov, rows, nu=nu) if len(rows) else {"n": 0}
+        s.update(fold=k, nu=nu)
         fold_scores.append(s)
         fits.append({"fold": k, "n_train": int(train.sum()), "n_test": int(test.sum()),
                      "n_scored": int(ok.sum()), "dt_offset_s": float(res.dt_used_s),
-                     "dt_estimated": res.dt_offset_s is not None, "T_Cm_C": res.T_Cm_C.tolist(),
+                     "dt_estimated": res.dt_offset_s is not None, "nu": nu, "T_Cm_C": res.T_Cm_C.tolist(),
                      "T_Bm_B": res.T_W_B.tolist(), "std": dict(res.std)})  # fmt: skip
         log.info("held-out fold %d: %d train, %d test frames (%d inside the motion capture)", k,
                  int(train.sum()), int(test.sum()), int(ok.sum()))  # fmt: skip
@@ -442,9 +487,30 @@ def cross_validate_streams(frame_ids, t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm,
     cov = np.concatenate(covs)[order]
     heldout = heldout.iloc[order].reset_index(drop=True)
     heldout["error_frame"] = frame
-    score = un.score_covariance(cov, heldout)
+    score = _pooled(fold_scores)
     score["folds"] = fold_scores
     return heldout, fits, score
+
+
+def _pooled(folds: list) -> dict:
+    """Per-fold scores (each with its own nu's bands) pooled, weighted by their frames."""
+    folds = [f for f in folds if f["n"]]
+    n = np.array([f["n"] for f in folds], float)
+    w = n / n.sum()
+
+    def pool(get, rms=False):
+        v = sum(wi * (get(f) ** 2 if rms else get(f)) for wi, f in zip(w, folds, strict=True))
+        return float(np.sqrt(v) if rms else v)
+
+    out = {"n": int(n.sum())}
+    for band in ("68", "95"):
+        out[f"inside_{band}"] = {d: pool(lambda f, b=band, d=d: f[f"inside_{b}"][d]) for d in ERROR_DIMS}
+        out[f"inside_{band}_all"] = pool(lambda f, b=band: f[f"inside_{b}_all"])
+    out["z_rms"] = {d: pool(lambda f, d=d: f["z_rms"][d], rms=True) for d in ERROR_DIMS}
+    out["nees_mean"] = pool(lambda f: f["nees_mean"])
+    out["nees_inside_95"] = pool(lambda f: f["nees_inside_95"])
+    out["nu"] = {"min": float(min(f["nu"] for f in folds)), "max": float(max(f["nu"] for f in folds))}
+    return out
 
 
 def heldout_summary(heldout: pd.DataFrame, fits: list, score: dict, *, boot_block_s=2.0, n_boot=1000,
@@ -474,8 +540,10 @@ def heldout_summary(heldout: pd.DataFrame, fits: list, score: dict, *, boot_bloc
                             n_boot=n_boot, seed=seed)["pose_fit"]  # fmt: skip
     return {"method": "pose_fit", "n": stats["n"], "error_frame": str(heldout["error_frame"].iloc[0]),
             "per_dim": stats["per_dim"], "error_model": score,
-            "uncertainty": "per frame: the fold fit's robust residual scatter (detector and motion-capture "
-                           "error of one frame, a right perturbation of the detector's pose in C) plus "
-                           "the fold fit's stated parameter covariance, both propagated to the error's "
-                           "axes; bands +-1 and +-1.96 sigma, NEES under the full 6 x 6 covariance",
+            "uncertainty": "per frame: the covariance of a multivariate Student-t fitted (maximum "
+                           "likelihood) to the fold fit's residuals on its own frames (detector and "
+                           "motion-capture error of one frame, a right perturbation of the detector's "
+                           "pose in C) plus the fold fit's stated parameter covariance, both carried to "
+                           "the error's axes; bands from the Student-t's quantiles (folds[].nu), NEES "
+                           "under the full 6 x 6 covariance",
             "folds": fits}  # fmt: skip
