@@ -140,7 +140,8 @@ def stream_sync(poses: pd.DataFrame, bodies: pd.DataFrame, min_overlap_share: fl
         As :func:`cvsflow.sync.synchronise`: ``dt_offset_s`` (``t_mocap = t_camera +
         dt_offset_s``), ``method`` (``pose_streams``, or ``none`` when no offset was found),
         ``quality`` (the cross-correlation's), ``details`` (``coarse``, ``refined``,
-        ``dt_sigma_s`` the refinement's own, ``reason``), ``overlap_share``, ``warnings``.
+        ``dt_sigma_s`` the refinement's own, ``min_quality`` the least accepted, ``reason``),
+        ``overlap_share``, ``warnings``.
 
     Raises
     ------
@@ -158,7 +159,8 @@ def stream_sync(poses: pd.DataFrame, bodies: pd.DataFrame, min_overlap_share: fl
         log.warning("sync: %s", out["warnings"][-1])
     out.update(method="pose_streams" if off["dt_s"] is not None else "none", quality=coarse.get("quality"),
                details={"coarse": off.get("coarse"), "refined": off.get("refined"),
-                        "dt_sigma_s": refined.get("sigma_s"), "reason": off["reason"]})  # fmt: skip
+                        "dt_sigma_s": refined.get("sigma_s"), "min_quality": StreamsOptions().min_quality,
+                        "reason": off["reason"]})  # fmt: skip
     return out
 
 
