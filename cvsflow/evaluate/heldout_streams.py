@@ -436,7 +436,10 @@ def cross_validate_streams(frame_ids, t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm,
     score : dict
         :func:`cvsflow.uncertainty.score_covariance` per fold (its Student-t's bands) pooled
         over the scored frames (``inside_68``, ``inside_95`` per axis and ``_all``, ``z_rms``,
-        ``nees_mean``, ``nees_inside_95``, ``nu`` min and max) with ``folds`` (each fold's).
+        ``nees_mean``, ``nees_inside_95``, ``nu`` min and max), ``lag1_autocorr`` per axis,
+        ``n_effective``, ``inside_68_tolerance``, ``inside_95_tolerance`` (how far a right
+        statement's shares scatter with errors that persist in time), and ``folds`` (each
+        fold's).
 
     Raises
     ------
@@ -490,8 +493,26 @@ def cross_validate_streams(frame_ids, t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm,
     heldout = heldout.iloc[order].reset_index(drop=True)
     heldout["error_frame"] = frame
     score = _pooled(fold_scores)
+    score.update(_time_correlation(cov, heldout))
     score["folds"] = fold_scores
     return heldout, fits, score
+
+
+def _time_correlation(cov, heldout) -> dict:
+    """How the held-out errors persist from pose to pose, and what that does to the shares' spread.
+
+    The per-frame statement says nothing of it; the lag-1 autocorrelation of the standardised
+    errors within runs of consecutive poses of one fold (:func:`cvsflow.uncertainty.fit_ar1`)
+    gives the effective number of independent poses, ``n (1 - rho) / (1 + rho)``, and the
+    2-sigma binomial half-widths of the 68 % and 95 % shares a right statement scatters by.
+    """
+    z = un.standardised_errors(cov, heldout)
+    rho = un.fit_ar1(z, un.frame_runs(heldout["frame"].to_numpy(), heldout["fold"].to_numpy()))
+    r = float(np.clip(np.mean(rho), 0.0, 0.95))
+    n_eff = max(len(z) * (1.0 - r) / (1.0 + r), 1.0)
+    return {"lag1_autocorr": dict(zip(ERROR_DIMS, map(float, rho), strict=True)), "n_effective": float(n_eff),
+            "inside_68_tolerance": float(2.0 * np.sqrt(0.6827 * 0.3173 / n_eff)),
+            "inside_95_tolerance": float(2.0 * np.sqrt(0.95 * 0.05 / n_eff))}  # fmt: skip
 
 
 def _pooled(folds: list) -> dict:

@@ -112,6 +112,8 @@ def test_heldout_errors_and_their_stated_uncertainty_on_simulated_streams(frame)
     assert all(abs(f["dt_offset_s"] - sim["dt_offset_s"]) < 0.005 for f in fits)
     assert 0.55 < score["inside_68_all"] < 0.8 and 0.88 < score["inside_95_all"] < 0.99
     assert 4.0 < score["nees_mean"] < 9.0
+    assert set(score["lag1_autocorr"]) == set(ERROR_DIMS) and 0 < score["n_effective"] <= len(heldout)
+    assert 0 < score["inside_95_tolerance"] < score["inside_68_tolerance"] < 0.2
     summary = heldout_summary(heldout, fits, score, n_boot=50)
     assert summary["n"] == len(heldout) and summary["error_model"]["inside_95_all"] == score["inside_95_all"]
     assert summary["per_dim"]["x_m"]["rmse"] < 0.02
