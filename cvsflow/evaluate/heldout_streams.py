@@ -47,6 +47,7 @@ from cvsflow.handeye import (
     streams_record,
 )
 from cvsflow.metrics import ERROR_DIMS, pose_errors
+from cvsflow.plausibility import camera_pose_names
 from cvsflow.sync import given_offset
 
 log = logging.getLogger(__name__)
@@ -118,7 +119,8 @@ def stream_inputs(poses: pd.DataFrame, bodies: pd.DataFrame):
     return p["frame"].to_numpy(np.int64), _t_ns(p), T_B_C, _t_ns(cam.reset_index()), T_Bm_Cm
 
 
-def stream_sync(poses: pd.DataFrame, bodies: pd.DataFrame, min_overlap_share: float = 0.8) -> dict:
+def stream_sync(poses: pd.DataFrame, bodies: pd.DataFrame, min_overlap_share: float = 0.8,
+                stream: str = "camera-pose stream") -> dict:
     """sync.yaml of a camera-pose session: the stream fit's own offset search.
 
     The angular-speed cross-correlation of the camera stream and the camera body (its coarse
@@ -133,6 +135,9 @@ def stream_sync(poses: pd.DataFrame, bodies: pd.DataFrame, min_overlap_share: fl
         poses_raw.parquet (the stream's) and bodies.parquet.
     min_overlap_share : float
         Share of the camera's poses inside the motion capture below which a warning is given.
+    stream : str
+        The camera-pose stream file as the session names it: what the messages and
+        ``camera_poses`` name (never "video").
 
     Returns
     -------
@@ -141,18 +146,18 @@ def stream_sync(poses: pd.DataFrame, bodies: pd.DataFrame, min_overlap_share: fl
         dt_offset_s``), ``method`` (``pose_streams``, or ``none`` when no offset was found),
         ``quality`` (the cross-correlation's), ``details`` (``coarse``, ``refined``,
         ``dt_sigma_s`` the refinement's own, ``min_quality`` the least accepted, ``reason``),
-        ``overlap_share``, ``warnings``.
+        ``overlap_share``, ``warnings``, ``camera_poses`` (``stream``).
 
     Raises
     ------
     OverlapError
-        Under 20 % (or 30) of the camera's poses inside the motion capture at that offset, both
-        spans named.
+        Under 20 % (or 30) of the camera's poses inside the motion capture at that offset, the
+        stream and both spans named.
     """
     _, *streams = stream_inputs(poses, bodies)
     off = stream_offset(*streams)
     dt = 0.0 if off["dt_s"] is None else off["dt_s"]
-    out = given_offset(poses, bodies, dt, min_overlap_share=min_overlap_share)
+    out = given_offset(poses, bodies, dt, min_overlap_share, names=camera_pose_names(stream))
     coarse, refined = off.get("coarse") or {}, off.get("refined") or {}
     if off["dt_s"] is None:
         out["warnings"].append(f"no time offset found ({off['reason']}); 0 kept (one clock)")
@@ -160,7 +165,7 @@ def stream_sync(poses: pd.DataFrame, bodies: pd.DataFrame, min_overlap_share: fl
     out.update(method="pose_streams" if off["dt_s"] is not None else "none", quality=coarse.get("quality"),
                details={"coarse": off.get("coarse"), "refined": off.get("refined"),
                         "dt_sigma_s": refined.get("sigma_s"), "min_quality": StreamsOptions().min_quality,
-                        "reason": off["reason"]})  # fmt: skip
+                        "reason": off["reason"]}, camera_poses=str(stream))  # fmt: skip
     return out
 
 

@@ -33,6 +33,10 @@ log = logging.getLogger(__name__)
 OVERLAP_FLOOR = 0.2
 #: fewest overlapping frames with which sync and pairs still go on
 MIN_OVERLAP_FRAMES = 30
+#: What :func:`check_overlap`'s messages call the camera's samples (``frames``, counted in
+#: ``unit``) and the motion capture (``take``, ``take_short``, its ``clock``) by default.
+VIDEO_NAMES = {"frames": "video frames", "unit": "frames", "take": "Vicon take", "take_short": "take",
+               "clock": "Vicon clock"}  # fmt: skip
 
 
 def _span_m(P):
@@ -344,7 +348,7 @@ def overlap_share(t_video_s, dt_offset_s, take_span_s):
 
 
 def check_overlap(t_video_s, dt_offset_s, take_span_s, min_share=0.8, floor=OVERLAP_FLOOR,
-                  min_frames=MIN_OVERLAP_FRAMES, source="video and Vicon take"):
+                  min_frames=MIN_OVERLAP_FRAMES, source="video and Vicon take", names=None):
     """The share of video frames inside the Vicon take: a warning under ``min_share``, an error
     under ``floor`` or ``min_frames``.
 
@@ -358,6 +362,10 @@ def check_overlap(t_video_s, dt_offset_s, take_span_s, min_share=0.8, floor=OVER
         First and last Vicon sample times, s.
     min_share : float
         ``sync.min_overlap_share``.
+    names : dict, optional
+        What the messages call the streams (:data:`VIDEO_NAMES`' keys ``frames``, ``unit``,
+        ``take``, ``take_short``, ``clock``); default the video's and the Vicon take's
+        (:func:`camera_pose_names` for a camera-pose stream).
 
     Returns
     -------
@@ -370,25 +378,43 @@ def check_overlap(t_video_s, dt_offset_s, take_span_s, min_share=0.8, floor=OVER
     OverlapError
         Share below ``floor`` or fewer than ``min_frames`` frames inside.
     """
+    n = {**VIDEO_NAMES, **(names or {})}
     t = np.asarray(t_video_s, dtype=float)
     share = overlap_share(t, dt_offset_s, take_span_s)
     n_in = int(round(share * len(t)))
     span = (
-        f"video frames span {t.min():.3f}..{t.max():.3f} s, i.e. {t.min() + dt_offset_s:.3f}.."
-        f"{t.max() + dt_offset_s:.3f} s on the Vicon clock (dt_offset_s = {dt_offset_s:.4f}), the "
-        f"take spans {take_span_s[0]:.3f}..{take_span_s[1]:.3f} s"
-    ) if t.size else "no video frames"
+        f"{n['frames']} span {t.min():.3f}..{t.max():.3f} s, i.e. {t.min() + dt_offset_s:.3f}.."
+        f"{t.max() + dt_offset_s:.3f} s on the {n['clock']} (dt_offset_s = {dt_offset_s:.4f}), the "
+        f"{n['take_short']} spans {take_span_s[0]:.3f}..{take_span_s[1]:.3f} s"
+    ) if t.size else f"no {n['frames']}"
     if share < floor or n_in < min_frames:
         raise OverlapError(
-            f"{source}: only {n_in} of {len(t)} video frames ({100 * share:.1f} %) fall inside the "
-            f"Vicon take (expected at least {100 * floor:.0f} % and {min_frames} frames): {span}"
+            f"{source}: only {n_in} of {len(t)} {n['frames']} ({100 * share:.1f} %) fall inside the "
+            f"{n['take']} (expected at least {100 * floor:.0f} % and {min_frames} {n['unit']}): {span}"
         )
     if share < min_share:
         return share, [
-            f"{source}: only {100 * share:.1f} % of the video frames fall inside the Vicon take "
+            f"{source}: only {100 * share:.1f} % of the {n['frames']} fall inside the {n['take']} "
             f"(sync.min_overlap_share {min_share:g}); the rest are left out: {span}"
         ]
     return share, []
+
+
+def camera_pose_names(file) -> dict:
+    """What :func:`check_overlap`'s messages call a camera-pose stream and its motion capture.
+
+    Parameters
+    ----------
+    file : str or Path
+        The camera-pose stream file, as the session names it.
+
+    Returns
+    -------
+    dict
+        ``frames``, ``unit``, ``take``, ``take_short``, ``clock`` (:data:`VIDEO_NAMES`' keys).
+    """
+    return {"frames": f"camera poses of {file}", "unit": "poses", "take": "motion capture",
+            "take_short": "motion capture", "clock": "motion-capture clock"}  # fmt: skip
 
 
 # --------------------------------------------------------------------------- pairs

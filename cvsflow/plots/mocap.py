@@ -157,7 +157,8 @@ def plot_stream_bodies(bodies: pd.DataFrame) -> Figure:
     return fig
 
 
-def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict) -> Figure:
+def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict, camera: str = "video (PnP)",
+              mocap: str = "Vicon") -> Figure:
     """Board angular speed of both systems on the Vicon clock after alignment.
 
     Parameters
@@ -169,6 +170,9 @@ def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict) -> Figu
     sync : dict
         sync.yaml content: ``dt_offset_s`` (t_vicon_s = t_video_s + dt_offset_s), ``method``,
         ``quality``.
+    camera, mocap : str
+        What the legends and labels call the camera's stream and the motion capture (a
+        camera-pose session: its stream file and "motion capture").
 
     Returns
     -------
@@ -179,12 +183,13 @@ def plot_sync(poses_raw: pd.DataFrame, bodies: pd.DataFrame, sync: dict) -> Figu
     from cvsflow.sync import angular_speed_streams
 
     return plot_sync_streams(
-        angular_speed_streams(poses_raw, bodies), sync["dt_offset_s"], sync.get("quality"), sync.get("method")
+        angular_speed_streams(poses_raw, bodies), sync["dt_offset_s"], sync.get("quality"),
+        sync.get("method"), camera, mocap,
     )
 
 
 def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None = None,
-                      method: str | None = None) -> Figure:
+                      method: str | None = None, camera: str = "video (PnP)", mocap: str = "Vicon") -> Figure:
     """:func:`plot_sync` from precomputed streams (:func:`cvsflow.sync.streams.angular_speed_streams`).
 
     Parameters
@@ -199,6 +204,8 @@ def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None =
         Sync quality shown in the title; None: not shown.
     method : str, optional
         ``sync.method`` shown in the title; None: not shown.
+    camera, mocap : str
+        What the legends and labels call the two streams.
 
     Returns
     -------
@@ -216,16 +223,17 @@ def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None =
     fig = plt.figure(figsize=(10.0, 8.5), layout="constrained")
     ax_raw, ax0, ax1 = fig.subplots(3, 1, height_ratios=[1.5, 2, 1])
     ax1.sharex(ax0)
-    ax_raw.plot(t_v, w_v, lw=0.6, color="tab:orange", label="Vicon (its clock)")
-    ax_raw.plot(streams["t_cvs_s"], w_c, ".", ms=2.0, color="tab:blue", label="video (its clock, offset 0)")
+    ax_raw.plot(t_v, w_v, lw=0.6, color="tab:orange", label=f"{mocap} (its clock)")
+    ax_raw.plot(streams["t_cvs_s"], w_c, ".", ms=2.0, color="tab:blue",
+                label=f"{camera} (its clock, offset 0)")
     ax_raw.set_title("before: both streams on their own clocks")
     ax_raw.set_ylabel("|omega| (deg/s)")
     ax_raw.set_xlabel("time on each stream's clock (s)")
     ax_raw.legend(fontsize=8)
-    ax0.plot(t_v[span], w_v[span], lw=0.8, color="tab:orange", label="Vicon (board rel. camera body)")
-    ax0.plot(t_c, w_c, ".", ms=2.5, color="tab:blue", label="video (PnP), shifted")
+    ax0.plot(t_v[span], w_v[span], lw=0.8, color="tab:orange", label=f"{mocap} (board rel. camera body)")
+    ax0.plot(t_c, w_c, ".", ms=2.5, color="tab:blue", label=f"{camera}, shifted")
     ax0.set_ylabel("angular speed |omega| (deg/s)")
-    title = f"after: video shifted by dt_offset = {dt_offset_s * 1000:.1f} ms"
+    title = f"after: {camera} shifted by dt_offset = {dt_offset_s * 1000:.1f} ms"
     if method:
         title += f" ({method})"
     if quality is not None:
@@ -236,6 +244,6 @@ def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None =
     w_v_at = np.interp(t_c, t_v[ok], w_v[ok], left=np.nan, right=np.nan)
     ax1.plot(t_c, w_c - w_v_at, ".", ms=2.5, color="k")
     ax1.axhline(0.0, color="grey", lw=0.5)
-    ax1.set_ylabel("video - Vicon (deg/s)")
-    ax1.set_xlabel("Vicon time t (s)")
+    ax1.set_ylabel(f"{camera.split(' (')[0]} - {mocap} (deg/s)")
+    ax1.set_xlabel(f"{mocap} time t (s)")
     return fig

@@ -379,7 +379,7 @@ def synchronise(poses_raw, bodies, method="angular_speed", max_offset_s=30.0, mi
     return out
 
 
-def given_offset(poses_raw, bodies, dt_offset_s, min_overlap_share=0.8):
+def given_offset(poses_raw, bodies, dt_offset_s, min_overlap_share=0.8, names=None):
     """sync.yaml for a session that states its time offset (``dt_offset_s``): nothing searched.
 
     Parameters
@@ -392,6 +392,9 @@ def given_offset(poses_raw, bodies, dt_offset_s, min_overlap_share=0.8):
         The stated offset, t_mocap = t_camera + dt_offset_s, s.
     min_overlap_share : float
         Share of frames inside the take below which a warning is given.
+    names : dict, optional
+        What the messages call the streams (:func:`cvsflow.plausibility.check_overlap`'s
+        ``names``); default the video's and the Vicon take's.
 
     Returns
     -------
@@ -407,7 +410,7 @@ def given_offset(poses_raw, bodies, dt_offset_s, min_overlap_share=0.8):
     """
     _, take_span = _spans(poses_raw, bodies)
     share, warnings = check_overlap(poses_raw["t_s"].to_numpy(float), float(dt_offset_s), take_span,
-                                    min_share=min_overlap_share, source="sync")
+                                    min_share=min_overlap_share, source="sync", names=names)
     for w in warnings:
         log.warning(w)
     log.info("time offset %.6f s as the session states it (not estimated)", dt_offset_s)

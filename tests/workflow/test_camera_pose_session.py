@@ -63,8 +63,8 @@ def test_simulated_camera_pose_session_end_to_end(tmp_path):
 
 def test_a_stated_offset_is_held_and_a_stream_outside_the_mocap_stops(tmp_path):
     """dt_offset_s in the session fixes the offset (sync writes it as given, the fit holds it); a
-    camera stream that lies outside the motion capture stops sync naming both spans, and no
-    pose-fit output is left."""
+    camera stream that lies outside the motion capture stops sync naming the stream's file (not
+    a video) and both spans, and no pose-fit output is left."""
     sim = simulate_streams(6, duration_s=20.0)
     cam = write_stream(tmp_path / "cam.csv", sim["t_cam_ns"], sim["T_B_C"], "eth")
     moc = write_stream(tmp_path / "vicon.csv", sim["t_mocap_ns"], sim["T_W_Cm"], "eth")
@@ -73,6 +73,8 @@ def test_a_stated_offset_is_held_and_a_stream_outside_the_mocap_stops(tmp_path):
     snakemake(tmp_path, "results/s/pose_fit/result.yaml")
     fit = yaml.safe_load((tmp_path / "results" / "s" / "pose_fit" / "result.yaml").read_text())
     assert fit["dt_offset_s"] is None and fit["dt_used_s"] == 0.03 and fit["sync"]["method"] == "given"
+    sync = yaml.safe_load((tmp_path / "results" / "s" / "sync.yaml").read_text())
+    assert sync["camera_poses"] == str(cam)
     late = write_stream(tmp_path / "late.csv", sim["t_cam_ns"] + 3600 * 10**9, sim["T_B_C"], "eth")
     other = tmp_path / "other"
     write_config(other, {"sessions": {"s": {"camera_poses": str(late), "pose_streams": {"camera": str(moc)}}}})
@@ -80,6 +82,8 @@ def test_a_stated_offset_is_held_and_a_stream_outside_the_mocap_stops(tmp_path):
     assert proc.returncode != 0
     out = proc.stdout + proc.stderr
     assert "stage sync failed (OverlapError)" in out and "1491754388.034" in out
+    failed = next(line for line in out.splitlines() if "stage sync failed" in line)
+    assert f"camera poses of {late}" in failed and "video" not in failed.lower()  # the stream by its file
     assert "InputFunctionException" not in out  # no video or corners rule is asked about the session
     assert not (other / "results" / "s" / "pose_fit" / "result.yaml").exists()
 

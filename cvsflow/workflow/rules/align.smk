@@ -25,7 +25,8 @@ rule sync:
     params:
         sync=config["sync"],
         dt_offset_s=lambda wc: session_cfg(wc.session).get("dt_offset_s"),
-        pose_stream=lambda wc: runs_stage(wc.session, "camera_poses"),
+        # a camera_poses session's stream file (what its messages name), else ""
+        pose_stream=lambda wc: str(CAMERA_POSES[wc.session]["file"]) if wc.session in CAMERA_POSES else "",
     script:
         "../scripts/sync.py"
 

@@ -1,6 +1,8 @@
 """cvsflow.evaluate.heldout_streams and cvsflow.calibration.pose_stream: a camera-pose session's
 tables, its pose-level fit and held-out evaluation, on simulated streams with known truth."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -15,7 +17,7 @@ from cvsflow.evaluate import (
     stream_inputs,
     stream_sync,
 )
-from cvsflow.exceptions import InputError
+from cvsflow.exceptions import InputError, OverlapError
 from cvsflow.geometry import R_from_rvec, invert_T, make_T, rotation_angle
 from cvsflow.handeye import simulate_streams
 from cvsflow.metrics import ERROR_DIMS
@@ -135,3 +137,23 @@ def test_a_moving_board_body_gives_the_target_in_its_body():
     for k, a in enumerate("xyz"):
         assert abs(res.T_W_B[k, 3] - sim["T_W_B"][k, 3]) < 3 * res.std[f"T_W_B_{a}"]
     assert pose_fit_record(res, None, board_body=True)["frames"].count("board marker body Bm") == 1
+
+
+def test_sync_messages_name_the_camera_pose_stream_not_a_video():
+    """A camera-pose stream an hour after the motion capture stops sync with an OverlapError that
+    names the stream's file, its poses and the motion capture (both spans), never "video"; one
+    that overlaps partly warns in the same words and sync.yaml names the stream."""
+    sim = simulate_streams(12, duration_s=20.0)
+    poses, bodies = _tables(sim)
+    late = poses.assign(t_s=poses["t_s"] + 3600.0, t_ns=poses["t_ns"] + 3600 * 10**9)
+    with pytest.raises(OverlapError) as err:
+        stream_sync(late, bodies, stream="data/cam.csv")
+    msg = str(err.value)
+    assert "video" not in msg.lower() and "vicon" not in msg.lower()
+    assert re.search(r"only 0 of \d+ camera poses of data/cam\.csv \(0\.0 %\) fall inside the motion capture "
+                     r"\(expected at least 20 % and 30 poses\): camera poses of data/cam\.csv span "
+                     r"\d+\.\d{3}\.\.\d+\.\d{3} s, i\.e\. .* on the motion-capture clock .*the motion capture spans", msg)
+    t_cut_s = float(bodies["t_s"].min()) + 0.6 * float(bodies["t_s"].max() - bodies["t_s"].min())
+    sync = stream_sync(poses, bodies[bodies["t_s"] <= t_cut_s], stream="data/cam.csv")
+    assert sync["camera_poses"] == "data/cam.csv" and 0.2 < sync["overlap_share"] < 0.8
+    assert sync["warnings"] and all("video" not in w.lower() and "data/cam.csv" in w for w in sync["warnings"])
