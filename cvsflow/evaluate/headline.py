@@ -329,6 +329,11 @@ def pose_fit_headline(session, result, heldout=None, truth=None):
                   digits=3)
         r.add("stated uncertainty (pose fit, held-out)", "mean NEES (6 if consistent)", em.get("nees_mean"),
               "[-]", f"{hsrc}: error_model.nees_mean", digits=3)
+        judged = em.get("judgement")
+        if judged:
+            text = judged["verdict"] + (f" ({'; '.join(judged['reasons'])})" if judged.get("reasons") else "")
+            r.note("stated uncertainty (pose fit, held-out)", "against its spread with errors persisting "
+                   "in time", text, f"{hsrc}: error_model.judgement")
     return r.rows
 
 

@@ -34,6 +34,7 @@ import pandas as pd
 from cvsflow import geometry as geo
 from cvsflow import uncertainty as un
 from cvsflow.evaluate.heldout import compare_methods, make_time_blocks
+from cvsflow.evaluate.stated_uncertainty import judge_stated_uncertainty
 from cvsflow.exceptions import OptimiseError
 from cvsflow.handeye import (
     StreamProblem,
@@ -443,8 +444,10 @@ def cross_validate_streams(frame_ids, t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm,
         over the scored frames (``inside_68``, ``inside_95`` per axis and ``_all``, ``z_rms``,
         ``nees_mean``, ``nees_inside_95``, ``nu`` min and max), ``lag1_autocorr`` per axis,
         ``n_effective``, ``inside_68_tolerance``, ``inside_95_tolerance`` (how far a right
-        statement's shares scatter with errors that persist in time), and ``folds`` (each
-        fold's).
+        statement's shares scatter with errors that persist in time), ``judgement`` (the
+        shares and NEES against their spread under the statement with the errors' AR(1) in
+        time: :func:`cvsflow.evaluate.stated_uncertainty.judge_stated_uncertainty`, its
+        ``verdict`` consistent / too narrow / too wide) and ``folds`` (each fold's).
 
     Raises
     ------
@@ -499,6 +502,8 @@ def cross_validate_streams(frame_ids, t_cam_ns, T_B_C, t_mocap_ns, T_Bm_Cm,
     heldout["error_frame"] = frame
     score = _pooled(fold_scores)
     score.update(_time_correlation(cov, heldout))
+    runs = un.frame_runs(heldout["frame"].to_numpy(), heldout["fold"].to_numpy())
+    score["judgement"] = judge_stated_uncertainty(cov, heldout, runs, heldout["nu"].to_numpy(), seed=seed)
     score["folds"] = fold_scores
     return heldout, fits, score
 

@@ -17,7 +17,8 @@
   :func:`nees_values`, :func:`band_multipliers`), and the same with the errors whitened by
   an AR(1) in time (:func:`fit_ar1`, :func:`score_time_correlated`).
 - :mod:`cvsflow.uncertainty.calibrated_draws`: how many of the coverage targets a model that
-  is exactly right meets on short, time-correlated held-out sets (:func:`target_pass_rates`).
+  is exactly right meets on short, time-correlated held-out sets (:func:`target_pass_rates`;
+  the draws themselves: :func:`draw_calibrated_errors`).
 - :mod:`cvsflow.uncertainty.crb`: the Cramer-Rao floor (:func:`cramer_rao_sigma`).
 - :mod:`cvsflow.uncertainty.rolling_shutter`: a rolling shutter's shear of the corners and
   the pose without it (:func:`shear_displacement`, :func:`unsheared_pnp`).
@@ -33,6 +34,7 @@ from cvsflow.uncertainty.ambiguity import flip_weight, pnp_alternatives
 from cvsflow.uncertainty.calibrated_draws import (
     TARGETS,
     autocorrelation,
+    draw_calibrated_errors,
     excess_spread,
     session_scale_sd,
     target_pass_rates,
@@ -108,6 +110,7 @@ __all__ = [
     "chi2_pdf", "chi2_quantile", "composed_error_jacobian", "CORNER_CORRELATION_PX",
     "corner_noise_from_reproj", "corner_noise_pool", "correlated_noise_terms", "cov_columns",
     "cov_from_columns", "cramer_rao_sigma", "crossfit_transfer", "error_features", "excess_spread",
+    "draw_calibrated_errors",
     "FEATURES", "FILL_WINDOW_S", "fit_ar1", "fit_multivariate_t", "fit_error_model", "fit_transfer_model",
     "flip_weight",
     "frame_noise_terms", "frame_runs", "leave_one_session_out", "measurement_features",

@@ -56,6 +56,9 @@ def test_simulated_camera_pose_session_end_to_end(tmp_path):
     assert held["n"] == len(heldout) == len(poses) and len(held["folds"]) == 5
     em = held["error_model"]
     assert 0.55 < em["inside_68_all"] < 0.8 and 0.88 < em["inside_95_all"] < 0.99 and 4 < em["nees_mean"] < 9
+    judged = em["judgement"]
+    assert judged["verdict"] in ("consistent", "too narrow", "too wide", "wrong shape")
+    assert judged["nees_mean"]["low"] < judged["nees_mean"]["median"] < judged["nees_mean"]["high"]
     assert held["per_dim"]["z_m"]["rmse"] < 0.02
     headline = pd.read_csv(tmp_path / "results" / "headline.csv")
     assert "T_Cm_C z" in set(headline[headline["session"] == "s"]["quantity"])

@@ -21,6 +21,10 @@ with stage_logging(snakemake.log[0], "heldout_pose_fit") as log:
     log.info("held-out: %d frames over %d folds; %.1f %% inside 68 %%, %.1f %% inside 95 %%, NEES %.2f",
              len(heldout), len(fits), 100 * score["inside_68_all"], 100 * score["inside_95_all"],
              score["nees_mean"])
+    judged = score["judgement"]
+    log.info("stated per-frame uncertainty against its spread with the errors' AR(1) in time (rho %s): %s%s",
+             ", ".join(f"{r:.2f}" for r in judged["rho"].values()), judged["verdict"],
+             f" ({'; '.join(judged['reasons'])})" if judged["reasons"] else "")
     summary = heldout_summary(heldout, fits, score, boot_block_s=ev["boot_block_s"], n_boot=ev["n_boot"],
                               seed=ev["seed"])
     write_parquet(heldout, snakemake.output.heldout)

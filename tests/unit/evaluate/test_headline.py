@@ -172,7 +172,8 @@ def test_data_quality_rows_from_corners_and_vicon_repair():
 
 def test_a_camera_pose_session_headline_states_the_pose_fit_and_its_heldout_coverage():
     """The pose-level fit's offset, mountings (mm, deg, with errors and truth) and split-half
-    check, the held-out RMS and the stated uncertainty's coverage; an offset the data cannot fix
+    check, the held-out RMS and the stated uncertainty's coverage with its verdict against the
+    spread of errors persisting in time; an offset the data cannot fix
     is a note with its reason, not a number."""
     from cvsflow.evaluate import pose_fit_headline
 
@@ -183,7 +184,9 @@ def test_a_camera_pose_session_headline_states_the_pose_fit_and_its_heldout_cove
               "T_Bm_B": np.eye(4).tolist(), "std": {"T_Cm_C": std, "T_Bm_B": std}, "std_inflated_by": 1.46,
               "split_half": {"agree": False, "mean_z2": 2.14, "mean_z2_limit": 1.72, "n_agree": 11, "n": 13}}
     heldout = {"error_frame": "C", "per_dim": {"x_m": {"rmse": 0.004}, "yaw_rad": {"rmse": 0.01}},
-               "error_model": {"inside_68_all": 0.685, "inside_95_all": 0.912, "nees_mean": 14.2}}
+               "error_model": {"inside_68_all": 0.685, "inside_95_all": 0.912, "nees_mean": 14.2,
+                               "judgement": {"verdict": "too narrow",
+                                             "reasons": ["nees_mean 14.2 above 4.27..11.6"]}}}
     rows = {(r["group"], r["quantity"]): r for r in pose_fit_headline("eth", result, heldout,
                                                                       truth={"dt_offset_s": 0.02})}
     dt = rows[("pose fit", "time offset dt")]
@@ -194,6 +197,8 @@ def test_a_camera_pose_session_headline_states_the_pose_fit_and_its_heldout_cove
     assert "disagrees: mean z² 2.14 (limit 1.72), 11 of 13" in rows[("pose fit", "split-half check")]["text"]
     assert rows[("held-out RMS (pose fit, frame C)", "x")]["value"] == pytest.approx(4.0)
     assert rows[("stated uncertainty (pose fit, held-out)", "inside the 95 % band")]["value"] == pytest.approx(91.2)
+    judged = rows[("stated uncertainty (pose fit, held-out)", "against its spread with errors persisting in time")]
+    assert judged["text"] == "too narrow (nees_mean 14.2 above 4.27..11.6)"
     still = {**result, "dt_offset_s": None, "dt_used_s": 0.0,
              "observability": {"dt": {"reason": "the camera is nearly still"}}}
     row = next(r for r in pose_fit_headline("s", still) if r["quantity"] == "time offset dt")
