@@ -1,7 +1,8 @@
 """A workflow session whose camera input is a camera-pose stream (camera_poses): simulated
 streams with known truth through sync, the pose-level fit and the held-out evaluation; ETH's
 prime_sense_1 as such a session against `cvsflow handeye --camera-poses` on the same files
-(skips without the shared real data); a stream that misses the motion capture stops by name."""
+(skips without the shared real data); a stream that misses the motion capture stops by name;
+the camera body from a marker export instead of a pose stream."""
 
 from __future__ import annotations
 
@@ -10,9 +11,11 @@ import pandas as pd
 import yaml
 
 from cvsflow.cli import main
-from cvsflow.geometry import rotation_angle
+from cvsflow.geometry import R_from_rvec, invert_T, make_T, rotation_angle, transform_points
 from cvsflow.handeye import simulate_streams
+from cvsflow.io.mocap.vicon import write_nexus_csv
 from tests.helpers.handeye_sim import write_stream
+from tests.helpers.mocap_markers import BOARD_LAYOUT_M, BOARD_NAMES, CAMERA_LAYOUT_M, CAMERA_NAMES
 from tests.helpers.real_data import need_real_file
 from tests.workflow.test_workflow import snakemake, write_config
 
@@ -130,3 +133,43 @@ def test_a_bad_camera_pose_file_stops_its_stage_by_name(tmp_path):
     out = proc.stdout + proc.stderr
     assert proc.returncode != 0 and "stage camera_poses failed (QuaternionNormError)" in out and "cam.csv" in out
     assert not (tmp_path / "results" / "s" / "poses_raw.parquet").exists()
+
+
+def test_a_camera_pose_session_with_a_marker_export(tmp_path):
+    """The camera body from a marker export (mocap.file + markers, a Nexus CSV at 100 Hz on its
+    own clock) instead of pose_streams, the target's marker body static: the markers are
+    repaired and fitted as for a video session, and sync, the fit (dt, T_Cm_C, T_Bm_B within 4
+    stated errors of the truth) and the held-out evaluation run as with pose streams."""
+    sim = simulate_streams(8, duration_s=25.0)
+    t0_ns = int(sim["t_mocap_ns"][0])  # the export's clock starts at its first sample
+    t_s = (sim["t_mocap_ns"] - t0_ns) / 1e9
+    assert np.allclose(np.diff(t_s), 0.01, atol=1e-6)  # one frame every 10 ms, as Nexus writes it
+    T_W_Bm = make_T(R_from_rvec(np.array([0.1, -0.2, 0.3])), [0.4, -0.2, 0.05])
+    rng = np.random.default_rng(8)
+    data = {"frame": np.arange(len(t_s)), "t_s": t_s}
+    for names, layout, T in ((CAMERA_NAMES, CAMERA_LAYOUT_M, sim["T_W_Cm"]), (BOARD_NAMES, BOARD_LAYOUT_M, T_W_Bm)):
+        for name, p in zip(names, layout, strict=True):
+            xyz = transform_points(T, p) + rng.normal(0.0, 1e-4, (len(t_s), 3))
+            for a, axis in enumerate("xyz"):
+                data[f"{name}_{axis}_m"] = xyz[:, a]
+    write_nexus_csv(pd.DataFrame(data), tmp_path / "take.csv", 100.0)
+    # the camera's clock as the sim has it relative to the motion capture's: dt stays 30 ms
+    cam = write_stream(tmp_path / "cam.csv", sim["t_cam_ns"] - t0_ns, sim["T_B_C"], "asl")
+    markers = {"camera": {"names": CAMERA_NAMES, "layout_m": CAMERA_LAYOUT_M.tolist()},
+               "board": {"names": BOARD_NAMES, "layout_m": BOARD_LAYOUT_M.tolist()}}
+    write_config(tmp_path, {"sessions": {"s": {"camera_poses": str(cam), "mocap": {"file": str(tmp_path / "take.csv")},
+                                               "markers": markers}}, "evaluate": {"n_boot": 50}})  # fmt: skip
+    snakemake(tmp_path, *OUTPUTS)
+    res = tmp_path / "results" / "s"
+    assert (res / "markers_filled.parquet").exists() and not (res / "corners.parquet").exists()
+    sync = yaml.safe_load((res / "sync.yaml").read_text())
+    assert sync["method"] == "pose_streams" and abs(sync["dt_offset_s"] - 0.03) < 0.01
+    fit = yaml.safe_load((res / "pose_fit" / "result.yaml").read_text())
+    assert fit["board_body"] is True and abs(fit["dt_offset_s"] - 0.03) < 4 * fit["dt_offset_std_s"]
+    err_mm = 1e3 * (np.array(fit["T_Cm_C"])[:3, 3] - sim["T_Cm_C"][:3, 3])
+    assert np.all(np.abs(err_mm) < 4 * _std_mm(fit, "T_Cm_C"))
+    T_Bm_B = invert_T(T_W_Bm) @ sim["T_W_B"]
+    err_mm = 1e3 * (np.array(fit["T_Bm_B"])[:3, 3] - T_Bm_B[:3, 3])
+    assert np.all(np.abs(err_mm) < 4 * _std_mm(fit, "T_Bm_B"))
+    held = yaml.safe_load((res / "heldout" / "pose_fit.yaml").read_text())
+    assert held["n"] > 0.9 * len(sim["t_cam_ns"]) and np.isfinite(held["error_model"]["nees_mean"])
