@@ -205,7 +205,8 @@ def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None =
     method : str, optional
         ``sync.method`` shown in the title; None: not shown.
     camera, mocap : str
-        What the legends and labels call the two streams.
+        What the legends and labels call the two streams (the title and the difference's label
+        leave out the camera's parenthesis).
 
     Returns
     -------
@@ -233,7 +234,7 @@ def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None =
     ax0.plot(t_v[span], w_v[span], lw=0.8, color="tab:orange", label=f"{mocap} (board rel. camera body)")
     ax0.plot(t_c, w_c, ".", ms=2.5, color="tab:blue", label=f"{camera}, shifted")
     ax0.set_ylabel("angular speed |omega| (deg/s)")
-    title = f"after: {camera} shifted by dt_offset = {dt_offset_s * 1000:.1f} ms"
+    title = f"after: {camera.split(' (')[0]} shifted by dt_offset = {dt_offset_s * 1000:.1f} ms"
     if method:
         title += f" ({method})"
     if quality is not None:
@@ -244,6 +245,7 @@ def plot_sync_streams(streams: dict, dt_offset_s: float, quality: float | None =
     w_v_at = np.interp(t_c, t_v[ok], w_v[ok], left=np.nan, right=np.nan)
     ax1.plot(t_c, w_c - w_v_at, ".", ms=2.5, color="k")
     ax1.axhline(0.0, color="grey", lw=0.5)
-    ax1.set_ylabel(f"{camera.split(' (')[0]} - {mocap} (deg/s)")
+    diff = f"{camera.split(' (')[0]} - {mocap}"
+    ax1.set_ylabel(f"{diff} (deg/s)" if len(diff) < 20 else f"{diff}\n(deg/s)")  # the panel is short
     ax1.set_xlabel(f"{mocap} time t (s)")
     return fig

@@ -1,5 +1,7 @@
 """Time offset between the camera (video or camera-pose stream) and the motion capture (rule sync)."""
 
+from pathlib import Path
+
 from cvsflow import plots
 from cvsflow.evaluate import stream_sync
 from cvsflow.io.files import draw_figure, read_parquet, write_yaml
@@ -27,5 +29,5 @@ with stage_logging(snakemake.log[0], "sync") as log:
              result["method"], "n/a" if result["quality"] is None else f"{result['quality']:.2f}",
              100 * result["overlap_share"])
     write_yaml(result, snakemake.output.sync)
-    labels = {"camera": f"camera poses ({stream})", "mocap": "motion capture"} if stream else {}
+    labels = {"camera": f"camera poses ({Path(stream).name})", "mocap": "motion capture"} if stream else {}
     draw_figure(snakemake.output, "fig", lambda: plots.mocap.plot_sync(poses, bodies, result, **labels))
