@@ -3,7 +3,6 @@
 from pathlib import Path
 
 from cvsflow import plots
-from cvsflow.evaluate import stream_sync
 from cvsflow.io.files import draw_figure, read_parquet, write_yaml
 from cvsflow.io.logs import stage_logging
 from cvsflow.plausibility import camera_pose_names, check_sync_inputs
@@ -22,6 +21,9 @@ with stage_logging(snakemake.log[0], "sync") as log:
         if stream:
             result["camera_poses"] = stream
     elif stream:  # the stream fit's own search, as cvsflow handeye --camera-poses starts from
+        # imported here: cvsflow.evaluate costs a video session's sync job 0.3 s of start-up
+        from cvsflow.evaluate import stream_sync
+
         result = stream_sync(poses, bodies, snakemake.params.sync["min_overlap_share"], stream)
     else:
         result = synchronise(poses, bodies, **snakemake.params.sync)
