@@ -26,7 +26,9 @@ rule sync:
         sync=config["sync"],
         dt_offset_s=lambda wc: session_cfg(wc.session).get("dt_offset_s"),
         # a camera_poses session's stream file (what its messages name), else ""
-        pose_stream=lambda wc: str(CAMERA_POSES[wc.session]["file"]) if wc.session in CAMERA_POSES else "",
+        pose_stream=lambda wc: (
+            str(CAMERA_POSES[wc.session]["file"]) if wc.session in CAMERA_POSES else ""
+        ),
     script:
         "../scripts/sync.py"
 

@@ -97,12 +97,12 @@ rule poses:
             ),
         ),
         poses="results/{session}/poses_raw.parquet",
-    wildcard_constraints:
-        session=NOT_CAMERA_POSES_PATTERN,
     log:
         "logs/{session}/poses.log",
     benchmark:
         "benchmarks/{session}/poses.tsv"
+    wildcard_constraints:
+        session=NOT_CAMERA_POSES_PATTERN,
     priority: 45
     threads: 1
     resources:

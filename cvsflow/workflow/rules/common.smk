@@ -96,7 +96,8 @@ def mocap_bodies_input(wildcards):
     if MOCAP[wildcards.session]["bodies_from"] == "streams":
         streams = SESSIONS[wildcards.session]["pose_streams"]
         files = {"camera_stream": streams["camera"]}
-        if "board" in streams:  # a camera_poses session's target may be static in the world
+        # a camera_poses session's target may be static in the world: no board stream
+        if "board" in streams:
             files["board_stream"] = streams["board"]
         return files
     if MOCAP[wildcards.session]["bodies_from"] == "system":

@@ -106,12 +106,12 @@ rule compare:
         ),
         comparison="results/{session}/comparison.yaml",
         se3_scored="results/{session}/heldout/se3_scored.parquet",
-    wildcard_constraints:
-        session=NOT_CAMERA_POSES_PATTERN,
     log:
         "logs/{session}/compare.log",
     benchmark:
         "benchmarks/{session}/compare.tsv"
+    wildcard_constraints:
+        session=NOT_CAMERA_POSES_PATTERN,
     priority: 15
     threads: 1
     resources:

@@ -20,12 +20,12 @@ rule camera_poses:
             ),
         ),
         poses="results/{session}/poses_raw.parquet",
-    wildcard_constraints:
-        session=CAMERA_POSES_PATTERN,
     log:
         "logs/{session}/camera_poses.log",
     benchmark:
         "benchmarks/{session}/camera_poses.tsv"
+    wildcard_constraints:
+        session=CAMERA_POSES_PATTERN,
     threads: 1
     resources:
         mem_mb=1000,
@@ -43,18 +43,19 @@ rule pose_fit:
         sync="results/{session}/sync.yaml",
     output:
         result="results/{session}/pose_fit/result.yaml",
-    wildcard_constraints:
-        session=CAMERA_POSES_PATTERN,
     log:
         "logs/{session}/pose_fit.log",
     benchmark:
         "benchmarks/{session}/pose_fit.tsv"
+    wildcard_constraints:
+        session=CAMERA_POSES_PATTERN,
     threads: 1
     resources:
         mem_mb=2000,
         runtime=20,
     params:
-        board_body=lambda wc: "board" in SESSIONS[wc.session].get("pose_streams", {"board": 1}),
+        board_body=lambda wc: "board"
+        in SESSIONS[wc.session].get("pose_streams", {"board": 1}),
     script:
         "../scripts/pose_fit.py"
 
@@ -84,12 +85,12 @@ rule heldout_pose_fit:
         ),
         heldout="results/{session}/heldout/pose_fit.parquet",
         summary="results/{session}/heldout/pose_fit.yaml",
-    wildcard_constraints:
-        session=CAMERA_POSES_PATTERN,
     log:
         "logs/{session}/heldout.pose_fit.log",
     benchmark:
         "benchmarks/{session}/heldout.pose_fit.tsv"
+    wildcard_constraints:
+        session=CAMERA_POSES_PATTERN,
     threads: 1
     resources:
         mem_mb=2000,
