@@ -10,6 +10,7 @@ are printed beside wall seconds: on a shared machine they are the steadier numbe
 
     .venv/bin/python bench/bench_pipeline.py --duration 90 --cores 2
     .venv/bin/python bench/bench_pipeline.py --imports      # start-up cost of each workflow script
+    .venv/bin/python bench/bench_pipeline.py --duration 20 --methods se3 --no-figures  # the fast path
 
 Before and after a change, on the same machine, with the spread over repeats: run the other
 checkout's workflow and package (``--repo``, put first on PYTHONPATH) and save its table, then
@@ -59,6 +60,8 @@ def main() -> None:
     parser.add_argument("--before", type=Path, help="an --out table to print beside this run's")
     parser.add_argument("--no-figures", action="store_true",
                         help="run with `figures: false` (a sweep's setting; rendering unchanged)")
+    parser.add_argument("--methods", nargs="+", choices=("seed", "se3"),
+                        help="optimise.methods (default: the config's, seed and se3)")
     parser.add_argument("--imports", action="store_true",
                         help="only time each workflow script's imports")
     args = parser.parse_args()
@@ -82,6 +85,8 @@ def main() -> None:
 
     if args.no_figures:
         config["figures"] = False
+    if args.methods:
+        config.setdefault("optimise", {})["methods"] = args.methods
     tables = []
     for k in range(args.repeat):
         table, wall = run_once(repo, config, cache, args.cores, args.keep)
