@@ -5,7 +5,11 @@ Which file is which is read from the content, not the names: a camera's pose in 
 frame has the target in front of the camera (the target's origin at positive depth in C) in
 every row; the camera's marker body is, of the other pose streams beside it, the one whose
 angular speed follows the camera's best (the cross-correlation's quality, the time offset's
-coarse search of :func:`cvsflow.handeye.stream_offset`).
+coarse search of :func:`cvsflow.handeye.stream_offset`). Angular speed cannot tell a body's pose
+from its inverse, nor two bodies on one rigid carrier, so streams that follow it about as well
+(within :data:`TIE_QUALITY`) are told apart by the hand-eye fit itself
+(:func:`cvsflow.handeye.estimate_streams`): the camera's body is the one a constant mounting
+fits, with the smallest rotation residuals.
 """
 
 from __future__ import annotations
@@ -22,6 +26,9 @@ log = logging.getLogger(__name__)
 
 #: Share of rows with the target in front of the camera for a stream to be a camera-pose stream.
 MIN_FRONT_SHARE = 0.99
+#: Streams whose angular speed follows the camera's within this quality of the best one's are
+#: told apart by the hand-eye fit's rotation residuals.
+TIE_QUALITY = 0.1
 
 
 def _streams(folder: Path) -> list:
@@ -59,7 +66,9 @@ def front_share(stream) -> float:
 
 
 def _best_body(camera, others, notes) -> Path | None:
-    """The stream whose rotation follows the camera's best (coarse offset quality), noted."""
+    """The stream whose rotation follows the camera's best (coarse offset quality), noted; among
+    those within :data:`TIE_QUALITY` of the best, the one the hand-eye fit leaves the smallest
+    rotation residuals."""
     from cvsflow.handeye import stream_offset
     from cvsflow.io.mocap.streams import stream_T
 
@@ -77,7 +86,39 @@ def _best_body(camera, others, notes) -> Path | None:
     for quality, p, dt in sorted(scored, reverse=True):
         notes.append(f"pose stream {p}: its angular speed follows the camera's with quality {quality:.2f} "
                      f"at an offset of {1e3 * dt:+.1f} ms")  # fmt: skip
-    return max(scored)[1] if scored else None
+    if not scored:
+        return None
+    best = max(scored)
+    tied = [p for q, p, _ in sorted(scored, reverse=True) if q >= best[0] - TIE_QUALITY]
+    if len(tied) < 2:
+        return best[1]
+    streams = dict(others)
+    residual = {p: _rotation_residual_rad(camera, streams[p]) for p in tied}
+    fitted = {p: r for p, r in residual.items() if r is not None}
+    if not fitted:
+        return best[1]
+    chosen = min(fitted, key=fitted.get)
+    notes.append(f"{len(tied)} pose streams follow the camera's rotation about as well (within "
+                 f"{TIE_QUALITY} of the best quality); the hand-eye fit with each leaves rotation "
+                 "residuals of " + ", ".join(
+                     f"{np.degrees(r):.2f} deg ({p.name})" if r is not None else f"no fit ({p.name})"
+                     for p, r in residual.items()) + f": took {chosen.name}")  # fmt: skip
+    return chosen
+
+
+def _rotation_residual_rad(camera, body) -> float | None:
+    """The robust scale of the rotation residuals (rad, mean over C's axes) of the hand-eye fit of
+    a camera-pose stream to a body's stream; None where it cannot be fitted."""
+    from cvsflow.handeye import estimate_streams
+    from cvsflow.io.mocap.streams import stream_T
+
+    try:
+        fit = estimate_streams(camera["t_ns"].to_numpy(), stream_T(camera), body["t_ns"].to_numpy(),
+                               stream_T(body))
+    except CvsflowError as exc:
+        log.debug("no hand-eye fit (%s)", exc)
+        return None
+    return float(np.mean([fit.sigma[f"rot_{a}"] for a in "xyz"]))
 
 
 def build_camera_pose_config(path) -> tuple[dict, list[str]] | None:

@@ -53,6 +53,23 @@ def test_init_on_a_camera_pose_file_and_on_a_body_file(tmp_path, capsys):
     assert not (tmp_path / "b.yaml").exists()
 
 
+def test_init_tells_the_body_from_its_inverse_by_the_hand_eye_fit(tmp_path, capsys):
+    """A body's stream and its inverse (the world in the body, as some exports write it) turn at
+    the same angular speed, so the speed alone cannot choose; the hand-eye fit can: a constant
+    mounting fits the body, not its inverse. The inverse sorts last by name, where a tie on
+    quality alone would take it."""
+    rec = _recording(tmp_path / "rec")
+    sim = simulate_streams(8, duration_s=20.0)
+    flip = make_T(R_from_rvec(np.array([np.pi, 0.0, 0.0])), np.zeros(3))
+    write_stream(rec / "z_inverse.csv", sim["t_mocap_ns"], np.linalg.inv(sim["T_W_Cm"] @ flip), "asl")
+    out = tmp_path / "s.yaml"
+    assert cli.main(["init", str(rec / "cam_W_camera.csv"), "--out", str(out), "--name", "s"]) == 0
+    s = yaml.safe_load(out.read_text())["sessions"]["s"]
+    assert s["pose_streams"]["camera"] == str(rec / "vicon_camera.csv")
+    printed = capsys.readouterr().out
+    assert "follow the camera's rotation about as well" in printed and "took vicon_camera.csv" in printed
+
+
 def test_init_on_eth_prime_sense_1(tmp_path):
     """ETH's prime_sense_1 folder: the camera's poses and its Vicon body, by content."""
     cam = need_real_file("ethz-hand-eye/prime_sense_color_w_vicon_1/prime_sense_1/"
@@ -61,3 +78,14 @@ def test_init_on_eth_prime_sense_1(tmp_path):
     assert cli.main(["init", str(cam.parent), "--out", str(out), "--name", "ps1"]) == 0
     s = yaml.safe_load(out.read_text())["sessions"]["ps1"]
     assert s["camera_poses"] == str(cam) and s["pose_streams"]["camera"].endswith("_vicon_prime_sense.csv")
+
+
+def test_init_on_eth_5_falcon_takes_the_body_a_mounting_fits(tmp_path, capsys):
+    """ETH's 5_falcon: two Vicon streams (falcon_vicon, vicon_falcon) follow the camera's angular
+    speed equally; the one a constant mounting fits is the camera's body."""
+    cam = need_real_file("ethz-hand-eye/5_falcon/5_falcon_merged-2017-04-07-12-36-38_W_d.csv")
+    out = tmp_path / "f.yaml"
+    assert cli.main(["init", str(cam), "--out", str(out), "--name", "f"]) == 0
+    s = yaml.safe_load(out.read_text())["sessions"]["f"]
+    assert s["pose_streams"]["camera"].endswith("_vicon_falcon-2017-04-07-12-36-38.csv")
+    assert "took 5_falcon_merged_vicon_falcon" in capsys.readouterr().out
